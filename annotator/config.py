@@ -1,0 +1,128 @@
+"""Every physical and numerical constant of the annotator, each with its reason or source.
+
+The sections are frozen dataclasses gathered in :class:`AnnotatorConfig`; a TOML file given with
+``--config`` overrides fields by section (``[protocol] lift_height = 0.1``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """World-level simulation settings."""
+
+    # 1/240 s is PyBullet's default step and VGN's; contact-rich grasping is stable there with
+    # enough solver iterations (bullet3 #1936).
+    time_step: float = 1.0 / 240.0
+    # Default 50 iterations lose grip under squeeze (bullet3 #2035); 150 held a 40 N squeeze.
+    solver_iterations: int = 150
+    gravity: float = -9.81  # m/s^2, standard gravity
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    """The OnRobot RG2 as simulated (numbers from ../shared/ROBOT_FACTS.md)."""
+
+    # Grip force 3..40 N (OnRobot driver max_force 400 in 0.1 N units); annotate at the maximum
+    # a user is likely to set for household objects.
+    grip_force: float = 40.0  # N, per finger (squeeze force)
+    # Max closing speed: RG2 datasheet ~ 38..127 mm/s finger speed; a 0.5 rad/s link speed gives
+    # ~ 27 mm/s per finger at mid-stroke, slow enough that pads do not impact objects hard.
+    close_speed: float = 1.0  # rad/s of the driven link
+    # Friction of the pads: rubber-like pads on household objects, 1.0 as ACRONYM uses.
+    pad_lateral_friction: float = 1.0
+    # Spinning friction resists rotation of the object about the contact normal (bullet3 #3150);
+    # a few mm of effective radius for a 29.8 x 20.2 mm pad.
+    pad_spinning_friction: float = 0.002
+    pad_rolling_friction: float = 0.0001
+    # Gear-constraint coupling of the mimic followers (bullet3 #2791: erp > 0 removes drift).
+    coupling_erp: float = 0.2
+    coupling_max_force: float = 1000.0  # N or N m; far above the 40 N squeeze it must resist
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    """How object meshes are loaded and given mass (owned by annotator/objects.py)."""
+
+    # Household plastics / filled containers average ~ 0.5 g/cm^3 over their bounding volume;
+    # 500 kg/m^3 gives a 40 mm solid cube 32 g and a 0.33 l can shape ~ 170 g.
+    density: float = 500.0  # kg/m^3
+    # A mesh whose bounding-box diagonal exceeds this many metres is almost surely in millimetres.
+    max_extent: float = 2.0
+    min_extent: float = 0.005  # m; smaller than any graspable household object
+    lateral_friction: float = 1.0  # as ACRONYM; paired with the pads' 1.0
+    spinning_friction: float = 0.002
+    rolling_friction: float = 0.0001
+    # Convex decomposition (CoACD) concavity threshold: 0.05 is the library's default quality.
+    decomposition_threshold: float = 0.05
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """Antipodal candidate sampling (owned by annotator/sampler.py)."""
+
+    # Coulomb friction coefficient used for the friction-cone test; below the simulated 1.0 so
+    # that sampled candidates keep a margin.
+    friction_coefficient: float = 0.5
+    # Share of candidates sampled without the antipodal test (informative negatives).
+    random_fraction: float = 0.2
+    # Rotations tried about the closing axis for each antipodal pair.
+    n_rotations: int = 8
+
+
+@dataclass(frozen=True)
+class ProtocolConfig:
+    """The grasp trial: collision check, close, lift, shake (owned by annotator/trial.py)."""
+
+    lift_height: float = 0.10  # m, the issue's 10 cm lift
+    lift_duration: float = 0.5  # s
+    shake_amplitude: float = 0.03  # m, "a shake of a few centimetres"
+    shake_angle: float = 0.35  # rad (20 deg), "tens of degrees"
+    shake_duration: float = 1.0  # s
+
+
+@dataclass(frozen=True)
+class AnnotatorConfig:
+    """All sections together; the single configuration object the runner passes to workers."""
+
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    gripper: GripperConfig = field(default_factory=GripperConfig)
+    objects: ObjectConfig = field(default_factory=ObjectConfig)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, dict[str, Any]]) -> AnnotatorConfig:
+        """Build from ``{section: {field: value}}``; unknown sections or fields are errors."""
+        sections = {f.name: f.type for f in dataclasses.fields(cls)}
+        kwargs: dict[str, Any] = {}
+        defaults = cls()
+        for name, values in data.items():
+            if name not in sections:
+                raise ValueError(f"unknown config section [{name}]; known: {sorted(sections)}")
+            current = getattr(defaults, name)
+            known = {f.name for f in dataclasses.fields(current)}
+            unknown = set(values) - known
+            if unknown:
+                raise ValueError(f"unknown field(s) {sorted(unknown)} in [{name}]")
+            kwargs[name] = dataclasses.replace(current, **values)
+        return cls(**kwargs)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> AnnotatorConfig:
+        with open(path, "rb") as fh:
+            return cls.from_dict(tomllib.load(fh))

@@ -1,0 +1,1 @@
+"""Robot models (URDF + generated meshes), shipped inside the package as ``annotator.assets``."""
