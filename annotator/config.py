@@ -77,8 +77,25 @@ class SamplerConfig:
     friction_coefficient: float = 0.5
     # Share of candidates sampled without the antipodal test (informative negatives).
     random_fraction: float = 0.2
-    # Rotations tried about the closing axis for each antipodal pair.
+    # Rotations tried about the closing axis for each antipodal pair: 8 gives approach
+    # directions 45 deg apart, an even cover of the circle of approaches (a chosen value,
+    # not a measured optimum).
     n_rotations: int = 8
+    # Clearance subtracted from the gripper's maximum opening before a pair is accepted: the
+    # open pads must pass the surface on the approach, 5 mm per side (RG2 stroke 0..110 mm).
+    width_margin: float = 0.010  # m
+    # Chords shorter than this are numerical self-hits at creases or duplicate faces, not
+    # graspable walls (the thinnest real household wall, a plastic lid, is ~ 1 mm).
+    min_width: float = 0.0005  # m
+    # Ray origins are moved this far along the ray so the source face itself is not hit; far
+    # above float64 noise at metre scale, far below any feature the pads can feel.
+    ray_offset: float = 1e-6  # m
+    # Surface points drawn per wanted antipodal candidate in one round; on boxes and spheres
+    # nearly all pass, on mugs and bowls about a third, so 3x rarely needs a second round.
+    oversample: int = 3
+    # Rounds of drawing (each doubling the draw) before scarce pairs are topped up with the
+    # less selective kind; bounds the time spent on objects that have few or no pairs.
+    max_rounds: int = 3
 
 
 @dataclass(frozen=True)
