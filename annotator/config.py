@@ -46,6 +46,9 @@ class GripperConfig:
     # a few mm of effective radius for a 29.8 x 20.2 mm pad.
     pad_spinning_friction: float = 0.002
     pad_rolling_friction: float = 0.0001
+    # How the mimic followers are coupled: "gear" (JOINT_GEAR constraints) or "position"
+    # (per-step position control); chosen by the 40 N squeeze measurement in bench/rg2_coupling.py.
+    coupling: str = "gear"
     # Gear-constraint coupling of the mimic followers (bullet3 #2791: erp > 0 removes drift).
     coupling_erp: float = 0.2
     coupling_max_force: float = 1000.0  # N or N m; far above the 40 N squeeze it must resist

@@ -1,0 +1,134 @@
+"""A PyBullet multibody whose joints and links are looked up by name, never by index."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+
+from annotator.geometry import Transform
+
+JOINT_TYPES = {
+    pb.JOINT_REVOLUTE: "revolute",
+    pb.JOINT_PRISMATIC: "prismatic",
+    pb.JOINT_SPHERICAL: "spherical",
+    pb.JOINT_PLANAR: "planar",
+    pb.JOINT_FIXED: "fixed",
+}
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One joint of a body; ``index`` is also the index of its child link."""
+
+    index: int
+    name: str
+    kind: str
+    lower: float
+    upper: float
+    max_force: float
+    max_velocity: float
+    child_link: str
+
+    @property
+    def movable(self) -> bool:
+        return self.kind in ("revolute", "prismatic")
+
+
+class Body:
+    """A loaded multibody in one physics client (the client id is explicit on every call)."""
+
+    def __init__(self, client: int, uid: int) -> None:
+        self.client = client
+        self.uid = uid
+        base_name = pb.getBodyInfo(uid, physicsClientId=client)[0].decode()
+        self.joints: dict[str, Joint] = {}
+        self.links: dict[str, int] = {base_name: -1}
+        for i in range(pb.getNumJoints(uid, physicsClientId=client)):
+            info = pb.getJointInfo(uid, i, physicsClientId=client)
+            joint = Joint(
+                index=i,
+                name=info[1].decode(),
+                kind=JOINT_TYPES[info[2]],
+                lower=float(info[8]),
+                upper=float(info[9]),
+                max_force=float(info[10]),
+                max_velocity=float(info[11]),
+                child_link=info[12].decode(),
+            )
+            self.joints[joint.name] = joint
+            self.links[joint.child_link] = i
+
+    @classmethod
+    def load(
+        cls,
+        client: int,
+        urdf: Path | str,
+        T_world_body: Transform | None = None,
+        *,
+        fixed_base: bool = False,
+        flags: int = 0,
+        scale: float = 1.0,
+    ) -> Body:
+        """Load a URDF; inertia always comes from the file (PyBullet ignores it otherwise)."""
+        T = T_world_body or Transform.identity()
+        uid = pb.loadURDF(
+            str(urdf),
+            T.pos.tolist(),
+            T.quat.tolist(),
+            useFixedBase=fixed_base,
+            flags=flags | pb.URDF_USE_INERTIA_FROM_FILE,
+            globalScaling=scale,
+            physicsClientId=client,
+        )
+        return cls(client, uid)
+
+    @property
+    def movable_joints(self) -> list[Joint]:
+        return [j for j in self.joints.values() if j.movable]
+
+    def joint_positions(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
+        """Positions of the named joints, (len(names),) float."""
+        idx = [self.joints[n].index for n in names]
+        states = pb.getJointStates(self.uid, idx, physicsClientId=self.client)
+        return np.array([s[0] for s in states])
+
+    def joint_position(self, name: str) -> float:
+        return float(pb.getJointState(self.uid, self.joints[name].index, physicsClientId=self.client)[0])
+
+    def reset_joints(self, positions: dict[str, float]) -> None:
+        """Teleport joints (zero velocity); for set-up only, not during a dynamic phase."""
+        for name, q in positions.items():
+            pb.resetJointState(self.uid, self.joints[name].index, q, 0.0, physicsClientId=self.client)
+
+    def disable_motor(self, name: str) -> None:
+        """Switch off the default velocity motor that PyBullet puts on every joint."""
+        pb.setJointMotorControl2(
+            self.uid, self.joints[name].index, pb.VELOCITY_CONTROL, force=0.0, physicsClientId=self.client
+        )
+
+    def link_pose(self, name: str) -> Transform:
+        """World pose of a link frame (URDF link frame, not the inertial frame)."""
+        i = self.links[name]
+        if i == -1:
+            return self.base_pose()
+        s = pb.getLinkState(self.uid, i, computeForwardKinematics=1, physicsClientId=self.client)
+        return Transform(np.asarray(s[4]), np.asarray(s[5]))
+
+    def base_pose(self) -> Transform:
+        """World pose of the base link frame."""
+        pos, orn = pb.getBasePositionAndOrientation(self.uid, physicsClientId=self.client)
+        T_world_com = Transform(np.asarray(pos), np.asarray(orn))
+        local = pb.getDynamicsInfo(self.uid, -1, physicsClientId=self.client)[3:5]
+        return T_world_com * Transform(np.asarray(local[0]), np.asarray(local[1])).inverse()
+
+    def reset_base_pose(self, T_world_base: Transform) -> None:
+        """Teleport the base link frame to ``T_world_base`` (zero velocity)."""
+        local = pb.getDynamicsInfo(self.uid, -1, physicsClientId=self.client)[3:5]
+        T_world_com = T_world_base * Transform(np.asarray(local[0]), np.asarray(local[1]))
+        pb.resetBasePositionAndOrientation(
+            self.uid, T_world_com.pos.tolist(), T_world_com.quat.tolist(), physicsClientId=self.client
+        )
+        pb.resetBaseVelocity(self.uid, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)

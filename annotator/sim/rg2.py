@@ -1,0 +1,324 @@
+"""The OnRobot RG2 in PyBullet: mimic coupling read from the URDF, width <-> angle from FK, closing.
+
+PyBullet ignores URDF ``<mimic>`` tags (bullet3 #1140), so the followers are coupled here, from the
+URDF's own mimic table, by one of two mechanisms chosen with ``coupling``:
+
+* ``"gear"``: a ``JOINT_GEAR`` constraint per follower, with ``erp`` > 0 so it does not drift
+  (bullet3 #2791). The driven joint's motor moves the whole linkage.
+* ``"position"``: per-step position control of each follower towards multiplier x driven angle.
+
+``tests/test_rg2.py`` and ``bench/rg2_coupling.py`` measure both under a 40 N squeeze; the default
+is the one that holds (see GripperConfig.coupling).
+"""
+
+from __future__ import annotations
+
+import logging
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+
+from annotator.config import GripperConfig
+from annotator.geometry import Transform
+from annotator.sim.body import Body
+
+log = logging.getLogger(__name__)
+
+PAD_LINKS = ("gripper_finger1_pad_link", "gripper_finger2_pad_link")
+FINGER_CHAINS = (
+    (
+        "gripper_finger1_knuckle_link",
+        "gripper_finger1_inner_knuckle_link",
+        "gripper_finger1_finger_tip_link",
+        "gripper_finger1_pad_link",
+    ),
+    (
+        "gripper_finger2_knuckle_link",
+        "gripper_finger2_inner_knuckle_link",
+        "gripper_finger2_finger_tip_link",
+        "gripper_finger2_pad_link",
+    ),
+)
+BASE_LINK = "rg2_base_link"
+TCP_LINK = "tcp"
+# Number of driven angles at which the FK width table is sampled; widths between are linear
+# interpolations (the table is smooth: w = f(sin phi), 400 samples -> < 0.01 mm error).
+WIDTH_TABLE_SAMPLES = 400
+
+
+@dataclass(frozen=True)
+class Mimic:
+    """``follower = multiplier * driven + offset`` as written in the URDF."""
+
+    follower: str
+    driven: str
+    multiplier: float
+    offset: float
+
+
+def read_mimic_table(urdf: Path | str) -> dict[str, Mimic]:
+    """Parse the ``<mimic>`` tags of a URDF: follower joint name -> :class:`Mimic`."""
+    table: dict[str, Mimic] = {}
+    for joint in ET.parse(urdf).getroot().iter("joint"):
+        mimic = joint.find("mimic")
+        if mimic is None:
+            continue
+        name = joint.attrib["name"]
+        table[name] = Mimic(
+            follower=name,
+            driven=mimic.attrib["joint"],
+            multiplier=float(mimic.attrib.get("multiplier", 1.0)),
+            offset=float(mimic.attrib.get("offset", 0.0)),
+        )
+    return table
+
+
+@dataclass(frozen=True)
+class WidthTable:
+    """The gripper's forward kinematics sampled over the driven range.
+
+    ``angle`` (k,) driven angle, rad, increasing; ``width`` (k,) pad-face separation, m;
+    ``tcp`` (k, 3) pad-centre midpoint in the gripper base frame, m.
+    """
+
+    angle: np.ndarray
+    width: np.ndarray
+    tcp: np.ndarray
+
+    def angle_of(self, width: float) -> float:
+        return float(np.interp(width, self.width, self.angle))
+
+    def width_of(self, angle: float) -> float:
+        return float(np.interp(angle, self.angle, self.width))
+
+    def dwidth_dangle(self, angle: float) -> float:
+        """Transmission ratio dw/dphi (m/rad) at ``angle``, from the table's finite differences."""
+        slope = np.gradient(self.width, self.angle)
+        return float(np.interp(angle, self.angle, slope))
+
+    @property
+    def max_width(self) -> float:
+        return float(self.width[-1])
+
+    @property
+    def min_width(self) -> float:
+        return float(self.width[0])
+
+
+class RG2:
+    """An RG2 body (floating or on the arm) with its followers coupled and its FK tabulated."""
+
+    def __init__(self, body: Body, urdf: Path | str, config: GripperConfig | None = None) -> None:
+        self.body = body
+        self.client = body.client
+        self.config = config or GripperConfig()
+        self.coupling = self.config.coupling
+        self.mimic = read_mimic_table(urdf)
+        drivers = {m.driven for m in self.mimic.values()}
+        if len(drivers) != 1:
+            raise ValueError(f"expected one driven joint in the mimic table, found {sorted(drivers)}")
+        self.driven = drivers.pop()
+        self.pads = tuple(body.links[name] for name in PAD_LINKS)
+        self.pad_thickness = self._pad_thickness()
+        for name in self.mimic:
+            body.disable_motor(name)  # followers are moved by the coupling only (pitfall 3)
+        self._constraints: list[int] = []
+        if self.coupling == "gear":
+            self._add_gear_constraints()
+        elif self.coupling != "position":
+            raise ValueError(f"unknown coupling {self.coupling!r}; use 'gear' or 'position'")
+        self._filter_self_collisions()
+        self._set_pad_friction()
+        self.table = self._tabulate()
+
+    # --- set-up -----------------------------------------------------------------------------
+
+    def _pad_thickness(self) -> float:
+        data = pb.getCollisionShapeData(self.body.uid, self.pads[0], physicsClientId=self.client)
+        return float(data[0][3][0])  # box extents (x, y, z); x is the closing axis
+
+    def _add_gear_constraints(self) -> None:
+        driven = self.body.joints[self.driven].index
+        for m in self.mimic.values():
+            follower = self.body.joints[m.follower].index
+            c = pb.createConstraint(
+                self.body.uid,
+                driven,
+                self.body.uid,
+                follower,
+                jointType=pb.JOINT_GEAR,
+                jointAxis=[0, 1, 0],
+                parentFramePosition=[0, 0, 0],
+                childFramePosition=[0, 0, 0],
+                physicsClientId=self.client,
+            )
+            # Bullet's gear row enforces q_driven * ratio + q_follower = offset-free, so the
+            # ratio is the negated multiplier (checked by tests/test_rg2.py's follower errors).
+            pb.changeConstraint(
+                c,
+                gearRatio=-m.multiplier,
+                maxForce=self.config.coupling_max_force,
+                erp=self.config.coupling_erp,
+                physicsClientId=self.client,
+            )
+            self._constraints.append(c)
+
+    def _filter_self_collisions(self) -> None:
+        """Keep only finger-1 vs finger-2 self-contacts (the pads meet when closed).
+
+        Links of one finger overlap at their shared pivots and the outer links start inside the
+        housing, so those pairs are excluded one by one (ROBOT_FACTS pitfall 6) instead of
+        switching self-collision off.
+        """
+        uid, names = self.body.uid, [BASE_LINK, *FINGER_CHAINS[0], *FINGER_CHAINS[1]]
+        idx = {n: self.body.links[n] for n in names}
+        for a in range(len(names)):
+            for b in range(a + 1, len(names)):
+                na, nb = names[a], names[b]
+                across = (na in FINGER_CHAINS[0] and nb in FINGER_CHAINS[1]) or (
+                    na in FINGER_CHAINS[1] and nb in FINGER_CHAINS[0]
+                )
+                if not across:
+                    pb.setCollisionFilterPair(uid, uid, idx[na], idx[nb], 0, physicsClientId=self.client)
+
+    def _set_pad_friction(self) -> None:
+        for link in self.pads:
+            pb.changeDynamics(
+                self.body.uid,
+                link,
+                lateralFriction=self.config.pad_lateral_friction,
+                spinningFriction=self.config.pad_spinning_friction,
+                rollingFriction=self.config.pad_rolling_friction,
+                physicsClientId=self.client,
+            )
+
+    def _tabulate(self) -> WidthTable:
+        """Sample the model's FK over the driven range (kinematic resets, restored afterwards)."""
+        joint = self.body.joints[self.driven]
+        names = [self.driven, *self.mimic]
+        saved = self.body.joint_positions(names)
+        T_world_base = self.body.link_pose(BASE_LINK)
+        T_base_world = T_world_base.inverse()
+        angles = np.linspace(joint.lower, joint.upper, WIDTH_TABLE_SAMPLES)
+        widths = np.empty_like(angles)
+        tcps = np.empty((len(angles), 3))
+        for k, q in enumerate(angles):
+            self.reset_angle(q)
+            p1, p2 = (T_base_world * self.body.link_pose(n) for n in PAD_LINKS)
+            widths[k] = (p2.pos[0] - p1.pos[0]) - self.pad_thickness
+            tcps[k] = (p1.pos + p2.pos) / 2
+        self.body.reset_joints(dict(zip(names, saved, strict=True)))
+        if np.any(np.diff(widths) <= 0):
+            raise ValueError("RG2 width is not monotonic in the driven angle: check the model")
+        return WidthTable(angles, widths, tcps)
+
+    # --- kinematics ----------------------------------------------------------------------------
+
+    @property
+    def max_width(self) -> float:
+        return self.table.max_width
+
+    def follower_targets(self, angle: float) -> dict[str, float]:
+        """Every coupled joint's position for driven angle ``angle`` (driven joint included)."""
+        targets = {self.driven: angle}
+        for m in self.mimic.values():
+            targets[m.follower] = m.multiplier * angle + m.offset
+        return targets
+
+    def reset_angle(self, angle: float) -> None:
+        """Teleport the linkage to driven angle ``angle`` (set-up only)."""
+        self.body.reset_joints(self.follower_targets(angle))
+
+    def reset_width(self, width: float) -> None:
+        """Teleport the linkage to pad separation ``width`` (m), clipped to the stroke."""
+        self.reset_angle(self.table.angle_of(width))
+
+    def T_base_tcp(self, width: float) -> Transform:
+        """Pad-centre midpoint frame in the gripper base frame for opening ``width`` (m).
+
+        The fingertips move along arcs, so the point between the pads moves along the tool axis
+        as the gripper opens; its axes are those of the base (+z approach, +x closing).
+        """
+        pos = np.array([np.interp(width, self.table.width, self.table.tcp[:, i]) for i in range(3)])
+        return Transform(pos, np.array([0.0, 0.0, 0.0, 1.0]))
+
+    def driven_angle(self) -> float:
+        return self.body.joint_position(self.driven)
+
+    def measured_width(self) -> float:
+        """Pad-face separation from the simulated pad poses (m)."""
+        p1, p2 = (self.body.link_pose(n) for n in PAD_LINKS)
+        x_axis = self.body.link_pose(BASE_LINK).rotation[:, 0]
+        return float(np.dot(p2.pos - p1.pos, x_axis)) - self.pad_thickness
+
+    def follower_errors(self) -> np.ndarray:
+        """|follower - multiplier x driven| for every follower, (n_followers,) rad."""
+        q = self.driven_angle()
+        names = list(self.mimic)
+        actual = self.body.joint_positions(names)
+        expected = np.array([self.mimic[n].multiplier * q + self.mimic[n].offset for n in names])
+        return np.abs(actual - expected)
+
+    # --- actuation -------------------------------------------------------------------------------
+
+    def command(self, target_velocity: float, force: float) -> None:
+        """Drive the linkage at ``target_velocity`` (rad/s, < 0 closes) with squeeze ``force`` (N).
+
+        The joint torque limit is ``force x dw/dphi`` from the FK table (virtual work: the two pads
+        each move dw/2 against ``force``), so a stalled gripper squeezes with ``force``. Call it
+        every step while the fingers move: the transmission ratio changes with the angle.
+        """
+        angle = self.driven_angle()
+        torque = force * self.table.dwidth_dangle(angle)
+        pb.setJointMotorControl2(
+            self.body.uid,
+            self.body.joints[self.driven].index,
+            pb.VELOCITY_CONTROL,
+            targetVelocity=target_velocity,
+            force=torque,
+            physicsClientId=self.client,
+        )
+        if self.coupling == "position":
+            self._drive_followers(angle, torque)
+
+    def _drive_followers(self, angle: float, torque: float) -> None:
+        names = list(self.mimic)
+        targets = self.follower_targets(angle)
+        pb.setJointMotorControlArray(
+            self.body.uid,
+            [self.body.joints[n].index for n in names],
+            pb.POSITION_CONTROL,
+            targetPositions=[targets[n] for n in names],
+            forces=[self.config.coupling_max_force] * len(names),
+            physicsClientId=self.client,
+        )
+
+    def hold_position(self, angle: float, force: float) -> None:
+        """Hold driven angle ``angle`` with at most the torque for ``force`` N (GUI slider use)."""
+        torque = force * self.table.dwidth_dangle(angle)
+        pb.setJointMotorControl2(
+            self.body.uid,
+            self.body.joints[self.driven].index,
+            pb.POSITION_CONTROL,
+            targetPosition=angle,
+            force=torque,
+            physicsClientId=self.client,
+        )
+        if self.coupling == "position":
+            self._drive_followers(self.driven_angle(), torque)
+
+    # --- contacts --------------------------------------------------------------------------------
+
+    def pad_contacts(self, other: int) -> tuple[list, list]:
+        """Contact points of pad 1 and pad 2 with body ``other``."""
+        return tuple(
+            pb.getContactPoints(self.body.uid, other, linkIndexA=link, physicsClientId=self.client)
+            for link in self.pads
+        )
+
+    def pad_normal_forces(self, other: int) -> np.ndarray:
+        """Sum of normal forces (N) on each pad from body ``other``, (2,)."""
+        return np.array([sum(c[9] for c in pts) for pts in self.pad_contacts(other)])

@@ -1,0 +1,67 @@
+"""One PyBullet physics client and its simulation settings; snapshots for cheap trial resets."""
+
+from __future__ import annotations
+
+import logging
+
+import pybullet as pb
+
+from annotator.config import PhysicsConfig
+
+log = logging.getLogger(__name__)
+
+
+class World:
+    """Owns a PyBullet client (DIRECT by default). Everything else receives ``world.client``."""
+
+    def __init__(self, physics: PhysicsConfig | None = None, *, gui: bool = False) -> None:
+        self.physics = physics or PhysicsConfig()
+        self.client = pb.connect(pb.GUI if gui else pb.DIRECT)
+        if self.client < 0:
+            raise RuntimeError("could not connect to PyBullet" + (" (GUI needs a display)" if gui else ""))
+        self.steps = 0  # simulated steps since creation, for statistics
+        self.configure()
+
+    def configure(self) -> None:
+        """Apply the physics settings (time step, solver iterations, gravity)."""
+        pb.setPhysicsEngineParameter(
+            fixedTimeStep=self.physics.time_step,
+            numSolverIterations=self.physics.solver_iterations,
+            physicsClientId=self.client,
+        )
+        pb.setGravity(0, 0, self.physics.gravity, physicsClientId=self.client)
+
+    @property
+    def dt(self) -> float:
+        return self.physics.time_step
+
+    def set_gravity(self, on: bool) -> None:
+        pb.setGravity(0, 0, self.physics.gravity if on else 0.0, physicsClientId=self.client)
+
+    def step(self, n: int = 1) -> None:
+        for _ in range(n):
+            pb.stepSimulation(physicsClientId=self.client)
+        self.steps += n
+
+    def save_state(self) -> int:
+        return pb.saveState(physicsClientId=self.client)
+
+    def restore_state(self, state_id: int) -> None:
+        pb.restoreState(stateId=state_id, physicsClientId=self.client)
+
+    def remove_state(self, state_id: int) -> None:
+        pb.removeState(state_id, physicsClientId=self.client)
+
+    def remove_body(self, uid: int) -> None:
+        pb.removeBody(uid, physicsClientId=self.client)
+
+    def close(self) -> None:
+        if self.client >= 0 and pb.isConnected(physicsClientId=self.client):
+            pb.disconnect(physicsClientId=self.client)
+        self.client = -1
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
