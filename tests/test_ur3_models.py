@@ -1,0 +1,245 @@
+"""The UR3, Kinect v2 and UR3 + RG2 models load in real PyBullet and match the published numbers."""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from annotator import paths
+from annotator.sim import ur3
+
+FLAGS = p.URDF_USE_INERTIA_FROM_FILE
+# ROBOT_FACTS.md: masses (kg) of the UR3 links
+UR3_MASSES = {
+    "base_link": 2.0,
+    "shoulder_link": 2.0,
+    "upper_arm_link": 3.42,
+    "forearm_link": 1.26,
+    "wrist_1_link": 0.8,
+    "wrist_2_link": 0.8,
+    "wrist_3_link": 0.35,
+}
+FRAME_LINKS = ("base", "tool0")  # massless frames (explicit tiny inertial)
+EFFORTS = [56.0, 56.0, 28.0, 12.0, 12.0, 12.0]  # N m, ROBOT_FACTS.md joint limits
+HOME = np.array([0.0, -math.pi / 2, 0.0, 0.0, math.pi / 2, 0.0])  # the seed scene's start
+
+
+@pytest.fixture
+def client() -> Iterator[int]:
+    cid = p.connect(p.DIRECT)
+    p.setGravity(0, 0, -9.8, physicsClientId=cid)
+    yield cid
+    p.disconnect(cid)
+
+
+def _combined_urdf() -> Path:
+    path = paths.ur3_rg2_urdf()
+    if not path.exists():
+        pytest.skip(f"{path} not generated yet (needs assets/rg2/make_rg2.py; run assets/ur3/make_ur3.py)")
+    return path
+
+
+def _arm_models() -> list[Path]:
+    models = [paths.ur3_urdf()]
+    if paths.ur3_rg2_urdf().exists():
+        models.append(paths.ur3_rg2_urdf())
+    return models
+
+
+def _load(client: int, path: Path, fixed: bool = True, flags: int = FLAGS) -> int:
+    return p.loadURDF(str(path), useFixedBase=fixed, flags=flags, physicsClientId=client)
+
+
+def _tool0_position(client: int, body: int, q: np.ndarray) -> np.ndarray:
+    ur3.set_arm_configuration(client, body, q)
+    tool0 = ur3.link_indices_by_name(client, body)[ur3.TOOL0_LINK]
+    return ur3.link_pose_matrix(client, body, tool0)[:3, 3]
+
+
+@pytest.mark.parametrize("name", ["ur3.urdf", "kinect_v2.urdf", "ur3_visual_grabbing_with_rg2.urdf"])
+def test_every_referenced_file_exists_and_every_link_has_inertial(name: str) -> None:
+    path = paths.assets_dir() / "ur3" / name
+    if name.startswith("ur3_visual"):
+        path = _combined_urdf()
+    root = ET.parse(path).getroot()
+    for mesh in root.iter("mesh"):
+        assert (path.parent / mesh.attrib["filename"]).is_file(), mesh.attrib["filename"]
+    for link in root.iter("link"):
+        assert link.find("inertial") is not None, f"{name}: link {link.attrib['name']} has no <inertial>"
+
+
+def test_dh_forward_kinematics_matches_published_figures() -> None:
+    t0 = ur3.dh_forward_kinematics(np.zeros(6))
+    np.testing.assert_allclose(t0[:3, 3], [-0.4569, -0.19425, 0.06655], atol=1e-9)
+    t1 = ur3.dh_forward_kinematics(np.array([0, -math.pi / 2, 0, -math.pi / 2, 0, 0]))
+    assert t1[2, 3] == pytest.approx(0.69415, abs=1e-9)
+
+
+@pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
+def test_urdf_tool0_matches_dh_figures(client: int, model: Path) -> None:
+    body = _load(client, model)
+    links = ur3.link_indices_by_name(client, body)
+    # base_link is the world frame; the DH base frame `base` is Rz(pi) from it (ROS-Industrial).
+    t_world_base = ur3.link_pose_matrix(client, body, links[ur3.DH_BASE_LINK])
+    np.testing.assert_allclose(t_world_base, ur3.T_BASELINK_BASE, atol=1e-6)
+    # q = 0: DH (-0.4569, -0.19425, 0.06655) becomes (+0.4569, +0.19425, 0.06655) in base_link.
+    pos = _tool0_position(client, body, np.zeros(6))
+    np.testing.assert_allclose(pos, [0.4569, 0.19425, 0.06655], atol=1e-3)
+    p_dh = (np.linalg.inv(t_world_base) @ np.append(pos, 1.0))[:3]
+    np.testing.assert_allclose(p_dh, [-0.4569, -0.19425, 0.06655], atol=1e-3)
+    pos = _tool0_position(client, body, np.array([0, -math.pi / 2, 0, -math.pi / 2, 0, 0]))
+    assert pos[2] == pytest.approx(0.69415, abs=1e-3)
+
+
+@pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
+def test_urdf_fk_equals_dh_fk_for_random_configurations(client: int, model: Path) -> None:
+    body = _load(client, model)
+    tool0 = ur3.link_indices_by_name(client, body)[ur3.TOOL0_LINK]
+    rng = np.random.default_rng(1234)
+    worst_pos, worst_rot = 0.0, 0.0
+    for q in rng.uniform(-math.pi, math.pi, size=(20, 6)):
+        ur3.set_arm_configuration(client, body, q)
+        t_urdf = ur3.link_pose_matrix(client, body, tool0)
+        t_dh = ur3.T_BASELINK_BASE @ ur3.dh_forward_kinematics(q)
+        worst_pos = max(worst_pos, float(np.linalg.norm(t_urdf[:3, 3] - t_dh[:3, 3])))
+        worst_rot = max(worst_rot, float(np.abs(t_urdf[:3, :3] - t_dh[:3, :3]).max()))
+    assert worst_pos < 1e-3, f"max tool0 position error {worst_pos * 1e3:.4f} mm"
+    assert worst_rot < 1e-5, f"max tool0 rotation-matrix error {worst_rot:.2e}"
+
+
+@pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
+def test_arm_masses_match_the_facts(client: int, model: Path) -> None:
+    body = _load(client, model, fixed=False)  # a fixed base reports mass 0
+    links = ur3.link_indices_by_name(client, body)
+    for name, mass in UR3_MASSES.items():
+        assert p.getDynamicsInfo(body, links[name], physicsClientId=client)[0] == pytest.approx(mass)
+    for name in FRAME_LINKS:
+        assert p.getDynamicsInfo(body, links[name], physicsClientId=client)[0] < 1e-3
+
+
+def test_bare_arm_total_mass_and_limits(client: int) -> None:
+    body = _load(client, paths.ur3_urdf(), fixed=False)
+    links = ur3.link_indices_by_name(client, body)
+    total = sum(p.getDynamicsInfo(body, j, physicsClientId=client)[0] for j in links.values())
+    assert total == pytest.approx(sum(UR3_MASSES.values()), abs=1e-3)  # 10.63 kg
+    expected = {  # (upper limit, velocity, effort), ROBOT_FACTS.md
+        "shoulder_pan_joint": (2 * math.pi, math.pi, 56),
+        "shoulder_lift_joint": (2 * math.pi, math.pi, 56),
+        "elbow_joint": (math.pi, math.pi, 28),
+        "wrist_1_joint": (2 * math.pi, 2 * math.pi, 12),
+        "wrist_2_joint": (2 * math.pi, 2 * math.pi, 12),
+        "wrist_3_joint": (2 * math.pi, 2 * math.pi, 12),
+    }
+    joints = ur3.joint_indices_by_name(client, body)
+    for name, (upper, velocity, effort) in expected.items():
+        info = p.getJointInfo(body, joints[name], physicsClientId=client)
+        assert info[2] == p.JOINT_REVOLUTE
+        assert (info[8], info[9]) == pytest.approx((-upper, upper), abs=1e-6)
+        assert info[10] == pytest.approx(effort)
+        assert info[11] == pytest.approx(velocity, abs=1e-6)
+
+
+def test_kinect_mass_and_camera_frames(client: int) -> None:
+    body = _load(client, paths.kinect_urdf(), fixed=False)
+    links = ur3.link_indices_by_name(client, body)
+    assert p.getDynamicsInfo(body, -1, physicsClientId=client)[0] == pytest.approx(0.9)
+    assert {"kinect_link", "camera_link", "camera_optical_frame"} <= set(links)
+    aabb_min, aabb_max = p.getAABB(body, -1, physicsClientId=client)
+    np.testing.assert_allclose(np.subtract(aabb_max, aabb_min), [0.066, 0.25, 0.067], atol=0.005)
+    cam = ur3.link_pose_matrix(client, body, links["camera_link"])
+    opt = ur3.link_pose_matrix(client, body, links["camera_optical_frame"])
+    np.testing.assert_allclose(cam[:3, 3], [0.033, 0, 0], atol=1e-6)  # front face of the body
+    np.testing.assert_allclose(opt[:3, 2], cam[:3, 0], atol=1e-6)  # optical z = viewing direction
+    np.testing.assert_allclose(opt[:3, 0], -cam[:3, 1], atol=1e-6)  # optical x = image right
+    np.testing.assert_allclose(opt[:3, 1], -cam[:3, 2], atol=1e-6)  # optical y = image down
+
+
+@pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
+@pytest.mark.parametrize("q", [np.zeros(6), HOME], ids=["zero", "home"])
+def test_no_self_collision_at_rest_poses(client: int, model: Path, q: np.ndarray) -> None:
+    flags = FLAGS | p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT  # the seed's
+    body = _load(client, model, flags=flags)
+    ur3.set_arm_configuration(client, body, q)
+    p.performCollisionDetection(physicsClientId=client)
+    names = {v: k for k, v in ur3.link_indices_by_name(client, body).items()}
+    arm_links = {*UR3_MASSES, *FRAME_LINKS}
+    # pairs touching the arm (the RG2's own internal pairs are the gripper's business)
+    contacts = [
+        c
+        for c in p.getContactPoints(body, body, physicsClientId=client)
+        if c[8] < -1e-4 and (names[c[3]] in arm_links or names[c[4]] in arm_links)
+    ]
+    assert not contacts, [(names[c[3]], names[c[4]], c[8]) for c in contacts]
+
+
+@pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
+def test_one_second_under_random_position_targets_is_stable(client: int, model: Path) -> None:
+    body = _load(client, model)
+    rng = np.random.default_rng(7)
+    arm = ur3.arm_joint_indices(client, body)
+    ur3.set_arm_configuration(client, body, HOME)
+    targets = HOME + rng.uniform(-0.5, 0.5, size=6)
+    p.setJointMotorControlArray(
+        body,
+        list(arm),
+        p.POSITION_CONTROL,
+        targetPositions=targets.tolist(),
+        forces=EFFORTS,
+        physicsClientId=client,
+    )
+    n_links = p.getNumJoints(body, physicsClientId=client)
+    for step in range(240):
+        if step == 120:  # a second random target half way
+            targets = HOME + rng.uniform(-0.5, 0.5, size=6)
+            p.setJointMotorControlArray(
+                body,
+                list(arm),
+                p.POSITION_CONTROL,
+                targetPositions=targets.tolist(),
+                forces=EFFORTS,
+                physicsClientId=client,
+            )
+        p.stepSimulation(physicsClientId=client)
+    states = p.getLinkStates(body, list(range(n_links)), computeForwardKinematics=1, physicsClientId=client)
+    positions = np.array([s[4] for s in states])
+    q = np.array([s[0] for s in p.getJointStates(body, list(arm), physicsClientId=client)])
+    assert np.all(np.isfinite(positions)) and np.all(np.isfinite(q))
+    assert np.linalg.norm(positions, axis=1).max() < 2.0  # base at the origin
+    # nothing beyond the stretched-out arm: d1 + |a2| + |a3| + d5 + d6 + the RG2 (< 0.25 m) < 1.25 m
+    assert np.linalg.norm(positions, axis=1).max() < 1.25
+    np.testing.assert_allclose(q, targets, atol=0.1)
+
+
+def test_kinect_falls_and_rests_on_a_plane(client: int) -> None:
+    plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=client)
+    p.createMultiBody(0, plane, physicsClientId=client)
+    body = p.loadURDF(str(paths.kinect_urdf()), basePosition=(0, 0, 0.2), flags=FLAGS, physicsClientId=client)
+    for _ in range(240):
+        p.stepSimulation(physicsClientId=client)
+    pos, _ = p.getBasePositionAndOrientation(body, physicsClientId=client)
+    assert np.all(np.isfinite(pos))
+    assert pos[2] == pytest.approx(0.067 / 2, abs=0.003)
+
+
+def test_combined_model_has_gripper_on_tool0(client: int) -> None:
+    body = _load(client, _combined_urdf())
+    links = ur3.link_indices_by_name(client, body)
+    joints = ur3.joint_indices_by_name(client, body)
+    for name in ("rg2_base_link", "tcp"):
+        assert name in links
+    assert "gripper_finger1_joint" in joints
+    parent = p.getJointInfo(body, links["rg2_base_link"], physicsClientId=client)[16]
+    assert parent == links[ur3.TOOL0_LINK]
+    rng = np.random.default_rng(3)
+    for q in rng.uniform(-math.pi, math.pi, size=(5, 6)):
+        ur3.set_arm_configuration(client, body, q)
+        t_tool0 = ur3.link_pose_matrix(client, body, links[ur3.TOOL0_LINK])
+        t_grip = ur3.link_pose_matrix(client, body, links["rg2_base_link"])
+        np.testing.assert_allclose(t_grip[:3, 2], t_tool0[:3, 2], atol=1e-6)  # +z along the flange
+        np.testing.assert_allclose(t_grip[:3, 3], t_tool0[:3, 3], atol=1e-6)
