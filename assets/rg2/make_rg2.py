@@ -51,8 +51,7 @@ OUTER_LINK_MASS = 0.015  # [C] aluminium link ~ 55 x 16 x 6 mm
 INNER_LINK_MASS = 0.010  # [C]
 FINGER_MASS = 0.025  # [C] finger plate and its fixings
 PAD_MASS = 0.005  # [C] rubber-faced pad
-# [C] Reflected inertia of the RG2's geared drive, added about each linkage joint axis (y) as
-# an armature. A small DC rotor (~1e-7..1e-6 kg m^2) behind a ~1:30..1:100 reduction reflects
+# [C] Reflected inertia of the RG2's geared drive, added to each linkage link as an armature. A small DC rotor (~1e-7..1e-6 kg m^2) behind a ~1:30..1:100 reduction reflects
 # 1e-4..1e-2 kg m^2 at the link; 1e-3 sits in that range. Without it the 5..25 g links
 # (inertia ~ 4e-6 kg m^2) let the gear coupling buckle by 15-40 deg under a 40 N squeeze;
 # with it the followers stay within 0.05 deg (bench/rg2_coupling.py).
@@ -85,7 +84,9 @@ def _inertial(
     m: float, xyz: tuple[float, float, float], size: tuple[float, float, float], armature: float = 0.0
 ) -> str:
     ixx, iyy, izz = _box_inertia(m, *size)
-    iyy += armature
+    # the armature is added on every axis: URDF inertia must satisfy the triangle inequality
+    # (PyBullet zeroes a tensor with iyy > ixx + izz)
+    ixx, iyy, izz = ixx + armature, iyy + armature, izz + armature
     return (
         f'    <inertial><origin xyz="{xyz[0]:.6f} {xyz[1]:.6f} {xyz[2]:.6f}"/><mass value="{m:.6f}"/>'
         f'<inertia ixx="{ixx:.4e}" ixy="0" ixz="0" iyy="{iyy:.4e}" iyz="0" izz="{izz:.4e}"/></inertial>\n'
