@@ -1,0 +1,534 @@
+"""The Parquet label dataset: schema, atomic per-object files, the run manifest, and loading.
+
+Layout of an output directory::
+
+    labels/
+      _manifest.json                     configuration, versions, objects done / failed
+      ycb__mug-3f2a9c01d4.parquet        one file per object, exactly N rows
+      ...
+
+``pandas.read_parquet("labels/")`` reads every label: pyarrow's dataset discovery skips names
+starting with ``.`` or ``_``, which is why the manifest is ``_manifest.json`` and temporary files
+start with ``.`` (a plain ``manifest.json`` makes ``read_parquet`` on the directory fail).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime as _dt
+import enum
+import hashlib
+import importlib.metadata
+import json
+import logging
+import os
+import platform
+import re
+import tempfile
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from annotator.geometry import matrix_to_quat, quat_to_matrix
+
+log = logging.getLogger(__name__)
+
+
+class Outcome(enum.IntEnum):
+    """How a grasp trial ended; the stages of the protocol in order, then ``ERROR``."""
+
+    SUCCESS = 0
+    COLLISION = 1
+    NO_CONTACT = 2
+    SLIPPED_LIFT = 3
+    SLIPPED_SHAKE = 4
+    ERROR = 5
+
+    @property
+    def label(self) -> str:
+        """The string stored in the ``outcome`` column, e.g. ``"slipped_lift"``."""
+        return self.name.lower()
+
+    @classmethod
+    def from_label(cls, label: str) -> Outcome:
+        try:
+            return cls[label.upper()]
+        except KeyError:
+            raise ValueError(f"unknown outcome {label!r}; expected one of {OUTCOMES}") from None
+
+
+OUTCOMES: tuple[str, ...] = tuple(o.label for o in Outcome)
+
+# Required columns in order, with their pandas dtype names (DESIGN.md "Labels").
+STRING = "string"
+COLUMNS: dict[str, str] = {
+    "object_id": STRING,
+    "grasp_id": "int64",
+    "x": "float64",
+    "y": "float64",
+    "z": "float64",
+    "qx": "float64",
+    "qy": "float64",
+    "qz": "float64",
+    "qw": "float64",
+    "width": "float64",
+    "success": "bool",
+    "outcome": STRING,
+    "score": "float64",
+    "object_scale": "float64",
+    "mesh_sha256": STRING,
+    "seed": "int64",
+}
+POSE_COLUMNS: tuple[str, ...] = ("x", "y", "z", "qx", "qy", "qz", "qw")
+# pandas' default dtype for text: ``str`` in pandas >= 3, ``object`` before; what read_parquet gives.
+_TEXT_DTYPE = pd.Series(["text"]).dtype
+_ARROW_TYPES = {STRING: pa.string(), "int64": pa.int64(), "float64": pa.float64(), "bool": pa.bool_()}
+
+MANIFEST_NAME = "_manifest.json"
+MANIFEST_VERSION = 1
+# A quaternion further than this from unit norm is a bug upstream, not float noise.
+_QUAT_NORM_TOL = 1e-6
+
+
+class SchemaError(ValueError):
+    """A label table does not match the schema in DESIGN.md."""
+
+
+class ManifestMismatchError(RuntimeError):
+    """The output directory holds a run with a different configuration."""
+
+
+# --------------------------------------------------------------------------------------- schema
+
+
+def _check_dtype(name: str, series: pd.Series, want: str) -> str | None:
+    """Why ``series`` cannot be stored as ``want``, or None if it can."""
+    dtype = series.dtype
+    if want == STRING:
+        if not pd.api.types.is_string_dtype(dtype) or (
+            pd.api.types.is_object_dtype(dtype) and not series.map(lambda v: isinstance(v, str)).all()
+        ):
+            return f"{name}: {dtype} (want string)"
+        if series.isna().any():
+            return f"{name}: contains missing values (want string)"
+    elif want == "int64":
+        if not pd.api.types.is_integer_dtype(dtype) or pd.api.types.is_bool_dtype(dtype):
+            return f"{name}: {dtype} (want int64)"
+        if series.isna().any():
+            return f"{name}: contains missing values (want int64)"
+    elif want == "float64":
+        if not pd.api.types.is_float_dtype(dtype):
+            return f"{name}: {dtype} (want float64)"
+    elif want == "bool":
+        if not pd.api.types.is_bool_dtype(dtype) or series.isna().any():
+            return f"{name}: {dtype} (want bool without missing values)"
+    return None
+
+
+def validate_labels(df: pd.DataFrame) -> pd.DataFrame:
+    """Check the required columns, dtypes and values; return a copy with exact dtypes.
+
+    Integer columns of other widths become int64, float32 becomes float64, strings become
+    pandas' string dtype. Raises :class:`SchemaError` naming every missing column and every
+    wrong dtype at once, or the first value that breaks the contract.
+    """
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        raise SchemaError(f"label table is missing required column(s) {missing}; have {list(df.columns)}")
+    wrong = [msg for c, want in COLUMNS.items() if (msg := _check_dtype(c, df[c], want)) is not None]
+    if wrong:
+        raise SchemaError("label table has wrong dtype(s): " + "; ".join(wrong))
+    out = df.copy()
+    for c, want in COLUMNS.items():
+        out[c] = out[c].astype(_TEXT_DTYPE if want == STRING else want)
+    bad_outcome = sorted(set(out["outcome"]) - set(OUTCOMES))
+    if bad_outcome:
+        raise SchemaError(f"outcome has unknown value(s) {bad_outcome}; allowed: {list(OUTCOMES)}")
+    if not (out["success"] == (out["outcome"] == Outcome.SUCCESS.label)).all():
+        raise SchemaError("success must be True exactly where outcome == 'success'")
+    pose = out[list(POSE_COLUMNS) + ["width", "score", "object_scale"]].to_numpy()
+    if not np.isfinite(pose).all():
+        raise SchemaError("pose, width, score and object_scale must be finite")
+    norm = np.linalg.norm(out[["qx", "qy", "qz", "qw"]].to_numpy(), axis=1)
+    if np.any(np.abs(norm - 1.0) > _QUAT_NORM_TOL):
+        raise SchemaError(
+            f"quaternions must be unit (xyzw); worst norm {norm[np.argmax(np.abs(norm - 1))]!r}"
+        )
+    if ((out["score"] < 0) | (out["score"] > 1)).any():
+        raise SchemaError("score must lie in [0, 1]")
+    if out.duplicated(["object_id", "grasp_id"]).any():
+        raise SchemaError("(object_id, grasp_id) must be unique")
+    return out
+
+
+def pose_columns(T_obj_tcp: np.ndarray) -> pd.DataFrame:
+    """Columns x, y, z, qx, qy, qz, qw (xyzw, w >= 0) from poses ``T_obj_tcp`` : (N, 4, 4)."""
+    T = np.asarray(T_obj_tcp, dtype=np.float64).reshape(-1, 4, 4)
+    q = matrix_to_quat(T[:, :3, :3]).reshape(-1, 4)
+    data = np.concatenate([T[:, :3, 3], q], axis=1)
+    return pd.DataFrame(data, columns=list(POSE_COLUMNS))
+
+
+def poses_as_matrices(df: pd.DataFrame) -> np.ndarray:
+    """``T_obj_tcp`` : (N, 4, 4) float64 in each object's mesh frame, in the row order of ``df``."""
+    pos = df[["x", "y", "z"]].to_numpy(dtype=np.float64)
+    quat = df[["qx", "qy", "qz", "qw"]].to_numpy(dtype=np.float64)
+    T = np.zeros((len(df), 4, 4))
+    if len(df):
+        T[:, :3, :3] = quat_to_matrix(quat)
+    T[:, :3, 3] = pos
+    T[:, 3, 3] = 1.0
+    return T
+
+
+# ------------------------------------------------------------------------------------ files
+
+
+def object_filename(object_id: str) -> str:
+    """A safe file name for ``object_id`` (which may contain ``/``), unique per id.
+
+    Readable part: ``/`` -> ``__``, other unsafe characters -> ``_``, no leading ``.``/``_``
+    (pyarrow would skip the file), at most 80 characters; then 10 hex digits of the id's SHA-256,
+    so distinct ids never collide even when their readable parts do (or differ only in case).
+    """
+    readable = re.sub(r"[^A-Za-z0-9.-]", "_", object_id.replace("/", "__").replace("\\", "__"))
+    readable = readable.lstrip("._")[:80] or "object"
+    digest = hashlib.sha256(object_id.encode("utf-8")).hexdigest()[:10]
+    return f"{readable}-{digest}.parquet"
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename in ``path`` durable (a no-op where directories cannot be opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Write ``path`` whole or not at all: hidden temp file in the same dir, fsync, os.replace."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    _fsync_dir(path.parent)
+
+
+def _arrow_table(df: pd.DataFrame) -> pa.Table:
+    """Required columns with fixed Arrow types first, extra columns after, no index."""
+    extra = [c for c in df.columns if c not in COLUMNS]
+    table = pa.Table.from_pandas(df[list(COLUMNS) + extra], preserve_index=False)
+    fields = [pa.field(c, _ARROW_TYPES[t], nullable=False) for c, t in COLUMNS.items()]
+    fields += [table.schema.field(c) for c in extra]
+    return table.cast(pa.schema(fields, metadata=table.schema.metadata))
+
+
+def write_object_labels(out_dir: str | Path, df: pd.DataFrame) -> Path:
+    """Validate the labels of ONE object and write them atomically to ``out_dir``.
+
+    ``df`` : N rows, one ``object_id``, ``grasp_id`` exactly 0..N-1. Extra columns are kept; write
+    the same extra columns for every object (``read_parquet`` on the directory takes the first
+    file's schema). Returns the path of the Parquet file, named by :func:`object_filename`.
+    """
+    out = validate_labels(df)
+    ids = out["object_id"].unique()
+    if len(ids) != 1:
+        raise SchemaError(f"write_object_labels takes one object's labels, got object_ids {list(ids)[:5]}")
+    grasp_ids = np.sort(out["grasp_id"].to_numpy())
+    if not np.array_equal(grasp_ids, np.arange(len(out))):
+        raise SchemaError(f"grasp_id of {ids[0]!r} must be exactly 0..{len(out) - 1}")
+    out = out.sort_values("grasp_id", kind="stable").reset_index(drop=True)
+    path = Path(out_dir) / object_filename(str(ids[0]))
+    table = _arrow_table(out)
+    _atomic_write(path, lambda fh: pq.write_table(table, fh))
+    log.debug("wrote %d labels of %s to %s", len(out), ids[0], path)
+    return path
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes (meshes for ``mesh_sha256``, label files for the manifest)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def load_labels(path: str | Path) -> pd.DataFrame:
+    """Every label under ``path`` (an output directory or one Parquet file), validated.
+
+    Sorted by (object_id, grasp_id) with a fresh index. Raises FileNotFoundError for a missing
+    path or a directory without label files, :class:`SchemaError` for a table off the schema.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no labels at {path}")
+    if path.is_dir() and not any(p.suffix == ".parquet" and p.name[0] not in "._" for p in path.iterdir()):
+        raise FileNotFoundError(f"no label files (*.parquet) in {path}")
+    df = pd.read_parquet(path)
+    df = validate_labels(df)
+    return df.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
+
+
+def split_by_object(
+    df: pd.DataFrame, val_fraction: float = 0.2, seed: int = 0
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Split labels into (train, val) by object so no object is in both.
+
+    ``round(val_fraction * n_objects)`` objects go to val, at least one when ``0 < val_fraction``
+    and there are two or more objects, and never all of them unless ``val_fraction == 1``. The
+    choice depends only on the sorted object ids and ``seed``.
+    """
+    if not 0.0 <= val_fraction <= 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1], got {val_fraction}")
+    objects = np.array(sorted(df["object_id"].unique()), dtype=object)
+    n_val = int(round(val_fraction * len(objects)))
+    if val_fraction > 0 and len(objects) >= 2:
+        n_val = max(n_val, 1)
+    if val_fraction < 1:
+        n_val = min(n_val, max(len(objects) - 1, 0))
+    perm = np.random.default_rng(seed).permutation(len(objects))
+    val_ids = set(objects[perm[:n_val]].tolist())
+    in_val = df["object_id"].isin(val_ids)
+    return df[~in_val].copy(), df[in_val].copy()
+
+
+# --------------------------------------------------------------------------------- manifest
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _version(dist: str) -> str:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def collect_versions() -> dict[str, str]:
+    """Versions of Python and of the libraries that shape the labels (no pybullet import)."""
+    versions = {"python": platform.python_version(), "platform": platform.platform()}
+    for name, dist in [
+        ("annotator", "rg2-annotator"),
+        ("pybullet", "pybullet"),
+        ("numpy", "numpy"),
+        ("trimesh", "trimesh"),
+        ("pandas", "pandas"),
+        ("pyarrow", "pyarrow"),
+    ]:
+        versions[name] = _version(dist)
+    return versions
+
+
+def _normalise(obj: Any) -> Any:
+    """JSON round trip so tuples/lists and numpy scalars compare equal after a reload."""
+    return json.loads(json.dumps(obj, sort_keys=True, default=_json_default))
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclasses.asdict(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+@dataclass
+class Manifest:
+    """What a run was asked to do and how far it got; saved as ``_manifest.json`` beside the labels.
+
+    objects_done : object_id -> {"file", "n", "sha256" (of the label file), "mesh_sha256", "time"}
+    objects_failed : object_id -> one-line error
+    """
+
+    config: dict[str, Any]
+    seed: int
+    n: int
+    trials: int
+    versions: dict[str, str] = field(default_factory=collect_versions)
+    objects_done: dict[str, dict[str, Any]] = field(default_factory=dict)
+    objects_failed: dict[str, str] = field(default_factory=dict)
+    created: str = field(default_factory=_now)
+    updated: str = field(default_factory=_now)
+    manifest_version: int = MANIFEST_VERSION
+
+    def __post_init__(self) -> None:
+        self.config = _normalise(self.config)
+        self.seed, self.n, self.trials = int(self.seed), int(self.n), int(self.trials)
+
+    # -- persistence
+    @staticmethod
+    def path(out_dir: str | Path) -> Path:
+        return Path(out_dir) / MANIFEST_NAME
+
+    @classmethod
+    def load(cls, out_dir: str | Path) -> Manifest | None:
+        """The manifest in ``out_dir``, or None if there is none."""
+        path = cls.path(out_dir)
+        if not path.exists():
+            return None
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            known = {f.name for f in dataclasses.fields(cls)}
+            return cls(**{k: v for k, v in data.items() if k in known})
+        except (json.JSONDecodeError, TypeError) as exc:
+            raise ManifestMismatchError(
+                f"{path} is not a readable manifest ({exc}); pass --overwrite to start over"
+            ) from exc
+
+    def save(self, out_dir: str | Path) -> Path:
+        """Write atomically; returns the path."""
+        self.updated = _now()
+        text = json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True, default=_json_default)
+        path = self.path(out_dir)
+        _atomic_write(path, lambda fh: fh.write(text.encode("utf-8") + b"\n"))
+        return path
+
+    # -- progress
+    def mark_done(self, object_id: str, path: str | Path, n: int, mesh_sha256: str) -> None:
+        """Record a label file just written: ``path`` as returned by :func:`write_object_labels`."""
+        path = Path(path)
+        self.objects_done[object_id] = {
+            "file": path.name,
+            "n": int(n),
+            "sha256": file_sha256(path),
+            "mesh_sha256": mesh_sha256,
+            "time": _now(),
+        }
+        self.objects_failed.pop(object_id, None)
+
+    def mark_failed(self, object_id: str, error: BaseException | str) -> None:
+        """Record a failure as one line (``Type: message``); the object is retried on resume."""
+        if isinstance(error, BaseException):
+            text = f"{type(error).__name__}: {error}"
+        else:
+            text = str(error)
+        line = " ".join(text.split())[:500]
+        self.objects_failed[object_id] = line
+        self.objects_done.pop(object_id, None)
+
+    # -- resume
+    def differences(self, config: Mapping[str, Any], seed: int, n: int, trials: int) -> list[str]:
+        """Human-readable differences between this run and the requested one (empty if equal)."""
+        diffs = []
+        for name, mine, theirs in [
+            ("seed", self.seed, seed),
+            ("n", self.n, n),
+            ("trials", self.trials, trials),
+        ]:
+            if int(mine) != int(theirs):
+                diffs.append(f"{name}: {mine} in the manifest, {theirs} requested")
+        if self.config != _normalise(dict(config)):
+            diffs.append("config differs from the manifest's")
+        return diffs
+
+    def pending(
+        self,
+        object_ids: Iterable[str],
+        out_dir: str | Path,
+        mesh_sha256: Mapping[str, str] | None = None,
+    ) -> list[str]:
+        """The objects still to do, in the given order.
+
+        An object is skipped only if it is done, its label file exists, and (when
+        ``mesh_sha256`` is given) its mesh hash is unchanged. Failed objects are retried.
+        """
+        todo = []
+        for oid in object_ids:
+            done = self.objects_done.get(oid)
+            if (
+                done is None
+                or not (Path(out_dir) / done["file"]).exists()
+                or (mesh_sha256 is not None and done.get("mesh_sha256") != mesh_sha256.get(oid))
+            ):
+                todo.append(oid)
+        return todo
+
+
+def _remove_outputs(out_dir: Path) -> int:
+    """Delete label files, leftover temp files and the manifest at the top of ``out_dir``."""
+    removed = 0
+    for p in out_dir.iterdir():
+        if p.is_file() and (
+            p.suffix == ".parquet"
+            or p.name == MANIFEST_NAME
+            or (p.name.startswith(".") and p.suffix == ".tmp")
+        ):
+            p.unlink()
+            removed += 1
+    return removed
+
+
+def open_run(
+    out_dir: str | Path,
+    config: Mapping[str, Any],
+    seed: int,
+    n: int,
+    trials: int,
+    overwrite: bool = False,
+) -> Manifest:
+    """Prepare ``out_dir`` for a run and return its manifest (already saved).
+
+    * ``overwrite``: delete ``*.parquet``, stale temp files and the manifest there, start fresh.
+    * an existing manifest with the same config, seed, n and trials: resume it (use
+      :meth:`Manifest.pending` to choose the objects to run).
+    * a manifest that differs, or label files without a manifest: raise
+      :class:`ManifestMismatchError` telling the user to pass ``--overwrite``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if overwrite:
+        removed = _remove_outputs(out)
+        if removed:
+            log.info("--overwrite: removed %d files from %s", removed, out)
+        manifest = Manifest(config=dict(config), seed=seed, n=n, trials=trials)
+        manifest.save(out)
+        return manifest
+    manifest = Manifest.load(out)
+    if manifest is None:
+        if any(p.suffix == ".parquet" for p in out.iterdir()):
+            raise ManifestMismatchError(
+                f"{out} holds label files but no {MANIFEST_NAME}; pass --overwrite to start over "
+                "or choose another --out"
+            )
+        manifest = Manifest(config=dict(config), seed=seed, n=n, trials=trials)
+        manifest.save(out)
+        return manifest
+    diffs = manifest.differences(config, seed, n, trials)
+    if diffs:
+        raise ManifestMismatchError(
+            f"{out} holds a run with different settings ({'; '.join(diffs)}); pass --overwrite to "
+            "start over or choose another --out"
+        )
+    current = collect_versions()
+    changed = {k: (manifest.versions.get(k), v) for k, v in current.items() if manifest.versions.get(k) != v}
+    if changed:
+        log.warning("resuming %s with different versions: %s", out, changed)
+    log.info(
+        "resuming %s: %d objects done, %d failed (failed ones are retried)",
+        out,
+        len(manifest.objects_done),
+        len(manifest.objects_failed),
+    )
+    return manifest
