@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -243,3 +244,24 @@ def test_combined_model_has_gripper_on_tool0(client: int) -> None:
         t_grip = ur3.link_pose_matrix(client, body, links["rg2_base_link"])
         np.testing.assert_allclose(t_grip[:3, 2], t_tool0[:3, 2], atol=1e-6)  # +z along the flange
         np.testing.assert_allclose(t_grip[:3, 3], t_tool0[:3, 3], atol=1e-6)
+
+
+def _generator():
+    spec = importlib.util.spec_from_file_location("make_ur3", paths.assets_dir() / "ur3" / "make_ur3.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_shipped_urdfs_are_what_the_generator_writes() -> None:
+    gen = _generator()
+    folder = paths.assets_dir() / "ur3"
+    hint = "stale: run `python assets/ur3/make_ur3.py`"
+    assert (folder / "ur3.urdf").read_text() == gen.robot("ur3", gen.ur3_xml()), f"ur3.urdf {hint}"
+    assert (folder / "kinect_v2.urdf").read_text() == gen.robot("kinect_v2", gen.kinect_xml()), hint
+    rg2 = gen.load_rg2_generator()
+    combined = _combined_urdf()
+    if rg2 is not None:
+        expected = gen.robot("ur3_visual_grabbing_with_rg2", gen.ur3_xml() + rg2.gripper_xml("tool0"))
+        assert combined.read_text() == expected, f"{combined.name} {hint}"
