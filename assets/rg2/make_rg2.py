@@ -51,13 +51,15 @@ OUTER_LINK_MASS = 0.015  # [C] aluminium link ~ 55 x 16 x 6 mm
 INNER_LINK_MASS = 0.010  # [C]
 FINGER_MASS = 0.025  # [C] finger plate and its fixings
 PAD_MASS = 0.005  # [C] rubber-faced pad
-# [C] Reflected inertia of the RG2's geared drive, added to each linkage link as an armature. A small DC rotor (~1e-7..1e-6 kg m^2) behind a ~1:30..1:100 reduction reflects
-# 1e-4..1e-2 kg m^2 at the link; 1e-3 sits in that range. Without it the 5..25 g links
-# (inertia ~ 4e-6 kg m^2) let the gear coupling buckle by 15-40 deg under a 40 N squeeze;
-# with it the followers stay within 0.05 deg (bench/rg2_coupling.py).
+# [C] Reflected inertia of the RG2's geared drive, added to each linkage link as an armature:
+# a small DC rotor (~1e-7..1e-6 kg m^2) behind a ~1:30..1:100 reduction reflects 1e-4..1e-2
+# kg m^2 at the link; 1e-3 sits in that range. Without it the 5..25 g links (~4e-6 kg m^2)
+# let the gear coupling buckle by 15-40 deg under a 40 N squeeze; with it the followers stay
+# within 0.5 deg (bench/rg2_coupling.py).
 ARMATURE = 1e-3  # kg m^2
 LINK_THICKNESS = 0.006  # [C] link plate thickness (along x at phi = 0)
 LINK_WIDTH = 0.016  # [C] link plate width (along y)
+INNER_COLLISION_LENGTH = 0.035  # [C] see the passive link below
 
 # Mimic table: the seed's joint names and multipliers (ROBOT_FACTS.md, "Seed naming").
 DRIVEN_JOINT = "gripper_finger1_joint"
@@ -120,7 +122,8 @@ def _joint(
     if kind == "revolute":
         effort = DRIVEN_EFFORT if mimic is None else 0.0
         s += '    <axis xyz="0 -1 0"/>\n'
-        s += f'    <limit lower="{lower:.6f}" upper="{upper:.6f}" effort="{effort}" velocity="{DRIVEN_VELOCITY}"/>\n'
+        s += f'    <limit lower="{lower:.6f}" upper="{upper:.6f}" effort="{effort}" '
+        s += f'velocity="{DRIVEN_VELOCITY}"/>\n'
         if mimic is not None:
             s += f'    <mimic joint="{DRIVEN_JOINT}" multiplier="{mimic:g}" offset="0"/>\n'
     return s + "  </joint>\n"
@@ -211,7 +214,11 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
         inner_size = (LINK_THICKNESS, LINK_WIDTH * 0.6, LINK_LENGTH)
         body = _inertial(INNER_LINK_MASS, (0, 0, LINK_LENGTH / 2), inner_size, ARMATURE)
         body += _box("visual", (0, 0, LINK_LENGTH / 2), inner_size, GREY)
-        body += _box("collision", (0, 0, LINK_LENGTH / 2), inner_size)
+        # [C] its collision stops short of the finger end: that end sits inside the finger on the
+        # real gripper, and a full-length box would reach 2 mm behind the pad face and touch
+        # objects that the pads hold.
+        inner_col = (LINK_THICKNESS, LINK_WIDTH * 0.6, INNER_COLLISION_LENGTH)
+        body += _box("collision", (0, 0, INNER_COLLISION_LENGTH / 2), inner_col)
         out.append(_link(f"{p}gripper_finger{i}_inner_knuckle_link", body))
         lo, hi = _limits(MIMIC[inner])
         out.append(
@@ -264,8 +271,8 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
             )
         )
     # TCP: midway between the pad centres of the closed gripper (DESIGN.md TCP frame)
-    tcp = '    <inertial><mass value="0.0001"/><inertia ixx="1e-9" ixy="0" ixz="0" iyy="1e-9" iyz="0" izz="1e-9"/>'
-    tcp += "</inertial>\n"
+    tcp = '    <inertial><mass value="0.0001"/>'
+    tcp += '<inertia ixx="1e-9" ixy="0" ixz="0" iyy="1e-9" iyz="0" izz="1e-9"/></inertial>\n'
     out.append(_link(f"{p}tcp", tcp))
     out.append(_joint(f"{p}tcp_joint", "fixed", f"{p}rg2_base_link", f"{p}tcp", (0, 0, tcp_z())))
     return "".join(out)

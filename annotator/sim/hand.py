@@ -1,0 +1,188 @@
+"""The floating RG2 (no arm), carried by a fixed constraint that is moved to approach, lift and shake."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+import pybullet as pb
+
+from annotator import paths
+from annotator.config import GripperConfig
+from annotator.geometry import Transform, axis_angle_to_matrix
+from annotator.sim.body import Body
+from annotator.sim.rg2 import BASE_LINK, RG2
+from annotator.sim.world import World
+
+log = logging.getLogger(__name__)
+
+# Self-collision on, minus parent/child pairs; the RG2 class filters the remaining in-finger pairs.
+RG2_LOAD_FLAGS = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
+# Finger speed below which the closing motion counts as stopped (rad/s of the driven link):
+# a free-closing link moves at the commanded ~1 rad/s; stalled on an object it creeps < 1e-2.
+STALL_SPEED = 0.02
+# Consecutive stalled steps before the close is declared finished (12 steps = 50 ms at 240 Hz):
+# long enough for the contact forces to build up to the commanded squeeze.
+STALL_STEPS = 12
+
+
+class FloatingRG2:
+    """An RG2 body in ``world`` whose base link follows a movable fixed constraint."""
+
+    def __init__(self, world: World, config: GripperConfig | None = None) -> None:
+        self.world = world
+        self.client = world.client
+        self.config = config or GripperConfig()
+        urdf = paths.rg2_urdf()
+        self.body = Body.load(self.client, urdf, flags=RG2_LOAD_FLAGS)
+        self.rg2 = RG2(self.body, urdf, self.config)
+        local = pb.getDynamicsInfo(self.body.uid, -1, physicsClientId=self.client)[3:5]
+        # constraint parent frame: the base link frame expressed in the base's inertial frame
+        self._T_com_base = Transform(np.asarray(local[0]), np.asarray(local[1])).inverse()
+        self._constraint = pb.createConstraint(
+            self.body.uid,
+            -1,
+            -1,
+            -1,
+            pb.JOINT_FIXED,
+            [0, 0, 0],
+            self._T_com_base.pos.tolist(),
+            [0, 0, 0],
+            self._T_com_base.quat.tolist(),
+            physicsClientId=self.client,
+        )
+        self.target = Transform.identity()
+        self.set_target(self.target)
+
+    # --- placement ---------------------------------------------------------------------------
+
+    @property
+    def uid(self) -> int:
+        return self.body.uid
+
+    def set_target(self, T_world_base: Transform) -> None:
+        """Where the constraint pulls the gripper base link to (the motion is simulated)."""
+        self.target = T_world_base
+        pb.changeConstraint(
+            self._constraint,
+            jointChildPivot=T_world_base.pos.tolist(),
+            jointChildFrameOrientation=T_world_base.quat.tolist(),
+            maxForce=self.config.carrier_max_force,
+            physicsClientId=self.client,
+        )
+
+    def teleport(self, T_world_base: Transform, width: float) -> None:
+        """Put the base link at ``T_world_base`` with the fingers at ``width`` (no simulation)."""
+        self.body.reset_base_pose(T_world_base)
+        self.set_target(T_world_base)
+        self.rg2.reset_width(width)
+        for j in self.body.movable_joints:
+            pb.resetJointState(
+                self.uid, j.index, self.body.joint_position(j.name), 0.0, physicsClientId=self.client
+            )
+
+    def base_pose(self) -> Transform:
+        return self.body.link_pose(BASE_LINK)
+
+    def T_world_base_for_tcp(self, T_world_tcp: Transform, width: float) -> Transform:
+        """Base pose that puts the pad-centre midpoint at ``T_world_tcp`` at opening ``width``."""
+        return T_world_tcp * self.rg2.T_base_tcp(width).inverse()
+
+    # --- motion --------------------------------------------------------------------------------
+
+    def close(self, force: float, max_steps: int, on_step: Callable[[], None] | None = None) -> int:
+        """Close with squeeze ``force`` until the fingers stall or ``max_steps``; returns steps used."""
+        stalled = 0
+        joint = self.body.joints[self.rg2.driven]
+        for step in range(1, max_steps + 1):
+            self.rg2.command(-self.config.close_speed, force)
+            self.world.step()
+            if on_step is not None:
+                on_step()
+            speed = abs(pb.getJointState(self.uid, joint.index, physicsClientId=self.client)[1])
+            stalled = stalled + 1 if speed < STALL_SPEED else 0
+            if stalled >= STALL_STEPS:
+                return step
+        return max_steps
+
+    def move(
+        self,
+        T_world_base_goal: Transform,
+        duration: float,
+        force: float,
+        on_step: Callable[[int], bool] | None = None,
+    ) -> int:
+        """Move the constraint target linearly (position) and by slerp (rotation) to the goal.
+
+        ``force`` keeps the fingers squeezing. ``on_step(i)`` may return True to stop early.
+        Returns the number of steps simulated.
+        """
+        start = self.target
+        n = max(1, round(duration / self.world.dt))
+        for i in range(1, n + 1):
+            s = _smoothstep(i / n)
+            self.set_target(_interpolate(start, T_world_base_goal, s))
+            self.rg2.command(-self.config.close_speed, force)
+            self.world.step()
+            if on_step is not None and on_step(i):
+                return i
+        return n
+
+    def shake(
+        self,
+        amplitude: float,
+        angle: float,
+        duration: float,
+        force: float,
+        on_step: Callable[[int], bool] | None = None,
+    ) -> int:
+        """Shake about the current target: a translation along x, y, z then a rotation about x, y, z.
+
+        Each of the six motions is one full sine period of ``duration / 6`` seconds, amplitude
+        ``amplitude`` metres or ``angle`` radians, about the gripper's TCP region (base frame
+        axes). Returns steps simulated; ``on_step(i)`` returning True stops early.
+        """
+        centre = self.target
+        per = max(1, round(duration / 6 / self.world.dt))
+        R = centre.rotation
+        tcp_offset = self.rg2.T_base_tcp(0.0).pos  # rotate about the grasp, not the flange
+        i = 0
+        for axis in range(6):
+            for k in range(1, per + 1):
+                phase = np.sin(2 * np.pi * k / per)
+                if axis < 3:
+                    offset = Transform(R[:, axis] * amplitude * phase, np.array([0, 0, 0, 1.0]))
+                    T = Transform(centre.pos + offset.pos, centre.quat)
+                else:
+                    R_delta = axis_angle_to_matrix(R[:, axis - 3], angle * phase)
+                    pivot = centre.apply(tcp_offset)
+                    T = Transform.from_rotation(R_delta @ R, pivot + R_delta @ (centre.pos - pivot))
+                self.set_target(T)
+                self.rg2.command(-self.config.close_speed, force)
+                self.world.step()
+                i += 1
+                if on_step is not None and on_step(i):
+                    self.set_target(centre)
+                    return i
+        self.set_target(centre)
+        return i
+
+
+def _smoothstep(s: float) -> float:
+    """Zero-velocity start and end for constraint motions (less jerk than a linear ramp)."""
+    return s * s * (3 - 2 * s)
+
+
+def _interpolate(a: Transform, b: Transform, s: float) -> Transform:
+    """Linear position, spherical-linear rotation between two transforms, s in [0, 1]."""
+    qa, qb = a.quat, b.quat
+    dot = float(np.dot(qa, qb))
+    if dot < 0:
+        qb, dot = -qb, -dot
+    if dot > 0.9995:
+        q = qa + s * (qb - qa)
+    else:
+        theta = np.arccos(dot)
+        q = (np.sin((1 - s) * theta) * qa + np.sin(s * theta) * qb) / np.sin(theta)
+    return Transform(a.pos + s * (b.pos - a.pos), q / np.linalg.norm(q))

@@ -1,0 +1,94 @@
+"""Measure the RG2 model: follower error under a 40 N squeeze (gear vs per-step position coupling),
+width error over the stroke, squeeze force, and UR3 FK error. Prints figures; never a test.
+
+    python bench/rg2_coupling.py
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from annotator import paths
+from annotator.config import GripperConfig, PhysicsConfig
+from annotator.geometry import Transform
+from annotator.sim.body import Body
+from annotator.sim.hand import FloatingRG2
+from annotator.sim.rg2 import RG2
+from annotator.sim.ur3 import JOINT_NAMES, dh_forward_kinematics
+from annotator.sim.world import World
+
+DOWN = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def squeeze(coupling: str, size: float = 0.04, force: float = 40.0) -> tuple[float, np.ndarray, float]:
+    """Max follower error (deg) over 1 s of squeezing a 50 g box, pad forces (N), box drift (mm)."""
+    with World(PhysicsConfig()) as world:
+        hand = FloatingRG2(world, GripperConfig(coupling=coupling))
+        col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[size / 2] * 3, physicsClientId=world.client)
+        box = pb.createMultiBody(0.05, col, -1, [0, 0, 0.1], physicsClientId=world.client)
+        pb.changeDynamics(box, -1, lateralFriction=1.0, physicsClientId=world.client)
+        hand.teleport(hand.T_world_base_for_tcp(Transform([0, 0, 0.1], DOWN), size), size + 0.02)
+        world.set_gravity(False)
+        hand.close(force, 480)
+        errors = []
+        for _ in range(240):
+            hand.rg2.command(-1.0, force)
+            world.step()
+            errors.append(hand.rg2.follower_errors().max())
+        drift = np.linalg.norm(
+            np.asarray(pb.getBasePositionAndOrientation(box, physicsClientId=world.client)[0]) - [0, 0, 0.1]
+        )
+        return float(np.degrees(max(errors))), hand.rg2.pad_normal_forces(box), drift * 1000
+
+
+def width_errors() -> np.ndarray:
+    """|measured - commanded| pad separation (mm) for 23 widths over the stroke, in free air."""
+    with World(PhysicsConfig()) as world:
+        world.set_gravity(False)
+        body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
+        rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+        out = []
+        for width in np.linspace(0.0, 0.110, 23):
+            for _ in range(240):
+                rg2.hold_position(rg2.table.angle_of(width), 40.0)
+                world.step()
+            out.append(abs(rg2.measured_width() - width) * 1000)
+        return np.array(out)
+
+
+def ur3_fk_error(n: int = 200) -> float:
+    """Max |tool0 (PyBullet) - DH FK| over n random configurations, mm (DH base frame)."""
+    rng = np.random.default_rng(0)
+    with World(PhysicsConfig()) as world:
+        body = Body.load(world.client, paths.ur3_urdf(), fixed_base=True)
+        worst = 0.0
+        for _ in range(n):
+            q = rng.uniform(-np.pi, np.pi, 6)
+            body.reset_joints(dict(zip(JOINT_NAMES, q, strict=True)))
+            T_world_base = body.link_pose("base")
+            p = (T_world_base.inverse() * body.link_pose("tool0")).pos
+            worst = max(worst, float(np.linalg.norm(p - dh_forward_kinematics(q)[:3, 3])))
+        return worst * 1000
+
+
+def main() -> None:
+    for coupling in ("gear", "position"):
+        err, forces, drift = squeeze(coupling)
+        print(
+            f"coupling={coupling:8s} 40 N squeeze on a 40 mm box: max follower error {err:6.3f} deg, "
+            f"pad forces {forces[0]:5.1f} / {forces[1]:5.1f} N, box drift {drift:5.1f} mm"
+        )
+    errs = width_errors()
+    print(
+        f"width command over 0..110 mm (23 widths): max error {errs.max():.3f} mm, mean {errs.mean():.3f} mm"
+    )
+    with World(PhysicsConfig()) as world:
+        body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
+        rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+        print(f"stroke from FK: {rg2.table.min_width * 1000:.2f} .. {rg2.max_width * 1000:.2f} mm")
+    print(f"UR3 tool0 vs DH FK, 200 random q: max error {ur3_fk_error():.5f} mm")
+
+
+if __name__ == "__main__":
+    main()

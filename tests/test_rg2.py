@@ -1,0 +1,158 @@
+"""The RG2 really grips: mimic coupling under squeeze, FK width mapping, hold / miss / impossible."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+import pytest
+from conftest import make_box
+
+from annotator import paths
+from annotator.config import GripperConfig, PhysicsConfig
+from annotator.geometry import Transform
+from annotator.sim.body import Body
+from annotator.sim.hand import FloatingRG2
+from annotator.sim.rg2 import RG2, read_mimic_table
+from annotator.sim.world import World
+
+DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # TCP +z pointing down (-z world): a top grasp
+SEED_MIMIC = {
+    "gripper_finger2_joint": -1.0,
+    "gripper_finger1_inner_knuckle_joint": 1.0,
+    "gripper_finger2_inner_knuckle_joint": -1.0,
+    "gripper_finger1_finger_tip_joint": -1.0,
+    "gripper_finger2_finger_tip_joint": 1.0,
+}
+
+
+def grasp_box(hand: FloatingRG2, box: int, size: float, force: float = 40.0) -> None:
+    """Place the open gripper around ``box`` from above and close it, gravity off."""
+    T_world_tcp = Transform(
+        np.asarray(pb.getBasePositionAndOrientation(box, physicsClientId=hand.client)[0]), DOWN
+    )
+    hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, size), min(size + 0.02, hand.rg2.max_width))
+    hand.world.set_gravity(False)
+    hand.close(force, max_steps=480)
+
+
+def box_pos(world: World, box: int) -> np.ndarray:
+    return np.asarray(pb.getBasePositionAndOrientation(box, physicsClientId=world.client)[0])
+
+
+@pytest.mark.parametrize("urdf", [paths.rg2_urdf(), paths.ur3_rg2_urdf()], ids=["floating", "on_ur3"])
+def test_mimic_table_read_from_urdf_has_seed_multipliers(urdf):
+    table = read_mimic_table(urdf)
+    assert {k: m.multiplier for k, m in table.items()} == SEED_MIMIC
+    assert {m.driven for m in table.values()} == {"gripper_finger1_joint"}
+
+
+def test_followers_stay_coupled_under_40N_squeeze(world, hand):
+    box = make_box(world, 0.04, 0.05)
+    grasp_box(hand, box, 0.04)
+    errors = []
+    for _ in range(240):  # keep squeezing for one simulated second
+        hand.rg2.command(-hand.config.close_speed, 40.0)
+        world.step()
+        errors.append(hand.rg2.follower_errors())
+    forces = hand.rg2.pad_normal_forces(box)
+    assert np.all(forces > 30.0), f"not squeezing: {forces}"
+    assert np.degrees(np.max(errors)) < 1.0
+
+
+def test_width_mapping_matches_forward_kinematics(world):
+    """Commanding a width 0..110 mm gives that pad separation within 1 mm (dynamic, free air)."""
+    body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
+    rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+    world.set_gravity(False)
+    errors = []
+    for width in np.linspace(0.0, 0.110, 12):
+        angle = rg2.table.angle_of(width)
+        for _ in range(240):
+            rg2.hold_position(angle, 40.0)
+            world.step()
+        errors.append(abs(rg2.measured_width() - width))
+    assert max(errors) < 1e-3, np.round(np.array(errors) * 1000, 2)
+
+
+def test_fully_open_reaches_the_110mm_stroke(world):
+    body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
+    rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+    rg2.reset_angle(body.joints[rg2.driven].upper)
+    assert rg2.measured_width() == pytest.approx(0.110, abs=0.002)
+    rg2.reset_angle(body.joints[rg2.driven].lower)
+    assert rg2.measured_width() == pytest.approx(0.0, abs=0.001)
+
+
+def test_tcp_link_is_midway_between_closed_pads(world):
+    body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
+    rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+    rg2.reset_width(0.0)
+    p1, p2 = (body.link_pose(n).pos for n in ("gripper_finger1_pad_link", "gripper_finger2_pad_link"))
+    assert np.allclose(body.link_pose("tcp").pos, (p1 + p2) / 2, atol=1e-4)
+    # finger 1 sits at -x, finger 2 at +x of the TCP frame: +x is the closing direction 1 -> 2
+    T_tcp_world = body.link_pose("tcp").inverse()
+    assert T_tcp_world.apply(p1)[0] < 0 < T_tcp_world.apply(p2)[0]
+
+
+def test_squeeze_force_matches_command(world, hand):
+    box = make_box(world, 0.04, 0.05)
+    for commanded in (20.0, 40.0):
+        grasp_box(hand, box, 0.04, force=commanded)
+        for _ in range(60):
+            hand.rg2.command(-hand.config.close_speed, commanded)
+            world.step()
+        measured = hand.rg2.pad_normal_forces(box)
+        assert measured[0] == pytest.approx(commanded, rel=0.25)
+        assert measured[1] == pytest.approx(commanded, rel=0.25)
+
+
+def test_holds_a_40mm_box_through_lift_and_shake(world, hand):
+    box = make_box(world, 0.04, 0.05)
+    grasp_box(hand, box, 0.04)
+    world.set_gravity(True)
+    start = hand.target
+    hand.move(Transform(start.pos + [0, 0, 0.10], start.quat), duration=0.5, force=40.0)
+    lifted = box_pos(world, box)
+    assert lifted[2] > 0.1 + 0.09, "box did not follow the 10 cm lift"
+    hand.shake(amplitude=0.03, angle=np.radians(25), duration=1.5, force=40.0)
+    T_tcp_world = (hand.base_pose() * hand.rg2.T_base_tcp(0.04)).inverse()
+    slip = np.linalg.norm(T_tcp_world.apply(box_pos(world, box)))
+    assert slip < 0.01, f"box slipped {slip * 1000:.1f} mm in the hand"
+    assert np.all(hand.rg2.pad_normal_forces(box) > 10.0)
+
+
+def test_closing_on_nothing_ends_closed_without_contact(world, hand):
+    box = make_box(world, 0.04, 0.05, pos=(0.5, 0.0, 0.1))  # far away
+    hand.teleport(Transform([0, 0, 0.5], DOWN), 0.08)
+    world.set_gravity(False)
+    steps = hand.close(40.0, max_steps=480)
+    assert steps < 480, "closing never finished"
+    assert hand.rg2.measured_width() < 0.002
+    assert not any(hand.rg2.pad_contacts(box))
+
+
+def test_150mm_box_does_not_fit_in_the_open_gripper(world, hand):
+    """The open gripper (110 mm) around a 150 mm box's centre intersects it: impossible grasp."""
+    box = make_box(world, 0.15, 0.5)
+    T_world_tcp = Transform([0, 0, 0.1], DOWN)
+    hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, hand.rg2.max_width), hand.rg2.max_width)
+    pb.performCollisionDetection(physicsClientId=world.client)
+    penetrations = [c[8] for c in pb.getClosestPoints(hand.uid, box, 0.0, physicsClientId=world.client)]
+    assert penetrations and min(penetrations) < -0.01
+    # and from above, closing can only squeeze air above the box: it ends closed, with no hold
+    T_above = Transform([0, 0, 0.1 + 0.075 + 0.02], DOWN)
+    hand.teleport(hand.T_world_base_for_tcp(T_above, hand.rg2.max_width), hand.rg2.max_width)
+    world.set_gravity(False)
+    hand.close(40.0, max_steps=480)
+    assert not any(hand.rg2.pad_contacts(box))
+
+
+def test_gear_coupling_is_the_default_and_position_coupling_also_runs():
+    assert GripperConfig().coupling == "gear"
+    with World(PhysicsConfig()) as w:
+        body = Body.load(w.client, paths.rg2_urdf(), fixed_base=True)
+        rg2 = RG2(body, paths.rg2_urdf(), GripperConfig(coupling="position"))
+        for _ in range(120):
+            rg2.hold_position(0.5, 40.0)
+            w.step()
+        assert np.degrees(rg2.follower_errors().max()) < 1.0
