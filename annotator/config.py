@@ -107,13 +107,29 @@ class SamplerConfig:
 
 @dataclass(frozen=True)
 class ProtocolConfig:
-    """The grasp trial: collision check, close, lift, shake (owned by annotator/trial.py)."""
+    """The grasp trial: collision check, close, lift, shake (annotator/trial.py)."""
 
-    lift_height: float = 0.10  # m, the issue's 10 cm lift
-    lift_duration: float = 0.5  # s
+    # Kinematic collision check: any gripper-object distance below this (m) is a collision.
+    # 0 means touching counts; the sampler leaves pregrasp_clearance on each side of the pads.
+    collision_margin: float = 0.0
+    pregrasp_clearance: float = 0.01  # m per side: the gripper opens to width + 2 x this
+    approach_distance: float = 0.10  # m, straight-line approach checked behind the grasp pose
+    approach_step: float = 0.01  # m, < the 11.45 mm pad thickness so no thin wall is skipped
+    # GraspDataGen closes for 1 s; the close ends earlier as soon as the fingers stall.
+    close_timeout: float = 1.0  # s
+    lift_height: float = 0.10  # m, the robot issue's 10 cm lift
+    lift_duration: float = 0.5  # s (0.2 m/s average, a brisk robot lift)
     shake_amplitude: float = 0.03  # m, "a shake of a few centimetres"
     shake_angle: float = 0.35  # rad (20 deg), "tens of degrees"
-    shake_duration: float = 1.0  # s
+    # six sine periods (x, y, z, then rotations); 0.35 s each gives a peak acceleration of
+    # 0.03 m x (2 pi / 0.35 s)^2 = 9.7 m/s^2: GraspDataGen's 1 g tugs.
+    shake_duration: float = 2.1  # s
+    settle_time: float = 0.05  # s held still after the shake before judging
+    # Held = both pads touch and the object moved less than this in the hand (m); ACRONYM and
+    # GraspDataGen judge contact only, the slip bound catches an object hanging by one edge.
+    max_slip: float = 0.02
+    lost_distance: float = 0.03  # m: early exit once the object is this far from its grasp
+    check_every: int = 6  # steps between loss checks during lift and shake (25 ms)
 
 
 @dataclass(frozen=True)

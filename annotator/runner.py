@@ -1,0 +1,316 @@
+"""Run the job: objects -> candidates -> chunks of trials on joblib (or Dask) workers -> one writer.
+
+Workers build their world once (PyBullet DIRECT, floating RG2) and keep it for every chunk they
+get; an object body is created when a chunk of a new object arrives. Each candidate starts from
+a restored snapshot, so labels depend only on (object, seed, candidate), never on which worker
+ran it or what it ran before. The main process alone writes: one atomic Parquet file per object
+as soon as all its chunks are in, then the manifest.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import joblib
+import numpy as np
+import pandas as pd
+
+from annotator import dataset
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform
+from annotator.objects import ObjectError, ObjectModel, ObjectsNotFoundError, create_body, discover_objects
+from annotator.objects import load_object as _load_object
+from annotator.sampler import object_rng, sample_candidates
+
+log = logging.getLogger(__name__)
+
+# Candidates per unit of work: small enough to balance 2..64 workers and show progress early,
+# large enough that the per-chunk overhead (pickling, object body creation) stays < 1 %.
+CHUNK_SIZE = 25
+
+
+class UsageError(Exception):
+    """The command cannot start (missing or empty folder, manifest mismatch): exit code 2."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    objects_dir: Path
+    n: int
+    out_dir: Path = Path("labels")
+    workers: int = 1
+    seed: int = 0
+    trials: int = 1
+    scheduler: str | None = None
+    scale: float | None = None
+    overwrite: bool = False
+    quiet: bool = False
+
+
+@dataclass
+class ObjectStats:
+    n: int
+    successes: int
+    outcomes: dict[str, int]
+    seconds: float
+
+
+@dataclass
+class Summary:
+    done: dict[str, ObjectStats] = field(default_factory=dict)
+    skipped: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+    candidates: int = 0
+    physics_trials: int = 0
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Candidates ``start..stop`` of one object, with their poses (stop - start, 4, 4)."""
+
+    object_id: str
+    source: object  # an annotator.objects.ObjectSource
+    scale: float | None
+    start: int
+    T_obj_tcp: np.ndarray
+    width: np.ndarray
+
+
+# --- worker side -------------------------------------------------------------------------------
+
+_WORKER: dict[str, object] = {}
+
+
+def _worker_world(config: AnnotatorConfig):
+    """This process's world and floating gripper, built on first use (one per worker)."""
+    from annotator.sim.hand import FloatingRG2
+    from annotator.sim.world import World
+
+    if _WORKER.get("config") != config:
+        if "world" in _WORKER:
+            _WORKER["world"].close()
+        world = World(config.physics)
+        _WORKER.update(config=config, world=world, hand=FloatingRG2(world, config.gripper), object=None)
+    return _WORKER["world"], _WORKER["hand"]
+
+
+def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
+    """A GraspTrial for the chunk's object (the object body is created once per object)."""
+    from annotator.trial import GraspTrial
+
+    world, hand = _worker_world(config)
+    current = _WORKER.get("object")
+    if current is None or current[0] != chunk.object_id:
+        if current is not None:
+            current[2].close()
+            world.remove_body(current[1])
+        model = _load_object(chunk.source, config.objects, scale=chunk.scale)
+        hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), hand.rg2.max_width)  # parked
+        uid = create_body(world.client, model)
+        world.set_gravity(False)
+        _WORKER["object"] = (chunk.object_id, uid, GraspTrial(world, hand, uid, config), model)
+    return _WORKER["object"][2], _WORKER["object"][3]
+
+
+def simulate_chunk(chunk: Chunk, config: AnnotatorConfig, seed: int) -> pd.DataFrame:
+    """Label rows for one chunk (runs in a worker process)."""
+    trial, model = _worker_trial(chunk, config)
+    rows = []
+    for k in range(len(chunk.width)):
+        grasp_id = chunk.start + k
+        T = Transform.from_matrix(chunk.T_obj_tcp[k])
+        try:
+            r = trial.run(T, float(chunk.width[k]))
+            outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
+        except Exception as exc:  # a physics failure on one candidate must not lose the others
+            log.warning("%s grasp %d: %s: %s", chunk.object_id, grasp_id, type(exc).__name__, exc)
+            outcome, T_label, width, steps, slip = Outcome.ERROR, T, float(chunk.width[k]), 0, np.nan
+        rows.append(
+            {
+                "object_id": chunk.object_id,
+                "grasp_id": grasp_id,
+                **dict(zip(("x", "y", "z"), T_label.pos.tolist(), strict=True)),
+                **dict(zip(("qx", "qy", "qz", "qw"), _canonical(T_label.quat).tolist(), strict=True)),
+                "width": width,
+                "success": outcome == Outcome.SUCCESS,
+                "outcome": outcome.label,
+                "score": float(outcome == Outcome.SUCCESS),
+                "object_scale": model.scale,
+                "mesh_sha256": model.mesh_sha256,
+                "seed": seed,
+                "sim_steps": steps,
+                "slip": slip,
+                "object_mass": model.mass,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _canonical(q: np.ndarray) -> np.ndarray:
+    return -q if q[3] < 0 else q
+
+
+# --- main process ------------------------------------------------------------------------------
+
+
+def _prepare(source, options: RunOptions, config: AnnotatorConfig, max_width: float):
+    """Load, validate and sample one object; returns (model, candidates) or raises ObjectError."""
+    model = _load_object(source, config.objects, scale=options.scale)
+    rng = object_rng(options.seed, model.object_id)
+    cands = sample_candidates(model.mesh, options.n, rng, config.sampler, max_width)
+    return model, cands
+
+
+def _max_width(config: AnnotatorConfig) -> float:
+    """The RG2 stroke from the model's FK (a throwaway DIRECT client)."""
+    from annotator.sim.hand import FloatingRG2
+    from annotator.sim.world import World
+
+    with World(config.physics) as world:
+        return FloatingRG2(world, config.gripper).rg2.max_width
+
+
+def _parallel(options: RunOptions):
+    if options.scheduler:
+        try:
+            from dask.distributed import Client
+        except ImportError as exc:
+            raise UsageError(
+                "--scheduler needs Dask: pip install 'rg2-annotator[cluster]'"
+            ) from exc
+        client = Client(options.scheduler)
+        return client, joblib.parallel_config(backend="dask")
+    return None, contextlib.nullcontext()
+
+
+def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
+    """The whole job; returns a summary (and logs it). Raises UsageError for exit code 2."""
+    t0 = time.perf_counter()
+    try:
+        sources = discover_objects(options.objects_dir)
+    except ObjectsNotFoundError as exc:
+        raise UsageError(str(exc)) from exc
+    try:
+        manifest = dataset.open_run(
+            options.out_dir, config.to_dict(), options.seed, options.n, options.trials, options.overwrite
+        )
+    except dataset.ManifestMismatchError as exc:
+        raise UsageError(str(exc)) from exc
+
+    summary = Summary()
+    hashes = {s.object_id: s.sha256() for s in sources}
+    todo_ids = set(manifest.pending([s.object_id for s in sources], options.out_dir, hashes))
+    summary.skipped = [s.object_id for s in sources if s.object_id not in todo_ids]
+    if summary.skipped:
+        log.info("resuming: %d objects already labelled, %d to do", len(summary.skipped), len(todo_ids))
+
+    max_width = _max_width(config)
+    chunks: list[Chunk] = []
+    per_object: dict[str, tuple[ObjectModel, int]] = {}
+    for source in sources:
+        if source.object_id not in todo_ids:
+            continue
+        try:
+            model, cands = _prepare(source, options, config, max_width)
+        except ObjectError as exc:
+            summary.failed[source.object_id] = str(exc)
+            manifest.mark_failed(source.object_id, str(exc))
+            log.error("%s: %s", source.object_id, exc)
+            continue
+        per_object[source.object_id] = (model, 0)
+        for start in range(0, options.n, CHUNK_SIZE):
+            stop = min(options.n, start + CHUNK_SIZE)
+            chunks.append(
+                Chunk(
+                    source.object_id,
+                    source,
+                    options.scale,
+                    start,
+                    cands.T_obj_tcp[start:stop],
+                    cands.width_expected[start:stop],
+                )
+            )
+    manifest.save(options.out_dir)
+    n_chunks = defaultdict(int)
+    for c in chunks:
+        n_chunks[c.object_id] += 1
+
+    from tqdm.auto import tqdm
+
+    results: dict[str, list[pd.DataFrame]] = defaultdict(list)
+    started: dict[str, float] = {}
+    client, backend = _parallel(options)
+    bar = tqdm(total=len(chunks) * 0 + sum(len(c.width) for c in chunks), unit="grasp",
+               disable=options.quiet, smoothing=0.1, dynamic_ncols=True)
+    try:
+        with backend:
+            parallel = joblib.Parallel(n_jobs=options.workers, return_as="generator_unordered")
+            jobs = (joblib.delayed(simulate_chunk)(c, config, options.seed) for c in chunks)
+            for df in parallel(jobs):
+                oid = df["object_id"].iat[0]
+                started.setdefault(oid, time.perf_counter())
+                results[oid].append(df)
+                bar.update(len(df))
+                summary.candidates += len(df)
+                summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
+                if len(results[oid]) == n_chunks[oid]:
+                    _finish_object(oid, results.pop(oid), manifest, options, summary, started[oid])
+    except KeyboardInterrupt:
+        bar.close()
+        log.warning("interrupted: %d objects written; re-run the same command to resume", len(summary.done))
+        raise
+    finally:
+        bar.close()
+        if client is not None:
+            client.close()
+    summary.seconds = time.perf_counter() - t0
+    _log_summary(summary, options)
+    return summary
+
+
+def _finish_object(oid, parts, manifest, options, summary, started) -> None:
+    df = pd.concat(parts, ignore_index=True).sort_values("grasp_id", ignore_index=True)
+    path = dataset.write_object_labels(options.out_dir, df)
+    manifest.mark_done(oid, path, len(df), df["mesh_sha256"].iat[0])
+    manifest.save(options.out_dir)
+    counts = df["outcome"].value_counts().to_dict()
+    summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, time.perf_counter() - started)
+
+
+def format_summary(summary: Summary) -> str:
+    """A per-object table: n, success rate, outcome counts, time; then failures and totals."""
+    cols = list(dataset.OUTCOMES)
+    head = f"{'object':<28} {'n':>5} {'success':>8} " + " ".join(f"{c[:9]:>9}" for c in cols) + f" {'time':>7}"
+    lines = [head, "-" * len(head)]
+    for oid, st in sorted(summary.done.items()):
+        rate = st.successes / st.n if st.n else 0.0
+        counts = " ".join(f"{st.outcomes.get(c, 0):>9}" for c in cols)
+        lines.append(f"{oid[:28]:<28} {st.n:>5} {rate:>8.1%} {counts} {st.seconds:>6.1f}s")
+    for oid in summary.skipped:
+        lines.append(f"{oid[:28]:<28} already done (resumed)")
+    for oid, err in sorted(summary.failed.items()):
+        lines.append(f"{oid[:28]:<28} FAILED: {err}")
+    rate = summary.candidates / summary.seconds if summary.seconds else 0.0
+    lines.append(
+        f"{len(summary.done)} objects labelled, {len(summary.skipped)} skipped, {len(summary.failed)} failed; "
+        f"{summary.candidates} candidates in {summary.seconds:.1f} s ({rate:.1f} candidates/s, "
+        f"{summary.physics_trials} physics trials)"
+    )
+    return "\n".join(lines)
+
+
+def _log_summary(summary: Summary, options: RunOptions) -> None:
+    text = format_summary(summary)
+    # the summary is the command's result: print it even with --quiet (stderr keeps stdout clean)
+    import click
+
+    click.echo(text, err=False)
+    log.debug("summary printed for %s", os.fspath(options.out_dir))

@@ -1,0 +1,172 @@
+"""One grasp trial -> outcome: collision check, close, contacts, lift, shake, still held?
+
+The protocol (DESIGN.md), with an early exit at each stage:
+
+1. ``collision``: the open gripper intersects the object at the grasp pose or anywhere along the
+   approach (kinematic checks, no simulation).
+2. close with the RG2's force, gravity off (GraspDataGen), until the fingers stall.
+3. ``no_contact``: not both pads touch the object.
+4. ``slipped_lift``: gravity on, lift; the object lost a pad or moved in the hand.
+5. ``slipped_shake``: translations and rotations; the object lost a pad or moved in the hand.
+6. ``success``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform
+from annotator.sim.hand import FloatingRG2
+from annotator.sim.world import World
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TrialResult:
+    """What one trial measured. ``T_obj_tcp`` is the pad-centre midpoint at the end of closing."""
+
+    outcome: Outcome
+    T_obj_tcp: Transform
+    width: float  # m, pad separation at the end of closing (open width for collisions)
+    steps: int  # simulated steps used
+    slip: float  # m, object displacement in the hand from grasp to end (nan if not held)
+
+
+class GraspTrial:
+    """Runs trials for one object in a world that holds the floating RG2 and that object.
+
+    The object's mesh frame sits at the world origin; the initial state (gripper parked, object
+    at rest) is saved once and restored before every trial.
+    """
+
+    def __init__(self, world: World, hand: FloatingRG2, object_uid: int, config: AnnotatorConfig) -> None:
+        self.world = world
+        self.hand = hand
+        self.obj = object_uid
+        self.config = config
+        self.client = world.client
+        self.state = world.save_state()
+
+    def close(self) -> None:
+        self.world.remove_state(self.state)
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _T_world_obj(self) -> Transform:
+        pos, orn = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
+        local = pb.getDynamicsInfo(self.obj, -1, physicsClientId=self.client)[3:5]
+        return Transform(np.asarray(pos), np.asarray(orn)) * Transform(
+            np.asarray(local[0]), np.asarray(local[1])
+        ).inverse()
+
+    def _intersects(self) -> bool:
+        margin = self.config.protocol.collision_margin
+        pts = pb.getClosestPoints(self.hand.uid, self.obj, margin, physicsClientId=self.client)
+        return any(p[8] < margin for p in pts)
+
+    def _both_pads_touch(self) -> bool:
+        a, b = self.hand.rg2.pad_contacts(self.obj)
+        return bool(a) and bool(b)
+
+    def _T_hand_obj(self) -> Transform:
+        return self.hand.base_pose().inverse() * self._T_world_obj()
+
+    # --- the protocol --------------------------------------------------------------------------
+
+    def collides(self, T_obj_tcp: Transform, width: float) -> tuple[bool, float]:
+        """Kinematic check of the open gripper at the grasp pose and back along the approach."""
+        p = self.config.protocol
+        open_width = min(self.hand.rg2.max_width, width + 2 * p.pregrasp_clearance)
+        T_world_tcp = self._T_world_obj() * T_obj_tcp
+        T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width)
+        approach = T_world_tcp.rotation[:, 2]
+        self.hand.rg2.reset_width(open_width)
+        n_checks = max(1, int(np.ceil(p.approach_distance / p.approach_step)))
+        for k in range(n_checks + 1):  # from the grasp pose backwards
+            back = Transform(T_world_base.pos - approach * k * p.approach_step, T_world_base.quat)
+            self.hand.body.reset_base_pose(back)
+            if self._intersects():
+                return True, open_width
+        return False, open_width
+
+    def run(self, T_obj_tcp: Transform, width_expected: float) -> TrialResult:
+        """Simulate one candidate grasp from the saved initial state."""
+        self.world.restore_state(self.state)
+        steps0 = self.world.steps
+        cfg, g = self.config.protocol, self.config.gripper
+        collided, open_width = self.collides(T_obj_tcp, width_expected)
+        if collided:
+            return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"))
+
+        # 2. close, gravity off, on the free object
+        T_world_tcp = self._T_world_obj() * T_obj_tcp
+        self.hand.teleport(self.hand.T_world_base_for_tcp(T_world_tcp, width_expected), open_width)
+        self.world.set_gravity(False)
+        self.hand.close(g.grip_force, max_steps=round(cfg.close_timeout / self.world.dt))
+        width = self.hand.rg2.measured_width()
+        T_obj_tcp_closed = (
+            self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.rg2.T_base_tcp(width)
+        )
+
+        def result(outcome: Outcome, slip: float = float("nan")) -> TrialResult:
+            return TrialResult(outcome, T_obj_tcp_closed, width, self.world.steps - steps0, slip)
+
+        # 3. both pads on the object?
+        if not self._both_pads_touch():
+            return result(Outcome.NO_CONTACT)
+
+        # 4. lift with gravity on
+        T_hand_obj_grasp = self._T_hand_obj()
+        self.world.set_gravity(True)
+        start = self.hand.target
+        lifted = Transform(start.pos + np.array([0.0, 0.0, cfg.lift_height]), start.quat)
+        lost = self._loss_monitor(T_hand_obj_grasp)
+        self.hand.move(lifted, cfg.lift_duration, g.grip_force, on_step=lost)
+        if lost.lost:
+            return result(Outcome.SLIPPED_LIFT)
+
+        # 5. shake
+        lost = self._loss_monitor(T_hand_obj_grasp)
+        self.hand.shake(cfg.shake_amplitude, cfg.shake_angle, cfg.shake_duration, g.grip_force, on_step=lost)
+        # let the last motion settle, then judge
+        for _ in range(round(cfg.settle_time / self.world.dt)):
+            self.hand.rg2.command(-g.close_speed, g.grip_force)
+            self.world.step()
+        slip = self._slip(T_hand_obj_grasp)
+        if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
+            return result(Outcome.SLIPPED_SHAKE, slip)
+        return result(Outcome.SUCCESS, slip)
+
+    def _slip(self, T_hand_obj_grasp: Transform) -> float:
+        """How far the object's origin moved in the hand since the grasp (m)."""
+        now = self._T_hand_obj()
+        return float(np.linalg.norm(now.pos - T_hand_obj_grasp.pos))
+
+    def _loss_monitor(self, T_hand_obj_grasp: Transform) -> _LossMonitor:
+        return _LossMonitor(self, T_hand_obj_grasp)
+
+
+class _LossMonitor:
+    """Per-step callback: flags the grasp as lost (early exit) once the object is clearly gone."""
+
+    def __init__(self, trial: GraspTrial, T_hand_obj_grasp: Transform) -> None:
+        self.trial = trial
+        self.ref = T_hand_obj_grasp
+        self.lost = False
+        self.every = trial.config.protocol.check_every
+
+    def __call__(self, i: int) -> bool:
+        if i % self.every:
+            return False
+        t = self.trial
+        a, b = t.hand.rg2.pad_contacts(t.obj)
+        if t._slip(self.ref) > t.config.protocol.lost_distance or not (a or b):
+            self.lost = True
+        return self.lost
