@@ -10,7 +10,7 @@ import pybullet as pb
 
 from annotator import paths
 from annotator.config import GripperConfig
-from annotator.geometry import Transform, axis_angle_to_matrix
+from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
 from annotator.sim.body import Body
 from annotator.sim.rg2 import BASE_LINK, RG2
 from annotator.sim.world import World
@@ -106,6 +106,34 @@ class FloatingRG2:
                 return step
         return max_steps
 
+    def _follow(
+        self,
+        pos: np.ndarray,
+        quat: np.ndarray,
+        force: float,
+        on_step: Callable[[int], bool] | None,
+    ) -> int:
+        """Step once per row of ``pos`` (n, 3) / ``quat`` (n, 4), moving the constraint target.
+
+        Keeps squeezing with ``force``; ``on_step(i)`` returning True stops early. Returns steps.
+        """
+        cid, client, max_force = self._constraint, self.client, self.config.carrier_max_force
+        for i in range(len(pos)):
+            pb.changeConstraint(
+                cid,
+                jointChildPivot=pos[i].tolist(),
+                jointChildFrameOrientation=quat[i].tolist(),
+                maxForce=max_force,
+                physicsClientId=client,
+            )
+            self.rg2.command(-self.config.close_speed, force)
+            self.world.step()
+            if on_step is not None and on_step(i + 1):
+                self.target = Transform(pos[i], quat[i])
+                return i + 1
+        self.target = Transform(pos[-1], quat[-1])
+        return len(pos)
+
     def move(
         self,
         T_world_base_goal: Transform,
@@ -113,21 +141,17 @@ class FloatingRG2:
         force: float,
         on_step: Callable[[int], bool] | None = None,
     ) -> int:
-        """Move the constraint target linearly (position) and by slerp (rotation) to the goal.
+        """Move the constraint target to the goal: smoothstep in position, slerp in rotation.
 
         ``force`` keeps the fingers squeezing. ``on_step(i)`` may return True to stop early.
         Returns the number of steps simulated.
         """
         start = self.target
         n = max(1, round(duration / self.world.dt))
-        for i in range(1, n + 1):
-            s = _smoothstep(i / n)
-            self.set_target(_interpolate(start, T_world_base_goal, s))
-            self.rg2.command(-self.config.close_speed, force)
-            self.world.step()
-            if on_step is not None and on_step(i):
-                return i
-        return n
+        s = _smoothstep(np.arange(1, n + 1) / n)
+        pos = start.pos + s[:, None] * (T_world_base_goal.pos - start.pos)
+        quat = _slerp(start.quat, T_world_base_goal.quat, s)
+        return self._follow(pos, quat, force, on_step)
 
     def shake(
         self,
@@ -140,49 +164,41 @@ class FloatingRG2:
         """Shake about the current target: a translation along x, y, z then a rotation about x, y, z.
 
         Each of the six motions is one full sine period of ``duration / 6`` seconds, amplitude
-        ``amplitude`` metres or ``angle`` radians, about the gripper's TCP region (base frame
-        axes). Returns steps simulated; ``on_step(i)`` returning True stops early.
+        ``amplitude`` metres or ``angle`` radians, along / about the gripper base axes, rotations
+        about the closed TCP (the grasp, not the flange). Returns steps simulated; ``on_step(i)``
+        returning True stops early.
         """
         centre = self.target
         per = max(1, round(duration / 6 / self.world.dt))
+        phase = np.sin(2 * np.pi * np.arange(1, per + 1) / per)  # (per,)
         R = centre.rotation
-        tcp_offset = self.rg2.T_base_tcp(0.0).pos  # rotate about the grasp, not the flange
-        i = 0
-        for axis in range(6):
-            for k in range(1, per + 1):
-                phase = np.sin(2 * np.pi * k / per)
-                if axis < 3:
-                    offset = Transform(R[:, axis] * amplitude * phase, np.array([0, 0, 0, 1.0]))
-                    T = Transform(centre.pos + offset.pos, centre.quat)
-                else:
-                    R_delta = axis_angle_to_matrix(R[:, axis - 3], angle * phase)
-                    pivot = centre.apply(tcp_offset)
-                    T = Transform.from_rotation(R_delta @ R, pivot + R_delta @ (centre.pos - pivot))
-                self.set_target(T)
-                self.rg2.command(-self.config.close_speed, force)
-                self.world.step()
-                i += 1
-                if on_step is not None and on_step(i):
-                    self.set_target(centre)
-                    return i
+        pivot = centre.apply(self.rg2.T_base_tcp(0.0).pos)
+        positions, quats = [], []
+        for axis in range(3):
+            positions.append(centre.pos + phase[:, None] * (amplitude * R[:, axis]))
+            quats.append(np.repeat(centre.quat[None], per, axis=0))
+        for axis in range(3):
+            R_deltas = [axis_angle_to_matrix(R[:, axis], angle * p) for p in phase]
+            positions.append(np.array([pivot + Rd @ (centre.pos - pivot) for Rd in R_deltas]))
+            quats.append(matrix_to_quat(np.array([Rd @ R for Rd in R_deltas])))
+        steps = self._follow(np.concatenate(positions), np.concatenate(quats), force, on_step)
         self.set_target(centre)
-        return i
+        return steps
 
 
-def _smoothstep(s: float) -> float:
+def _smoothstep(s: np.ndarray) -> np.ndarray:
     """Zero-velocity start and end for constraint motions (less jerk than a linear ramp)."""
     return s * s * (3 - 2 * s)
 
 
-def _interpolate(a: Transform, b: Transform, s: float) -> Transform:
-    """Linear position, spherical-linear rotation between two transforms, s in [0, 1]."""
-    qa, qb = a.quat, b.quat
+def _slerp(qa: np.ndarray, qb: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Spherical-linear interpolation of xyzw quaternions: (4,), (4,), s (n,) -> (n, 4)."""
     dot = float(np.dot(qa, qb))
     if dot < 0:
         qb, dot = -qb, -dot
     if dot > 0.9995:
-        q = qa + s * (qb - qa)
+        q = qa[None] + s[:, None] * (qb - qa)[None]
     else:
         theta = np.arccos(dot)
-        q = (np.sin((1 - s) * theta) * qa + np.sin(s * theta) * qb) / np.sin(theta)
-    return Transform(a.pos + s * (b.pos - a.pos), q / np.linalg.norm(q))
+        q = (np.sin((1 - s) * theta)[:, None] * qa + np.sin(s * theta)[:, None] * qb) / np.sin(theta)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)

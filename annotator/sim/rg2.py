@@ -87,6 +87,11 @@ class WidthTable:
     angle: np.ndarray
     width: np.ndarray
     tcp: np.ndarray
+    slope: np.ndarray = None  # (k,) dw/dphi, m/rad, filled from the table's finite differences
+
+    def __post_init__(self) -> None:
+        if self.slope is None:
+            object.__setattr__(self, "slope", np.gradient(self.width, self.angle))
 
     def angle_of(self, width: float) -> float:
         return float(np.interp(width, self.width, self.angle))
@@ -96,8 +101,7 @@ class WidthTable:
 
     def dwidth_dangle(self, angle: float) -> float:
         """Transmission ratio dw/dphi (m/rad) at ``angle``, from the table's finite differences."""
-        slope = np.gradient(self.width, self.angle)
-        return float(np.interp(angle, self.angle, slope))
+        return float(np.interp(angle, self.angle, self.slope))
 
     @property
     def max_width(self) -> float:
