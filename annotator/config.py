@@ -61,10 +61,12 @@ class GripperConfig:
 class ObjectConfig:
     """How object meshes are loaded and given mass (owned by annotator/objects.py)."""
 
-    # Household plastics / filled containers average ~ 0.5 g/cm^3 over their bounding volume;
-    # 500 kg/m^3 gives a 40 mm solid cube 32 g and a 0.33 l can shape ~ 170 g.
+    # Objects are simulated solid, but real ones are hollow or partly filled: ~ 0.5 g/cm^3 over the
+    # enclosed volume is a middle ground (a 40 mm cube 32 g, the 66 x 115 mm can 196 g, a 60 x 40 x
+    # 120 mm box 144 g), within the RG2's 2 kg friction payload; a thin-walled mesh (mug, bowl)
+    # gets only its wall volume, so it comes out light (the sample mug 65 g).
     density: float = 500.0  # kg/m^3
-    # A mesh whose bounding-box diagonal exceeds this many metres is almost surely in millimetres.
+    # A mesh whose largest bounding-box side exceeds this many metres is almost surely in millimetres.
     max_extent: float = 2.0
     min_extent: float = 0.005  # m; smaller than any graspable household object
     lateral_friction: float = 1.0  # as ACRONYM; paired with the pads' 1.0
