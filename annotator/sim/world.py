@@ -27,6 +27,10 @@ class World:
         pb.setPhysicsEngineParameter(
             fixedTimeStep=self.physics.time_step,
             numSolverIterations=self.physics.solver_iterations,
+            # Sorted broadphase pairs: without it a trial's result depended on which trials the
+            # worker ran before (8 of 30 differed when run in reverse order), so labels would
+            # have depended on --workers.
+            deterministicOverlappingPairs=1,
             physicsClientId=self.client,
         )
         pb.setGravity(0, 0, self.physics.gravity, physicsClientId=self.client)
