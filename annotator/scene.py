@@ -34,6 +34,9 @@ ROBOT_FLAGS = (
 )
 GRIPPER_SLIDER = "gripper_opening_angle"  # the seed's slider name
 KINECT_OPTICAL_LINK = "camera_optical_frame"
+# IK refinement stops when no arm joint moves more than this between rounds (rad); 1e-6 rad at the
+# UR3's 0.5 m reach is 0.5 um, far below what a picture or the grasp can tell apart.
+IK_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,14 @@ class SceneConfig:
     kinect_fov: float = 60.0
     kinect_near: float = 0.5
     kinect_far: float = 4.5
+    # GUI loop rate (Hz): sliders are read and stepSimulation called once per frame, with
+    # 240/gui_rate substeps of PhysicsConfig.time_step. Each call in GUI mode waits for the window
+    # thread, so at 240 calls/s the loop fell behind real time under software OpenGL (Xvfb).
+    gui_rate: float = 60.0
+    # Headless frames: the seed camera's view matrix with a 60 deg vertical FOV. PyBullet's window
+    # uses 90 deg (its projection matrix has f = 1); 60 shows the arm larger at 320 x 240, but the
+    # Kinect, 1.57 m up, falls just above the frame (pass --fov 90 for the window's exact picture).
+    record_fov: float = 60.0
 
 
 @dataclass
@@ -116,10 +127,13 @@ class Scene:
         j = self.robot.joints[self.rg2.driven]
         return j.lower, j.upper
 
-    def seed_camera(self, width: int, height: int) -> Camera:
-        """The seed's debug camera, off-screen."""
+    def seed_camera(self, width: int, height: int, fov: float | None = None) -> Camera:
+        """The seed's debug camera off-screen; ``fov`` vertical, degrees (default ``record_fov``)."""
         c = self.config
-        return orbit_camera(c.camera_target, c.camera_distance, c.camera_yaw, c.camera_pitch, width, height)
+        fov = c.record_fov if fov is None else fov
+        return orbit_camera(
+            c.camera_target, c.camera_distance, c.camera_yaw, c.camera_pitch, width, height, fov=fov
+        )
 
     def kinect_camera(self) -> Camera:
         """What the Kinect's depth camera sees (its optical frame, vertical FOV 60 deg, 512 x 424)."""
@@ -163,7 +177,11 @@ class Scene:
                     physicsClientId=self.client,
                 )
                 by_name = {movable[k].name: sol[k] for k in arm_slots}
-                q = np.array([by_name[n] for n in JOINT_NAMES])
+                q_new = np.array([by_name[n] for n in JOINT_NAMES])
+                converged = np.abs(q_new - q).max() < IK_TOLERANCE
+                q = q_new
+                if converged:
+                    break
                 self.robot.reset_joints(dict(zip(JOINT_NAMES, q, strict=True)))
         finally:
             self.world.restore_state(state)
@@ -328,12 +346,16 @@ def run_gui(
     screenshot_path: Path | None,
     screenshot_at: float,
     demo: bool,
-) -> Scene | None:
+) -> None:
     """The seed's slider loop at real time until the window closes or ``seconds`` of sim time pass."""
     world = open_world(config, gui=True)
-    scene = build_scene(world, config)
     client = world.client
-    pb.configureDebugVisualizer(pb.COV_ENABLE_GUI, 1, physicsClientId=client)
+    # Every PyBullet call in GUI mode waits for the window thread; loading and RG2's FK table with
+    # rendering on took ~40 s under software OpenGL, ~1-10 s with it off.
+    pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 0, physicsClientId=client)
+    scene = build_scene(world, config)
+    script = demo_script(scene) if demo else None
+    pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 1, physicsClientId=client)
     pb.resetDebugVisualizerCamera(
         config.camera_distance,
         config.camera_yaw,
@@ -342,34 +364,40 @@ def run_gui(
         physicsClientId=client,
     )
     sliders = add_sliders(scene)
-    script = demo_script(scene) if demo else None
-    dt, step, start = world.dt, 0, time.monotonic()
+    # One stepSimulation call per GUI frame, split into substeps of the usual time step.
+    substeps = max(1, round(1.0 / (config.gui_rate * world.dt)))
+    frame_dt = substeps * world.dt
+    pb.setPhysicsEngineParameter(fixedTimeStep=frame_dt, numSubSteps=substeps, physicsClientId=client)
+    frame, start = 0, time.monotonic()
     try:
-        while seconds is None or step * dt < seconds:
-            t = step * dt
+        while seconds is None or frame * frame_dt < seconds:
             try:
-                arm, angle = (
-                    script.at(t % (script.duration + 1.0)) if script else read_sliders(scene, sliders)
-                )
+                if script is not None:
+                    arm, angle = script.at((frame * frame_dt) % (script.duration + 1.0))
+                else:
+                    arm, angle = read_sliders(scene, sliders)
                 scene.command_arm(arm)
                 scene.command_gripper(angle)
-                world.step()
+                pb.stepSimulation(physicsClientId=client)
             except pb.error:  # the window was closed
                 break
-            step += 1
+            frame += 1
+            t = frame * frame_dt
             if screenshot_path is not None and t >= screenshot_at:
                 write_png(screenshot(scene), screenshot_path)
                 width, height = pb.getDebugVisualizerCamera(physicsClientId=client)[:2]
-                click.echo(f"screenshot {width}x{height} -> {screenshot_path}")
+                q = np.round(scene.arm_positions(), 4).tolist()
+                click.echo(f"screenshot {width}x{height} at t={t:.2f} s, arm q = {q} -> {screenshot_path}")
                 screenshot_path = None
-            lag = start + step * dt - time.monotonic()
+            lag = start + t - time.monotonic()
             if lag > 0:
                 time.sleep(lag)  # real time in the interactive loop only
         if pb.isConnected(physicsClientId=client):
-            click.echo(f"steps {step}; arm q = {np.round(scene.arm_positions(), 4).tolist()}")
+            wall = time.monotonic() - start
+            q = np.round(scene.arm_positions(), 4).tolist()
+            click.echo(f"ran {frame * frame_dt:.2f} s simulated in {wall:.2f} s; arm q = {q}")
     finally:
         world.close()
-    return scene
 
 
 # --- command --------------------------------------------------------------------------------------
@@ -402,6 +430,11 @@ def run_gui(
     "--size", default=(320, 240), show_default=True, type=(int, int), help="Headless: frame width height."
 )
 @click.option(
+    "--fov",
+    type=click.FloatRange(1, 170),
+    help="Headless: vertical field of view, degrees [default: 60; the GUI window's is 90].",
+)
+@click.option(
     "--seconds", type=click.FloatRange(min=0), help="GUI: quit after this much simulated (= real) time."
 )
 @click.option(
@@ -423,6 +456,7 @@ def scene_command(
     kinect_path: Path | None,
     frames: int,
     size: tuple[int, int],
+    fov: float | None,
     seconds: float | None,
     screenshot_path: Path | None,
     screenshot_at: float,
@@ -460,7 +494,7 @@ def scene_command(
         raise click.UsageError("--screenshot is for the GUI; use --png with --headless")
     with open_world(config, gui=False) as world:
         scene = build_scene(world, config)
-        camera = scene.seed_camera(*size) if (gif_path or png_path) else None
+        camera = scene.seed_camera(*size, fov=fov) if (gif_path or png_path) else None
         script = demo_script(scene)
         rec = run_script(scene, script, camera, frames if gif_path else 2)
         if gif_path:
