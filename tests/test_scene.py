@@ -128,15 +128,17 @@ def test_seed_control_loop_runs_on_combined_model():
 def test_gui_under_xvfb(tmp_path):
     """`annotator scene` in a real GUI window: the demo moves the arm, the screenshot shows it."""
     if shutil.which("xvfb-run") is None:
-        pytest.skip("xvfb-run is not on PATH (Debian: apt-get install xvfb)")
+        pytest.skip("xvfb-run is not on PATH (Debian: apt-get install xvfb xauth)")
     png = tmp_path / "window.png"
     command = [
         "xvfb-run", "-a", "-s", "-screen 0 1280x1024x24",
         sys.executable, "-m", "annotator.scene",
-        "--demo", "--seconds", "2.5", "--screenshot-at", "2", "--screenshot", str(png),
+        "--demo", "--seconds", "1.5", "--screenshot-at", "1", "--screenshot", str(png),
     ]  # fmt: skip
-    proc = subprocess.run(command, capture_output=True, text=True, timeout=120)
-    if "Xvfb failed to start" in proc.stderr:
+    # Slow part: in GUI mode every PyBullet call waits for the window thread, and building the RG2's
+    # FK table takes ~3000 calls (1 s on an idle machine, up to ~40 s on a loaded 2-core one).
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=180)
+    if "Xvfb failed to start" in proc.stderr or "xauth command not found" in proc.stderr:
         pytest.skip(f"Xvfb cannot start here: {proc.stderr.strip()[-300:]}")
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     match = re.search(r"screenshot (\d+)x(\d+) at t=[\d.]+ s, arm q = \[([^\]]+)\]", proc.stdout)
