@@ -49,9 +49,9 @@ class SceneConfig:
     table_urdf: str = "table/table.urdf"  # from the installed pybullet_data, as the seed
     table_pos: tuple[float, float, float] = (0.5, 0.0, -0.65)  # top surface at z = -0.025
     kinect_pos: tuple[float, float, float] = (0.4, 0.0, 1.57)
-    # Not in the seed (it loaded the Kinect unrotated, looking along +x over the table). Here the
-    # Kinect looks straight down: Ry(+pi/2) turns its +x (optical axis of camera_link) to -z, so the
-    # 60 x 70.6 deg depth frustum covers table, cube and arm from 1.6 m up.
+    # The seed's Kinect orientation is not recorded (ROBOT_FACTS gives the position only); chosen
+    # here: straight down. Ry(+pi/2) turns the body's +x (camera_link's optical axis) to -z, so the
+    # 60 x 70.6 deg depth frustum covers table, cube and arm from 1.6 m above the table top.
     kinect_quat: tuple[float, float, float, float] = (0.0, math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4))
     cube_urdf: str = "cube_small.urdf"  # 50 mm, 0.1 kg; rests on the table top
     cube_pos: tuple[float, float, float] = (0.7, 0.0, 0.0)

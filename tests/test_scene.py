@@ -16,7 +16,8 @@ from PIL import Image
 from annotator import paths
 from annotator.config import PhysicsConfig
 from annotator.geometry import Transform
-from annotator.scene import ROBOT_FLAGS, SceneConfig, scene_command
+from annotator.render import render_rgb
+from annotator.scene import ROBOT_FLAGS, SceneConfig, build_scene, scene_command
 from annotator.sim.body import Body
 from annotator.sim.ur3 import JOINT_NAMES
 from annotator.sim.world import World
@@ -152,3 +153,30 @@ def test_gui_under_xvfb(tmp_path):
         pixels = np.asarray(im.convert("RGB"))
     colours = np.unique(pixels.reshape(-1, 3), axis=0)
     assert len(colours) > 50, "the screenshot is (nearly) a single flat colour"
+
+
+def test_build_scene_matches_seed_numbers():
+    config = SceneConfig()
+    with World(config.physics) as world:
+        scene = build_scene(world, config)
+        assert pb.getPhysicsEngineParameters(physicsClientId=world.client)["gravityAccelerationZ"] == -9.8
+        np.testing.assert_allclose(scene.robot.base_pose().pos, 0.0, atol=1e-9)
+        np.testing.assert_allclose(scene.arm_positions(), config.initial_arm, atol=1e-9)
+        np.testing.assert_allclose(scene.kinect.base_pose().pos, config.kinect_pos, atol=1e-9)
+        # The Kinect's optical axis (+z of its optical frame) points straight down at the table.
+        optical_z = scene.kinect.link_pose("camera_optical_frame").rotation[:, 2]
+        np.testing.assert_allclose(optical_z, [0.0, 0.0, -1.0], atol=1e-9)
+        assert scene.gripper_range() == pytest.approx((-0.04547, 1.268131), abs=1e-6)
+        assert scene.rg2.max_width == pytest.approx(0.110, abs=0.001)  # the full stroke, not 0.8 rad's
+        # One simulated second: the arm holds the initial pose, the cube rests on the table.
+        for _ in range(240):
+            scene.command_arm(config.initial_arm)
+            scene.command_gripper(0.0)
+            world.step()
+        np.testing.assert_allclose(scene.arm_positions(), config.initial_arm, atol=0.01)
+        np.testing.assert_allclose(scene.cube.base_pose().pos, config.cube_pos, atol=0.002)
+        np.testing.assert_allclose(scene.table.base_pose().pos, config.table_pos, atol=1e-9)
+        # The Kinect sees the table (not a flat picture) from its 512 x 424 frame.
+        image = render_rgb(world.client, scene.kinect_camera())
+        assert image.shape == (424, 512, 3)
+        assert len(np.unique(image.reshape(-1, 3), axis=0)) > 50
