@@ -182,6 +182,43 @@ def _read_mesh(path: Path) -> trimesh.Trimesh:
     return loaded
 
 
+def _fill_simple_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh | None:
+    """``mesh`` with each simple boundary loop closed by a fan around its centroid, or ``None``.
+
+    ``None`` when the boundary is not a set of simple loops (non-manifold edges, touching holes)
+    or the result is still not a consistently wound closed surface.
+    """
+    once = trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)
+    if len(once) == 0:
+        return None
+    nxt: dict[int, int] = {}
+    for a, b in mesh.edges[once]:  # directed as in their faces
+        if int(a) in nxt:
+            return None
+        nxt[int(a)] = int(b)
+    vertices, faces = [mesh.vertices], [mesh.faces]
+    n_vertices = len(mesh.vertices)
+    while nxt:
+        start = next(iter(nxt))
+        loop = [start]
+        while True:
+            following = nxt.pop(loop[-1], None)
+            if following is None:
+                return None
+            if following == start:
+                break
+            loop.append(following)
+        centre = n_vertices
+        n_vertices += 1
+        vertices.append(mesh.vertices[loop].mean(axis=0, keepdims=True))
+        # the fill runs against the boundary's direction so the winding stays consistent
+        faces.append(np.array([(b, a, centre) for a, b in zip(loop, loop[1:] + loop[:1], strict=True)]))
+    filled = trimesh.Trimesh(np.vstack(vertices), np.vstack(faces), process=False)
+    if not (filled.is_watertight and filled.is_winding_consistent):
+        return None
+    return filled
+
+
 def _principal_axes(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Principal moments (3,) and a proper rotation (3, 3) whose columns are the principal axes."""
     moments, R = np.linalg.eigh(0.5 * (inertia + inertia.T))
@@ -203,9 +240,12 @@ def load_object(
     """Load, validate, weigh and decompose one object.
 
     ``scale`` multiplies the file's coordinates (after a URDF's own mesh scale); ``None`` is 1.
-    Mass = volume x ``config.density``. A mesh that is not watertight has no defined inside, so
-    its convex hull stands in for volume, mass, centre of mass and inertia (an upper bound on
-    the mass; logged as a warning); its collision shape is still decomposed from the mesh.
+    Mass = volume x ``config.density``. A mesh that is not watertight has no defined inside: its
+    simple holes (boundary loops, e.g. a scan's open bottom) are first closed with a fan of
+    triangles; if it is still open, its convex hull stands in for volume, mass, centre of mass,
+    inertia *and* collision shape (an upper bound on mass and shape; logged as a warning). CoACD
+    on open meshes was measured at 1-2 minutes per object with unpredictable parts, so it is not
+    attempted.
     Raises :class:`ObjectError` with a one-line reason for unusable input.
     """
     if isinstance(source, Path | str):
@@ -265,6 +305,13 @@ def load_object(
         raise ObjectError(f"{name}: degenerate mesh (zero volume: flat or collinear)")
 
     watertight = bool(mesh.is_watertight and mesh.is_winding_consistent)
+    if not watertight:
+        filled = _fill_simple_holes(mesh)
+        if filled is not None:
+            log.warning(
+                "%s: mesh was open; closed %d hole(s)", name, len(filled.vertices) - len(mesh.vertices)
+            )
+            mesh, watertight = filled, True
     if watertight:
         if mesh.volume < 0:
             mesh.invert()
@@ -272,7 +319,7 @@ def load_object(
         if not mesh.volume > MIN_VOLUME:
             raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
     else:
-        log.warning("%s: mesh is not watertight; using its convex hull for mass and inertia", name)
+        log.warning("%s: mesh is not watertight; using its convex hull for mass, inertia and collision", name)
         solid = hull
     props = trimesh.triangles.mass_properties(solid.triangles, density=config.density)
     volume = float(solid.volume)
@@ -292,7 +339,7 @@ def load_object(
         convex=convex,
         config=config,
     )
-    if convex:
+    if convex or not watertight:
         model.parts = [hull]
     else:
         model.parts, model.collision_file, model.from_cache, model.decomposition_seconds = decompose(
