@@ -25,7 +25,12 @@ from annotator import dataset
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform
-from annotator.objects import ObjectError, ObjectModel, ObjectsNotFoundError, create_body, discover_objects
+from annotator.objects import (
+    ObjectDiscoveryError,
+    ObjectError,
+    create_body,
+    discover_objects,
+)
 from annotator.objects import load_object as _load_object
 from annotator.sampler import object_rng, sample_candidates
 
@@ -120,8 +125,9 @@ def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
     return _WORKER["object"][2], _WORKER["object"][3]
 
 
-def simulate_chunk(chunk: Chunk, config: AnnotatorConfig, seed: int) -> pd.DataFrame:
-    """Label rows for one chunk (runs in a worker process)."""
+def simulate_chunk(chunk: Chunk, config: AnnotatorConfig, seed: int) -> tuple[pd.DataFrame, float]:
+    """Label rows for one chunk and the worker seconds spent (runs in a worker process)."""
+    t0 = time.perf_counter()
     trial, model = _worker_trial(chunk, config)
     rows = []
     for k in range(len(chunk.width)):
@@ -151,7 +157,7 @@ def simulate_chunk(chunk: Chunk, config: AnnotatorConfig, seed: int) -> pd.DataF
                 "object_mass": model.mass,
             }
         )
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows), time.perf_counter() - t0
 
 
 def _canonical(q: np.ndarray) -> np.ndarray:
@@ -162,11 +168,19 @@ def _canonical(q: np.ndarray) -> np.ndarray:
 
 
 def _prepare(source, options: RunOptions, config: AnnotatorConfig, max_width: float):
-    """Load, validate and sample one object; returns (model, candidates) or raises ObjectError."""
-    model = _load_object(source, config.objects, scale=options.scale)
-    rng = object_rng(options.seed, model.object_id)
-    cands = sample_candidates(model.mesh, options.n, rng, config.sampler, max_width)
-    return model, cands
+    """Load, validate, decompose and sample one object (in a worker).
+
+    Returns ``(candidates, None)`` or ``(None, one-line error)``.
+    """
+    try:
+        model = _load_object(source, config.objects, scale=options.scale)
+        rng = object_rng(options.seed, model.object_id)
+        return sample_candidates(model.mesh, options.n, rng, config.sampler, max_width), None
+    except ObjectError as exc:
+        return None, str(exc)
+    except Exception as exc:  # an unexpected failure is this object's, not the run's
+        log.exception("%s: unexpected error while loading", source.object_id)
+        return None, f"{type(exc).__name__}: {exc}"
 
 
 def _max_width(config: AnnotatorConfig) -> float:
@@ -179,16 +193,15 @@ def _max_width(config: AnnotatorConfig) -> float:
 
 
 def _parallel(options: RunOptions):
+    """(dask client or None, a function returning a fresh backend context for each use)."""
     if options.scheduler:
         try:
             from dask.distributed import Client
         except ImportError as exc:
-            raise UsageError(
-                "--scheduler needs Dask: pip install 'rg2-annotator[cluster]'"
-            ) from exc
+            raise UsageError("--scheduler needs Dask: pip install 'rg2-annotator[cluster]'") from exc
         client = Client(options.scheduler)
-        return client, joblib.parallel_config(backend="dask")
-    return None, contextlib.nullcontext()
+        return client, lambda: joblib.parallel_config(backend="dask")
+    return None, contextlib.nullcontext
 
 
 def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
@@ -196,7 +209,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     t0 = time.perf_counter()
     try:
         sources = discover_objects(options.objects_dir)
-    except ObjectsNotFoundError as exc:
+    except ObjectDiscoveryError as exc:
         raise UsageError(str(exc)) from exc
     try:
         manifest = dataset.open_run(
@@ -206,26 +219,27 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
         raise UsageError(str(exc)) from exc
 
     summary = Summary()
-    hashes = {s.object_id: s.sha256() for s in sources}
+    hashes = {s.object_id: dataset.file_sha256(s.path) for s in sources}  # the file given
     todo_ids = set(manifest.pending([s.object_id for s in sources], options.out_dir, hashes))
     summary.skipped = [s.object_id for s in sources if s.object_id not in todo_ids]
     if summary.skipped:
         log.info("resuming: %d objects already labelled, %d to do", len(summary.skipped), len(todo_ids))
 
     max_width = _max_width(config)
+    client, backend = _parallel(options)
     chunks: list[Chunk] = []
-    per_object: dict[str, tuple[ObjectModel, int]] = {}
-    for source in sources:
-        if source.object_id not in todo_ids:
+    pending = [s for s in sources if s.object_id in todo_ids]
+    with backend():
+        # load, validate, decompose (cached by mesh hash) and sample every object in parallel
+        prepared = joblib.Parallel(n_jobs=options.workers)(
+            joblib.delayed(_prepare)(source, options, config, max_width) for source in pending
+        )
+    for source, (cands, error) in zip(pending, prepared, strict=True):
+        if error is not None:
+            summary.failed[source.object_id] = error
+            manifest.mark_failed(source.object_id, error)
+            log.error("%s: %s", source.object_id, error)
             continue
-        try:
-            model, cands = _prepare(source, options, config, max_width)
-        except ObjectError as exc:
-            summary.failed[source.object_id] = str(exc)
-            manifest.mark_failed(source.object_id, str(exc))
-            log.error("%s: %s", source.object_id, exc)
-            continue
-        per_object[source.object_id] = (model, 0)
         for start in range(0, options.n, CHUNK_SIZE):
             stop = min(options.n, start + CHUNK_SIZE)
             chunks.append(
@@ -246,23 +260,29 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     from tqdm.auto import tqdm
 
     results: dict[str, list[pd.DataFrame]] = defaultdict(list)
-    started: dict[str, float] = {}
-    client, backend = _parallel(options)
-    bar = tqdm(total=len(chunks) * 0 + sum(len(c.width) for c in chunks), unit="grasp",
-               disable=options.quiet, smoothing=0.1, dynamic_ncols=True)
+    worker_seconds: dict[str, float] = defaultdict(float)
+    bar = tqdm(
+        total=sum(len(c.width) for c in chunks),
+        unit="grasp",
+        disable=options.quiet,
+        smoothing=0.1,
+        dynamic_ncols=True,
+    )
     try:
-        with backend:
+        with backend():
             parallel = joblib.Parallel(n_jobs=options.workers, return_as="generator_unordered")
             jobs = (joblib.delayed(simulate_chunk)(c, config, options.seed) for c in chunks)
-            for df in parallel(jobs):
+            for df, seconds in parallel(jobs):
                 oid = df["object_id"].iat[0]
-                started.setdefault(oid, time.perf_counter())
                 results[oid].append(df)
+                worker_seconds[oid] += seconds
                 bar.update(len(df))
                 summary.candidates += len(df)
                 summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
                 if len(results[oid]) == n_chunks[oid]:
-                    _finish_object(oid, results.pop(oid), manifest, options, summary, started[oid])
+                    _finish_object(
+                        oid, results.pop(oid), manifest, options, summary, hashes[oid], worker_seconds[oid]
+                    )
     except KeyboardInterrupt:
         bar.close()
         log.warning("interrupted: %d objects written; re-run the same command to resume", len(summary.done))
@@ -276,19 +296,22 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     return summary
 
 
-def _finish_object(oid, parts, manifest, options, summary, started) -> None:
+def _finish_object(oid, parts, manifest, options, summary, source_sha256, seconds) -> None:
+    """Write one object's labels atomically, then record it in the manifest."""
     df = pd.concat(parts, ignore_index=True).sort_values("grasp_id", ignore_index=True)
     path = dataset.write_object_labels(options.out_dir, df)
-    manifest.mark_done(oid, path, len(df), df["mesh_sha256"].iat[0])
+    manifest.mark_done(oid, path, len(df), source_sha256)
     manifest.save(options.out_dir)
     counts = df["outcome"].value_counts().to_dict()
-    summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, time.perf_counter() - started)
+    summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, seconds)
 
 
 def format_summary(summary: Summary) -> str:
     """A per-object table: n, success rate, outcome counts, time; then failures and totals."""
     cols = list(dataset.OUTCOMES)
-    head = f"{'object':<28} {'n':>5} {'success':>8} " + " ".join(f"{c[:9]:>9}" for c in cols) + f" {'time':>7}"
+    head = (
+        f"{'object':<28} {'n':>5} {'success':>8} " + " ".join(f"{c[:9]:>9}" for c in cols) + f" {'time':>7}"
+    )
     lines = [head, "-" * len(head)]
     for oid, st in sorted(summary.done.items()):
         rate = st.successes / st.n if st.n else 0.0
@@ -300,7 +323,8 @@ def format_summary(summary: Summary) -> str:
         lines.append(f"{oid[:28]:<28} FAILED: {err}")
     rate = summary.candidates / summary.seconds if summary.seconds else 0.0
     lines.append(
-        f"{len(summary.done)} objects labelled, {len(summary.skipped)} skipped, {len(summary.failed)} failed; "
+        f"{len(summary.done)} objects labelled, {len(summary.skipped)} skipped, "
+        f"{len(summary.failed)} failed; "
         f"{summary.candidates} candidates in {summary.seconds:.1f} s ({rate:.1f} candidates/s, "
         f"{summary.physics_trials} physics trials)"
     )

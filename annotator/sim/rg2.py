@@ -13,6 +13,7 @@ is the one that holds (see GripperConfig.coupling).
 
 from __future__ import annotations
 
+import functools
 import logging
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -112,6 +113,39 @@ class WidthTable:
         return float(self.width[0])
 
 
+@functools.lru_cache(maxsize=8)
+def fk_table(urdf: str, lower: float, upper: float) -> WidthTable:
+    """Tabulate pad separation and pad-centre midpoint over the driven range ``lower..upper``.
+
+    Runs the URDF's forward kinematics (kinematic joint resets, no stepping) in a private
+    DIRECT client, so a GUI client is never slowed down and every body of the same model in this
+    process shares one table.
+    """
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = Body.load(client, urdf, fixed_base=True)
+        mimic = read_mimic_table(urdf)
+        driven = {m.driven for m in mimic.values()}.pop()
+        data = pb.getCollisionShapeData(body.uid, body.links[PAD_LINKS[0]], physicsClientId=client)
+        pad_thickness = float(data[0][3][0])  # box extents (x, y, z); x is the closing axis
+        T_base_world = body.link_pose(BASE_LINK).inverse()
+        angles = np.linspace(lower, upper, WIDTH_TABLE_SAMPLES)
+        widths = np.empty_like(angles)
+        tcps = np.empty((len(angles), 3))
+        for k, q in enumerate(angles):
+            body.reset_joints(
+                {driven: q, **{m.follower: m.multiplier * q + m.offset for m in mimic.values()}}
+            )
+            p1, p2 = (T_base_world * body.link_pose(n) for n in PAD_LINKS)
+            widths[k] = (p2.pos[0] - p1.pos[0]) - pad_thickness
+            tcps[k] = (p1.pos + p2.pos) / 2
+    finally:
+        pb.disconnect(physicsClientId=client)
+    if np.any(np.diff(widths) <= 0):
+        raise ValueError(f"RG2 width is not monotonic in the driven angle: check {urdf}")
+    return WidthTable(angles, widths, tcps)
+
+
 class RG2:
     """An RG2 body (floating or on the arm) with its followers coupled and its FK tabulated."""
 
@@ -120,6 +154,7 @@ class RG2:
         self.client = body.client
         self.config = config or GripperConfig()
         self.coupling = self.config.coupling
+        self.urdf = Path(urdf)
         self.mimic = read_mimic_table(urdf)
         drivers = {m.driven for m in self.mimic.values()}
         if len(drivers) != 1:
@@ -200,24 +235,10 @@ class RG2:
             )
 
     def _tabulate(self) -> WidthTable:
-        """Sample the model's FK over the driven range (kinematic resets, restored afterwards)."""
-        joint = self.body.joints[self.driven]
-        names = [self.driven, *self.mimic]
-        saved = self.body.joint_positions(names)
-        T_world_base = self.body.link_pose(BASE_LINK)
-        T_base_world = T_world_base.inverse()
-        angles = np.linspace(joint.lower, joint.upper, WIDTH_TABLE_SAMPLES)
-        widths = np.empty_like(angles)
-        tcps = np.empty((len(angles), 3))
-        for k, q in enumerate(angles):
-            self.reset_angle(q)
-            p1, p2 = (T_base_world * self.body.link_pose(n) for n in PAD_LINKS)
-            widths[k] = (p2.pos[0] - p1.pos[0]) - self.pad_thickness
-            tcps[k] = (p1.pos + p2.pos) / 2
-        self.body.reset_joints(dict(zip(names, saved, strict=True)))
-        if np.any(np.diff(widths) <= 0):
-            raise ValueError("RG2 width is not monotonic in the driven angle: check the model")
-        return WidthTable(angles, widths, tcps)
+        """The model's FK over the driven range, from a private DIRECT copy (cached per URDF)."""
+        return fk_table(
+            str(self.urdf), self.body.joints[self.driven].lower, self.body.joints[self.driven].upper
+        )
 
     # --- kinematics ----------------------------------------------------------------------------
 

@@ -169,19 +169,12 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
     """
     p = prefix
     m_base, z_base = base_mass_and_com_z()
-    body_bottom = BODY_CENTRE_Z + BODY_SIZE[2] / 2
     out = []
     base = _inertial(m_base, (0, 0, z_base), (BODY_SIZE[0], BODY_SIZE[1], 0.145))
     base += _box("visual", (0, 0, BASE_SIZE[2] / 2), BASE_SIZE, GREY)
     base += _box("collision", (0, 0, BASE_SIZE[2] / 2), BASE_SIZE)
     base += _box("visual", (0, 0, BODY_CENTRE_Z), BODY_SIZE, LIGHT)
     base += _box("collision", (0, 0, BODY_CENTRE_Z), BODY_SIZE)
-    # [C] visual bracket carrying the passive pivots below the body (no collision: it sits
-    # between the links and would only add self-contacts)
-    bracket_h = PIVOT_Z + INNER_PIVOT_DZ - body_bottom + 0.004
-    base += _box(
-        "visual", (0, 0, body_bottom + bracket_h / 2), (2 * INNER_PIVOT_X + 0.004, 0.010, bracket_h), GREY
-    )
     out.append(_link(f"{p}rg2_base_link", base))
     if parent_link is not None:
         out.append(_joint(f"{p}rg2_mount_joint", "fixed", parent_link, f"{p}rg2_base_link", (0, 0, 0)))
