@@ -62,9 +62,10 @@ class GraspTrial:
     def _T_world_obj(self) -> Transform:
         pos, orn = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
         local = pb.getDynamicsInfo(self.obj, -1, physicsClientId=self.client)[3:5]
-        return Transform(np.asarray(pos), np.asarray(orn)) * Transform(
-            np.asarray(local[0]), np.asarray(local[1])
-        ).inverse()
+        return (
+            Transform(np.asarray(pos), np.asarray(orn))
+            * Transform(np.asarray(local[0]), np.asarray(local[1])).inverse()
+        )
 
     def _intersects(self) -> bool:
         margin = self.config.protocol.collision_margin
