@@ -13,6 +13,7 @@ from annotator import __version__
 from annotator.config import AnnotatorConfig
 
 EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, the shell convention
 
 
 def _setup_logging(quiet: bool, verbose: bool) -> None:
@@ -121,6 +122,11 @@ def annotate_command(
         summary = run(options, config)
     except UsageError as exc:
         raise click.UsageError(str(exc)) from exc
+    except KeyboardInterrupt:
+        # Ctrl-C: finished objects are on disk; exit 130 (128 + SIGINT), not click's "Aborted!" + 1,
+        # which would read as "some objects failed".
+        click.echo("annotate: interrupted; re-run the same command to resume", err=True)
+        sys.exit(EXIT_INTERRUPTED)
     sys.exit(EXIT_OK if not summary.failed else EXIT_SOME_FAILED)
 
 

@@ -33,6 +33,7 @@ from annotator.objects import (
 )
 from annotator.objects import load_object as _load_object
 from annotator.sampler import object_rng, sample_candidates
+from annotator.trial import Perturbation, trial_rng
 
 log = logging.getLogger(__name__)
 
@@ -125,20 +126,35 @@ def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
     return _WORKER["object"][2], _WORKER["object"][3]
 
 
-def simulate_chunk(chunk: Chunk, config: AnnotatorConfig, seed: int) -> tuple[pd.DataFrame, float]:
-    """Label rows for one chunk and the worker seconds spent (runs in a worker process)."""
+def simulate_chunk(
+    chunk: Chunk, config: AnnotatorConfig, seed: int, trials: int = 1
+) -> tuple[pd.DataFrame, float]:
+    """Label rows for one chunk and the worker seconds spent (runs in a worker process).
+
+    Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and
+    the pose; trials 1..K-1 are perturbed from the candidate's own Generator (trial_rng) and
+    ``score`` is the fraction of all K trials that held.
+    """
     t0 = time.perf_counter()
     trial, model = _worker_trial(chunk, config)
     rows = []
     for k in range(len(chunk.width)):
         grasp_id = chunk.start + k
         T = Transform.from_matrix(chunk.T_obj_tcp[k])
+        held = 0
         try:
             r = trial.run(T, float(chunk.width[k]))
             outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
+            held = int(outcome == Outcome.SUCCESS)
+            rng = trial_rng(seed, chunk.object_id, grasp_id)
+            for _ in range(trials - 1):
+                p = trial.run(T, float(chunk.width[k]), Perturbation.sample(rng, config.robust))
+                held += int(p.outcome == Outcome.SUCCESS)
+                steps += p.steps
         except Exception as exc:  # a physics failure on one candidate must not lose the others
             log.warning("%s grasp %d: %s: %s", chunk.object_id, grasp_id, type(exc).__name__, exc)
             outcome, T_label, width, steps, slip = Outcome.ERROR, T, float(chunk.width[k]), 0, np.nan
+            held = 0
         rows.append(
             {
                 "object_id": chunk.object_id,
@@ -148,7 +164,7 @@ def simulate_chunk(chunk: Chunk, config: AnnotatorConfig, seed: int) -> tuple[pd
                 "width": width,
                 "success": outcome == Outcome.SUCCESS,
                 "outcome": outcome.label,
-                "score": float(outcome == Outcome.SUCCESS),
+                "score": held / trials,
                 "object_scale": model.scale,
                 "mesh_sha256": model.mesh_sha256,
                 "seed": seed,
@@ -271,7 +287,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     try:
         with backend():
             parallel = joblib.Parallel(n_jobs=options.workers, return_as="generator_unordered")
-            jobs = (joblib.delayed(simulate_chunk)(c, config, options.seed) for c in chunks)
+            jobs = (joblib.delayed(simulate_chunk)(c, config, options.seed, options.trials) for c in chunks)
             for df, seconds in parallel(jobs):
                 oid = df["object_id"].iat[0]
                 results[oid].append(df)
@@ -285,7 +301,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
                     )
     except KeyboardInterrupt:
         bar.close()
-        log.warning("interrupted: %d objects written; re-run the same command to resume", len(summary.done))
+        log.info("interrupted: %d objects written this run", len(summary.done))
         raise
     finally:
         bar.close()
