@@ -126,12 +126,28 @@ class ProtocolConfig:
     # six sine periods (x, y, z, then rotations); 0.35 s each gives a peak acceleration of
     # 0.03 m x (2 pi / 0.35 s)^2 = 9.7 m/s^2: GraspDataGen's 1 g tugs.
     shake_duration: float = 2.1  # s
+    shake_cycles: int = 1  # sine periods per motion
     settle_time: float = 0.05  # s held still after the shake before judging
     # Held = both pads touch and the object moved less than this in the hand (m); ACRONYM and
     # GraspDataGen judge contact only, the slip bound catches an object hanging by one edge.
     max_slip: float = 0.02
     lost_distance: float = 0.03  # m: early exit once the object is this far from its grasp
     check_every: int = 6  # steps between loss checks during lift and shake (25 ms)
+
+
+@dataclass(frozen=True)
+class RobustConfig:
+    """Perturbations of the K - 1 extra trials of ``--trials K`` (trial 0 is unperturbed).
+
+    Dex-Net 2.0's robust metric samples the gripper pose with sigma 5 mm and friction with sigma
+    0.1; ours models a calibrated UR3 (repeatability +-0.1 mm [UR datasheet]) seen by a depth
+    camera, whose object pose error is a few millimetres and degrees.
+    """
+
+    position_sigma: float = 0.002  # m, TCP position noise (Gaussian, per axis)
+    rotation_sigma: float = 0.035  # rad (2 deg), TCP rotation noise (Gaussian rotation vector)
+    friction_delta: float = 0.2  # object friction coefficient + uniform(-0.2, 0.2)
+    mass_delta: float = 0.3  # object mass x uniform(0.7, 1.3)
 
 
 @dataclass(frozen=True)
@@ -143,6 +159,30 @@ class AnnotatorConfig:
     objects: ObjectConfig = field(default_factory=ObjectConfig)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
+    robust: RobustConfig = field(default_factory=RobustConfig)
+
+    @classmethod
+    def thorough(cls, base: AnnotatorConfig | None = None) -> AnnotatorConfig:
+        """The reference protocol that ``bench/fidelity.py`` checks the default against.
+
+        Time step 1/1000 s, twice the solver iterations, a shake three times as long with 1.5x
+        the amplitudes (the same per-motion frequency, so more cycles at higher accelerations).
+        """
+        base = base or cls()
+        p = base.protocol
+        return dataclasses.replace(
+            base,
+            physics=dataclasses.replace(
+                base.physics, time_step=1.0 / 1000.0, solver_iterations=2 * base.physics.solver_iterations
+            ),
+            protocol=dataclasses.replace(
+                p,
+                shake_duration=3 * p.shake_duration,
+                shake_cycles=3 * p.shake_cycles,
+                shake_amplitude=1.5 * p.shake_amplitude,
+                shake_angle=1.5 * p.shake_angle,
+            ),
+        )
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return dataclasses.asdict(self)

@@ -13,19 +13,50 @@ The protocol (DESIGN.md), with an early exit at each stage:
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
 
-from annotator.config import AnnotatorConfig
+from annotator.config import AnnotatorConfig, RobustConfig
 from annotator.dataset import Outcome
-from annotator.geometry import Transform
+from annotator.geometry import Transform, axis_angle_to_matrix
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """Changes of one robust trial: TCP pose offset (in the TCP frame), friction and mass."""
+
+    T_tcp_tcp: Transform
+    friction_delta: float
+    mass_scale: float
+
+    @classmethod
+    def none(cls) -> Perturbation:
+        return cls(Transform.identity(), 0.0, 1.0)
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator, robust: RobustConfig) -> Perturbation:
+        """Gaussian pose noise, uniform friction and mass changes (RobustConfig)."""
+        rotvec = rng.normal(0.0, robust.rotation_sigma, 3)
+        angle = float(np.linalg.norm(rotvec))
+        R = axis_angle_to_matrix(rotvec / angle, angle) if angle > 0 else np.eye(3)
+        pos = rng.normal(0.0, robust.position_sigma, 3)
+        friction = rng.uniform(-robust.friction_delta, robust.friction_delta)
+        mass = rng.uniform(1.0 - robust.mass_delta, 1.0 + robust.mass_delta)
+        return cls(Transform.from_rotation(R, pos), float(friction), float(mass))
+
+
+def trial_rng(seed: int, object_id: str, grasp_id: int) -> np.random.Generator:
+    """The candidate's own Generator for its perturbations: depends on (seed, object, grasp) only."""
+    digest = hashlib.sha256(f"robust\x00{int(seed)}\x00{object_id}\x00{int(grasp_id)}".encode()).digest()
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.frombuffer(digest, "<u4").tolist())))
 
 
 @dataclass(frozen=True)
@@ -52,6 +83,8 @@ class GraspTrial:
         self.obj = object_uid
         self.config = config
         self.client = world.client
+        info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
+        self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
         self.state = world.save_state()
 
     def close(self) -> None:
@@ -97,9 +130,30 @@ class GraspTrial:
                 return True, open_width
         return False, open_width
 
-    def run(self, T_obj_tcp: Transform, width_expected: float) -> TrialResult:
-        """Simulate one candidate grasp from the saved initial state."""
+    def _apply(self, perturbation: Perturbation) -> None:
+        """Object friction and mass for this trial (restoreState does not reset dynamics)."""
+        s = perturbation.mass_scale
+        pb.changeDynamics(
+            self.obj,
+            -1,
+            mass=self._mass * s,
+            localInertiaDiagonal=(self._inertia * s).tolist(),
+            lateralFriction=max(0.0, self._friction + perturbation.friction_delta),
+            physicsClientId=self.client,
+        )
+
+    def run(
+        self, T_obj_tcp: Transform, width_expected: float, perturbation: Perturbation | None = None
+    ) -> TrialResult:
+        """Simulate one candidate grasp from the saved initial state.
+
+        With a ``perturbation`` the grasp pose is ``T_obj_tcp * perturbation.T_tcp_tcp`` and the
+        object's friction and mass change for this trial only.
+        """
         self.world.restore_state(self.state)
+        perturbation = perturbation or Perturbation.none()
+        self._apply(perturbation)
+        T_obj_tcp = T_obj_tcp * perturbation.T_tcp_tcp
         steps0 = self.world.steps
         cfg, g = self.config.protocol, self.config.gripper
         collided, open_width = self.collides(T_obj_tcp, width_expected)
@@ -135,7 +189,9 @@ class GraspTrial:
 
         # 5. shake
         lost = self._loss_monitor(T_hand_obj_grasp)
-        self.hand.shake(cfg.shake_amplitude, cfg.shake_angle, cfg.shake_duration, g.grip_force, on_step=lost)
+        self.hand.shake(
+            cfg.shake_amplitude, cfg.shake_angle, cfg.shake_duration, g.grip_force, lost, cfg.shake_cycles
+        )
         # let the last motion settle, then judge
         for _ in range(round(cfg.settle_time / self.world.dt)):
             self.hand.rg2.command(-g.close_speed, g.grip_force)

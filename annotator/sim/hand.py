@@ -160,17 +160,18 @@ class FloatingRG2:
         duration: float,
         force: float,
         on_step: Callable[[int], bool] | None = None,
+        cycles: int = 1,
     ) -> int:
         """Shake about the current target: a translation along x, y, z then a rotation about x, y, z.
 
-        Each of the six motions is one full sine period of ``duration / 6`` seconds, amplitude
+        Each of the six motions is ``cycles`` sine periods over ``duration / 6`` seconds, amplitude
         ``amplitude`` metres or ``angle`` radians, along / about the gripper base axes, rotations
         about the closed TCP (the grasp, not the flange). Returns steps simulated; ``on_step(i)``
         returning True stops early.
         """
         centre = self.target
         per = max(1, round(duration / 6 / self.world.dt))
-        phase = np.sin(2 * np.pi * np.arange(1, per + 1) / per)  # (per,)
+        phase = np.sin(2 * np.pi * cycles * np.arange(1, per + 1) / per)  # (per,)
         R = centre.rotation
         pivot = centre.apply(self.rg2.T_base_tcp(0.0).pos)
         positions, quats = [], []
