@@ -215,7 +215,10 @@ def _parallel(options: RunOptions):
             from dask.distributed import Client
         except ImportError as exc:
             raise UsageError("--scheduler needs Dask: pip install 'rg2-annotator[cluster]'") from exc
-        client = Client(options.scheduler)
+        try:
+            client = Client(options.scheduler)
+        except (OSError, ValueError, TypeError) as exc:  # unreachable, timed out, malformed address
+            raise UsageError(f"--scheduler {options.scheduler}: cannot connect ({exc})") from exc
         return client, lambda: joblib.parallel_config(backend="dask")
     return None, contextlib.nullcontext
 
