@@ -203,6 +203,48 @@ def test_dask_cluster_gives_the_same_labels(two_objects, reference_run, tmp_path
     pd.testing.assert_frame_equal(_labels(out), _labels(reference_run[0]), check_exact=True)
 
 
+def test_unreachable_scheduler_is_a_usage_error(two_objects, tmp_path):
+    dask = pytest.importorskip("dask")
+    pytest.importorskip("dask.distributed")
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        result = _annotate(
+            "--objects",
+            two_objects,
+            "--n",
+            2,
+            "--scheduler",
+            "tcp://127.0.0.1:1",
+            "--out",
+            tmp_path / "out",
+            "--quiet",
+            check=2,
+        )
+    assert "--scheduler" in result.output and "tcp://127.0.0.1:1" in result.output
+    assert "Traceback" not in result.output
+
+
+# --- robust labels ----------------------------------------------------------------------------------
+
+
+def test_trials_add_a_score_and_keep_the_nominal_labels(two_objects, reference_run, tmp_path):
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    shutil.copy(two_objects / "box.obj", objs)
+    out = tmp_path / "out"
+    _annotate("--objects", objs, "--n", N_SMALL, "--workers", 1, "--trials", 2, "--out", out, "--quiet")
+    robust = _labels(out)
+    nominal = _labels(reference_run[0])
+    nominal = nominal[nominal["object_id"] == "box"].reset_index(drop=True)
+    assert set(robust["score"]) <= {0.0, 0.5, 1.0}
+    # trial 0 is the unperturbed one: outcome, pose and width are those of the K = 1 run
+    same = ["object_id", "grasp_id", *"x y z qx qy qz qw".split(), "width", "success", "outcome"]
+    pd.testing.assert_frame_equal(robust[same], nominal[same], check_exact=True)
+    assert _manifest(out)["trials"] == 2
+    # a different K is another run: resuming it into the same folder needs --overwrite
+    result = _annotate("--objects", objs, "--n", N_SMALL, "--trials", 3, "--out", out, check=2)
+    assert "--overwrite" in result.output
+
+
 # --- 4. an object wider than the stroke -------------------------------------------------------------
 
 
