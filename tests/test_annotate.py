@@ -413,8 +413,9 @@ def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
     assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
     partial = _labels(out)
     assert partial.groupby("object_id").size().eq(N_LONG).all()
+    # the manifest lists what it knows to be whole (SIGINT may land between a file and its entry)
     done = set(_manifest(out)["objects_done"])
-    assert done == set(partial["object_id"])
+    assert done <= set(partial["object_id"])
 
     # the same command again finishes the job
     proc = _cli_subprocess(objs, out)
