@@ -6,7 +6,7 @@ A transform named ``T_a_b`` maps coordinates in frame ``b`` to frame ``a``, so
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -50,22 +50,23 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=np.float64)
     single = R.ndim == 2
     R = R.reshape(-1, 3, 3)
-    q = np.empty((R.shape[0], 4))
-    tr = np.trace(R, axis1=1, axis2=2)
-    for i, (m, t) in enumerate(zip(R, tr, strict=True)):
-        if t > 0:
-            s = 2.0 * np.sqrt(t + 1.0)
-            q[i] = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-        elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-            q[i] = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-        elif m[1, 1] > m[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-            q[i] = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-        else:
-            s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-            q[i] = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
-    q = quat_normalize(q)
+    m00, m01, m02 = R[:, 0, 0], R[:, 0, 1], R[:, 0, 2]
+    m10, m11, m12 = R[:, 1, 0], R[:, 1, 1], R[:, 1, 2]
+    m20, m21, m22 = R[:, 2, 0], R[:, 2, 1], R[:, 2, 2]
+    # four candidate formulas; each row uses the numerically best one (largest pivot)
+    t = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], 1)
+    s = 2.0 * np.sqrt(np.maximum(t, 1e-300))
+    cands = np.stack(
+        [
+            np.stack([(m21 - m12) / s[:, 0], (m02 - m20) / s[:, 0], (m10 - m01) / s[:, 0], s[:, 0] / 4], 1),
+            np.stack([s[:, 1] / 4, (m01 + m10) / s[:, 1], (m02 + m20) / s[:, 1], (m21 - m12) / s[:, 1]], 1),
+            np.stack([(m01 + m10) / s[:, 2], s[:, 2] / 4, (m12 + m21) / s[:, 2], (m02 - m20) / s[:, 2]], 1),
+            np.stack([(m02 + m20) / s[:, 3], (m12 + m21) / s[:, 3], s[:, 3] / 4, (m10 - m01) / s[:, 3]], 1),
+        ],
+        1,
+    )
+    q = cands[np.arange(len(R)), np.argmax(t, axis=1)]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 3] < 0] *= -1.0
     return q[0] if single else q
 
@@ -78,16 +79,30 @@ def axis_angle_to_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
 
 
-@dataclass(frozen=True)
 class Transform:
-    """A rigid transform ``T_a_b``: rotation ``quat`` (4,) xyzw and translation ``pos`` (3,) metres."""
+    """A rigid transform ``T_a_b``: rotation ``quat`` (4,) xyzw and translation ``pos`` (3,) metres.
 
-    pos: np.ndarray
-    quat: np.ndarray
+    Immutable by convention; the rotation matrix is computed once, on first use.
+    """
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "pos", np.asarray(self.pos, dtype=np.float64).reshape(3))
-        object.__setattr__(self, "quat", quat_normalize(np.asarray(self.quat).reshape(4)))
+    __slots__ = ("pos", "quat", "_R")
+
+    def __init__(self, pos, quat) -> None:
+        p = np.asarray(pos, dtype=np.float64).reshape(3)
+        q = np.asarray(quat, dtype=np.float64).reshape(4)
+        n = math.sqrt(float(q @ q))
+        if n < _EPS:
+            raise ValueError("zero-length quaternion")
+        self.pos = p
+        self.quat = q / n
+        self._R: np.ndarray | None = None
+
+    @classmethod
+    def _trusted(cls, pos: np.ndarray, quat: np.ndarray, R: np.ndarray) -> Transform:
+        """Build from already valid float64 arrays (no checks): the hot path of ``*``."""
+        t = cls.__new__(cls)
+        t.pos, t.quat, t._R = pos, quat, R
+        return t
 
     @classmethod
     def identity(cls) -> Transform:
@@ -107,7 +122,7 @@ class Transform:
     @classmethod
     def from_pybullet(cls, pose: tuple) -> Transform:
         """From PyBullet's ``(position, orientation)`` pair."""
-        return cls(np.asarray(pose[0]), np.asarray(pose[1]))
+        return cls(pose[0], pose[1])
 
     def to_pybullet(self) -> tuple[list[float], list[float]]:
         return self.pos.tolist(), self.quat.tolist()
@@ -115,7 +130,9 @@ class Transform:
     @property
     def rotation(self) -> np.ndarray:
         """(3, 3) rotation matrix."""
-        return quat_to_matrix(self.quat)
+        if self._R is None:
+            self._R = quat_to_matrix(self.quat)
+        return self._R
 
     def as_matrix(self) -> np.ndarray:
         """(4, 4) homogeneous matrix."""
@@ -125,13 +142,25 @@ class Transform:
         return T
 
     def inverse(self) -> Transform:
+        x, y, z, w = self.quat
+        q_inv = np.array([-x, -y, -z, w])
         R_t = self.rotation.T
-        return Transform.from_rotation(R_t, -R_t @ self.pos)
+        return Transform._trusted(-(R_t @ self.pos), q_inv, R_t)
 
     def __mul__(self, other: Transform) -> Transform:
         """``T_a_b * T_b_c -> T_a_c``."""
+        x1, y1, z1, w1 = self.quat
+        x2, y2, z2, w2 = other.quat
+        q = np.array(
+            [
+                w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+                w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            ]
+        )
         R = self.rotation
-        return Transform.from_rotation(R @ other.rotation, self.pos + R @ other.pos)
+        return Transform._trusted(self.pos + R @ other.pos, q, R @ other.rotation)
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Map points (3,) or (n, 3) from frame b to frame a."""

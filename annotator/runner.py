@@ -76,6 +76,12 @@ class Summary:
     seconds: float = 0.0
     candidates: int = 0
     physics_trials: int = 0
+    sim_steps: int = 0
+    worker_seconds: float = 0.0  # summed over workers
+    step_seconds: float = 0.0  # of which inside stepSimulation
+    first_label_seconds: float | None = None  # from start to the first label file written
+    peak_rss_mb: dict[int, float] = field(default_factory=dict)  # per worker pid
+    started: float = field(default_factory=time.perf_counter)  # perf_counter at the start
 
 
 @dataclass(frozen=True)
@@ -128,8 +134,11 @@ def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
 
 def simulate_chunk(
     chunk: Chunk, config: AnnotatorConfig, seed: int, trials: int = 1
-) -> tuple[pd.DataFrame, float]:
-    """Label rows for one chunk and the worker seconds spent (runs in a worker process).
+) -> tuple[pd.DataFrame, dict]:
+    """Label rows for one chunk and worker statistics (runs in a worker process).
+
+    The statistics: ``seconds`` of worker time, ``step_seconds`` inside stepSimulation,
+    ``peak_rss_mb`` of the worker process so far, its ``pid``.
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and
     the pose; trials 1..K-1 are perturbed from the candidate's own Generator (trial_rng) and
@@ -137,6 +146,7 @@ def simulate_chunk(
     """
     t0 = time.perf_counter()
     trial, model = _worker_trial(chunk, config)
+    step_seconds0 = trial.world.step_seconds
     rows = []
     for k in range(len(chunk.width)):
         grasp_id = chunk.start + k
@@ -173,7 +183,23 @@ def simulate_chunk(
                 "object_mass": model.mass,
             }
         )
-    return pd.DataFrame(rows), time.perf_counter() - t0
+    stats = {
+        "seconds": time.perf_counter() - t0,
+        "step_seconds": trial.world.step_seconds - step_seconds0,
+        "peak_rss_mb": _peak_rss_mb(),
+        "pid": os.getpid(),
+    }
+    return pd.DataFrame(rows), stats
+
+
+def _peak_rss_mb() -> float:
+    """This process's peak resident memory (MB); 0 where the platform does not say."""
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    except (ImportError, OSError):  # pragma: no cover - Windows
+        return 0.0
 
 
 def _canonical(q: np.ndarray) -> np.ndarray:
@@ -225,7 +251,8 @@ def _parallel(options: RunOptions):
 
 def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     """The whole job; returns a summary (and logs it). Raises UsageError for exit code 2."""
-    t0 = time.perf_counter()
+    summary = Summary()
+    t0 = summary.started
     try:
         sources = discover_objects(options.objects_dir)
     except ObjectDiscoveryError as exc:
@@ -237,7 +264,6 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     except dataset.ManifestMismatchError as exc:
         raise UsageError(str(exc)) from exc
 
-    summary = Summary()
     hashes = {s.object_id: dataset.file_sha256(s.path) for s in sources}  # the file given
     todo_ids = set(manifest.pending([s.object_id for s in sources], options.out_dir, hashes))
     summary.skipped = [s.object_id for s in sources if s.object_id not in todo_ids]
@@ -291,10 +317,14 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
         with backend():
             parallel = joblib.Parallel(n_jobs=options.workers, return_as="generator_unordered")
             jobs = (joblib.delayed(simulate_chunk)(c, config, options.seed, options.trials) for c in chunks)
-            for df, seconds in parallel(jobs):
+            for df, stats in parallel(jobs):
                 oid = df["object_id"].iat[0]
                 results[oid].append(df)
-                worker_seconds[oid] += seconds
+                worker_seconds[oid] += stats["seconds"]
+                summary.worker_seconds += stats["seconds"]
+                summary.step_seconds += stats["step_seconds"]
+                summary.sim_steps += int(df["sim_steps"].sum())
+                summary.peak_rss_mb[stats["pid"]] = stats["peak_rss_mb"]
                 bar.update(len(df))
                 summary.candidates += len(df)
                 summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
@@ -321,6 +351,8 @@ def _finish_object(oid, parts, manifest, options, summary, source_sha256, second
     path = dataset.write_object_labels(options.out_dir, df)
     manifest.mark_done(oid, path, len(df), source_sha256)
     manifest.save(options.out_dir)
+    if summary.first_label_seconds is None:
+        summary.first_label_seconds = time.perf_counter() - summary.started
     counts = df["outcome"].value_counts().to_dict()
     summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, seconds)
 

@@ -85,6 +85,7 @@ class GraspTrial:
         self.client = world.client
         info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
         self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
+        self._T_com_obj = Transform(info[3], info[4]).inverse()  # mesh frame in the COM frame
         self.state = world.save_state()
 
     def close(self) -> None:
@@ -94,11 +95,7 @@ class GraspTrial:
 
     def _T_world_obj(self) -> Transform:
         pos, orn = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
-        local = pb.getDynamicsInfo(self.obj, -1, physicsClientId=self.client)[3:5]
-        return (
-            Transform(np.asarray(pos), np.asarray(orn))
-            * Transform(np.asarray(local[0]), np.asarray(local[1])).inverse()
-        )
+        return Transform(pos, orn) * self._T_com_obj
 
     def _intersects(self) -> bool:
         margin = self.config.protocol.collision_margin
@@ -108,9 +105,6 @@ class GraspTrial:
     def _both_pads_touch(self) -> bool:
         a, b = self.hand.rg2.pad_contacts(self.obj)
         return bool(a) and bool(b)
-
-    def _T_hand_obj(self) -> Transform:
-        return self.hand.base_pose().inverse() * self._T_world_obj()
 
     # --- the protocol --------------------------------------------------------------------------
 
@@ -178,17 +172,17 @@ class GraspTrial:
             return result(Outcome.NO_CONTACT)
 
         # 4. lift with gravity on
-        T_hand_obj_grasp = self._T_hand_obj()
+        grasped_at = self._hand_obj_position()
         self.world.set_gravity(True)
         start = self.hand.target
         lifted = Transform(start.pos + np.array([0.0, 0.0, cfg.lift_height]), start.quat)
-        lost = self._loss_monitor(T_hand_obj_grasp)
+        lost = self._loss_monitor(grasped_at)
         self.hand.move(lifted, cfg.lift_duration, g.grip_force, on_step=lost)
         if lost.lost:
             return result(Outcome.SLIPPED_LIFT)
 
         # 5. shake
-        lost = self._loss_monitor(T_hand_obj_grasp)
+        lost = self._loss_monitor(grasped_at)
         self.hand.shake(
             cfg.shake_amplitude, cfg.shake_angle, cfg.shake_duration, g.grip_force, lost, cfg.shake_cycles
         )
@@ -196,26 +190,32 @@ class GraspTrial:
         for _ in range(round(cfg.settle_time / self.world.dt)):
             self.hand.rg2.command(-g.close_speed, g.grip_force)
             self.world.step()
-        slip = self._slip(T_hand_obj_grasp)
+        slip = self._slip(grasped_at)
         if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
             return result(Outcome.SLIPPED_SHAKE, slip)
         return result(Outcome.SUCCESS, slip)
 
-    def _slip(self, T_hand_obj_grasp: Transform) -> float:
-        """How far the object's origin moved in the hand since the grasp (m)."""
-        now = self._T_hand_obj()
-        return float(np.linalg.norm(now.pos - T_hand_obj_grasp.pos))
+    def _hand_obj_position(self) -> np.ndarray:
+        """The object's centre of mass in the gripper's COM frame, (3,) m (cheap, C-level math)."""
+        hand = pb.getBasePositionAndOrientation(self.hand.uid, physicsClientId=self.client)
+        obj = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
+        inv = pb.invertTransform(hand[0], hand[1])
+        return np.asarray(pb.multiplyTransforms(inv[0], inv[1], obj[0], obj[1])[0])
 
-    def _loss_monitor(self, T_hand_obj_grasp: Transform) -> _LossMonitor:
-        return _LossMonitor(self, T_hand_obj_grasp)
+    def _slip(self, reference: np.ndarray) -> float:
+        """How far the object moved in the hand since ``reference`` (from _hand_obj_position), m."""
+        return float(np.linalg.norm(self._hand_obj_position() - reference))
+
+    def _loss_monitor(self, reference: np.ndarray) -> _LossMonitor:
+        return _LossMonitor(self, reference)
 
 
 class _LossMonitor:
     """Per-step callback: flags the grasp as lost (early exit) once the object is clearly gone."""
 
-    def __init__(self, trial: GraspTrial, T_hand_obj_grasp: Transform) -> None:
+    def __init__(self, trial: GraspTrial, reference: np.ndarray) -> None:
         self.trial = trial
-        self.ref = T_hand_obj_grasp
+        self.ref = reference
         self.lost = False
         self.every = trial.config.protocol.check_every
 

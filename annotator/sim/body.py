@@ -60,6 +60,8 @@ class Body:
             )
             self.joints[joint.name] = joint
             self.links[joint.child_link] = i
+        local = pb.getDynamicsInfo(uid, -1, physicsClientId=client)[3:5]
+        self._T_com_base = Transform(local[0], local[1]).inverse()  # base link frame in the COM frame
 
     @classmethod
     def load(
@@ -120,14 +122,11 @@ class Body:
     def base_pose(self) -> Transform:
         """World pose of the base link frame."""
         pos, orn = pb.getBasePositionAndOrientation(self.uid, physicsClientId=self.client)
-        T_world_com = Transform(np.asarray(pos), np.asarray(orn))
-        local = pb.getDynamicsInfo(self.uid, -1, physicsClientId=self.client)[3:5]
-        return T_world_com * Transform(np.asarray(local[0]), np.asarray(local[1])).inverse()
+        return Transform(pos, orn) * self._T_com_base
 
     def reset_base_pose(self, T_world_base: Transform) -> None:
         """Teleport the base link frame to ``T_world_base`` (zero velocity)."""
-        local = pb.getDynamicsInfo(self.uid, -1, physicsClientId=self.client)[3:5]
-        T_world_com = T_world_base * Transform(np.asarray(local[0]), np.asarray(local[1]))
+        T_world_com = T_world_base * self._T_com_base.inverse()
         pb.resetBasePositionAndOrientation(
             self.uid, T_world_com.pos.tolist(), T_world_com.quat.tolist(), physicsClientId=self.client
         )

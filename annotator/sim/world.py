@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 
 import pybullet as pb
 
@@ -20,6 +21,7 @@ class World:
         if self.client < 0:
             raise RuntimeError("could not connect to PyBullet" + (" (GUI needs a display)" if gui else ""))
         self.steps = 0  # simulated steps since creation, for statistics
+        self.step_seconds = 0.0  # wall time spent inside stepSimulation, for statistics
         self.configure()
 
     def configure(self) -> None:
@@ -43,8 +45,10 @@ class World:
         pb.setGravity(0, 0, self.physics.gravity if on else 0.0, physicsClientId=self.client)
 
     def step(self, n: int = 1) -> None:
+        t0 = time.perf_counter()
         for _ in range(n):
             pb.stepSimulation(physicsClientId=self.client)
+        self.step_seconds += time.perf_counter() - t0
         self.steps += n
 
     def save_state(self) -> int:

@@ -1,0 +1,98 @@
+"""Throughput of the annotation job on the sample objects; prints figures, asserts nothing.
+
+    python bench/throughput.py            # --n 200 on all cores, then the 1- vs 2-worker scaling
+    python bench/throughput.py --n 50     # quicker
+
+Convex decompositions are cached (RG2_CACHE_DIR or ~/.cache/rg2-annotator); the first run on a
+fresh machine pays for them, so run it twice and read the second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+
+from annotator.config import AnnotatorConfig
+from annotator.geometry import Transform
+from annotator.objects import create_body, discover_objects, load_object
+from annotator.runner import RunOptions, run
+from annotator.sim.hand import FloatingRG2
+from annotator.sim.world import World
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def raw_step_cost(objects: Path, config: AnnotatorConfig, steps: int = 480) -> float:
+    """Seconds per stepSimulation of the RG2 squeezing the sample box (no Python in the loop)."""
+    with World(config.physics) as world:
+        hand = FloatingRG2(world, config.gripper)
+        model = load_object(objects / "box.obj", config.objects)
+        uid = create_body(world.client, model)
+        world.set_gravity(False)
+        top = model.mesh.bounds[1][2] - 0.015  # pads on the top 30 mm, closing along the 60 mm side
+        T_world_tcp = Transform([*model.center_mass[:2], top], np.array([1.0, 0.0, 0.0, 0.0]))
+        hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, 0.06), 0.08)
+        hand.close(config.gripper.grip_force, 240)
+        assert all(hand.rg2.pad_contacts(uid)), "the bench grasp does not touch the box"
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            pb.stepSimulation(physicsClientId=world.client)
+        return (time.perf_counter() - t0) / steps
+
+
+def timed_run(objects: Path, n: int, workers: int, config: AnnotatorConfig):
+    with tempfile.TemporaryDirectory() as out:
+        options = RunOptions(objects_dir=objects, n=n, out_dir=Path(out), workers=workers, quiet=True)
+        t0 = time.perf_counter()
+        summary = run(options, config)
+        return summary, time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+    ap.add_argument("--n", type=int, default=200)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--scaling-n", type=int, default=40, help="candidates per object for 1 vs 2 workers")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    config = AnnotatorConfig()
+
+    n_objects = len(discover_objects(args.objects))
+    summary, wall = timed_run(args.objects, args.n, args.workers, config)
+    outside = 1.0 - summary.step_seconds / summary.worker_seconds
+    print(f"\n== annotate --n {args.n} on {n_objects} sample objects, {args.workers} workers ==")
+    print(f"wall time                      {wall:8.1f} s")
+    print(f"candidates/s                   {summary.candidates / wall:8.2f}")
+    print(
+        f"physics trials/s               {summary.physics_trials / wall:8.2f}   "
+        f"({summary.physics_trials} of {summary.candidates} candidates simulated)"
+    )
+    print(f"mean simulated steps/candidate {summary.sim_steps / summary.candidates:8.1f}")
+    print(f"time to first label file       {summary.first_label_seconds:8.1f} s")
+    print(f"worker time in stepSimulation  {summary.step_seconds:8.1f} s of {summary.worker_seconds:.1f} s")
+    print(f"share outside stepSimulation   {outside:8.1%}")
+    print(f"mean cost of one step in runs  {summary.step_seconds / max(summary.sim_steps, 1) * 1e3:8.3f} ms")
+    print(f"raw stepSimulation, RG2 + box  {raw_step_cost(args.objects, config) * 1e3:8.3f} ms")
+    rss = list(summary.peak_rss_mb.values())
+    print(
+        f"peak memory per worker         {max(rss):8.0f} MB (workers: {', '.join(f'{r:.0f}' for r in rss)})"
+    )
+
+    print(f"\n== scaling: --n {args.scaling_n}, 1 vs 2 workers ==")
+    s1, w1 = timed_run(args.objects, args.scaling_n, 1, config)
+    s2, w2 = timed_run(args.objects, args.scaling_n, 2, config)
+    print(
+        f"1 worker {w1:6.1f} s, 2 workers {w2:6.1f} s: speed-up {w1 / w2:.2f}, efficiency {w1 / (2 * w2):.1%}"
+    )
+
+
+if __name__ == "__main__":
+    main()
