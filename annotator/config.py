@@ -72,6 +72,10 @@ class ObjectConfig:
     lateral_friction: float = 1.0  # as ACRONYM; paired with the pads' 1.0
     spinning_friction: float = 0.002
     rolling_friction: float = 0.0001
+    # Bullet pads convex meshes with a collision margin (bullet3 #2867, ROBOT_FACTS pitfall 5):
+    # with the default the pads stopped 0.9 mm short of each face, so every label's width read
+    # 1.8 mm wide of the object's chord. Zero margin: within 0.25 mm (tests/test_protocol.py).
+    collision_margin: float = 0.0  # m
     # Convex decomposition (CoACD) concavity threshold: 0.05 is the library's default quality.
     decomposition_threshold: float = 0.05
 

@@ -512,6 +512,7 @@ def create_body(
         lateralFriction=config.lateral_friction,
         spinningFriction=config.spinning_friction,
         rollingFriction=config.rolling_friction,
+        collisionMargin=config.collision_margin,
         physicsClientId=client,
     )
     return body
