@@ -384,7 +384,7 @@ def format_summary(summary: Summary) -> str:
 
 def _log_summary(summary: Summary, options: RunOptions) -> None:
     text = format_summary(summary)
-    # the summary is the command's result: print it even with --quiet (stderr keeps stdout clean)
+    # the summary is the command's result: printed to stdout even with --quiet
     import click
 
     click.echo(text, err=False)
