@@ -109,6 +109,7 @@ def _worker_world(config: AnnotatorConfig):
     if _WORKER.get("config") != config:
         if "world" in _WORKER:
             _WORKER["world"].close()
+            _WORKER.pop("object", None)  # its body lived in the closed world
         world = World(config.physics)
         _WORKER.update(config=config, world=world, hand=FloatingRG2(world, config.gripper), object=None)
     return _WORKER["world"], _WORKER["hand"]
@@ -119,8 +120,12 @@ def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
     from annotator.trial import GraspTrial
 
     world, hand = _worker_world(config)
+    # Worker processes outlive a run (joblib reuses them), so the key is the file as it is now,
+    # not just the id: another run may have had a different object under the same id.
+    stat = os.stat(chunk.source.path)
+    key = (chunk.object_id, str(chunk.source.path), stat.st_mtime_ns, stat.st_size, chunk.scale)
     current = _WORKER.get("object")
-    if current is None or current[0] != chunk.object_id:
+    if current is None or current[0] != key:
         if current is not None:
             current[2].close()
             world.remove_body(current[1])
@@ -128,7 +133,7 @@ def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
         hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), hand.rg2.max_width)  # parked
         uid = create_body(world.client, model)
         world.set_gravity(False)
-        _WORKER["object"] = (chunk.object_id, uid, GraspTrial(world, hand, uid, config), model)
+        _WORKER["object"] = (key, uid, GraspTrial(world, hand, uid, config), model)
     return _WORKER["object"][2], _WORKER["object"][3]
 
 
