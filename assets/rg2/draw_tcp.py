@@ -1,6 +1,6 @@
 """Render the RG2 with its TCP frame (x red, y green, z blue) to ``tcp_frame.png`` beside this file.
 
-    python assets/rg2/draw_tcp.py
+python assets/rg2/draw_tcp.py
 """
 
 from __future__ import annotations
@@ -33,7 +33,9 @@ def main() -> None:
             half = np.full(3, AXIS_THICKNESS / 2)
             half[axis] = AXIS_LENGTH / 2
             centre = T_world_tcp.apply(np.eye(3)[axis] * AXIS_LENGTH / 2)
-            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=rgba, physicsClientId=c)
+            vis = pb.createVisualShape(
+                pb.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=rgba, physicsClientId=c
+            )
             pb.createMultiBody(0, -1, vis, centre.tolist(), T_world_tcp.quat.tolist(), physicsClientId=c)
         camera = orbit_camera(tuple(T_world_tcp.pos + [0, 0, 0.06]), 0.42, 35, -20, 640, 480, fov=45)
         out = Path(__file__).with_name("tcp_frame.png")
