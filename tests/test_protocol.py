@@ -12,6 +12,7 @@ import pytest
 import trimesh
 
 from annotator.config import AnnotatorConfig, ObjectConfig
+from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource
 from annotator.runner import Chunk, simulate_chunk
@@ -151,3 +152,12 @@ def test_robust_score_is_a_fraction_and_success_is_the_unperturbed_trial(tmp_pat
     pd.testing.assert_series_equal(one["success"], four["success"])
     assert set(np.round(four["score"] * 4, 6)) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     assert (four.loc[~four["success"], "score"] <= 0.75).all()
+
+
+def test_thin_plate_width_is_its_thickness(tmp_path):
+    """Pads squeezing 40 N on an 8 mm plate must not sink into it (contact ERP, config.physics)."""
+    mesh = trimesh.creation.box((0.12, 0.08, 0.008))
+    df = label(write_mesh(tmp_path, "plate", mesh), mesh, 60, workers=2)
+    across = df[df["success"] & (np.abs(poses_as_matrices(df)[:, 2, 0]) > 0.95)]  # closing along z
+    assert len(across) >= 5, len(across)
+    assert (np.abs(across["width"] - 0.008) < 0.0015).all(), across["width"].round(4).tolist()
