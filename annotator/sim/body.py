@@ -61,7 +61,8 @@ class Body:
             self.joints[joint.name] = joint
             self.links[joint.child_link] = i
         local = pb.getDynamicsInfo(uid, -1, physicsClientId=client)[3:5]
-        self._T_com_base = Transform(local[0], local[1]).inverse()  # base link frame in the COM frame
+        # the base link frame in the base's inertial (COM) frame, the frame PyBullet moves
+        self.T_com_base = Transform(local[0], local[1]).inverse()
 
     @classmethod
     def load(
@@ -122,11 +123,11 @@ class Body:
     def base_pose(self) -> Transform:
         """World pose of the base link frame."""
         pos, orn = pb.getBasePositionAndOrientation(self.uid, physicsClientId=self.client)
-        return Transform(pos, orn) * self._T_com_base
+        return Transform(pos, orn) * self.T_com_base
 
     def reset_base_pose(self, T_world_base: Transform) -> None:
         """Teleport the base link frame to ``T_world_base`` (zero velocity)."""
-        T_world_com = T_world_base * self._T_com_base.inverse()
+        T_world_com = T_world_base * self.T_com_base.inverse()
         pb.resetBasePositionAndOrientation(
             self.uid, T_world_com.pos.tolist(), T_world_com.quat.tolist(), physicsClientId=self.client
         )

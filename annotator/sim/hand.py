@@ -37,9 +37,6 @@ class FloatingRG2:
         urdf = paths.rg2_urdf()
         self.body = Body.load(self.client, urdf, flags=RG2_LOAD_FLAGS)
         self.rg2 = RG2(self.body, urdf, self.config)
-        local = pb.getDynamicsInfo(self.body.uid, -1, physicsClientId=self.client)[3:5]
-        # constraint parent frame: the base link frame expressed in the base's inertial frame
-        self._T_com_base = Transform(np.asarray(local[0]), np.asarray(local[1])).inverse()
         self._constraint = pb.createConstraint(
             self.body.uid,
             -1,
@@ -47,9 +44,9 @@ class FloatingRG2:
             -1,
             pb.JOINT_FIXED,
             [0, 0, 0],
-            self._T_com_base.pos.tolist(),
+            self.body.T_com_base.pos.tolist(),  # parent frame: the base link in its COM frame
             [0, 0, 0],
-            self._T_com_base.quat.tolist(),
+            self.body.T_com_base.quat.tolist(),
             physicsClientId=self.client,
         )
         self.target = Transform.identity()
