@@ -101,15 +101,7 @@ class Scene:
 
     def command_arm(self, q: np.ndarray | tuple[float, ...]) -> None:
         """Position-control the six arm joints to ``q`` (6,) rad with the URDF effort limits as forces."""
-        joints = [self.robot.joints[n] for n in JOINT_NAMES]
-        pb.setJointMotorControlArray(
-            self.robot.uid,
-            [j.index for j in joints],
-            pb.POSITION_CONTROL,
-            targetPositions=list(map(float, q)),
-            forces=[j.max_force for j in joints],
-            physicsClientId=self.client,
-        )
+        self.robot.position_control(dict(zip(JOINT_NAMES, q, strict=True)))
 
     def command_gripper(self, angle: float) -> None:
         """Hold the driven gripper angle (rad) with the configured grip force."""

@@ -178,15 +178,8 @@ def test_model_loads_cleanly_and_survives_random_targets(urdf, capfd):
                 angle = rng.uniform(body.joints[rg2.driven].lower, body.joints[rg2.driven].upper)
                 targets = [rng.uniform(max(j.lower, -np.pi), min(j.upper, np.pi)) for j in arm]
             rg2.hold_position(angle, 40.0)
-            for j, q in zip(arm, targets, strict=True):
-                pb.setJointMotorControl2(
-                    body.uid,
-                    j.index,
-                    pb.POSITION_CONTROL,
-                    targetPosition=q,
-                    force=j.max_force,
-                    physicsClientId=w.client,
-                )
+            if arm:
+                body.position_control({j.name: q for j, q in zip(arm, targets, strict=True)})
             w.step()
         base = body.base_pose().pos
         for name in body.links:

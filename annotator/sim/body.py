@@ -106,6 +106,21 @@ class Body:
         for name, q in positions.items():
             pb.resetJointState(self.uid, self.joints[name].index, q, 0.0, physicsClientId=self.client)
 
+    def position_control(self, targets: dict[str, float], forces: dict[str, float] | None = None) -> None:
+        """Position-control the named joints to ``targets`` (rad or m).
+
+        ``forces`` per joint default to the URDF effort limits.
+        """
+        joints = [self.joints[n] for n in targets]
+        pb.setJointMotorControlArray(
+            self.uid,
+            [j.index for j in joints],
+            pb.POSITION_CONTROL,
+            targetPositions=[float(q) for q in targets.values()],
+            forces=[(forces or {}).get(j.name, j.max_force) for j in joints],
+            physicsClientId=self.client,
+        )
+
     def disable_motor(self, name: str) -> None:
         """Switch off the default velocity motor that PyBullet puts on every joint."""
         pb.setJointMotorControl2(
