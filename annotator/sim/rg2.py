@@ -297,43 +297,27 @@ class RG2:
         every step while the fingers move: the transmission ratio changes with the angle.
         """
         angle = self.driven_angle()
-        torque = force * self.table.dwidth_dangle(angle)
-        pb.setJointMotorControl2(
-            self.body.uid,
-            self.body.joints[self.driven].index,
-            pb.VELOCITY_CONTROL,
-            targetVelocity=target_velocity,
-            force=torque,
-            physicsClientId=self.client,
-        )
-        if self.coupling == "position":
-            self._drive_followers(angle, torque)
-
-    def _drive_followers(self, angle: float, torque: float) -> None:
-        names = list(self.mimic)
-        targets = self.follower_targets(angle)
-        pb.setJointMotorControlArray(
-            self.body.uid,
-            [self.body.joints[n].index for n in names],
-            pb.POSITION_CONTROL,
-            targetPositions=[targets[n] for n in names],
-            forces=[self.config.coupling_max_force] * len(names),
-            physicsClientId=self.client,
-        )
+        self._actuate(pb.VELOCITY_CONTROL, {"targetVelocity": target_velocity}, force, angle)
 
     def hold_position(self, angle: float, force: float) -> None:
         """Hold driven angle ``angle`` with at most the torque for ``force`` N (GUI slider use)."""
+        self._actuate(pb.POSITION_CONTROL, {"targetPosition": angle}, force, angle)
+
+    def _actuate(self, mode: int, target: dict[str, float], force: float, angle: float) -> None:
+        """The driven joint's motor in ``mode`` with the torque for ``force`` at ``angle``.
+
+        With ``coupling="position"`` the followers are also position-controlled to their mimic
+        targets for the current driven angle.
+        """
         torque = force * self.table.dwidth_dangle(angle)
+        joint = self.body.joints[self.driven]
         pb.setJointMotorControl2(
-            self.body.uid,
-            self.body.joints[self.driven].index,
-            pb.POSITION_CONTROL,
-            targetPosition=angle,
-            force=torque,
-            physicsClientId=self.client,
+            self.body.uid, joint.index, mode, force=torque, physicsClientId=self.client, **target
         )
         if self.coupling == "position":
-            self._drive_followers(self.driven_angle(), torque)
+            targets = self.follower_targets(self.driven_angle())
+            del targets[self.driven]
+            self.body.position_control(targets, {n: self.config.coupling_max_force for n in targets})
 
     # --- contacts --------------------------------------------------------------------------------
 
