@@ -3,9 +3,14 @@
 Layout of an output directory::
 
     labels/
-      _manifest.json                     configuration, versions, objects done / failed
-      ycb__mug-3f2a9c01d4.parquet        one file per object, exactly N rows
+      _manifest.json                          configuration, versions, objects and chunks done
+      ycb__mug-3f2a9c01d4.parquet             one file per finished object, exactly N rows
+      ycb__can-8c1e0b77aa.000050-000075.parquet   a finished chunk of an object still running
       ...
+
+Each chunk of candidates is written as soon as it is simulated (so labels appear within seconds
+and an interrupt loses at most the chunks in flight); when an object's last chunk is in, its
+chunks are merged into the object's file and deleted.
 
 ``pandas.read_parquet("labels/")`` reads every label: pyarrow's dataset discovery skips names
 starting with ``.`` or ``_``, which is why the manifest is ``_manifest.json`` and temporary files
@@ -18,6 +23,7 @@ import contextlib
 import dataclasses
 import datetime as _dt
 import enum
+import glob
 import hashlib
 import importlib.metadata
 import json
@@ -92,7 +98,7 @@ _TEXT_DTYPE = pd.Series(["text"]).dtype
 _ARROW_TYPES = {STRING: pa.string(), "int64": pa.int64(), "float64": pa.float64(), "bool": pa.bool_()}
 
 MANIFEST_NAME = "_manifest.json"
-MANIFEST_VERSION = 1
+MANIFEST_VERSION = 2  # 2: chunks_done (labels written per chunk)
 # A quaternion further than this from unit norm is a bug upstream, not float noise.
 _QUAT_NORM_TOL = 1e-6
 
@@ -204,6 +210,11 @@ def object_filename(object_id: str) -> str:
     return f"{readable}-{digest}.parquet"
 
 
+def chunk_filename(object_id: str, start: int, stop: int) -> str:
+    """File name of candidates ``start..stop-1`` of an object: ``<object stem>.SSSSSS-EEEEEE.parquet``."""
+    return f"{object_filename(object_id)[: -len('.parquet')]}.{start:06d}-{stop:06d}.parquet"
+
+
 def _fsync_dir(path: Path) -> None:
     """Make a rename in ``path`` durable (a no-op where directories cannot be opened)."""
     with contextlib.suppress(OSError):
@@ -251,6 +262,25 @@ def _arrow_table(df: pd.DataFrame) -> pa.Table:
     return table.cast(pa.schema(fields, metadata=table.schema.metadata))
 
 
+def _write_range(
+    out_dir: str | Path, df: pd.DataFrame, start: int, stop: int, name: Callable[[str], str]
+) -> Path:
+    """Validate rows of ONE object with ``grasp_id`` exactly ``start..stop-1``; write them atomically."""
+    out = validate_labels(df)
+    ids = out["object_id"].unique()
+    if len(ids) != 1:
+        raise SchemaError(f"a label file holds one object's labels, got object_ids {list(ids)[:5]}")
+    grasp_ids = np.sort(out["grasp_id"].to_numpy())
+    if not np.array_equal(grasp_ids, np.arange(start, stop)):
+        raise SchemaError(f"grasp_id of {ids[0]!r} must be exactly {start}..{stop - 1}")
+    out = out.sort_values("grasp_id", kind="stable").reset_index(drop=True)
+    path = Path(out_dir) / name(str(ids[0]))
+    table = _arrow_table(out)
+    _atomic_write(path, lambda fh: pq.write_table(table, fh))
+    log.debug("wrote %d labels of %s to %s", len(out), ids[0], path)
+    return path
+
+
 def write_object_labels(out_dir: str | Path, df: pd.DataFrame) -> Path:
     """Validate the labels of ONE object and write them atomically to ``out_dir``.
 
@@ -258,19 +288,26 @@ def write_object_labels(out_dir: str | Path, df: pd.DataFrame) -> Path:
     the same extra columns for every object (``read_parquet`` on the directory takes the first
     file's schema). Returns the path of the Parquet file, named by :func:`object_filename`.
     """
-    out = validate_labels(df)
-    ids = out["object_id"].unique()
-    if len(ids) != 1:
-        raise SchemaError(f"write_object_labels takes one object's labels, got object_ids {list(ids)[:5]}")
-    grasp_ids = np.sort(out["grasp_id"].to_numpy())
-    if not np.array_equal(grasp_ids, np.arange(len(out))):
-        raise SchemaError(f"grasp_id of {ids[0]!r} must be exactly 0..{len(out) - 1}")
-    out = out.sort_values("grasp_id", kind="stable").reset_index(drop=True)
-    path = Path(out_dir) / object_filename(str(ids[0]))
-    table = _arrow_table(out)
-    _atomic_write(path, lambda fh: pq.write_table(table, fh))
-    log.debug("wrote %d labels of %s to %s", len(out), ids[0], path)
-    return path
+    return _write_range(out_dir, df, 0, len(df), object_filename)
+
+
+def write_chunk_labels(out_dir: str | Path, df: pd.DataFrame, start: int) -> Path:
+    """Write one chunk of one object: rows with ``grasp_id`` exactly ``start..start+len(df)-1``.
+
+    The file is named by :func:`chunk_filename`; :func:`merge_chunks` later folds an object's
+    chunks into its one file.
+    """
+    stop = start + len(df)
+    return _write_range(out_dir, df, start, stop, lambda oid: chunk_filename(oid, start, stop))
+
+
+def merge_chunks(out_dir: str | Path, object_id: str, files: Iterable[str]) -> pd.DataFrame:
+    """One object's labels from its chunk files (names in ``out_dir``), sorted by grasp_id."""
+    parts = [pd.read_parquet(Path(out_dir) / f) for f in files]
+    df = pd.concat(parts, ignore_index=True).sort_values("grasp_id", kind="stable", ignore_index=True)
+    if not (df["object_id"] == object_id).all():
+        raise SchemaError(f"chunk files of {object_id!r} hold other objects' labels")
+    return df
 
 
 def file_sha256(path: str | Path) -> str:
@@ -371,6 +408,8 @@ class Manifest:
 
     objects_done : object_id -> {"file", "n", "sha256" (of the label file), "mesh_sha256", "time"}
     objects_failed : object_id -> one-line error
+    chunks_done : object_id -> {"mesh_sha256", "files": {"start-stop": chunk file name}} for
+        objects not finished yet; an object's entry goes when its chunks are merged.
     """
 
     config: dict[str, Any]
@@ -380,6 +419,7 @@ class Manifest:
     versions: dict[str, str] = field(default_factory=collect_versions)
     objects_done: dict[str, dict[str, Any]] = field(default_factory=dict)
     objects_failed: dict[str, str] = field(default_factory=dict)
+    chunks_done: dict[str, dict[str, Any]] = field(default_factory=dict)
     created: str = field(default_factory=_now)
     updated: str = field(default_factory=_now)
     manifest_version: int = MANIFEST_VERSION
@@ -428,6 +468,31 @@ class Manifest:
             "time": _now(),
         }
         self.objects_failed.pop(object_id, None)
+        self.chunks_done.pop(object_id, None)
+
+    def mark_chunk(self, object_id: str, start: int, path: str | Path, n: int, mesh_sha256: str) -> None:
+        """Record a chunk file just written (candidates ``start..start+n-1``) by write_chunk_labels."""
+        entry = self.chunks_done.get(object_id)
+        if entry is None or entry["mesh_sha256"] != mesh_sha256:
+            entry = self.chunks_done[object_id] = {"mesh_sha256": mesh_sha256, "files": {}}
+        entry["files"][f"{int(start)}-{int(start) + int(n)}"] = Path(path).name
+
+    def chunks_of(
+        self, object_id: str, out_dir: str | Path, mesh_sha256: str | None = None
+    ) -> dict[tuple[int, int], str]:
+        """Chunks of an unfinished object done earlier and still usable: (start, stop) -> file.
+
+        A chunk counts if its file exists and (when given) the mesh hash is unchanged.
+        """
+        entry = self.chunks_done.get(object_id)
+        if entry is None or (mesh_sha256 is not None and entry["mesh_sha256"] != mesh_sha256):
+            return {}
+        out: dict[tuple[int, int], str] = {}
+        for key, name in entry["files"].items():
+            start, stop = (int(v) for v in key.split("-"))
+            if (Path(out_dir) / name).exists():
+                out[(start, stop)] = name
+        return out
 
     def mark_failed(self, object_id: str, error: BaseException | str) -> None:
         """Record a failure as one line (``Type: message``); the object is retried on resume."""
@@ -438,6 +503,7 @@ class Manifest:
         line = " ".join(text.split())[:500]
         self.objects_failed[object_id] = line
         self.objects_done.pop(object_id, None)
+        self.chunks_done.pop(object_id, None)
 
     # -- resume
     def differences(self, config: Mapping[str, Any], seed: int, n: int, trials: int) -> list[str]:
@@ -491,6 +557,15 @@ def _remove_outputs(out_dir: Path) -> int:
     return removed
 
 
+def _remove_merged_chunks(out_dir: Path, manifest: Manifest) -> None:
+    """Delete chunk files of objects already merged into their file (a stop between the two steps)."""
+    for oid in manifest.objects_done:
+        stem = object_filename(oid)[: -len(".parquet")]
+        for p in out_dir.glob(f"{glob.escape(stem)}.*-*.parquet"):
+            log.info("removing %s: already merged into %s", p.name, object_filename(oid))
+            p.unlink()
+
+
 def open_run(
     out_dir: str | Path,
     config: Mapping[str, Any],
@@ -532,6 +607,7 @@ def open_run(
             f"{out} holds a run with different settings ({'; '.join(diffs)}); pass --overwrite to "
             "start over or choose another --out"
         )
+    _remove_merged_chunks(out, manifest)
     current = collect_versions()
     changed = {k: (manifest.versions.get(k), v) for k, v in current.items() if manifest.versions.get(k) != v}
     if changed:

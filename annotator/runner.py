@@ -1,10 +1,13 @@
-"""Run the job: objects -> candidates -> chunks of trials on joblib (or Dask) workers -> one writer.
+"""Run the job: objects -> spans of candidates on joblib (or Dask) workers -> one writer.
 
-Workers build their world once (PyBullet DIRECT, floating RG2) and keep it for every chunk they
-get; an object body is created when a chunk of a new object arrives. Each candidate starts from
-a restored snapshot, so labels depend only on (object, seed, candidate), never on which worker
-ran it or what it ran before. The main process alone writes: one atomic Parquet file per object
-as soon as all its chunks are in, then the manifest.
+The main process only discovers the objects and hands out spans (candidates start..stop of one
+object); it never loads a mesh, so work starts at once. Workers build their world once (PyBullet
+DIRECT, floating RG2) and keep it; when a span of a new object arrives they load the object
+(the convex decomposition comes from the cache), sample its N candidates (the same on every
+worker: the Generator is keyed on seed and object id) and create its body. Each candidate starts
+from a restored snapshot, so labels depend only on (object, seed, candidate), never on which
+worker ran it or what it ran before. The main process alone writes: one atomic Parquet file per
+span as soon as it is back, merged into the object's file when its last span is in.
 """
 
 from __future__ import annotations
@@ -37,9 +40,10 @@ from annotator.trial import Perturbation, trial_rng
 
 log = logging.getLogger(__name__)
 
-# Candidates per unit of work: small enough to balance 2..64 workers and show progress early,
-# large enough that the per-chunk overhead (pickling, object body creation) stays < 1 %.
-CHUNK_SIZE = 25
+# Candidates per unit of work (and per chunk file): small enough that the first labels are on disk
+# within seconds, that 2..64 workers stay balanced and that an interrupt loses little; large
+# enough that the per-span overhead (pickling, a chunk file, a manifest save) stays ~ 1 %.
+CHUNK_SIZE = 10
 
 
 class UsageError(Exception):
@@ -98,6 +102,33 @@ class Chunk:
 
 # --- worker side -------------------------------------------------------------------------------
 
+
+@dataclass(frozen=True)
+class Span:
+    """A unit of work for the runner: candidates ``start..stop-1`` of one object.
+
+    The worker samples the object's N candidates itself (once per object, cached) and simulates
+    this slice, so the main process never waits for objects to be loaded before work starts.
+    """
+
+    object_id: str
+    source: object  # an annotator.objects.ObjectSource
+    scale: float | None
+    start: int
+    stop: int
+
+
+@dataclass
+class _Loaded:
+    """The object a worker has in its world: body, trial runner, model, sampled candidates."""
+
+    key: tuple
+    uid: int
+    trial: object  # annotator.trial.GraspTrial
+    model: object  # annotator.objects.ObjectModel
+    candidates: dict[tuple, object] = field(default_factory=dict)  # (seed, n) -> Candidates
+
+
 _WORKER: dict[str, object] = {}
 
 
@@ -109,32 +140,101 @@ def _worker_world(config: AnnotatorConfig):
     if _WORKER.get("config") != config:
         if "world" in _WORKER:
             _WORKER["world"].close()
-            _WORKER.pop("object", None)  # its body lived in the closed world
         world = World(config.physics)
         _WORKER.update(config=config, world=world, hand=FloatingRG2(world, config.gripper), object=None)
+        _WORKER["failed"] = {}
     return _WORKER["world"], _WORKER["hand"]
 
 
-def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
-    """A GraspTrial for the chunk's object (the object body is created once per object)."""
+def _object_key(object_id: str, source, scale: float | None) -> tuple:
+    # Worker processes outlive a run (joblib reuses them), so the key is the file as it is now,
+    # not just the id: another run may have had a different object under the same id.
+    stat = os.stat(source.path)
+    return (object_id, str(source.path), stat.st_mtime_ns, stat.st_size, scale)
+
+
+def _worker_object(object_id: str, source, scale: float | None, config: AnnotatorConfig) -> _Loaded:
+    """The worker's loaded object (its body is created once per object); raises ObjectError."""
     from annotator.trial import GraspTrial
 
     world, hand = _worker_world(config)
-    # Worker processes outlive a run (joblib reuses them), so the key is the file as it is now,
-    # not just the id: another run may have had a different object under the same id.
-    stat = os.stat(chunk.source.path)
-    key = (chunk.object_id, str(chunk.source.path), stat.st_mtime_ns, stat.st_size, chunk.scale)
-    current = _WORKER.get("object")
-    if current is None or current[0] != key:
+    try:
+        key = _object_key(object_id, source, scale)
+    except OSError as exc:
+        raise ObjectError(f"cannot read {source.path}: {exc.strerror or exc}") from exc
+    if key in _WORKER["failed"]:
+        raise ObjectError(_WORKER["failed"][key])
+    current: _Loaded | None = _WORKER.get("object")
+    if current is None or current.key != key:
         if current is not None:
-            current[2].close()
-            world.remove_body(current[1])
-        model = _load_object(chunk.source, config.objects, scale=chunk.scale)
+            current.trial.close()
+            world.remove_body(current.uid)
+            _WORKER["object"] = None
+        try:
+            model = _load_object(source, config.objects, scale=scale)
+        except ObjectError as exc:
+            _WORKER["failed"][key] = str(exc)
+            raise
         hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), hand.rg2.max_width)  # parked
         uid = create_body(world.client, model)
         world.set_gravity(False)
-        _WORKER["object"] = (key, uid, GraspTrial(world, hand, uid, config), model)
-    return _WORKER["object"][2], _WORKER["object"][3]
+        _WORKER["object"] = _Loaded(key, uid, GraspTrial(world, hand, uid, config), model)
+    return _WORKER["object"]
+
+
+def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
+    """A GraspTrial and the model of the chunk's object."""
+    loaded = _worker_object(chunk.object_id, chunk.source, chunk.scale, config)
+    return loaded.trial, loaded.model
+
+
+def object_candidates(model, n: int, seed: int, config: AnnotatorConfig, max_width: float):
+    """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
+    return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
+
+
+def label_span(
+    span: Span, config: AnnotatorConfig, seed: int, n: int, trials: int = 1
+) -> tuple[Span, pd.DataFrame | None, str | None, dict]:
+    """Labels of one span (runs in a worker): ``(span, rows, None, stats)`` or
+    ``(span, None, error, stats)``.
+
+    ``error`` is the object's one-line reason (it cannot be loaded or sampled); the other spans of
+    that object fail the same way at once, without loading it again.
+    """
+    t0 = time.perf_counter()
+    try:
+        loaded = _worker_object(span.object_id, span.source, span.scale, config)
+        cands = loaded.candidates.get((seed, n))
+        if cands is None:
+            _, hand = _worker_world(config)
+            cands = object_candidates(loaded.model, n, seed, config, hand.rg2.max_width)
+            loaded.candidates[(seed, n)] = cands
+    except ObjectError as exc:
+        return span, None, str(exc), _stats(t0, 0.0)
+    except Exception as exc:  # an unexpected failure is this object's, not the run's
+        log.exception("%s: unexpected error while loading", span.object_id)
+        return span, None, f"{type(exc).__name__}: {exc}", _stats(t0, 0.0)
+    chunk = Chunk(
+        span.object_id,
+        span.source,
+        span.scale,
+        span.start,
+        cands.T_obj_tcp[span.start : span.stop],
+        cands.width_expected[span.start : span.stop],
+    )
+    df, stats = simulate_chunk(chunk, config, seed, trials)
+    return span, df, None, _stats(t0, stats["step_seconds"])
+
+
+def _stats(t0: float, step_seconds: float) -> dict:
+    """Worker statistics of one unit of work (see simulate_chunk)."""
+    return {
+        "seconds": time.perf_counter() - t0,
+        "step_seconds": step_seconds,
+        "peak_rss_mb": _peak_rss_mb(),
+        "pid": os.getpid(),
+    }
 
 
 def simulate_chunk(
@@ -188,13 +288,7 @@ def simulate_chunk(
                 "object_mass": model.mass,
             }
         )
-    stats = {
-        "seconds": time.perf_counter() - t0,
-        "step_seconds": trial.world.step_seconds - step_seconds0,
-        "peak_rss_mb": _peak_rss_mb(),
-        "pid": os.getpid(),
-    }
-    return pd.DataFrame(rows), stats
+    return pd.DataFrame(rows), _stats(t0, trial.world.step_seconds - step_seconds0)
 
 
 def _peak_rss_mb() -> float:
@@ -212,22 +306,6 @@ def _canonical(q: np.ndarray) -> np.ndarray:
 
 
 # --- main process ------------------------------------------------------------------------------
-
-
-def _prepare(source, options: RunOptions, config: AnnotatorConfig, max_width: float):
-    """Load, validate, decompose and sample one object (in a worker).
-
-    Returns ``(candidates, None)`` or ``(None, one-line error)``.
-    """
-    try:
-        model = _load_object(source, config.objects, scale=options.scale)
-        rng = object_rng(options.seed, model.object_id)
-        return sample_candidates(model.mesh, options.n, rng, config.sampler, max_width), None
-    except ObjectError as exc:
-        return None, str(exc)
-    except Exception as exc:  # an unexpected failure is this object's, not the run's
-        log.exception("%s: unexpected error while loading", source.object_id)
-        return None, f"{type(exc).__name__}: {exc}"
 
 
 def _max_width(config: AnnotatorConfig) -> float:
@@ -254,10 +332,31 @@ def _parallel(options: RunOptions):
     return None, contextlib.nullcontext
 
 
+def _spans(options: RunOptions, sources, manifest, out_dir: Path, hashes) -> tuple[list[Span], dict]:
+    """The spans still to simulate, and each pending object's chunks already on disk.
+
+    Order: the first span of every object, then the rest object by object. On a first run the
+    workers thus load (and convex-decompose) different objects at once instead of the same one.
+    """
+    first: list[Span] = []
+    rest: list[Span] = []
+    done_before: dict[str, dict[tuple[int, int], str]] = {}
+    for source in sources:
+        done = manifest.chunks_of(source.object_id, out_dir, hashes[source.object_id])
+        done_before[source.object_id] = done
+        todo = [
+            Span(source.object_id, source, options.scale, start, min(options.n, start + CHUNK_SIZE))
+            for start in range(0, options.n, CHUNK_SIZE)
+            if (start, min(options.n, start + CHUNK_SIZE)) not in done
+        ]
+        first += todo[:1]
+        rest += todo[1:]
+    return first + rest, done_before
+
+
 def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     """The whole job; returns a summary (and logs it). Raises UsageError for exit code 2."""
     summary = Summary()
-    t0 = summary.started
     try:
         sources = discover_objects(options.objects_dir)
     except ObjectDiscoveryError as exc:
@@ -272,47 +371,25 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     hashes = {s.object_id: dataset.file_sha256(s.path) for s in sources}  # the file given
     todo_ids = set(manifest.pending([s.object_id for s in sources], options.out_dir, hashes))
     summary.skipped = [s.object_id for s in sources if s.object_id not in todo_ids]
-    if summary.skipped:
-        log.info("resuming: %d objects already labelled, %d to do", len(summary.skipped), len(todo_ids))
-
-    max_width = _max_width(config)
-    client, backend = _parallel(options)
-    chunks: list[Chunk] = []
     pending = [s for s in sources if s.object_id in todo_ids]
-    with backend():
-        # load, validate, decompose (cached by mesh hash) and sample every object in parallel
-        prepared = joblib.Parallel(n_jobs=options.workers)(
-            joblib.delayed(_prepare)(source, options, config, max_width) for source in pending
+    spans, done_before = _spans(options, pending, manifest, options.out_dir, hashes)
+    if summary.skipped or any(done_before.values()):
+        log.info(
+            "resuming: %d objects already labelled, %d chunks of unfinished objects kept; %d to do",
+            len(summary.skipped),
+            sum(len(d) for d in done_before.values()),
+            len(pending),
         )
-    for source, (cands, error) in zip(pending, prepared, strict=True):
-        if error is not None:
-            summary.failed[source.object_id] = error
-            manifest.mark_failed(source.object_id, error)
-            log.error("%s: %s", source.object_id, error)
-            continue
-        for start in range(0, options.n, CHUNK_SIZE):
-            stop = min(options.n, start + CHUNK_SIZE)
-            chunks.append(
-                Chunk(
-                    source.object_id,
-                    source,
-                    options.scale,
-                    start,
-                    cands.T_obj_tcp[start:stop],
-                    cands.width_expected[start:stop],
-                )
-            )
-    manifest.save(options.out_dir)
-    n_chunks = defaultdict(int)
-    for c in chunks:
-        n_chunks[c.object_id] += 1
+    remaining = {s.object_id: sum(1 for sp in spans if sp.object_id == s.object_id) for s in pending}
+    for oid in [oid for oid, k in remaining.items() if k == 0]:  # all chunks on disk: only the merge
+        _finish_object(oid, manifest, options, summary, hashes[oid], 0.0)
 
+    client, backend = _parallel(options)
     from tqdm.auto import tqdm
 
-    results: dict[str, list[pd.DataFrame]] = defaultdict(list)
     worker_seconds: dict[str, float] = defaultdict(float)
     bar = tqdm(
-        total=sum(len(c.width) for c in chunks),
+        total=sum(sp.stop - sp.start for sp in spans),
         unit="grasp",
         disable=options.quiet,
         smoothing=0.1,
@@ -321,43 +398,58 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     try:
         with backend():
             parallel = joblib.Parallel(n_jobs=options.workers, return_as="generator_unordered")
-            jobs = (joblib.delayed(simulate_chunk)(c, config, options.seed, options.trials) for c in chunks)
-            for df, stats in parallel(jobs):
-                oid = df["object_id"].iat[0]
-                results[oid].append(df)
-                worker_seconds[oid] += stats["seconds"]
+            task = joblib.delayed(label_span)
+            jobs = (task(sp, config, options.seed, options.n, options.trials) for sp in spans)
+            for span, df, error, stats in parallel(jobs):
+                oid = span.object_id
+                bar.update(span.stop - span.start)
                 summary.worker_seconds += stats["seconds"]
+                summary.peak_rss_mb[stats["pid"]] = stats["peak_rss_mb"]
+                if error is not None:
+                    if oid not in summary.failed:
+                        summary.failed[oid] = error
+                        manifest.mark_failed(oid, error)
+                        manifest.save(options.out_dir)
+                        log.error("%s: %s", oid, error)
+                    continue
+                if oid in summary.failed:  # another worker could load it; the object is failed
+                    continue
+                worker_seconds[oid] += stats["seconds"]
                 summary.step_seconds += stats["step_seconds"]
                 summary.sim_steps += int(df["sim_steps"].sum())
-                summary.peak_rss_mb[stats["pid"]] = stats["peak_rss_mb"]
-                bar.update(len(df))
                 summary.candidates += len(df)
                 summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
-                if len(results[oid]) == n_chunks[oid]:
-                    _finish_object(
-                        oid, results.pop(oid), manifest, options, summary, hashes[oid], worker_seconds[oid]
-                    )
+                path = dataset.write_chunk_labels(options.out_dir, df, span.start)
+                manifest.mark_chunk(oid, span.start, path, len(df), hashes[oid])
+                if summary.first_label_seconds is None:
+                    summary.first_label_seconds = time.perf_counter() - summary.started
+                remaining[oid] -= 1
+                if remaining[oid] == 0:
+                    _finish_object(oid, manifest, options, summary, hashes[oid], worker_seconds[oid])
+                else:
+                    manifest.save(options.out_dir)
     except KeyboardInterrupt:
         bar.close()
-        log.info("interrupted: %d objects written this run", len(summary.done))
+        log.info("interrupted: %d candidates written this run", summary.candidates)
         raise
     finally:
         bar.close()
         if client is not None:
             client.close()
-    summary.seconds = time.perf_counter() - t0
+    summary.seconds = time.perf_counter() - summary.started
     _log_summary(summary, options)
     return summary
 
 
-def _finish_object(oid, parts, manifest, options, summary, source_sha256, seconds) -> None:
-    """Write one object's labels atomically, then record it in the manifest."""
-    df = pd.concat(parts, ignore_index=True).sort_values("grasp_id", ignore_index=True)
+def _finish_object(oid, manifest, options, summary, source_sha256, seconds) -> None:
+    """Merge one object's chunk files into its label file, record it, delete the chunks."""
+    files = manifest.chunks_of(oid, options.out_dir, source_sha256)
+    df = dataset.merge_chunks(options.out_dir, oid, [files[k] for k in sorted(files)])
     path = dataset.write_object_labels(options.out_dir, df)
     manifest.mark_done(oid, path, len(df), source_sha256)
     manifest.save(options.out_dir)
-    if summary.first_label_seconds is None:
-        summary.first_label_seconds = time.perf_counter() - summary.started
+    for name in files.values():
+        (Path(options.out_dir) / name).unlink(missing_ok=True)
     counts = df["outcome"].value_counts().to_dict()
     summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, seconds)
 

@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
-from annotator.objects import discover_objects
-from annotator.runner import CHUNK_SIZE, Chunk, RunOptions, _max_width, _prepare, simulate_chunk
+from annotator.objects import ObjectError, discover_objects, load_object
+from annotator.runner import CHUNK_SIZE, Chunk, _max_width, object_candidates, simulate_chunk
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,14 +42,15 @@ def main() -> None:
 
     default = AnnotatorConfig()
     thorough = AnnotatorConfig.thorough(default)
-    options = RunOptions(objects_dir=args.objects, n=args.per_object, seed=args.seed)
     max_width = _max_width(default)
     chunks = []
     for source in discover_objects(args.objects):
-        cands, error = _prepare(source, options, default, max_width)
-        if error is not None:
-            print(f"skip {source.object_id}: {error}")
+        try:
+            model = load_object(source, default.objects)
+        except ObjectError as exc:
+            print(f"skip {source.object_id}: {exc}")
             continue
+        cands = object_candidates(model, args.per_object, args.seed, default, max_width)
         for s in range(0, args.per_object, CHUNK_SIZE):
             e = min(args.per_object, s + CHUNK_SIZE)
             chunks.append(

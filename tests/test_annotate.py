@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow.parquet as pq
 import pytest
 import trimesh
 from click.testing import CliRunner
@@ -103,7 +102,7 @@ def two_objects(tmp_path_factory) -> Path:
     return _primitives(tmp_path_factory.mktemp("objs"), ("box", "cylinder"))
 
 
-N_SMALL = 6
+N_SMALL = 14  # two spans per object (CHUNK_SIZE 10): chunk files, their merge, uneven spans
 
 
 @pytest.fixture(scope="module")
@@ -308,10 +307,11 @@ def test_bad_objects_fail_alone_with_a_reason(tmp_path):
     objs = _primitives(tmp_path / "objs", ("box",))
     expected = _write_bad_objects(objs)
     out = tmp_path / "out"
-    result = _annotate("--objects", objs, "--n", 4, "--workers", 1, "--out", out, "--quiet", check=1)
+    # 12 candidates: two spans per object, so each bad object fails in two workers' tasks
+    result = _annotate("--objects", objs, "--n", 12, "--workers", 2, "--out", out, "--quiet", check=1)
 
     df = _labels(out)
-    assert set(df["object_id"]) == {"box"} and len(df) == 4
+    assert set(df["object_id"]) == {"box"} and len(df) == 12
     manifest = _manifest(out)
     assert sorted(manifest["objects_done"]) == ["box"]
     assert sorted(manifest["objects_failed"]) == sorted(expected)
@@ -323,7 +323,9 @@ def test_bad_objects_fail_alone_with_a_reason(tmp_path):
         line = [ln for ln in summary_lines if ln.startswith(oid) and "FAILED" in ln]
         assert line, f"{oid} missing from the summary:\n{result.output}"
         assert any(w in line[0].lower() for w in words), line[0]
+        assert len(line) == 1, line  # reported once, whichever span failed first
     assert "1 objects labelled, 0 skipped, 5 failed" in result.output
+    assert manifest["chunks_done"] == {}  # no chunk of a failed object, and box's merged
 
 
 def test_millimetre_mesh_is_accepted_with_scale(tmp_path):
@@ -368,7 +370,7 @@ def test_resume_skips_done_objects_and_overwrite_starts_over(tmp_path):
 # --- 7. Ctrl-C ----------------------------------------------------------------------------------------
 
 
-N_LONG = 8  # a few seconds per object on a busy core: time to interrupt after the first file
+N_LONG = 25  # three spans per object: an interrupt lands between chunk files
 LONG_OBJECTS = ("box", "cylinder", "slab")
 
 
@@ -383,6 +385,16 @@ def _cli_subprocess(objs: Path, out: Path) -> subprocess.Popen:
         env=dict(os.environ),
         cwd=objs.parent,
     )
+
+
+def _span_of(path: Path) -> tuple[int, int] | None:
+    """(start, stop) of a chunk file ``<object>.SSSSSS-EEEEEE.parquet``; None for an object file."""
+    name = path.name[: -len(".parquet")]
+    head, _, tail = name.rpartition(".")
+    if not head or "-" not in tail:
+        return None
+    start, stop = tail.split("-")
+    return int(start), int(stop)
 
 
 def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
@@ -405,23 +417,38 @@ def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
     assert "Traceback" not in stderr, stderr
     assert "re-run" in stderr
 
-    # only whole files: each label file reads with N rows, no temp files left behind
+    # only whole files: object files with N rows, chunk files with exactly their span's grasps
     files = sorted(out.glob("*.parquet"))
-    assert 1 <= len(files) < len(LONG_OBJECTS), files
+    assert files
     for p in files:
-        assert pq.read_table(p).num_rows == N_LONG
+        got = pd.read_parquet(p)
+        span = _span_of(p)
+        want = range(N_LONG) if span is None else range(*span)
+        assert sorted(got["grasp_id"]) == list(want), p.name
     assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
     partial = _labels(out)
-    assert partial.groupby("object_id").size().eq(N_LONG).all()
+    assert not partial.duplicated(["object_id", "grasp_id"]).any()
+    assert len(partial) < N_LONG * len(LONG_OBJECTS)  # interrupted part-way
     # the manifest lists what it knows to be whole (SIGINT may land between a file and its entry)
-    done = set(_manifest(out)["objects_done"])
-    assert done <= set(partial["object_id"])
+    manifest = _manifest(out)
+    names = {p.name for p in files}
+    kept = 0
+    for oid, entry in manifest["objects_done"].items():
+        assert entry["file"] in names, oid
+        kept += N_LONG
+    for oid, entry in manifest["chunks_done"].items():
+        for key, name in entry["files"].items():
+            assert name in names, (oid, key)
+            start, stop = map(int, key.split("-"))
+            kept += stop - start
 
-    # the same command again finishes the job
+    # the same command again simulates only what is missing and finishes the job
     proc = _cli_subprocess(objs, out)
     stdout, stderr = proc.communicate(timeout=180)
     assert proc.returncode == 0, stderr
-    assert f"{len(done)} skipped" in stdout, stdout
+    assert f"{N_LONG * len(LONG_OBJECTS) - kept} candidates in" in stdout, (kept, stdout)
+    final = list(out.glob("*.parquet"))  # one file per object: every chunk merged and removed
+    assert len(final) == len(LONG_OBJECTS) and all(_span_of(p) is None for p in final), final
     resumed = _labels(out)
 
     fresh = tmp_path / "fresh"
@@ -430,6 +457,7 @@ def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
     assert not resumed.duplicated(["object_id", "grasp_id"]).any()
     assert resumed.groupby("object_id").size().to_dict() == dict.fromkeys(LONG_OBJECTS, N_LONG)
     pd.testing.assert_frame_equal(resumed, expected, check_exact=True)
+    assert _manifest(out)["chunks_done"] == {}
 
 
 # --- 8. help ------------------------------------------------------------------------------------------

@@ -231,3 +231,41 @@ def test_labels_without_manifest_need_overwrite(tmp_path: Path) -> None:
     ds.write_object_labels(tmp_path, _labels("a", 3))
     with pytest.raises(ds.ManifestMismatchError, match="--overwrite"):
         ds.open_run(tmp_path, {}, seed=0, n=3, trials=1)
+
+
+def test_chunk_files_are_read_with_the_rest_merged_and_cleaned_up(tmp_path: Path) -> None:
+    """A run writes each span as it comes back; read_parquet sees them; the merge is the same rows."""
+    config = AnnotatorConfig().to_dict()
+    m = ds.open_run(tmp_path, config, seed=0, n=10, trials=1)
+    whole = _labels("ycb/mug", 10)
+    first = ds.write_chunk_labels(tmp_path, whole.iloc[0:4], 0)
+    second = ds.write_chunk_labels(tmp_path, whole.iloc[4:10], 4)
+    assert first.name == ds.chunk_filename("ycb/mug", 0, 4) and first.name.startswith("ycb__mug-")
+    assert first.name.endswith(".000000-000004.parquet") and second.name.endswith(".000004-000010.parquet")
+    with pytest.raises(ds.SchemaError, match="4..7"):  # rows must be exactly the span they claim
+        ds.write_chunk_labels(tmp_path, whole.iloc[0:4], 4)
+    m.mark_chunk("ycb/mug", 0, first, 4, "ab" * 32)
+    m.mark_chunk("ycb/mug", 4, second, 6, "ab" * 32)
+    m.save(tmp_path)
+
+    # the user's one-liner reads chunks of an unfinished object like any label file
+    got = pd.read_parquet(tmp_path).sort_values("grasp_id", ignore_index=True)
+    pd.testing.assert_frame_equal(ds.validate_labels(got), ds.validate_labels(whole), check_dtype=False)
+
+    resumed = ds.open_run(tmp_path, config, seed=0, n=10, trials=1)
+    assert resumed.chunks_of("ycb/mug", tmp_path, "ab" * 32) == {(0, 4): first.name, (4, 10): second.name}
+    assert resumed.chunks_of("ycb/mug", tmp_path, "cd" * 32) == {}  # the mesh changed: redo all
+    second.unlink()
+    assert resumed.chunks_of("ycb/mug", tmp_path, "ab" * 32) == {(0, 4): first.name}  # file gone: redo
+    ds.write_chunk_labels(tmp_path, whole.iloc[4:10], 4)
+
+    merged = ds.merge_chunks(tmp_path, "ycb/mug", [first.name, second.name])
+    path = ds.write_object_labels(tmp_path, merged)
+    resumed.mark_done("ycb/mug", path, 10, "ab" * 32)
+    resumed.save(tmp_path)
+    assert resumed.chunks_done == {}
+    # a stop between the merge and the clean-up leaves chunks of a done object: removed on resume
+    assert first.exists() and second.exists()
+    ds.open_run(tmp_path, config, seed=0, n=10, trials=1)
+    assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [path.name]
+    pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.load_labels(path))
