@@ -136,6 +136,7 @@ class ProtocolConfig:
     # 0.03 m x (2 pi / 0.35 s)^2 = 9.7 m/s^2: GraspDataGen's 1 g tugs.
     shake_duration: float = 2.1  # s
     shake_cycles: int = 1  # sine periods per motion
+    shake_paired: bool = False  # translate along and rotate about each axis at once (3 motions, not 6)
     settle_time: float = 0.05  # s held still after the shake before judging
     # Held = both pads touch and the object moved less than this in the hand (m); ACRONYM and
     # GraspDataGen judge contact only, the slip bound catches an object hanging by one edge.

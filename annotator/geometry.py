@@ -71,12 +71,16 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     return q[0] if single else q
 
 
-def axis_angle_to_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
-    """(3, 3) rotation by ``angle`` radians about the unit vector ``axis`` : (3,)."""
+def axis_angle_to_matrix(axis: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
+    """Rotation by ``angle`` radians about the unit vector ``axis`` : (3,).
+
+    A scalar ``angle`` gives (3, 3); an array of shape (n,) gives (n, 3, 3) (Rodrigues' formula).
+    """
     a = np.asarray(axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
     K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    t = np.asarray(angle, dtype=np.float64)[..., None, None]
+    return np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * (K @ K)
 
 
 class Transform:

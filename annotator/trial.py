@@ -184,7 +184,13 @@ class GraspTrial:
         # 5. shake
         lost = self._loss_monitor(grasped_at)
         self.hand.shake(
-            cfg.shake_amplitude, cfg.shake_angle, cfg.shake_duration, g.grip_force, lost, cfg.shake_cycles
+            cfg.shake_amplitude,
+            cfg.shake_angle,
+            cfg.shake_duration,
+            g.grip_force,
+            lost,
+            cfg.shake_cycles,
+            cfg.shake_paired,
         )
         # let the last motion settle, then judge
         for _ in range(round(cfg.settle_time / self.world.dt)):

@@ -121,6 +121,45 @@ def test_holds_a_40mm_box_through_lift_and_shake(world, hand):
     assert np.all(hand.rg2.pad_normal_forces(box) > 10.0)
 
 
+@pytest.mark.parametrize("paired", [False, True], ids=["sequential", "paired"])
+def test_shake_moves_the_gripper_by_its_amplitude_and_angle(world, hand, paired):
+    """The carried gripper really follows the shake: reaches the amplitude and angle, comes back.
+
+    Sequential: translations first (no rotation), then rotations about the TCP. Paired: each axis
+    translates and rotates at once, in half the motions.
+    """
+    world.set_gravity(False)
+    centre = Transform([0.0, 0.0, 0.5], DOWN)
+    hand.teleport(centre, 0.04)
+    tcp0 = centre.apply(hand.rg2.T_base_tcp(0.0).pos)
+    shifts, angles = [], []
+
+    def record(i: int) -> bool:
+        pose = hand.base_pose()
+        shifts.append(np.linalg.norm(pose.apply(hand.rg2.T_base_tcp(0.0).pos) - tcp0))
+        dq = abs(float(np.dot(pose.quat, centre.quat)))
+        angles.append(2 * np.arccos(min(1.0, dq)))
+        return False
+
+    amplitude, angle = 0.03, np.radians(20)
+    steps = hand.shake(amplitude, angle, duration=1.2, force=40.0, on_step=record, paired=paired)
+    motions = 3 if paired else 6
+    assert steps == motions * round(1.2 / motions / world.dt) == len(shifts)
+    for _ in range(48):  # the carrier lags the target a little: 0.2 s to settle
+        world.step()
+        record(0)
+    shift, turn = np.array(shifts), np.array(angles)
+    assert shift[:steps].max() == pytest.approx(amplitude, rel=0.2)
+    assert turn[:steps].max() == pytest.approx(angle, rel=0.2)
+    assert shift[-1] < 0.002 and turn[-1] < np.radians(1)  # back at the centre
+    if not paired:
+        assert turn[: steps // 2].max() < np.radians(2)  # the translations do not rotate
+        assert shift[steps // 2 + 24 : steps].max() < 0.1 * amplitude  # rotations turn about the TCP
+    else:
+        first = slice(0, steps // 3)  # x: translates and turns at the same time
+        assert shift[first].max() > 0.8 * amplitude and turn[first].max() > 0.8 * angle
+
+
 def test_closing_on_nothing_ends_closed_without_contact(world, hand):
     box = make_box(world, 0.04, 0.05, pos=(0.5, 0.0, 0.1))  # far away
     hand.teleport(Transform([0, 0, 0.5], DOWN), 0.08)

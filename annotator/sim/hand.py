@@ -158,27 +158,33 @@ class FloatingRG2:
         force: float,
         on_step: Callable[[int], bool] | None = None,
         cycles: int = 1,
+        paired: bool = False,
     ) -> int:
-        """Shake about the current target: a translation along x, y, z then a rotation about x, y, z.
+        """Shake about the current target along and about the gripper base axes x, y, z.
 
-        Each of the six motions is ``cycles`` sine periods over ``duration / 6`` seconds, amplitude
-        ``amplitude`` metres or ``angle`` radians, along / about the gripper base axes, rotations
-        about the closed TCP (the grasp, not the flange). Returns steps simulated; ``on_step(i)``
-        returning True stops early.
+        Sequential (default): six motions, a translation along x, y, z then a rotation about x, y,
+        z. ``paired``: three motions, each translating along and rotating about the same axis at
+        once. Each motion is ``cycles`` sine periods over ``duration / motions`` seconds, amplitude
+        ``amplitude`` metres and ``angle`` radians; rotations turn about the closed TCP (the grasp,
+        not the flange). Returns steps simulated; ``on_step(i)`` returning True stops early.
         """
         centre = self.target
-        per = max(1, round(duration / 6 / self.world.dt))
+        motions = 3 if paired else 6
+        per = max(1, round(duration / motions / self.world.dt))
         phase = np.sin(2 * np.pi * cycles * np.arange(1, per + 1) / per)  # (per,)
         R = centre.rotation
         pivot = centre.apply(self.rg2.T_base_tcp(0.0).pos)
+        zero = np.zeros_like(phase)
+        if paired:
+            plan = [(axis, phase, phase) for axis in range(3)]  # (axis, translation, rotation)
+        else:
+            plan = [(axis, phase, zero) for axis in range(3)] + [(axis, zero, phase) for axis in range(3)]
         positions, quats = [], []
-        for axis in range(3):
-            positions.append(centre.pos + phase[:, None] * (amplitude * R[:, axis]))
-            quats.append(np.repeat(centre.quat[None], per, axis=0))
-        for axis in range(3):
-            R_deltas = [axis_angle_to_matrix(R[:, axis], angle * p) for p in phase]
-            positions.append(np.array([pivot + Rd @ (centre.pos - pivot) for Rd in R_deltas]))
-            quats.append(matrix_to_quat(np.array([Rd @ R for Rd in R_deltas])))
+        for axis, shift, turn in plan:
+            R_deltas = axis_angle_to_matrix(R[:, axis], angle * turn)  # (per, 3, 3)
+            p = centre.pos + shift[:, None] * (amplitude * R[:, axis])  # translated, (per, 3)
+            positions.append(pivot + np.einsum("nij,nj->ni", R_deltas, p - pivot))
+            quats.append(matrix_to_quat(R_deltas @ R))
         steps = self._follow(np.concatenate(positions), np.concatenate(quats), force, on_step)
         self.set_target(centre)
         return steps
