@@ -261,7 +261,7 @@ def simulate_chunk(
             r = trial.run(T, float(chunk.width[k]))
             outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
             held = int(outcome == Outcome.SUCCESS)
-            rng = trial_rng(seed, chunk.object_id, grasp_id)
+            rng = trial_rng(seed, chunk.object_id, grasp_id) if trials > 1 else None
             for _ in range(trials - 1):
                 p = trial.run(T, float(chunk.width[k]), Perturbation.sample(rng, config.robust))
                 held += int(p.outcome == Outcome.SUCCESS)

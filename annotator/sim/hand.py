@@ -25,6 +25,10 @@ STALL_SPEED = 0.02
 # Consecutive stalled steps before the close is declared finished (12 steps = 50 ms at 240 Hz):
 # long enough for the contact forces to build up to the commanded squeeze.
 STALL_STEPS = 12
+# While the carrier moves (lift, shake) the fingers are stalled on the object and the squeeze
+# torque (force x dw/dphi at the current angle) barely changes: it is re-computed every 6 steps
+# (25 ms, a 40 Hz force loop) rather than every step.
+MOTOR_UPDATE_EVERY = 6
 
 
 class FloatingRG2:
@@ -91,14 +95,15 @@ class FloatingRG2:
     def close(self, force: float, max_steps: int, on_step: Callable[[], None] | None = None) -> int:
         """Close with squeeze ``force`` until the fingers stall or ``max_steps``; returns steps used."""
         stalled = 0
-        joint = self.body.joints[self.rg2.driven]
+        uid, index, client = self.uid, self.body.joints[self.rg2.driven].index, self.client
+        angle = pb.getJointState(uid, index, physicsClientId=client)[0]
         for step in range(1, max_steps + 1):
-            self.rg2.command(-self.config.close_speed, force)
+            self.rg2.command(-self.config.close_speed, force, angle)
             self.world.step()
             if on_step is not None:
                 on_step()
-            speed = abs(pb.getJointState(self.uid, joint.index, physicsClientId=self.client)[1])
-            stalled = stalled + 1 if speed < STALL_SPEED else 0
+            angle, speed = pb.getJointState(uid, index, physicsClientId=client)[:2]
+            stalled = stalled + 1 if abs(speed) < STALL_SPEED else 0
             if stalled >= STALL_STEPS:
                 return step
         return max_steps
@@ -115,15 +120,17 @@ class FloatingRG2:
         Keeps squeezing with ``force``; ``on_step(i)`` returning True stops early. Returns steps.
         """
         cid, client, max_force = self._constraint, self.client, self.config.carrier_max_force
+        pivots, orientations = pos.tolist(), quat.tolist()
         for i in range(len(pos)):
             pb.changeConstraint(
                 cid,
-                jointChildPivot=pos[i].tolist(),
-                jointChildFrameOrientation=quat[i].tolist(),
+                jointChildPivot=pivots[i],
+                jointChildFrameOrientation=orientations[i],
                 maxForce=max_force,
                 physicsClientId=client,
             )
-            self.rg2.command(-self.config.close_speed, force)
+            if i % MOTOR_UPDATE_EVERY == 0:
+                self.rg2.command(-self.config.close_speed, force)
             self.world.step()
             if on_step is not None and on_step(i + 1):
                 self.target = Transform(pos[i], quat[i])

@@ -13,6 +13,7 @@ is the one that holds (see GripperConfig.coupling).
 
 from __future__ import annotations
 
+import bisect
 import functools
 import logging
 import xml.etree.ElementTree as ET
@@ -48,6 +49,9 @@ TCP_LINK = "tcp"
 # Number of driven angles at which the FK width table is sampled; widths between are linear
 # interpolations (the table is smooth: w = f(sin phi), 400 samples -> < 0.01 mm error).
 WIDTH_TABLE_SAMPLES = 400
+# A motor command whose torque differs from the last one sent by less than this share is not
+# re-sent (PyBullet keeps motor settings between steps): 0.1 % of 40 N is 0.04 N of squeeze.
+MOTOR_TORQUE_RTOL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,9 @@ class WidthTable:
     def __post_init__(self) -> None:
         if self.slope is None:
             object.__setattr__(self, "slope", np.gradient(self.width, self.angle))
+        # plain lists for the per-step scalar lookup (np.interp costs ~5 us per scalar call)
+        object.__setattr__(self, "_angles", self.angle.tolist())
+        object.__setattr__(self, "_slopes", self.slope.tolist())
 
     def angle_of(self, width: float) -> float:
         return float(np.interp(width, self.width, self.angle))
@@ -101,8 +108,17 @@ class WidthTable:
         return float(np.interp(angle, self.angle, self.width))
 
     def dwidth_dangle(self, angle: float) -> float:
-        """Transmission ratio dw/dphi (m/rad) at ``angle``, from the table's finite differences."""
-        return float(np.interp(angle, self.angle, self.slope))
+        """Transmission ratio dw/dphi (m/rad) at ``angle``, from the table's finite differences.
+
+        Linear interpolation clamped at the ends, as ``np.interp``; called every simulated step.
+        """
+        a, k = self._angles, bisect.bisect_right(self._angles, angle)
+        if k == 0:
+            return self._slopes[0]
+        if k == len(a):
+            return self._slopes[-1]
+        t = (angle - a[k - 1]) / (a[k] - a[k - 1])
+        return self._slopes[k - 1] + t * (self._slopes[k] - self._slopes[k - 1])
 
     @property
     def max_width(self) -> float:
@@ -172,6 +188,7 @@ class RG2:
         self._filter_self_collisions()
         self._set_pad_friction()
         self.table = self._tabulate()
+        self._last_motor: tuple | None = None  # the driven motor's last command, to skip repeats
 
     # --- set-up -----------------------------------------------------------------------------
 
@@ -256,6 +273,7 @@ class RG2:
     def reset_angle(self, angle: float) -> None:
         """Teleport the linkage to driven angle ``angle`` (set-up only)."""
         self.body.reset_joints(self.follower_targets(angle))
+        self._last_motor = None  # a new trial (or restored state): send the next command in full
 
     def reset_width(self, width: float) -> None:
         """Teleport the linkage to pad separation ``width`` (m), clipped to the stroke."""
@@ -289,14 +307,16 @@ class RG2:
 
     # --- actuation -------------------------------------------------------------------------------
 
-    def command(self, target_velocity: float, force: float) -> None:
+    def command(self, target_velocity: float, force: float, angle: float | None = None) -> None:
         """Drive the linkage at ``target_velocity`` (rad/s, < 0 closes) with squeeze ``force`` (N).
 
         The joint torque limit is ``force x dw/dphi`` from the FK table (virtual work: the two pads
         each move dw/2 against ``force``), so a stalled gripper squeezes with ``force``. Call it
         every step while the fingers move: the transmission ratio changes with the angle.
+        ``angle``: the driven angle if the caller has just read it (saves a joint-state query).
         """
-        angle = self.driven_angle()
+        if angle is None:
+            angle = self.driven_angle()
         self._actuate(pb.VELOCITY_CONTROL, {"targetVelocity": target_velocity}, force, angle)
 
     def hold_position(self, angle: float, force: float) -> None:
@@ -310,6 +330,16 @@ class RG2:
         targets for the current driven angle.
         """
         torque = force * self.table.dwidth_dangle(angle)
+        last = self._last_motor
+        if (
+            self.coupling == "gear"
+            and last is not None
+            and last[0] == mode
+            and last[1] == target
+            and abs(last[2] - torque) <= MOTOR_TORQUE_RTOL * torque
+        ):
+            return  # the motor still holds this command (stalled fingers: the ratio barely moves)
+        self._last_motor = (mode, target, torque)
         joint = self.body.joints[self.driven]
         pb.setJointMotorControl2(
             self.body.uid, joint.index, mode, force=torque, physicsClientId=self.client, **target
