@@ -126,6 +126,10 @@ class ProtocolConfig:
     pregrasp_clearance: float = 0.01  # m per side: the gripper opens to width + 2 x this
     approach_distance: float = 0.10  # m, straight-line approach checked behind the grasp pose
     approach_step: float = 0.01  # m, < the 11.45 mm pad thickness so no thin wall is skipped
+    # The close starts with the pads this far (m per side) outside the expected chord instead of
+    # at the open width: the skipped travel is through free space (checked kinematically), and
+    # 3 mm leaves the closing speed reached before contact (bench/fidelity.py).
+    preclose_gap: float = 0.003
     # GraspDataGen closes for 1 s; the close ends earlier as soon as the fingers stall.
     close_timeout: float = 1.0  # s
     lift_height: float = 0.10  # m, the robot issue's 10 cm lift

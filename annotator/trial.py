@@ -154,9 +154,15 @@ class GraspTrial:
         if collided:
             return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"))
 
-        # 2. close, gravity off, on the free object
+        # 2. close, gravity off, on the free object. The fingers' travel through free space has no
+        # effect but time, so they start preclose_gap outside the expected chord, unless the
+        # gripper intersects the object there (a feature inside the chord): then fully open.
         T_world_tcp = self._T_world_obj() * T_obj_tcp
-        self.hand.teleport(self.hand.T_world_base_for_tcp(T_world_tcp, width_expected), open_width)
+        T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
+        start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
+        self.hand.teleport(T_world_base, start_width)
+        if start_width < open_width and self._intersects():
+            self.hand.teleport(T_world_base, open_width)
         self.world.set_gravity(False)
         self.hand.close(g.grip_force, max_steps=round(cfg.close_timeout / self.world.dt))
         width = self.hand.rg2.measured_width()

@@ -110,6 +110,23 @@ def test_collision_rows_carry_the_open_width_and_no_steps(box_and_can_labels):
         assert (hits["width"] > 0).all() and (hits["width"] <= MAX_WIDTH + 1e-9).all()
 
 
+def test_starting_the_close_near_the_chord_changes_no_label(box_and_can_labels, tmp_path):
+    """The skipped free-space finger travel (preclose_gap) gives the labels of a close from fully open."""
+    mesh, short = box_and_can_labels["box"]
+    simulated = short[short["outcome"] != "collision"]
+    assert len(simulated) >= 15, len(simulated)
+    full_open = dataclasses.replace(
+        CONFIG,
+        protocol=dataclasses.replace(CONFIG.protocol, preclose_gap=CONFIG.protocol.pregrasp_clearance),
+    )
+    ids = simulated["grasp_id"].to_numpy()
+    long = label(write_mesh(tmp_path, "box", mesh), mesh, 50, config=full_open, workers=2, only=ids)
+    assert (long["outcome"].to_numpy() == simulated["outcome"].to_numpy()).mean() >= 0.9
+    both = (long["success"].to_numpy()) & (simulated["success"].to_numpy())
+    assert np.abs(long["width"].to_numpy()[both] - simulated["width"].to_numpy()[both]).max() < 0.001
+    assert long["sim_steps"].mean() > simulated["sim_steps"].mean() + 10  # and it does save steps
+
+
 def test_heavier_or_slipperier_objects_are_never_more_successful(tmp_path):
     """Over >= 200 simulated grasps: mass x2 and friction 0.3 can only lose grasps."""
     mesh = trimesh.creation.box((0.05, 0.04, 0.10))
