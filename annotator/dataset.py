@@ -557,13 +557,26 @@ def _remove_outputs(out_dir: Path) -> int:
     return removed
 
 
+def chunk_files(out_dir: str | Path, object_id: str) -> list[Path]:
+    """Every chunk file of ``object_id`` in ``out_dir``, recorded in a manifest or not."""
+    stem = object_filename(object_id)[: -len(".parquet")]
+    return sorted(Path(out_dir).glob(f"{glob.escape(stem)}.*-*.parquet"))
+
+
+def remove_chunks(out_dir: str | Path, object_id: str, keep: Iterable[str] = ()) -> int:
+    """Delete ``object_id``'s chunk files except the names in ``keep``; returns how many."""
+    keep = set(keep)
+    stale = [p for p in chunk_files(out_dir, object_id) if p.name not in keep]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return len(stale)
+
+
 def _remove_merged_chunks(out_dir: Path, manifest: Manifest) -> None:
     """Delete chunk files of objects already merged into their file (a stop between the two steps)."""
     for oid in manifest.objects_done:
-        stem = object_filename(oid)[: -len(".parquet")]
-        for p in out_dir.glob(f"{glob.escape(stem)}.*-*.parquet"):
-            log.info("removing %s: already merged into %s", p.name, object_filename(oid))
-            p.unlink()
+        if removed := remove_chunks(out_dir, oid):
+            log.info("removed %d chunk files of %s: already merged into its file", removed, oid)
 
 
 def open_run(

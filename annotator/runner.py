@@ -342,13 +342,14 @@ def _spans(options: RunOptions, sources, manifest, out_dir: Path, hashes) -> tup
     rest: list[Span] = []
     done_before: dict[str, dict[tuple[int, int], str]] = {}
     for source in sources:
-        done = manifest.chunks_of(source.object_id, out_dir, hashes[source.object_id])
+        planned = [(a, min(options.n, a + CHUNK_SIZE)) for a in range(0, options.n, CHUNK_SIZE)]
+        recorded = manifest.chunks_of(source.object_id, out_dir, hashes[source.object_id])
+        done = {r: f for r, f in recorded.items() if r in planned}
         done_before[source.object_id] = done
-        todo = [
-            Span(source.object_id, source, options.scale, start, min(options.n, start + CHUNK_SIZE))
-            for start in range(0, options.n, CHUNK_SIZE)
-            if (start, min(options.n, start + CHUNK_SIZE)) not in done
-        ]
+        # chunks the manifest does not vouch for (written just before a stop, of a changed mesh,
+        # or of another chunk size) are deleted and their spans redone
+        dataset.remove_chunks(out_dir, source.object_id, keep=done.values())
+        todo = [Span(source.object_id, source, options.scale, a, b) for a, b in planned if (a, b) not in done]
         first += todo[:1]
         rest += todo[1:]
     return first + rest, done_before
@@ -448,8 +449,7 @@ def _finish_object(oid, manifest, options, summary, source_sha256, seconds) -> N
     path = dataset.write_object_labels(options.out_dir, df)
     manifest.mark_done(oid, path, len(df), source_sha256)
     manifest.save(options.out_dir)
-    for name in files.values():
-        (Path(options.out_dir) / name).unlink(missing_ok=True)
+    dataset.remove_chunks(options.out_dir, oid)
     counts = df["outcome"].value_counts().to_dict()
     summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, seconds)
 

@@ -26,7 +26,7 @@ from click.testing import CliRunner
 
 from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
-from annotator.dataset import MANIFEST_NAME, OUTCOMES, load_labels
+from annotator.dataset import MANIFEST_NAME, OUTCOMES, chunk_filename, load_labels, write_chunk_labels
 from annotator.objects import ObjectSource, load_object
 from annotator.runner import _max_width
 from annotator.sampler import object_rng, sample_candidates
@@ -365,6 +365,30 @@ def test_resume_skips_done_objects_and_overwrite_starts_over(tmp_path):
     assert len(rerun) == 4 and (rerun["seed"] == 1).all()
     assert _manifest(out)["seed"] == 1
     assert not rerun[["x", "y", "z"]].equals(first[["x", "y", "z"]])  # a new draw
+
+
+def test_resume_redoes_chunks_the_manifest_does_not_vouch_for(two_objects, reference_run, tmp_path):
+    """Chunk files without a manifest entry (written just before a crash, or of another chunk size)
+    never reach the labels: they are deleted and their candidates simulated again."""
+    out = tmp_path / "out"
+    shutil.copytree(reference_run[0], out)
+    manifest = _manifest(out)
+    entry = manifest["objects_done"].pop("box")
+    (out / entry["file"]).unlink()
+    (out / MANIFEST_NAME).write_text(json.dumps(manifest))
+    reference = _labels(reference_run[0])
+    fake = reference[reference["object_id"] == "box"].copy()
+    fake["success"], fake["outcome"] = False, "error"  # wrong on purpose
+    stale = [out / chunk_filename("box", 0, 10), out / chunk_filename("box", 10, 13)]
+    write_chunk_labels(out, fake.iloc[0:10], 0)
+    write_chunk_labels(out, fake.iloc[10:13], 10)
+    assert all(p.exists() for p in stale)
+
+    result = _annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")
+    assert "1 objects labelled, 1 skipped" in result.output
+    assert f"{N_SMALL} candidates in" in result.output  # box redone whole, cylinder kept
+    assert not any(p.exists() for p in stale)
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
 
 
 # --- 7. Ctrl-C ----------------------------------------------------------------------------------------
