@@ -137,9 +137,10 @@ class ProtocolConfig:
     # The shake: three motions, each translating along and rotating about one gripper axis at
     # once, one 0.2 s sine period each: peak 0.03 m x (2 pi / 0.2 s)^2 = 30 m/s^2 (3 g; GraspDataGen
     # tugs at 1 g) and 0.35 rad x (2 pi / 0.2 s)^2 = 345 rad/s^2. Chosen with bench/fidelity.py
-    # against the thorough reference (see AnnotatorConfig.thorough), agreement on the simulated
-    # candidates (seed 0): six sequential 0.35 s motions at 1 g 92.6 % (654 steps per trial),
-    # paired 0.35 s 92.4 %, paired 0.25 s 95.9 %, this 96.2 % (270 steps per trial).
+    # against the thorough reference (see AnnotatorConfig.thorough), agreement on the 393
+    # simulated candidates of seed 0: six sequential 0.35 s motions at 1 g (the first default)
+    # 92.6 % at 654 steps per trial, paired 0.35 s periods 92.4 %, paired 0.25 s 95.9 %, these
+    # 0.2 s periods 96.2 % (270 steps; 96.7 % at 244 with preclose_gap).
     shake_amplitude: float = 0.03  # m, "a shake of a few centimetres"
     shake_angle: float = 0.35  # rad (20 deg), "tens of degrees"
     shake_duration: float = 0.6  # s, all motions
@@ -185,7 +186,7 @@ class AnnotatorConfig:
 
         Time step 1/1000 s, twice the solver iterations, and a long shake: six sequential
         motions (translations along x, y, z, then rotations about them), each three 0.35 s sine
-        periods at 4.5 cm and 30 deg (1.5 g): 6.3 s, ten times the default's 0.6 s, at 1.5x its
+        periods at 4.5 cm and 30 deg (1.5 g): 6.3 s, over ten times the default's 0.6 s, at 1.5x its
         amplitudes. Fixed values, so that tuning the default cannot move the reference.
         """
         base = base or cls()

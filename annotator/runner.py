@@ -16,7 +16,7 @@ import contextlib
 import logging
 import os
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -381,8 +381,8 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
             sum(len(d) for d in done_before.values()),
             len(pending),
         )
-    remaining = {s.object_id: sum(1 for sp in spans if sp.object_id == s.object_id) for s in pending}
-    for oid in [oid for oid, k in remaining.items() if k == 0]:  # all chunks on disk: only the merge
+    remaining = Counter(sp.object_id for sp in spans)  # spans still out, per object
+    for oid in [s.object_id for s in pending if remaining[s.object_id] == 0]:  # all chunks on disk
         _finish_object(oid, manifest, options, summary, hashes[oid], 0.0)
 
     client, backend = _parallel(options)
@@ -411,6 +411,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
                         summary.failed[oid] = error
                         manifest.mark_failed(oid, error)
                         manifest.save(options.out_dir)
+                        dataset.remove_chunks(options.out_dir, oid)  # no partial labels of it stay
                         log.error("%s: %s", oid, error)
                     continue
                 if oid in summary.failed:  # another worker could load it; the object is failed

@@ -94,7 +94,7 @@ def main() -> None:
     ap.add_argument("--objects", type=Path, default=ROOT / "objects")
     ap.add_argument("--n", type=int, default=200)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--scaling-n", type=int, default=40, help="candidates per object for 1 vs 2 workers")
+    ap.add_argument("--scaling-n", type=int, default=80, help="candidates per object for 1 vs 2 workers")
     ap.add_argument("--main-n", type=int, default=500, help="N of the README main command (0: skip)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
