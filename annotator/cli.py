@@ -40,7 +40,7 @@ def _setup_logging(quiet: bool, verbose: bool) -> None:
     default=Path("labels"),
     show_default=True,
     type=click.Path(path_type=Path, file_okay=False),
-    help="Output folder: one Parquet file per object plus _manifest.json.",
+    help="Output folder: one Parquet file per object (chunk files while it runs) plus _manifest.json.",
 )
 @click.option(
     "--workers",
@@ -96,7 +96,8 @@ def annotate_command(
       annotate --objects objects/ --n 500
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
 
-    Re-running the same command resumes (finished objects are skipped). Exit codes: 0 all
+    Labels are written every 10 candidates; re-running the same command resumes
+    (finished objects and chunks are skipped), so Ctrl-C loses almost nothing. Exit codes: 0 all
     objects done, 1 some objects failed (the others are written), 2 usage error.
     """
     _setup_logging(quiet, verbose)
