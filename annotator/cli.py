@@ -98,7 +98,7 @@ def annotate_command(
 
     Labels are written every 10 candidates; re-running the same command resumes
     (finished objects and chunks are skipped), so Ctrl-C loses almost nothing. Exit codes: 0 all
-    objects done, 1 some objects failed (the others are written), 2 usage error.
+    objects done, 1 some objects failed (the others are written), 2 usage error, 130 interrupted.
     """
     _setup_logging(quiet, verbose)
     from annotator.runner import RunOptions, UsageError, run
