@@ -15,6 +15,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
+import threading
 import time
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
@@ -44,6 +46,10 @@ log = logging.getLogger(__name__)
 # within seconds, that 2..64 workers stay balanced and that an interrupt loses little; large
 # enough that the per-span overhead (pickling, a chunk file, a manifest save) stays ~ 1 %.
 CHUNK_SIZE = 10
+# The manifest (which vouches for chunk files) is saved at most this often while chunks come in,
+# always when an object is merged and when the run ends or is interrupted; a hard kill loses at
+# most this many seconds of chunks (unvouched chunk files are redone on resume).
+MANIFEST_SAVE_SECONDS = 2.0
 
 
 class UsageError(Exception):
@@ -389,6 +395,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     from tqdm.auto import tqdm
 
     worker_seconds: dict[str, float] = defaultdict(float)
+    saved = time.perf_counter()  # when the manifest was last saved
     bar = tqdm(
         total=sum(sp.stop - sp.start for sp in spans),
         unit="grasp",
@@ -428,13 +435,16 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
                 remaining[oid] -= 1
                 if remaining[oid] == 0:
                     _finish_object(oid, manifest, options, summary, hashes[oid], worker_seconds[oid])
-                else:
+                    saved = time.perf_counter()
+                elif time.perf_counter() - saved > MANIFEST_SAVE_SECONDS:
                     manifest.save(options.out_dir)
+                    saved = time.perf_counter()
     except KeyboardInterrupt:
         bar.close()
         log.info("interrupted: %d candidates written this run", summary.candidates)
         raise
     finally:
+        manifest.save(options.out_dir)  # every chunk written so far, also on Ctrl-C or an error
         bar.close()
         if client is not None:
             client.close()
@@ -443,14 +453,34 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     return summary
 
 
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Hold back Ctrl-C (in the main thread) until the block is done, then raise it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received:
+            raise KeyboardInterrupt
+
+
 def _finish_object(oid, manifest, options, summary, source_sha256, seconds) -> None:
-    """Merge one object's chunk files into its label file, record it, delete the chunks."""
+    """Merge one object's chunk files into its label file, record it, delete the chunks.
+
+    Ctrl-C waits for the three steps, so the folder never holds an object's file and its chunks.
+    """
     files = manifest.chunks_of(oid, options.out_dir, source_sha256)
     df = dataset.merge_chunks(options.out_dir, oid, [files[k] for k in sorted(files)])
-    path = dataset.write_object_labels(options.out_dir, df)
-    manifest.mark_done(oid, path, len(df), source_sha256)
-    manifest.save(options.out_dir)
-    dataset.remove_chunks(options.out_dir, oid)
+    with _sigint_deferred():
+        path = dataset.write_object_labels(options.out_dir, df)
+        manifest.mark_done(oid, path, len(df), source_sha256)
+        manifest.save(options.out_dir)
+        dataset.remove_chunks(options.out_dir, oid)
     counts = df["outcome"].value_counts().to_dict()
     summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, seconds)
 
