@@ -488,9 +488,7 @@ def _finish_object(oid, manifest, options, summary, source_sha256, seconds) -> N
 def format_summary(summary: Summary) -> str:
     """A per-object table: n, success rate, outcome counts, time; then failures and totals."""
     cols = list(dataset.OUTCOMES)
-    head = (
-        f"{'object':<28} {'n':>5} {'success':>8} " + " ".join(f"{c[:9]:>9}" for c in cols) + f" {'time':>7}"
-    )
+    head = f"{'object':<28} {'n':>5} {'rate':>8} " + " ".join(f"{c[:9]:>9}" for c in cols) + f" {'time':>7}"
     lines = [head, "-" * len(head)]
     for oid, st in sorted(summary.done.items()):
         rate = st.successes / st.n if st.n else 0.0

@@ -522,3 +522,16 @@ def test_console_scripts_run_as_processes():
         proc = subprocess.run([exe, *args], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 0, proc.stderr
         assert "--objects" in proc.stdout
+
+
+def test_no_pybullet_banner_in_the_output():
+    """pybullet prints its build time on import; every worker would add one to the progress bar."""
+    proc = subprocess.run(
+        [sys.executable, "-c", "import annotator.sim.world, pybullet; print('imported')"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "imported"
+    assert "build time" not in proc.stderr + proc.stdout
