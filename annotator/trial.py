@@ -3,7 +3,8 @@
 The protocol (DESIGN.md), with an early exit at each stage:
 
 1. ``collision``: the open gripper intersects the object at the grasp pose or anywhere along the
-   approach (kinematic checks, no simulation).
+   approach, or, closed on the expected chord, touches it with anything but the pads (kinematic
+   checks, no simulation).
 2. close with the RG2's force, gravity off (GraspDataGen), until the fingers stall.
 3. ``no_contact``: not both pads touch the object.
 4. ``slipped_lift``: gravity on, lift; the object lost a pad or moved in the hand.
@@ -97,10 +98,12 @@ class GraspTrial:
         pos, orn = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
         return Transform(pos, orn) * self._T_com_obj
 
-    def _intersects(self) -> bool:
+    def _intersects(self, skip_pads: bool = False) -> bool:
+        """Does the gripper (without its pads, if ``skip_pads``) intersect the object?"""
         margin = self.config.protocol.collision_margin
         pts = pb.getClosestPoints(self.hand.uid, self.obj, margin, physicsClientId=self.client)
-        return any(p[8] < margin for p in pts)
+        pads = self.hand.rg2.pads if skip_pads else ()
+        return any(p[8] < margin and p[3] not in pads for p in pts)
 
     def _both_pads_touch(self) -> bool:
         a, b = self.hand.rg2.pad_contacts(self.obj)
@@ -109,7 +112,8 @@ class GraspTrial:
     # --- the protocol --------------------------------------------------------------------------
 
     def collides(self, T_obj_tcp: Transform, width: float) -> tuple[bool, float]:
-        """Kinematic check of the open gripper at the grasp pose and back along the approach."""
+        """Kinematic checks: the open gripper at the grasp pose and back along the approach; the
+        gripper closed on the expected chord touching the object with its pads only."""
         p = self.config.protocol
         open_width = min(self.hand.rg2.max_width, width + 2 * p.pregrasp_clearance)
         T_world_tcp = self._T_world_obj() * T_obj_tcp
@@ -122,6 +126,12 @@ class GraspTrial:
             self.hand.body.reset_base_pose(back)
             if self._intersects():
                 return True, open_width
+        # closed on the expected chord, only the pads may touch: a finger link that reaches the
+        # object first (e.g. a can's rim under a tilted grasp) would stop the close on it
+        self.hand.body.reset_base_pose(T_world_base)
+        self.hand.rg2.reset_width(width)
+        if self._intersects(skip_pads=True):
+            return True, open_width
         return False, open_width
 
     def _apply(self, perturbation: Perturbation) -> None:

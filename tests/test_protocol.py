@@ -86,7 +86,9 @@ def box_and_can_labels(tmp_path_factory):
         ("box", trimesh.creation.box((0.06, 0.04, 0.12))),
         ("can", trimesh.creation.cylinder(radius=0.033, height=0.115, sections=48)),
     ]:
-        out[name] = (mesh, label(write_mesh(tmp, name, mesh), mesh, 50, workers=2))
+        # 60 candidates: among them a tilted grasp whose closing finger link lands on the can's rim
+        # (a success 10 mm wider than the chord before the closed-gripper collision check)
+        out[name] = (mesh, label(write_mesh(tmp, name, mesh), mesh, 60, workers=2))
     return out
 
 
@@ -120,7 +122,7 @@ def test_starting_the_close_near_the_chord_changes_no_label(box_and_can_labels, 
         protocol=dataclasses.replace(CONFIG.protocol, preclose_gap=CONFIG.protocol.pregrasp_clearance),
     )
     ids = simulated["grasp_id"].to_numpy()
-    long = label(write_mesh(tmp_path, "box", mesh), mesh, 50, config=full_open, workers=2, only=ids)
+    long = label(write_mesh(tmp_path, "box", mesh), mesh, 60, config=full_open, workers=2, only=ids)
     assert (long["outcome"].to_numpy() == simulated["outcome"].to_numpy()).mean() >= 0.9
     both = (long["success"].to_numpy()) & (simulated["success"].to_numpy())
     assert np.abs(long["width"].to_numpy()[both] - simulated["width"].to_numpy()[both]).max() < 0.001
@@ -131,7 +133,7 @@ def test_heavier_or_slipperier_objects_are_never_more_successful(tmp_path):
     """Over >= 200 simulated grasps: mass x2 and friction 0.3 can only lose grasps."""
     mesh = trimesh.creation.box((0.05, 0.04, 0.10))
     source = write_mesh(tmp_path, "brick", mesh)
-    base = label(source, mesh, 400, workers=2).set_index("grasp_id")
+    base = label(source, mesh, 440, workers=2).set_index("grasp_id")
     simulated = base[base["outcome"] != "collision"]  # collisions are kinematic: the same in all
     assert len(simulated) >= 200, len(simulated)
     heavy_cfg = dataclasses.replace(
@@ -142,7 +144,7 @@ def test_heavier_or_slipperier_objects_are_never_more_successful(tmp_path):
     )
     held = int(simulated["success"].sum())
     for cfg in (heavy_cfg, slippery_cfg):
-        harder = label(source, mesh, 400, config=cfg, workers=2, only=simulated.index.to_numpy())
+        harder = label(source, mesh, 440, config=cfg, workers=2, only=simulated.index.to_numpy())
         assert int(harder["success"].sum()) <= held
     # and the slippery world must actually bite: friction 0.3 loses some grasps
     assert int(harder["success"].sum()) < held
