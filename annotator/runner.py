@@ -188,12 +188,6 @@ def _worker_object(object_id: str, source, scale: float | None, config: Annotato
     return _WORKER["object"]
 
 
-def _worker_trial(chunk: Chunk, config: AnnotatorConfig):
-    """A GraspTrial and the model of the chunk's object."""
-    loaded = _worker_object(chunk.object_id, chunk.source, chunk.scale, config)
-    return loaded.trial, loaded.model
-
-
 def object_candidates(model, n: int, seed: int, config: AnnotatorConfig, max_width: float):
     """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
     return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
@@ -229,7 +223,7 @@ def label_span(
         cands.T_obj_tcp[span.start : span.stop],
         cands.width_expected[span.start : span.stop],
     )
-    df, stats = simulate_chunk(chunk, config, seed, trials)
+    df, stats = simulate_chunk(chunk, config, seed, trials, loaded)
     return span, df, None, _stats(t0, stats["step_seconds"])
 
 
@@ -244,7 +238,7 @@ def _stats(t0: float, step_seconds: float) -> dict:
 
 
 def simulate_chunk(
-    chunk: Chunk, config: AnnotatorConfig, seed: int, trials: int = 1
+    chunk: Chunk, config: AnnotatorConfig, seed: int, trials: int = 1, loaded: _Loaded | None = None
 ) -> tuple[pd.DataFrame, dict]:
     """Label rows for one chunk and worker statistics (runs in a worker process).
 
@@ -253,10 +247,13 @@ def simulate_chunk(
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and
     the pose; trials 1..K-1 are perturbed from the candidate's own Generator (trial_rng) and
-    ``score`` is the fraction of all K trials that held.
+    ``score`` is the fraction of all K trials that held. ``loaded``: the chunk's object if the
+    caller has already loaded it in this worker (label_span).
     """
     t0 = time.perf_counter()
-    trial, model = _worker_trial(chunk, config)
+    if loaded is None:
+        loaded = _worker_object(chunk.object_id, chunk.source, chunk.scale, config)
+    trial, model = loaded.trial, loaded.model
     step_seconds0 = trial.world.step_seconds
     rows = []
     for k in range(len(chunk.width)):
