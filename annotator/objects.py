@@ -17,11 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pybullet
 import trimesh
 
 from annotator.config import ObjectConfig
 from annotator.geometry import Transform
+from annotator.sim import pb as pybullet
 
 log = logging.getLogger(__name__)
 

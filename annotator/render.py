@@ -6,9 +6,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 
 from annotator.geometry import Transform
+from annotator.sim import pb
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from annotator.objects import (
     discover_objects,
 )
 from annotator.objects import load_object as _load_object
+from annotator.pipeline import store
 from annotator.sampler import object_rng, sample_candidates
 from annotator.trial import Perturbation, trial_rng
 
@@ -351,7 +352,7 @@ def _spans(options: RunOptions, sources, manifest, out_dir: Path, hashes) -> tup
         done_before[source.object_id] = done
         # chunks the manifest does not vouch for (written just before a stop, of a changed mesh,
         # or of another chunk size) are deleted and their spans redone
-        dataset.remove_chunks(out_dir, source.object_id, keep=done.values())
+        store.remove_chunks(out_dir, source.object_id, keep=done.values())
         todo = [Span(source.object_id, source, options.scale, a, b) for a, b in planned if (a, b) not in done]
         first += todo[:1]
         rest += todo[1:]
@@ -366,13 +367,13 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     except ObjectDiscoveryError as exc:
         raise UsageError(str(exc)) from exc
     try:
-        manifest = dataset.open_run(
+        manifest = store.open_run(
             options.out_dir, config.to_dict(), options.seed, options.n, options.trials, options.overwrite
         )
-    except dataset.ManifestMismatchError as exc:
+    except store.ManifestMismatchError as exc:
         raise UsageError(str(exc)) from exc
 
-    hashes = {s.object_id: dataset.file_sha256(s.path) for s in sources}  # the file given
+    hashes = {s.object_id: store.file_sha256(s.path) for s in sources}  # the file given
     todo_ids = set(manifest.pending([s.object_id for s in sources], options.out_dir, hashes))
     summary.skipped = [s.object_id for s in sources if s.object_id not in todo_ids]
     pending = [s for s in sources if s.object_id in todo_ids]
@@ -415,7 +416,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
                         summary.failed[oid] = error
                         manifest.mark_failed(oid, error)
                         manifest.save(options.out_dir)
-                        dataset.remove_chunks(options.out_dir, oid)  # no partial labels of it stay
+                        store.remove_chunks(options.out_dir, oid)  # no partial labels of it stay
                         log.error("%s: %s", oid, error)
                     continue
                 if oid in summary.failed:  # another worker could load it; the object is failed
@@ -425,7 +426,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
                 summary.sim_steps += int(df["sim_steps"].sum())
                 summary.candidates += len(df)
                 summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
-                path = dataset.write_chunk_labels(options.out_dir, df, span.start)
+                path = store.write_chunk_labels(options.out_dir, df, span.start)
                 manifest.mark_chunk(oid, span.start, path, len(df), hashes[oid])
                 if summary.first_label_seconds is None:
                     summary.first_label_seconds = time.perf_counter() - summary.started
@@ -472,12 +473,12 @@ def _finish_object(oid, manifest, options, summary, source_sha256, seconds) -> N
     Ctrl-C waits for the three steps, so the folder never holds an object's file and its chunks.
     """
     files = manifest.chunks_of(oid, options.out_dir, source_sha256)
-    df = dataset.merge_chunks(options.out_dir, oid, [files[k] for k in sorted(files)])
+    df = store.merge_chunks(options.out_dir, oid, [files[k] for k in sorted(files)])
     with _sigint_deferred():
-        path = dataset.write_object_labels(options.out_dir, df)
+        path = store.write_object_labels(options.out_dir, df)
         manifest.mark_done(oid, path, len(df), source_sha256)
         manifest.save(options.out_dir)
-        dataset.remove_chunks(options.out_dir, oid)
+        store.remove_chunks(options.out_dir, oid)
     counts = df["outcome"].value_counts().to_dict()
     summary.done[oid] = ObjectStats(len(df), int(df["success"].sum()), counts, seconds)
 

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import click
 import numpy as np
-import pybullet as pb
 import pybullet_data
 
 from annotator import paths
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.render import Camera, optical_camera, orbit_camera, render_rgb, write_gif, write_png
+from annotator.sim import pb
 from annotator.sim.body import Body
 from annotator.sim.rg2 import RG2, TCP_LINK
 from annotator.sim.ur3 import JOINT_NAMES

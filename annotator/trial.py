@@ -19,11 +19,11 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
 
 from annotator.config import AnnotatorConfig, RobustConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, axis_angle_to_matrix
+from annotator.sim import pb
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 

@@ -26,8 +26,9 @@ from click.testing import CliRunner
 
 from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
-from annotator.dataset import MANIFEST_NAME, OUTCOMES, chunk_filename, load_labels, write_chunk_labels
+from annotator.dataset import OUTCOMES, load_labels
 from annotator.objects import ObjectSource, load_object
+from annotator.pipeline.store import MANIFEST_NAME, chunk_filename, write_chunk_labels
 from annotator.runner import _max_width
 from annotator.sampler import object_rng, sample_candidates
 

@@ -12,6 +12,7 @@ import pytest
 import trimesh
 
 import annotator.dataset as ds
+import annotator.pipeline.store as st
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.sampler import object_rng, sample_candidates
@@ -49,24 +50,24 @@ def test_outcomes_and_enum() -> None:
 
 def test_object_filename_is_safe_and_collision_free() -> None:
     ids = ["ycb/mug", "ycb__mug", "ycb_mug", "YCB/mug", "a/b/c", "_hidden", ".dot", "with space/ü"]
-    names = [ds.object_filename(i) for i in ids]
+    names = [st.object_filename(i) for i in ids]
     assert len(set(names)) == len(ids)
     for name in names:
         assert "/" not in name and "\\" not in name and " " not in name
         assert name.endswith(".parquet") and name[0] not in "._"
-    assert ds.object_filename("ycb/mug") == ds.object_filename("ycb/mug")
-    assert ds.object_filename("ycb/mug").startswith("ycb__mug-")
+    assert st.object_filename("ycb/mug") == st.object_filename("ycb/mug")
+    assert st.object_filename("ycb/mug").startswith("ycb__mug-")
 
 
 def test_round_trip_read_parquet_directory(tmp_path: Path) -> None:
     frames = {oid: _labels(oid, n=12) for oid in ["ycb/mug", "ycb/bowl", "cube"]}
-    manifest = ds.open_run(tmp_path, AnnotatorConfig().to_dict(), seed=0, n=12, trials=1)
+    manifest = st.open_run(tmp_path, AnnotatorConfig().to_dict(), seed=0, n=12, trials=1)
     for oid, df in frames.items():
-        path = ds.write_object_labels(tmp_path, df)
+        path = st.write_object_labels(tmp_path, df)
         manifest.mark_done(oid, path, len(df), "ab" * 32)
     manifest.save(tmp_path)
     (tmp_path / ".leftover.parquet.x.tmp").write_bytes(b"half a file")  # a crashed writer's debris
-    assert (tmp_path / ds.MANIFEST_NAME).exists()
+    assert (tmp_path / st.MANIFEST_NAME).exists()
 
     got = pd.read_parquet(tmp_path)  # the user's one-liner, manifest and debris present
     assert len(got) == 36
@@ -85,44 +86,44 @@ def test_round_trip_read_parquet_directory(tmp_path: Path) -> None:
     assert list(loaded["object_id"].unique()) == sorted(frames)
     assert loaded["object_id"].is_monotonic_increasing
     assert (loaded.groupby("object_id")["grasp_id"].apply(list) == [list(range(12))] * 3).all()
-    one = ds.load_labels(tmp_path / ds.object_filename("cube"))
+    one = ds.load_labels(tmp_path / st.object_filename("cube"))
     assert set(one["object_id"]) == {"cube"} and len(one) == 12
 
 
 def test_write_is_atomic_when_writer_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    ds.write_object_labels(tmp_path, _labels("good", 5))
+    st.write_object_labels(tmp_path, _labels("good", 5))
     before = sorted(p.name for p in tmp_path.iterdir())
 
     def broken_write_table(table, where, **kwargs) -> None:
         where.write(b"PAR1 partial bytes")  # some bytes reach the disk, then the writer dies
         raise OSError("disk full")
 
-    monkeypatch.setattr(ds.pq, "write_table", broken_write_table)
+    monkeypatch.setattr(st.pq, "write_table", broken_write_table)
     with pytest.raises(OSError, match="disk full"):
-        ds.write_object_labels(tmp_path, _labels("bad", 5))
+        st.write_object_labels(tmp_path, _labels("bad", 5))
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no partial file, no temp file
-    assert not (tmp_path / ds.object_filename("bad")).exists()
+    assert not (tmp_path / st.object_filename("bad")).exists()
     monkeypatch.undo()
     assert set(pd.read_parquet(tmp_path)["object_id"]) == {"good"}
 
 
 def test_failed_overwrite_keeps_the_old_file_whole(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    path = ds.write_object_labels(tmp_path, _labels("obj", 6, seed=1))
+    path = st.write_object_labels(tmp_path, _labels("obj", 6, seed=1))
     old = path.read_bytes()
 
     def dies(table, where, **kwargs) -> None:
         where.write(b"garbage")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(ds.pq, "write_table", dies)
+    monkeypatch.setattr(st.pq, "write_table", dies)
     with pytest.raises(KeyboardInterrupt):
-        ds.write_object_labels(tmp_path, _labels("obj", 6, seed=2))
+        st.write_object_labels(tmp_path, _labels("obj", 6, seed=2))
     assert path.read_bytes() == old
     assert [p.name for p in tmp_path.iterdir()] == [path.name]
 
 
 def test_written_file_has_fixed_arrow_types(tmp_path: Path) -> None:
-    path = ds.write_object_labels(tmp_path, _labels("typed", 4))
+    path = st.write_object_labels(tmp_path, _labels("typed", 4))
     schema = pq.read_schema(path)
     assert str(schema.field("object_id").type) == "string"
     assert str(schema.field("grasp_id").type) == "int64"
@@ -146,18 +147,18 @@ def test_written_file_has_fixed_arrow_types(tmp_path: Path) -> None:
 )
 def test_schema_errors_are_clear(tmp_path: Path, mutate, message: str) -> None:
     with pytest.raises(ds.SchemaError, match=message):
-        ds.write_object_labels(tmp_path, mutate(_labels("o", 6)))
+        st.write_object_labels(tmp_path, mutate(_labels("o", 6)))
     assert list(tmp_path.iterdir()) == []
 
 
 def test_write_rejects_several_objects_and_gappy_ids(tmp_path: Path) -> None:
     both = pd.concat([_labels("a", 3), _labels("b", 3)])
     with pytest.raises(ds.SchemaError, match="one object"):
-        ds.write_object_labels(tmp_path, both)
+        st.write_object_labels(tmp_path, both)
     gappy = _labels("a", 4)
     gappy["grasp_id"] = np.array([0, 1, 2, 5], dtype=np.int64)
     with pytest.raises(ds.SchemaError, match=r"exactly 0\.\.3"):
-        ds.write_object_labels(tmp_path, gappy)
+        st.write_object_labels(tmp_path, gappy)
 
 
 def test_load_labels_errors(tmp_path: Path) -> None:
@@ -197,53 +198,53 @@ def test_split_by_object_has_no_leakage() -> None:
 
 def test_manifest_resume_and_mismatch(tmp_path: Path) -> None:
     config = AnnotatorConfig().to_dict()
-    m = ds.open_run(tmp_path, config, seed=0, n=4, trials=1)
-    path = ds.write_object_labels(tmp_path, _labels("a", 4))
+    m = st.open_run(tmp_path, config, seed=0, n=4, trials=1)
+    path = st.write_object_labels(tmp_path, _labels("a", 4))
     m.mark_done("a", path, 4, "ab" * 32)
     m.mark_failed("b", ValueError("mesh is in millimetres:\n  scale it"))
     m.save(tmp_path)
 
-    data = json.loads((tmp_path / ds.MANIFEST_NAME).read_text())
+    data = json.loads((tmp_path / st.MANIFEST_NAME).read_text())
     assert data["objects_done"]["a"]["file"] == path.name
-    assert data["objects_done"]["a"]["sha256"] == ds.file_sha256(path)
+    assert data["objects_done"]["a"]["sha256"] == st.file_sha256(path)
     assert data["objects_failed"]["b"] == "ValueError: mesh is in millimetres: scale it"
     assert {"python", "pybullet", "numpy", "trimesh", "annotator"} <= set(data["versions"])
     assert data["config"]["sampler"]["n_rotations"] == AnnotatorConfig().sampler.n_rotations
 
-    resumed = ds.open_run(tmp_path, config, seed=0, n=4, trials=1)
+    resumed = st.open_run(tmp_path, config, seed=0, n=4, trials=1)
     assert resumed.pending(["a", "b", "c"], tmp_path) == ["b", "c"]
     assert resumed.pending(["a"], tmp_path, mesh_sha256={"a": "cd" * 32}) == ["a"]  # mesh changed
 
     for kwargs, what in [({"seed": 1}, "seed"), ({"n": 5}, "n: 4"), ({"trials": 3}, "trials")]:
         args = {"seed": 0, "n": 4, "trials": 1} | kwargs
-        with pytest.raises(ds.ManifestMismatchError, match=f"{what}.*--overwrite"):
-            ds.open_run(tmp_path, config, **args)
+        with pytest.raises(st.ManifestMismatchError, match=f"{what}.*--overwrite"):
+            st.open_run(tmp_path, config, **args)
     other = AnnotatorConfig.from_dict({"sampler": {"n_rotations": 4}}).to_dict()
-    with pytest.raises(ds.ManifestMismatchError, match="config differs.*--overwrite"):
-        ds.open_run(tmp_path, other, seed=0, n=4, trials=1)
+    with pytest.raises(st.ManifestMismatchError, match="config differs.*--overwrite"):
+        st.open_run(tmp_path, other, seed=0, n=4, trials=1)
 
-    fresh = ds.open_run(tmp_path, other, seed=0, n=4, trials=1, overwrite=True)
+    fresh = st.open_run(tmp_path, other, seed=0, n=4, trials=1, overwrite=True)
     assert fresh.objects_done == {} and not list(tmp_path.glob("*.parquet"))
-    assert ds.Manifest.load(tmp_path).config["sampler"]["n_rotations"] == 4
+    assert st.Manifest.load(tmp_path).config["sampler"]["n_rotations"] == 4
 
 
 def test_labels_without_manifest_need_overwrite(tmp_path: Path) -> None:
-    ds.write_object_labels(tmp_path, _labels("a", 3))
-    with pytest.raises(ds.ManifestMismatchError, match="--overwrite"):
-        ds.open_run(tmp_path, {}, seed=0, n=3, trials=1)
+    st.write_object_labels(tmp_path, _labels("a", 3))
+    with pytest.raises(st.ManifestMismatchError, match="--overwrite"):
+        st.open_run(tmp_path, {}, seed=0, n=3, trials=1)
 
 
 def test_chunk_files_are_read_with_the_rest_merged_and_cleaned_up(tmp_path: Path) -> None:
     """A run writes each span as it comes back; read_parquet sees them; the merge is the same rows."""
     config = AnnotatorConfig().to_dict()
-    m = ds.open_run(tmp_path, config, seed=0, n=10, trials=1)
+    m = st.open_run(tmp_path, config, seed=0, n=10, trials=1)
     whole = _labels("ycb/mug", 10)
-    first = ds.write_chunk_labels(tmp_path, whole.iloc[0:4], 0)
-    second = ds.write_chunk_labels(tmp_path, whole.iloc[4:10], 4)
-    assert first.name == ds.chunk_filename("ycb/mug", 0, 4) and first.name.startswith("ycb__mug-")
+    first = st.write_chunk_labels(tmp_path, whole.iloc[0:4], 0)
+    second = st.write_chunk_labels(tmp_path, whole.iloc[4:10], 4)
+    assert first.name == st.chunk_filename("ycb/mug", 0, 4) and first.name.startswith("ycb__mug-")
     assert first.name.endswith(".000000-000004.parquet") and second.name.endswith(".000004-000010.parquet")
     with pytest.raises(ds.SchemaError, match="4..7"):  # rows must be exactly the span they claim
-        ds.write_chunk_labels(tmp_path, whole.iloc[0:4], 4)
+        st.write_chunk_labels(tmp_path, whole.iloc[0:4], 4)
     m.mark_chunk("ycb/mug", 0, first, 4, "ab" * 32)
     m.mark_chunk("ycb/mug", 4, second, 6, "ab" * 32)
     m.save(tmp_path)
@@ -252,20 +253,30 @@ def test_chunk_files_are_read_with_the_rest_merged_and_cleaned_up(tmp_path: Path
     got = pd.read_parquet(tmp_path).sort_values("grasp_id", ignore_index=True)
     pd.testing.assert_frame_equal(ds.validate_labels(got), ds.validate_labels(whole), check_dtype=False)
 
-    resumed = ds.open_run(tmp_path, config, seed=0, n=10, trials=1)
+    resumed = st.open_run(tmp_path, config, seed=0, n=10, trials=1)
     assert resumed.chunks_of("ycb/mug", tmp_path, "ab" * 32) == {(0, 4): first.name, (4, 10): second.name}
     assert resumed.chunks_of("ycb/mug", tmp_path, "cd" * 32) == {}  # the mesh changed: redo all
     second.unlink()
     assert resumed.chunks_of("ycb/mug", tmp_path, "ab" * 32) == {(0, 4): first.name}  # file gone: redo
-    ds.write_chunk_labels(tmp_path, whole.iloc[4:10], 4)
+    st.write_chunk_labels(tmp_path, whole.iloc[4:10], 4)
 
-    merged = ds.merge_chunks(tmp_path, "ycb/mug", [first.name, second.name])
-    path = ds.write_object_labels(tmp_path, merged)
+    merged = st.merge_chunks(tmp_path, "ycb/mug", [first.name, second.name])
+    path = st.write_object_labels(tmp_path, merged)
     resumed.mark_done("ycb/mug", path, 10, "ab" * 32)
     resumed.save(tmp_path)
     assert resumed.chunks_done == {}
     # a stop between the merge and the clean-up leaves chunks of a done object: removed on resume
     assert first.exists() and second.exists()
-    ds.open_run(tmp_path, config, seed=0, n=10, trials=1)
+    st.open_run(tmp_path, config, seed=0, n=10, trials=1)
     assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [path.name]
     pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.load_labels(path))
+
+
+def test_reading_labels_does_not_import_the_simulator() -> None:
+    """A learner's process loads labels without pybullet (the reader is apart from the store)."""
+    import subprocess
+    import sys
+
+    code = "import sys, annotator.dataset; print('pybullet' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -1,1 +1,40 @@
-"""PyBullet simulation: a world per process, bodies with joints by name, the RG2 gripper."""
+"""PyBullet simulation: a world per process, bodies with joints by name, the RG2 gripper.
+
+Import pybullet through this package (``from annotator.sim import pb``): it is imported here with
+its C-level "pybullet build time" banner silenced.
+"""
+
+import os
+import sys
+
+
+def _import_pybullet_quietly() -> None:
+    """Import pybullet with its C-level "pybullet build time" banner (on stderr) sent to /dev/null.
+
+    Every process that imports the package (the command and each worker) would print the banner
+    in the middle of the progress bar and the summary. Warnings after the import are untouched.
+    """
+    if "pybullet" in sys.modules:
+        return
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (AttributeError, OSError, ValueError):  # no real stderr (embedded interpreters)
+        import pybullet  # noqa: F401
+
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        import pybullet  # noqa: F401
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
+_import_pybullet_quietly()
+
+import pybullet as pb  # noqa: E402  (imported above with the banner silenced)
+
+__all__ = ["pb"]

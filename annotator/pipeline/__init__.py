@@ -1,0 +1,1 @@
+"""The batch job: planning work, workers, and the store that writes labels."""
