@@ -11,6 +11,10 @@ from annotator.config import PhysicsConfig
 
 log = logging.getLogger(__name__)
 
+# Bodies are moved this far apart (m) to drop their contact pairs when a snapshot is restored:
+# far beyond any object or robot extent, small enough that float32 AABBs stay exact to ~0.1 mm.
+SCATTER_DISTANCE = 100.0
+
 
 class World:
     """Owns a PyBullet client (DIRECT by default). Everything else receives ``world.client``."""
@@ -56,7 +60,23 @@ class World:
         return pb.saveState(physicsClientId=self.client)
 
     def restore_state(self, state_id: int) -> None:
-        pb.restoreState(stateId=state_id, physicsClientId=self.client)
+        """Return to snapshot ``state_id`` with no memory of earlier contacts.
+
+        ``restoreState`` resets poses, velocities and joint states, but not Bullet's persistent
+        contact manifolds, whose cached impulses warm-start the solver on the next step: a trial
+        then depended on the trial before it (the same 10 candidates run twice in one world gave
+        3 different rows of 10). So the bodies are first scattered far apart, one collision pass
+        releases every pair (and its manifold), and the snapshot is restored again; the next
+        step finds its contacts afresh, exactly as in a new world.
+        """
+        client = self.client
+        pb.restoreState(stateId=state_id, physicsClientId=client)
+        for i in range(pb.getNumBodies(physicsClientId=client)):
+            uid = pb.getBodyUniqueId(i, physicsClientId=client)
+            far = [SCATTER_DISTANCE * (i + 1), 0.0, 0.0]
+            pb.resetBasePositionAndOrientation(uid, far, [0.0, 0.0, 0.0, 1.0], physicsClientId=client)
+        pb.performCollisionDetection(physicsClientId=client)
+        pb.restoreState(stateId=state_id, physicsClientId=client)
 
     def remove_state(self, state_id: int) -> None:
         pb.removeState(state_id, physicsClientId=self.client)
