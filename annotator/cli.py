@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import os
 import sys
 from pathlib import Path
@@ -14,6 +15,13 @@ from annotator.config import AnnotatorConfig
 
 EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, the shell convention
+
+
+def _positive_finite(param: click.Parameter, value: float | None) -> float | None:
+    """Reject 0, negative, inf and nan at the command line (exit 2), not per object later."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(f"must be a finite number > 0, got {value}", param=param)
+    return value
 
 
 def _setup_logging(quiet: bool, verbose: bool) -> None:
@@ -62,7 +70,13 @@ def _setup_logging(quiet: bool, verbose: bool) -> None:
     metavar="ADDRESS",
     help="Dask scheduler (tcp://host:8786): run the same work on a cluster (needs the 'cluster' extra).",
 )
-@click.option("--scale", type=float, default=None, help="Scale every mesh by this factor (0.001 for mm).")
+@click.option(
+    "--scale",
+    type=float,
+    default=None,
+    callback=lambda ctx, param, value: _positive_finite(param, value),
+    help="Scale every mesh by this factor (0.001 for mm). Labels are in the scaled frame.",
+)
 @click.option("--overwrite", is_flag=True, help="Discard existing labels in --out and start over.")
 @click.option(
     "--config",

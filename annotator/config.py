@@ -7,6 +7,7 @@ The sections are frozen dataclasses gathered in :class:`AnnotatorConfig`; a TOML
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,122 +19,216 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 
+class ConfigError(ValueError):
+    """A configuration value of the wrong type or outside its range (a usage error: exit 2)."""
+
+
+def _field(
+    default: Any,
+    *,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    choices: tuple[str, ...] | None = None,
+) -> Any:
+    """A configuration field with its allowed range (checked when a section is built)."""
+    return field(default=default, metadata={"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices})
+
+
+def _range_text(meta: dict[str, Any]) -> str:
+    lo = (
+        f"> {meta['gt']:g}"
+        if meta.get("gt") is not None
+        else (f">= {meta['ge']:g}" if meta.get("ge") is not None else "")
+    )
+    hi = (
+        f"< {meta['lt']:g}"
+        if meta.get("lt") is not None
+        else (f"<= {meta['le']:g}" if meta.get("le") is not None else "")
+    )
+    return " and ".join(t for t in (lo, hi) if t)
+
+
+class _Section:
+    """Type and range checks for every field of a frozen configuration section.
+
+    Fields are typed ``float``, ``int``, ``bool`` or ``str``; an int given for a float (TOML
+    ``1``) becomes a float so that equal settings compare and hash equal in the manifest.
+    """
+
+    def __post_init__(self) -> None:
+        section = _SECTION_NAMES.get(type(self).__name__, type(self).__name__)
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            where = f"[{section}] {f.name}"
+            kind = f.type if isinstance(f.type, str) else f.type.__name__
+            if kind == "float":
+                if isinstance(value, bool) or not isinstance(value, int | float):
+                    raise ConfigError(f"{where}: expected a number, got {value!r}")
+                value = float(value)
+                if not math.isfinite(value):
+                    raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+                object.__setattr__(self, f.name, value)
+            elif kind == "int":
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            elif kind == "bool":
+                if not isinstance(value, bool):
+                    raise ConfigError(f"{where}: expected true or false, got {value!r}")
+            elif kind == "str":
+                if not isinstance(value, str):
+                    raise ConfigError(f"{where}: expected a string, got {value!r}")
+            meta = f.metadata
+            if meta.get("choices") is not None and value not in meta["choices"]:
+                raise ConfigError(f"{where}: must be one of {list(meta['choices'])}, got {value!r}")
+            if kind in ("float", "int"):
+                bad = (
+                    (meta.get("gt") is not None and not value > meta["gt"])
+                    or (meta.get("ge") is not None and not value >= meta["ge"])
+                    or (meta.get("lt") is not None and not value < meta["lt"])
+                    or (meta.get("le") is not None and not value <= meta["le"])
+                )
+                if bad:
+                    raise ConfigError(f"{where}: must be {_range_text(meta)}, got {value!r}")
+
+
 @dataclass(frozen=True)
-class PhysicsConfig:
+class PhysicsConfig(_Section):
     """World-level simulation settings."""
 
     # 1/240 s is PyBullet's default step and VGN's; contact-rich grasping is stable there with
     # enough solver iterations (bullet3 #1936).
-    time_step: float = 1.0 / 240.0
+    time_step: float = _field(1.0 / 240.0, gt=0.0, le=0.1)
     # Default 50 iterations lose grip under squeeze (bullet3 #2035); 150 held a 40 N squeeze.
-    solver_iterations: int = 150
+    solver_iterations: int = _field(150, ge=1, le=100_000)
     gravity: float = -9.81  # m/s^2, standard gravity
     # Share of a contact's penetration corrected per step. With Bullet's default (0.2) a pad
     # squeezing 40 N on the edge of an 8 mm plate sank 6 mm into it over a slow close, so thin
     # objects got widths far below their thickness; 0.8 keeps it under 1 mm (bench/fidelity.py,
     # tests/test_protocol.py::test_thin_plate_width_is_its_thickness).
-    contact_erp: float = 0.8
+    contact_erp: float = _field(0.8, gt=0.0, le=1.0)
 
 
 @dataclass(frozen=True)
-class GripperConfig:
+class GripperConfig(_Section):
     """The OnRobot RG2 as simulated (numbers from ../shared/ROBOT_FACTS.md)."""
 
     # Grip force 3..40 N (OnRobot driver max_force 400 in 0.1 N units); annotate at the maximum
     # a user is likely to set for household objects.
-    grip_force: float = 40.0  # N, per finger (squeeze force)
+    grip_force: float = _field(40.0, gt=0.0)  # N, per finger (squeeze force)
     # Max closing speed: RG2 datasheet ~ 38..127 mm/s finger speed; a 0.5 rad/s link speed gives
     # ~ 27 mm/s per finger at mid-stroke, slow enough that pads do not impact objects hard.
-    close_speed: float = 1.0  # rad/s of the driven link
+    close_speed: float = _field(1.0, gt=0.0)  # rad/s of the driven link
     # Friction of the pads: rubber-like pads on household objects, 1.0 as ACRONYM uses.
-    pad_lateral_friction: float = 1.0
+    pad_lateral_friction: float = _field(1.0, ge=0.0)
     # Spinning friction resists rotation of the object about the contact normal (bullet3 #3150);
     # a few mm of effective radius for a 29.8 x 20.2 mm pad.
-    pad_spinning_friction: float = 0.002
-    pad_rolling_friction: float = 0.0001
+    pad_spinning_friction: float = _field(0.002, ge=0.0)
+    pad_rolling_friction: float = _field(0.0001, ge=0.0)
     # How the mimic followers are coupled: "gear" (JOINT_GEAR constraints) or "position"
     # (per-step position control); chosen by the 40 N squeeze measurement in bench/rg2_coupling.py.
-    coupling: str = "gear"
+    coupling: str = _field("gear", choices=("gear", "position"))
     # Gear-constraint coupling of the mimic followers (bullet3 #2791: erp > 0 removes drift).
-    coupling_erp: float = 0.8  # 0.2 let followers lag 1.6 deg at 40 N on the floating gripper; 0.8: 0.5 deg
-    coupling_max_force: float = 1000.0  # N or N m; far above the 40 N squeeze it must resist
+    coupling_erp: float = _field(
+        0.8, gt=0.0, le=1.0
+    )  # 0.2 let followers lag 1.6 deg at 40 N on the floating gripper; 0.8: 0.5 deg
+    coupling_max_force: float = _field(1000.0, gt=0.0)  # N or N m; far above the 40 N squeeze it must resist
     # The fixed constraint carrying the floating gripper: must hold gripper (0.74 kg) plus a
     # heavy object (~1 kg) at shake accelerations of a few g with margin: 17 kg x 30 m/s^2.
-    carrier_max_force: float = 500.0  # N
+    carrier_max_force: float = _field(500.0, gt=0.0)  # N
+    # Finger speed below which the closing motion counts as stopped (rad/s of the driven link):
+    # a free-closing link moves at the commanded ~1 rad/s; stalled on an object it creeps < 1e-2.
+    stall_speed: float = _field(0.02, gt=0.0)
+    # Consecutive stalled steps before the close is declared finished (12 steps = 50 ms at 240 Hz):
+    # long enough for the contact forces to build up to the commanded squeeze.
+    stall_steps: int = _field(12, ge=1)
+    # While the carrier moves (lift, shake) the fingers are stalled on the object and the squeeze
+    # torque (force x dw/dphi at the current angle) barely changes: it is re-computed every 6 steps
+    # (25 ms, a 40 Hz force loop) rather than every step.
+    motor_update_every: int = _field(6, ge=1)
+    # A motor command whose torque differs from the last one sent by less than this share is not
+    # re-sent (PyBullet keeps motor settings between steps): 0.1 % of 40 N is 0.04 N of squeeze.
+    motor_torque_rtol: float = _field(1e-3, ge=0.0, lt=1.0)
+    # Driven angles at which the model's FK width table is sampled; widths between are linear
+    # interpolations (the table is smooth: w = f(sin phi), 400 samples -> < 0.01 mm error).
+    width_table_samples: int = _field(400, ge=2)
 
 
 @dataclass(frozen=True)
-class ObjectConfig:
+class ObjectConfig(_Section):
     """How object meshes are loaded and given mass (owned by annotator/objects.py)."""
 
     # Objects are simulated solid, but real ones are hollow or partly filled: ~ 0.5 g/cm^3 over the
     # enclosed volume is a middle ground (a 40 mm cube 32 g, the 66 x 115 mm can 196 g, a 60 x 40 x
     # 120 mm box 144 g), within the RG2's 2 kg friction payload; a thin-walled mesh (mug, bowl)
     # gets only its wall volume, so it comes out light (the sample mug 65 g).
-    density: float = 500.0  # kg/m^3
+    density: float = _field(500.0, gt=0.0)  # kg/m^3
     # A mesh whose largest bounding-box side exceeds this many metres is almost surely in millimetres.
-    max_extent: float = 2.0
-    min_extent: float = 0.005  # m; smaller than any graspable household object
-    lateral_friction: float = 1.0  # as ACRONYM; paired with the pads' 1.0
-    spinning_friction: float = 0.002
-    rolling_friction: float = 0.0001
+    max_extent: float = _field(2.0, gt=0.0)
+    min_extent: float = _field(0.005, gt=0.0)  # m; smaller than any graspable household object
+    lateral_friction: float = _field(1.0, ge=0.0)  # as ACRONYM; paired with the pads' 1.0
+    spinning_friction: float = _field(0.002, ge=0.0)
+    rolling_friction: float = _field(0.0001, ge=0.0)
     # Bullet pads convex meshes with a collision margin (bullet3 #2867, ROBOT_FACTS pitfall 5):
     # with the default the pads stopped 0.9 mm short of each face, so every label's width read
     # 1.8 mm wide of the object's chord. Zero margin: within 0.25 mm (tests/test_protocol.py).
-    collision_margin: float = 0.0  # m
+    collision_margin: float = _field(0.0, ge=0.0)  # m
     # Convex decomposition (CoACD) concavity threshold: 0.05 is the library's default quality.
-    decomposition_threshold: float = 0.05
+    decomposition_threshold: float = _field(0.05, gt=0.0, le=1.0)
 
 
 @dataclass(frozen=True)
-class SamplerConfig:
+class SamplerConfig(_Section):
     """Antipodal candidate sampling (owned by annotator/sampler.py)."""
 
     # Coulomb friction coefficient used for the friction-cone test; below the simulated 1.0 so
     # that sampled candidates keep a margin.
-    friction_coefficient: float = 0.5
+    friction_coefficient: float = _field(0.5, ge=0.0)
     # Share of candidates sampled without the antipodal test (informative negatives).
-    random_fraction: float = 0.2
+    random_fraction: float = _field(0.2, ge=0.0, le=1.0)
     # Rotations tried about the closing axis for each antipodal pair: 8 gives approach
     # directions 45 deg apart, an even cover of the circle of approaches (a chosen value,
     # not a measured optimum).
-    n_rotations: int = 8
+    n_rotations: int = _field(8, ge=1)
     # Clearance subtracted from the gripper's maximum opening before a pair is accepted: the
     # open pads must pass the surface on the approach, 5 mm per side (RG2 stroke 0..110 mm).
-    width_margin: float = 0.010  # m
+    width_margin: float = _field(0.010, ge=0.0)  # m
     # Chords shorter than this are numerical self-hits at creases or duplicate faces, not
     # graspable walls (the thinnest real household wall, a plastic lid, is ~ 1 mm).
-    min_width: float = 0.0005  # m
+    min_width: float = _field(0.0005, ge=0.0)  # m
     # Ray origins are moved this far along the ray so the source face itself is not hit; far
     # above float64 noise at metre scale, far below any feature the pads can feel.
-    ray_offset: float = 1e-6  # m
+    ray_offset: float = _field(1e-6, gt=0.0)  # m
     # Surface points drawn per wanted antipodal candidate in one round. Measured on primitives
     # (box, sphere, cylinder, torus, thin-walled tube) 90-100 % pass; 3x leaves room for shapes
     # where most points have no opposite wall within the stroke before a second round is needed.
-    oversample: int = 3
+    oversample: int = _field(3, ge=1)
     # Rounds of drawing (each doubling the draw) before scarce pairs are topped up with the
     # less selective kind; bounds the time spent on objects that have few or no pairs.
-    max_rounds: int = 3
+    max_rounds: int = _field(3, ge=1)
 
 
 @dataclass(frozen=True)
-class ProtocolConfig:
+class ProtocolConfig(_Section):
     """The grasp trial: collision check, close, lift, shake (annotator/trial.py)."""
 
     # Kinematic collision check: any gripper-object distance below this (m) is a collision.
     # 0 means touching counts; the sampler leaves pregrasp_clearance on each side of the pads.
-    collision_margin: float = 0.0
-    pregrasp_clearance: float = 0.01  # m per side: the gripper opens to width + 2 x this
-    approach_distance: float = 0.10  # m, straight-line approach checked behind the grasp pose
-    approach_step: float = 0.01  # m, < the 11.45 mm pad thickness so no thin wall is skipped
+    collision_margin: float = _field(0.0, ge=0.0)
+    pregrasp_clearance: float = _field(0.01, ge=0.0)  # m per side: the gripper opens to width + 2 x this
+    approach_distance: float = _field(0.10, ge=0.0)  # m, straight-line approach checked behind the grasp pose
+    approach_step: float = _field(0.01, gt=0.0)  # m, < the 11.45 mm pad thickness so no thin wall is skipped
     # The close starts with the pads this far (m per side) outside the expected chord instead of
     # at the open width: the skipped travel is through free space (checked kinematically), and
     # 3 mm leaves the closing speed reached before contact (bench/fidelity.py).
-    preclose_gap: float = 0.003
+    preclose_gap: float = _field(0.003, ge=0.0)
     # GraspDataGen closes for 1 s; the close ends earlier as soon as the fingers stall.
-    close_timeout: float = 1.0  # s
-    lift_height: float = 0.10  # m, the robot issue's 10 cm lift
-    lift_duration: float = 0.2  # s: 0.5 m/s average, 0.75 m/s peak (UR3 tool speed limit ~1 m/s)
+    close_timeout: float = _field(1.0, gt=0.0)  # s
+    lift_height: float = _field(0.10, ge=0.0)  # m, the robot issue's 10 cm lift
+    lift_duration: float = _field(
+        0.2, gt=0.0
+    )  # s: 0.5 m/s average, 0.75 m/s peak (UR3 tool speed limit ~1 m/s)
     # The shake: three motions, each translating along and rotating about one gripper axis at
     # once, one 0.2 s sine period each: peak 0.03 m x (2 pi / 0.2 s)^2 = 30 m/s^2 (3 g; GraspDataGen
     # tugs at 1 g) and 0.35 rad x (2 pi / 0.2 s)^2 = 345 rad/s^2. Chosen with bench/fidelity.py
@@ -141,21 +236,21 @@ class ProtocolConfig:
     # simulated candidates of seed 0: six sequential 0.35 s motions at 1 g (the first default)
     # 92.6 % at 654 steps per trial, paired 0.35 s periods 92.4 %, paired 0.25 s 95.9 %, these
     # 0.2 s periods 96.2 % (270 steps; 96.7 % at 244 with preclose_gap).
-    shake_amplitude: float = 0.03  # m, "a shake of a few centimetres"
-    shake_angle: float = 0.35  # rad (20 deg), "tens of degrees"
-    shake_duration: float = 0.6  # s, all motions
-    shake_cycles: int = 1  # sine periods per motion
+    shake_amplitude: float = _field(0.03, ge=0.0)  # m, "a shake of a few centimetres"
+    shake_angle: float = _field(0.35, ge=0.0)  # rad (20 deg), "tens of degrees"
+    shake_duration: float = _field(0.6, gt=0.0)  # s, all motions
+    shake_cycles: int = _field(1, ge=1)  # sine periods per motion
     shake_paired: bool = True  # translate along and rotate about each axis at once (3 motions, not 6)
-    settle_time: float = 0.05  # s held still after the shake before judging
+    settle_time: float = _field(0.05, ge=0.0)  # s held still after the shake before judging
     # Held = both pads touch and the object moved less than this in the hand (m); ACRONYM and
     # GraspDataGen judge contact only, the slip bound catches an object hanging by one edge.
-    max_slip: float = 0.02
-    lost_distance: float = 0.03  # m: early exit once the object is this far from its grasp
-    check_every: int = 6  # steps between loss checks during lift and shake (25 ms)
+    max_slip: float = _field(0.02, gt=0.0)
+    lost_distance: float = _field(0.03, gt=0.0)  # m: early exit once the object is this far from its grasp
+    check_every: int = _field(6, ge=1)  # steps between loss checks during lift and shake (25 ms)
 
 
 @dataclass(frozen=True)
-class RobustConfig:
+class RobustConfig(_Section):
     """Perturbations of the K - 1 extra trials of ``--trials K`` (trial 0 is unperturbed).
 
     Dex-Net 2.0's robust metric samples the gripper pose with sigma 5 mm and friction with sigma
@@ -163,10 +258,12 @@ class RobustConfig:
     camera, whose object pose error is a few millimetres and degrees.
     """
 
-    position_sigma: float = 0.002  # m, TCP position noise (Gaussian, per axis)
-    rotation_sigma: float = 0.035  # rad (2 deg), TCP rotation noise (Gaussian rotation vector)
-    friction_delta: float = 0.2  # object friction coefficient + uniform(-0.2, 0.2)
-    mass_delta: float = 0.3  # object mass x uniform(0.7, 1.3)
+    position_sigma: float = _field(0.002, ge=0.0)  # m, TCP position noise (Gaussian, per axis)
+    rotation_sigma: float = _field(
+        0.035, ge=0.0
+    )  # rad (2 deg), TCP rotation noise (Gaussian rotation vector)
+    friction_delta: float = _field(0.2, ge=0.0)  # object friction coefficient + uniform(-0.2, 0.2)
+    mass_delta: float = _field(0.3, ge=0.0, lt=1.0)  # object mass x uniform(0.7, 1.3)
 
 
 @dataclass(frozen=True)
@@ -209,23 +306,43 @@ class AnnotatorConfig:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, dict[str, Any]]) -> AnnotatorConfig:
-        """Build from ``{section: {field: value}}``; unknown sections or fields are errors."""
-        sections = {f.name: f.type for f in dataclasses.fields(cls)}
+    def from_dict(cls, data: Any) -> AnnotatorConfig:
+        """Build from ``{section: {field: value}}``; unknown sections or fields, wrong types and
+        values out of range raise :class:`ConfigError` naming the field."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"expected sections of settings, got {type(data).__name__}")
+        sections = {f.name for f in dataclasses.fields(cls)}
         kwargs: dict[str, Any] = {}
         defaults = cls()
         for name, values in data.items():
             if name not in sections:
-                raise ValueError(f"unknown config section [{name}]; known: {sorted(sections)}")
+                raise ConfigError(f"unknown config section [{name}]; known: {sorted(sections)}")
+            if not isinstance(values, dict):
+                raise ConfigError(f"[{name}] must be a section of settings, got {values!r}")
             current = getattr(defaults, name)
             known = {f.name for f in dataclasses.fields(current)}
             unknown = set(values) - known
             if unknown:
-                raise ValueError(f"unknown field(s) {sorted(unknown)} in [{name}]")
+                raise ConfigError(f"unknown field(s) {sorted(unknown)} in [{name}]; known: {sorted(known)}")
             kwargs[name] = dataclasses.replace(current, **values)
         return cls(**kwargs)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> AnnotatorConfig:
+        """Read a TOML file of overrides; a file that is not TOML is a :class:`ConfigError`."""
         with open(path, "rb") as fh:
-            return cls.from_dict(tomllib.load(fh))
+            try:
+                data = tomllib.load(fh)
+            except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+                raise ConfigError(f"not a TOML file ({exc})") from exc
+        return cls.from_dict(data)
+
+
+_SECTION_NAMES = {
+    "PhysicsConfig": "physics",
+    "GripperConfig": "gripper",
+    "ObjectConfig": "objects",
+    "SamplerConfig": "sampler",
+    "ProtocolConfig": "protocol",
+    "RobustConfig": "robust",
+}

@@ -19,16 +19,6 @@ log = logging.getLogger(__name__)
 
 # Self-collision on, minus parent/child pairs; the RG2 class filters the remaining in-finger pairs.
 RG2_LOAD_FLAGS = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
-# Finger speed below which the closing motion counts as stopped (rad/s of the driven link):
-# a free-closing link moves at the commanded ~1 rad/s; stalled on an object it creeps < 1e-2.
-STALL_SPEED = 0.02
-# Consecutive stalled steps before the close is declared finished (12 steps = 50 ms at 240 Hz):
-# long enough for the contact forces to build up to the commanded squeeze.
-STALL_STEPS = 12
-# While the carrier moves (lift, shake) the fingers are stalled on the object and the squeeze
-# torque (force x dw/dphi at the current angle) barely changes: it is re-computed every 6 steps
-# (25 ms, a 40 Hz force loop) rather than every step.
-MOTOR_UPDATE_EVERY = 6
 
 
 class FloatingRG2:
@@ -95,6 +85,7 @@ class FloatingRG2:
     def close(self, force: float, max_steps: int, on_step: Callable[[], None] | None = None) -> int:
         """Close with squeeze ``force`` until the fingers stall or ``max_steps``; returns steps used."""
         stalled = 0
+        stall_speed, stall_steps = self.config.stall_speed, self.config.stall_steps
         uid, index, client = self.uid, self.body.joints[self.rg2.driven].index, self.client
         angle = pb.getJointState(uid, index, physicsClientId=client)[0]
         for step in range(1, max_steps + 1):
@@ -103,8 +94,8 @@ class FloatingRG2:
             if on_step is not None:
                 on_step()
             angle, speed = pb.getJointState(uid, index, physicsClientId=client)[:2]
-            stalled = stalled + 1 if abs(speed) < STALL_SPEED else 0
-            if stalled >= STALL_STEPS:
+            stalled = stalled + 1 if abs(speed) < stall_speed else 0
+            if stalled >= stall_steps:
                 return step
         return max_steps
 
@@ -120,6 +111,7 @@ class FloatingRG2:
         Keeps squeezing with ``force``; ``on_step(i)`` returning True stops early. Returns steps.
         """
         cid, client, max_force = self._constraint, self.client, self.config.carrier_max_force
+        update_every = self.config.motor_update_every
         pivots, orientations = pos.tolist(), quat.tolist()
         for i in range(len(pos)):
             pb.changeConstraint(
@@ -129,7 +121,7 @@ class FloatingRG2:
                 maxForce=max_force,
                 physicsClientId=client,
             )
-            if i % MOTOR_UPDATE_EVERY == 0:
+            if i % update_every == 0:
                 self.rg2.command(-self.config.close_speed, force)
             self.world.step()
             if on_step is not None and on_step(i + 1):

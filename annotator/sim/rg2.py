@@ -46,12 +46,6 @@ FINGER_CHAINS = (
 )
 BASE_LINK = "rg2_base_link"
 TCP_LINK = "tcp"
-# Number of driven angles at which the FK width table is sampled; widths between are linear
-# interpolations (the table is smooth: w = f(sin phi), 400 samples -> < 0.01 mm error).
-WIDTH_TABLE_SAMPLES = 400
-# A motor command whose torque differs from the last one sent by less than this share is not
-# re-sent (PyBullet keeps motor settings between steps): 0.1 % of 40 N is 0.04 N of squeeze.
-MOTOR_TORQUE_RTOL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -130,8 +124,8 @@ class WidthTable:
 
 
 @functools.lru_cache(maxsize=8)
-def fk_table(urdf: str, lower: float, upper: float) -> WidthTable:
-    """Tabulate pad separation and pad-centre midpoint over the driven range ``lower..upper``.
+def fk_table(urdf: str, lower: float, upper: float, samples: int) -> WidthTable:
+    """Tabulate pad separation and pad-centre midpoint at ``samples`` angles over ``lower..upper``.
 
     Runs the URDF's forward kinematics (kinematic joint resets, no stepping) in a private
     DIRECT client, so a GUI client is never slowed down and every body of the same model in this
@@ -145,7 +139,7 @@ def fk_table(urdf: str, lower: float, upper: float) -> WidthTable:
         data = pb.getCollisionShapeData(body.uid, body.links[PAD_LINKS[0]], physicsClientId=client)
         pad_thickness = float(data[0][3][0])  # box extents (x, y, z); x is the closing axis
         T_base_world = body.link_pose(BASE_LINK).inverse()
-        angles = np.linspace(lower, upper, WIDTH_TABLE_SAMPLES)
+        angles = np.linspace(lower, upper, samples)
         widths = np.empty_like(angles)
         tcps = np.empty((len(angles), 3))
         for k, q in enumerate(angles):
@@ -253,9 +247,8 @@ class RG2:
 
     def _tabulate(self) -> WidthTable:
         """The model's FK over the driven range, from a private DIRECT copy (cached per URDF)."""
-        return fk_table(
-            str(self.urdf), self.body.joints[self.driven].lower, self.body.joints[self.driven].upper
-        )
+        driven = self.body.joints[self.driven]
+        return fk_table(str(self.urdf), driven.lower, driven.upper, self.config.width_table_samples)
 
     # --- kinematics ----------------------------------------------------------------------------
 
@@ -336,7 +329,7 @@ class RG2:
             and last is not None
             and last[0] == mode
             and last[1] == target
-            and abs(last[2] - torque) <= MOTOR_TORQUE_RTOL * torque
+            and abs(last[2] - torque) <= self.config.motor_torque_rtol * torque
         ):
             return  # the motor still holds this command (stalled fingers: the ratio barely moves)
         self._last_motor = (mode, target, torque)

@@ -1,0 +1,90 @@
+"""Configuration: every field typed and range-checked up front (a usage error naming the field)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+from click.testing import CliRunner
+
+from annotator.cli import annotate_command
+from annotator.config import AnnotatorConfig, ConfigError
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"protocol": {"lift_height": "high"}}, "[protocol] lift_height: expected a number, got 'high'"),
+        ({"physics": {"time_step": -0.01}}, "[physics] time_step: must be > 0"),
+        ({"physics": {"time_step": 0}}, "[physics] time_step: must be > 0"),
+        ({"objects": {"density": 0}}, "[objects] density: must be > 0"),
+        ({"objects": {"lateral_friction": -0.5}}, "[objects] lateral_friction: must be >= 0"),
+        ({"gripper": {"pad_lateral_friction": -1}}, "[gripper] pad_lateral_friction: must be >= 0"),
+        ({"physics": {"time_step": float("nan")}}, "[physics] time_step: expected a finite number"),
+        ({"physics": {"solver_iterations": 1.5}}, "[physics] solver_iterations: expected an integer"),
+        ({"protocol": {"shake_paired": 1}}, "[protocol] shake_paired: expected true or false"),
+        ({"gripper": {"coupling": "glue"}}, "[gripper] coupling: must be one of ['gear', 'position']"),
+        ({"robust": {"mass_delta": 1.0}}, "[robust] mass_delta: must be >= 0 and < 1"),
+        ({"protocol": 3}, "[protocol] must be a section of settings, got 3"),
+        ({"shaking": {}}, "unknown config section [shaking]"),
+        ({"protocol": {"lift_heigth": 0.1}}, "unknown field(s) ['lift_heigth'] in [protocol]"),
+        ([1, 2], "expected sections of settings"),
+    ],
+)
+def test_bad_values_name_the_field(data, message):
+    with pytest.raises(ConfigError) as info:
+        AnnotatorConfig.from_dict(data)
+    assert message in str(info.value)
+
+
+def test_every_field_has_a_type_the_checks_know():
+    """A field typed otherwise would escape the checks (and the manifest would not bind it)."""
+    config = AnnotatorConfig()
+    for section in dataclasses.fields(config):
+        for f in dataclasses.fields(getattr(config, section.name)):
+            assert f.type in ("float", "int", "bool", "str"), (section.name, f.name, f.type)
+
+
+def test_integers_for_floats_are_stored_as_floats():
+    config = AnnotatorConfig.from_dict({"protocol": {"lift_height": 1}})
+    assert isinstance(config.protocol.lift_height, float)
+    assert config.to_dict() == AnnotatorConfig.from_dict({"protocol": {"lift_height": 1.0}}).to_dict()
+
+
+def test_defaults_and_the_thorough_reference_are_valid():
+    AnnotatorConfig()
+    AnnotatorConfig.thorough()
+
+
+@pytest.mark.parametrize(
+    "toml, fragment",
+    [
+        ('[protocol]\nlift_height = "high"\n', "[protocol] lift_height: expected a number"),
+        ("[physics]\ntime_step = -1\n", "[physics] time_step: must be > 0"),
+        ("protocol = 3\n", "[protocol] must be a section of settings"),
+        ("not toml at all [[\n", "not a TOML file"),
+    ],
+)
+def test_a_bad_config_file_is_a_usage_error(tmp_path, toml, fragment):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(toml)
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    result = CliRunner().invoke(
+        annotate_command,
+        ["--objects", str(objs), "--n", "2", "--config", str(cfg), "--out", str(tmp_path / "o")],
+    )
+    assert result.exit_code == 2, result.output
+    assert fragment in result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
+
+
+@pytest.mark.parametrize("scale", ["0", "-1", "nan", "inf"])
+def test_scale_must_be_finite_and_positive(tmp_path, scale):
+    result = CliRunner().invoke(
+        annotate_command,
+        ["--objects", str(tmp_path), "--n", "2", f"--scale={scale}", "--out", str(tmp_path / "o")],
+    )
+    assert result.exit_code == 2, result.output
+    assert "--scale" in result.output and "finite number > 0" in result.output
