@@ -14,7 +14,10 @@ from annotator import __version__
 from annotator.config import AnnotatorConfig
 
 EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OUTPUT = 3  # the output folder cannot be written (disk full, read-only, permission)
+EXIT_SCHEDULER = 4  # the Dask scheduler was lost
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, the shell convention
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 
 def _positive_finite(param: click.Parameter, value: float | None) -> float | None:
@@ -41,7 +44,13 @@ def _setup_logging(quiet: bool, verbose: bool) -> None:
     help="Folder of object meshes (.obj .stl .ply .off .glb) and object .urdf files, searched "
     "recursively. Units are metres.",
 )
-@click.option("--n", "n", required=True, type=click.IntRange(min=1), help="Grasp candidates per object.")
+@click.option(
+    "--n",
+    "n",
+    required=True,
+    type=click.IntRange(min=1, max=1_000_000),
+    help="Grasp candidates per object (every one becomes a row, failures included).",
+)
 @click.option(
     "--out",
     "out_dir",
@@ -77,7 +86,16 @@ def _setup_logging(quiet: bool, verbose: bool) -> None:
     callback=lambda ctx, param, value: _positive_finite(param, value),
     help="Scale every mesh by this factor (0.001 for mm). Labels are in the scaled frame.",
 )
-@click.option("--overwrite", is_flag=True, help="Discard existing labels in --out and start over.")
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Discard the labels this tool wrote in --out and start over (other files are never touched).",
+)
+@click.option(
+    "--repair",
+    is_flag=True,
+    help="Rebuild a lost or unreadable _manifest.json from the label files in --out that verify.",
+)
 @click.option(
     "--config",
     "config_file",
@@ -98,6 +116,7 @@ def annotate_command(
     scheduler: str | None,
     scale: float | None,
     overwrite: bool,
+    repair: bool,
     config_file: Path | None,
     quiet: bool,
     verbose: bool,
@@ -110,17 +129,32 @@ def annotate_command(
       annotate --objects objects/ --n 500
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
 
-    Labels are written every 10 candidates; re-running the same command resumes
-    (finished objects and chunks are skipped), so Ctrl-C loses almost nothing. Exit codes: 0 all
-    objects done, 1 some objects failed (the others are written), 2 usage error, 130 interrupted.
+    \b
+    Labels are written every 10 candidates; re-running the same command resumes (finished
+    objects and chunks are skipped, every file is checked against its checksum first), so
+    Ctrl-C loses almost nothing. One run per --out at a time. A changed seed, N, trials, scale,
+    configuration or version is refused (use --overwrite or another --out); an object whose
+    file changed is redone alone.
+
+    \b
+    Exit codes:
+      0    all objects done
+      1    some objects failed (the others are written; reasons in the summary)
+      2    usage error (bad option or config, folder in use, other settings in --out)
+      3    the output folder cannot be written (disk full, read-only, permission)
+      4    the Dask scheduler was lost (re-run to resume)
+      130  interrupted (Ctrl-C); 143 terminated (SIGTERM); re-run to resume
     """
     _setup_logging(quiet, verbose)
-    from annotator.runner import RunOptions, UsageError, run
+    from annotator.pipeline.files import OutputError
+    from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
 
     try:
         config = AnnotatorConfig.from_toml(config_file) if config_file else AnnotatorConfig()
     except (ValueError, OSError) as exc:
         raise click.UsageError(f"--config {config_file}: {exc}") from exc
+    if overwrite and repair:
+        raise click.UsageError("--overwrite and --repair exclude each other")
     options = RunOptions(
         objects_dir=objects_dir,
         n=n,
@@ -131,17 +165,27 @@ def annotate_command(
         scheduler=scheduler,
         scale=scale,
         overwrite=overwrite,
+        repair=repair,
         quiet=quiet,
     )
     try:
         summary = run(options, config)
     except UsageError as exc:
         raise click.UsageError(str(exc)) from exc
+    except OutputError as exc:
+        click.echo(f"annotate: {exc}", err=True)
+        sys.exit(EXIT_OUTPUT)
+    except SchedulerLost as exc:
+        click.echo(f"annotate: {exc} ({scheduler}); re-run the same command to resume", err=True)
+        sys.exit(EXIT_SCHEDULER)
     except KeyboardInterrupt:
-        # Ctrl-C: finished objects are on disk; exit 130 (128 + SIGINT), not click's "Aborted!" + 1,
+        # Ctrl-C: finished work is on disk; exit 130 (128 + SIGINT), not click's "Aborted!" + 1,
         # which would read as "some objects failed".
         click.echo("annotate: interrupted; re-run the same command to resume", err=True)
         sys.exit(EXIT_INTERRUPTED)
+    except Terminated:
+        click.echo("annotate: terminated; re-run the same command to resume", err=True)
+        sys.exit(EXIT_TERMINATED)
     sys.exit(EXIT_OK if not summary.failed else EXIT_SOME_FAILED)
 
 

@@ -163,6 +163,30 @@ def discover_objects(root: Path) -> list[ObjectSource]:
     return sorted(sources, key=lambda s: s.object_id)
 
 
+def source_digest(source: ObjectSource) -> str:
+    """SHA-256 over everything an object is made from: a mesh file's bytes, or a URDF's bytes and
+    those of every mesh it references (in the URDF's order, each with its name).
+
+    The run manifest binds it per object: a mesh changed behind an unchanged URDF changes it.
+    Raises :class:`ObjectError` (one line) when a file cannot be read.
+    """
+    h = hashlib.sha256()
+    try:
+        if source.is_urdf:
+            h.update(b"urdf\0" + source.path.read_bytes())
+            seen: set[Path] = set()
+            for _, mesh_path, _, _ in _urdf_mesh_refs(source.path):
+                if mesh_path in seen:
+                    continue
+                seen.add(mesh_path)
+                h.update(b"\0mesh\0" + mesh_path.name.encode() + b"\0" + mesh_path.read_bytes())
+        else:
+            h.update(b"mesh\0" + source.path.read_bytes())
+    except OSError as exc:
+        raise ObjectError(f"cannot read {exc.filename or source.path}: {exc.strerror or exc}") from exc
+    return h.hexdigest()
+
+
 # --------------------------------------------------------------------------------------------------
 # loading and validation
 

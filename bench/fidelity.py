@@ -22,14 +22,21 @@ import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectError, discover_objects, load_object
-from annotator.runner import CHUNK_SIZE, Chunk, _max_width, object_candidates, simulate_chunk
+from annotator.pipeline.plan import CHUNK_SIZE
+from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span, max_width, object_candidates
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def label(chunks: list[Chunk], config: AnnotatorConfig, seed: int, workers: int) -> pd.DataFrame:
-    out = joblib.Parallel(n_jobs=workers)(joblib.delayed(simulate_chunk)(c, config, seed) for c in chunks)
-    return pd.concat([df for df, _ in out], ignore_index=True).sort_values(["object_id", "grasp_id"])
+def label(chunks: list[Span], config: AnnotatorConfig, seed: int, workers: int) -> pd.DataFrame:
+    tasks = (SpanTask(c, config, seed, c.size) for c in chunks)
+    out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
+    return pd.concat([r.rows for r in out], ignore_index=True).sort_values(["object_id", "grasp_id"])
+
+
+def chunk(source, start: int, T_obj_tcp: np.ndarray, width: np.ndarray) -> Span:
+    """Candidates ``start..`` of ``source`` given as poses (k, 4, 4) and chords (k,)."""
+    return Span(source.object_id, source, None, start, start + len(width), GivenGrasps(T_obj_tcp, width))
 
 
 def main() -> None:
@@ -42,7 +49,7 @@ def main() -> None:
 
     default = AnnotatorConfig()
     thorough = AnnotatorConfig.thorough(default)
-    max_width = _max_width(default)
+    stroke = max_width(default)
     chunks = []
     for source in discover_objects(args.objects):
         try:
@@ -50,13 +57,11 @@ def main() -> None:
         except ObjectError as exc:
             print(f"skip {source.object_id}: {exc}")
             continue
-        cands = object_candidates(model, args.per_object, args.seed, default, max_width)
+        cands = object_candidates(model, args.per_object, args.seed, default, stroke)
         for s in range(0, args.per_object, CHUNK_SIZE):
             e = min(args.per_object, s + CHUNK_SIZE)
-            chunks.append(
-                Chunk(source.object_id, source, None, s, cands.T_obj_tcp[s:e], cands.width_expected[s:e])
-            )
-    n = sum(len(c.width) for c in chunks)
+            chunks.append(chunk(source, s, cands.T_obj_tcp[s:e], cands.width_expected[s:e]))
+    n = sum(c.size for c in chunks)
     print(f"{n} candidates on {len({c.object_id for c in chunks})} objects, seed {args.seed}")
 
     t0 = time.perf_counter()
@@ -66,12 +71,11 @@ def main() -> None:
     # collisions are decided kinematically, identically under both protocols: only simulate the rest
     sim_chunks = []
     for c in chunks:
-        rows = a[(a.object_id == c.object_id) & a.grasp_id.between(c.start, c.start + len(c.width) - 1)]
+        rows = a[(a.object_id == c.object_id) & a.grasp_id.between(c.start, c.stop - 1)]
         keep = (rows["outcome"] != "collision").to_numpy()
+        g = c.given
         for k in np.flatnonzero(keep):
-            sim_chunks.append(
-                Chunk(c.object_id, c.source, None, c.start + k, c.T_obj_tcp[k : k + 1], c.width[k : k + 1])
-            )
+            sim_chunks.append(chunk(c.source, c.start + k, g.T_obj_tcp[k : k + 1], g.width[k : k + 1]))
     b_sim = label(sim_chunks, thorough, args.seed, args.workers)
     t2 = time.perf_counter()
     b = a.copy()

@@ -26,7 +26,7 @@ import pybullet as pb
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import create_body, discover_objects, load_object
-from annotator.runner import RunOptions, run
+from annotator.pipeline.run import RunOptions, run
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 

@@ -28,8 +28,9 @@ from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
 from annotator.dataset import OUTCOMES, load_labels
 from annotator.objects import ObjectSource, load_object
-from annotator.pipeline.store import MANIFEST_NAME, chunk_filename, write_chunk_labels
-from annotator.runner import _max_width
+from annotator.pipeline.files import chunk_filename, write_labels
+from annotator.pipeline.store import MANIFEST_NAME
+from annotator.pipeline.worker import max_width as _max_width
 from annotator.sampler import object_rng, sample_candidates
 
 REPO = Path(__file__).resolve().parents[1]
@@ -168,10 +169,10 @@ def test_labels_have_the_contract_schema_and_values(two_objects, reference_run):
     assert sorted(manifest["objects_done"]) == ["box", "cylinder"]
     assert manifest["objects_failed"] == {}
     assert {v["n"] for v in manifest["objects_done"].values()} == {N_SMALL}
-    assert manifest["seed"] == 0 and manifest["n"] == N_SMALL and manifest["trials"] == 1
+    assert manifest["run"]["seed"] == 0 and manifest["run"]["n"] == N_SMALL and manifest["run"]["trials"] == 1
     # the summary names each object and the totals
     assert "box" in output and "cylinder" in output
-    assert "2 objects labelled, 0 skipped, 0 failed" in output
+    assert "2 objects labelled, 0 done earlier, 0 failed" in output
 
 
 # --- 2., 3. the same labels whatever runs them ---------------------------------------------------
@@ -239,7 +240,7 @@ def test_trials_add_a_score_and_keep_the_nominal_labels(two_objects, reference_r
     # trial 0 is the unperturbed one: outcome, pose and width are those of the K = 1 run
     same = ["object_id", "grasp_id", *"x y z qx qy qz qw".split(), "width", "success", "outcome"]
     pd.testing.assert_frame_equal(robust[same], nominal[same], check_exact=True)
-    assert _manifest(out)["trials"] == 2
+    assert _manifest(out)["run"]["trials"] == 2
     # a different K is another run: resuming it into the same folder needs --overwrite
     result = _annotate("--objects", objs, "--n", N_SMALL, "--trials", 3, "--out", out, check=2)
     assert "--overwrite" in result.output
@@ -325,7 +326,7 @@ def test_bad_objects_fail_alone_with_a_reason(tmp_path):
         assert line, f"{oid} missing from the summary:\n{result.output}"
         assert any(w in line[0].lower() for w in words), line[0]
         assert len(line) == 1, line  # reported once, whichever span failed first
-    assert "1 objects labelled, 0 skipped, 5 failed" in result.output
+    assert "1 objects labelled, 0 done earlier, 5 failed" in result.output
     assert manifest["chunks_done"] == {}  # no chunk of a failed object, and box's merged
 
 
@@ -353,7 +354,7 @@ def test_resume_skips_done_objects_and_overwrite_starts_over(tmp_path):
     first = _labels(out)
 
     again = _annotate(*args)
-    assert "already done" in again.output and "0 objects labelled, 1 skipped" in again.output
+    assert "earlier" in again.output and "0 objects labelled, 1 done earlier" in again.output
     assert {p: p.stat().st_mtime_ns for p in sorted(out.glob("*.parquet"))} == stamps
     pd.testing.assert_frame_equal(_labels(out), first)
 
@@ -364,7 +365,7 @@ def test_resume_skips_done_objects_and_overwrite_starts_over(tmp_path):
     _annotate(*args, "--seed", 1, "--overwrite")
     rerun = _labels(out)
     assert len(rerun) == 4 and (rerun["seed"] == 1).all()
-    assert _manifest(out)["seed"] == 1
+    assert _manifest(out)["run"]["seed"] == 1
     assert not rerun[["x", "y", "z"]].equals(first[["x", "y", "z"]])  # a new draw
 
 
@@ -381,13 +382,14 @@ def test_resume_redoes_chunks_the_manifest_does_not_vouch_for(two_objects, refer
     fake = reference[reference["object_id"] == "box"].copy()
     fake["success"], fake["outcome"] = False, "error"  # wrong on purpose
     stale = [out / chunk_filename("box", 0, 10), out / chunk_filename("box", 10, 13)]
-    write_chunk_labels(out, fake.iloc[0:10], 0)
-    write_chunk_labels(out, fake.iloc[10:13], 10)
+    key, source = manifest["run_key"], entry["source_sha256"]
+    write_labels(out, fake.iloc[0:10], 0, 10, stale[0].name, key, source)  # as if killed before recording
+    write_labels(out, fake.iloc[10:13], 10, 13, stale[1].name, key, source)
     assert all(p.exists() for p in stale)
 
     result = _annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")
-    assert "1 objects labelled, 1 skipped" in result.output
-    assert f"{N_SMALL} candidates in" in result.output  # box redone whole, cylinder kept
+    assert "1 objects labelled, 1 done earlier" in result.output
+    assert f"{N_SMALL} candidates simulated in" in result.output  # box redone whole, cylinder kept
     assert not any(p.exists() for p in stale)
     pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
 
@@ -462,8 +464,8 @@ def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
         assert entry["file"] in names, oid
         kept += N_LONG
     for oid, entry in manifest["chunks_done"].items():
-        for key, name in entry["files"].items():
-            assert name in names, (oid, key)
+        for key, rec in entry["files"].items():
+            assert rec["file"] in names, (oid, key)
             start, stop = map(int, key.split("-"))
             kept += stop - start
 
@@ -471,7 +473,7 @@ def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
     proc = _cli_subprocess(objs, out)
     stdout, stderr = proc.communicate(timeout=180)
     assert proc.returncode == 0, stderr
-    assert f"{N_LONG * len(LONG_OBJECTS) - kept} candidates in" in stdout, (kept, stdout)
+    assert f"{N_LONG * len(LONG_OBJECTS) - kept} candidates simulated in" in stdout, (kept, stdout)
     final = list(out.glob("*.parquet"))  # one file per object: every chunk merged and removed
     assert len(final) == len(LONG_OBJECTS) and all(_span_of(p) is None for p in final), final
     resumed = _labels(out)

@@ -14,9 +14,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import annotator.runner as runner
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
+from annotator.pipeline import worker
 
 SAMPLES = Path(__file__).resolve().parents[1] / "objects"
 N = 30  # three spans per object
@@ -39,24 +39,23 @@ def cache(tmp_path_factory):
 
 
 def _fresh_worker() -> None:
-    if "world" in runner._WORKER:
-        runner._WORKER["world"].close()
-    runner._WORKER.clear()
+    worker.worker_state().close()
+    worker._State.instance = None
 
 
 def _run(spans, config) -> pd.DataFrame:
     frames = []
     for span in spans:
-        _, df, error, _ = runner.label_span(span, config, 0, N)
-        assert error is None, error
-        frames.append(df)
+        result = worker.label_span(worker.SpanTask(span, config, 0, N))
+        assert result.error is None, result.error
+        frames.append(result.rows)
     return pd.concat(frames).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
 
 
 def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
     config = AnnotatorConfig()
     sources = discover_objects(concave)
-    spans = [runner.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, N, 10)]
+    spans = [worker.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, N, 10)]
     _fresh_worker()
     reference = _run(spans, config)
     assert (reference["outcome"] != "collision").sum() >= 10  # enough trials reach the physics

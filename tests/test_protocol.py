@@ -15,7 +15,7 @@ from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource
-from annotator.runner import Chunk, simulate_chunk
+from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 from annotator.sampler import _first_hits, object_rng, sample_candidates
 from annotator.trial import Perturbation, trial_rng
 
@@ -33,6 +33,12 @@ def candidates(mesh: trimesh.Trimesh, object_id: str, n: int, seed: int = 0):
     return sample_candidates(mesh, n, object_rng(seed, object_id), CONFIG.sampler, MAX_WIDTH)
 
 
+def given(source: ObjectSource, start: int, T_obj_tcp, width, config=CONFIG, trials: int = 1) -> SpanTask:
+    """A worker task simulating the given poses (k, 4, 4) and chords (k,), numbered from ``start``."""
+    span = Span(source.object_id, source, None, start, start + len(width), GivenGrasps(T_obj_tcp, width))
+    return SpanTask(span, config, 0, len(width), trials)
+
+
 def label(
     source: ObjectSource,
     mesh,
@@ -45,11 +51,9 @@ def label(
     c = candidates(mesh, source.object_id, n)
     ids = np.arange(n) if only is None else np.asarray(only)
     groups = [ids[i : i + 25] for i in range(0, len(ids), 25)]
-    chunks = [
-        Chunk(source.object_id, source, None, int(g[0]), c.T_obj_tcp[g], c.width_expected[g]) for g in groups
-    ]
-    out = joblib.Parallel(n_jobs=workers)(joblib.delayed(simulate_chunk)(ch, config, 0) for ch in chunks)
-    df = pd.concat([df for df, _ in out], ignore_index=True)
+    tasks = [given(source, int(g[0]), c.T_obj_tcp[g], c.width_expected[g], config) for g in groups]
+    out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
+    df = pd.concat([r.rows for r in out], ignore_index=True)
     df["grasp_id"] = ids  # chunks number rows from their first id; restore the true ids
     return df
 
@@ -165,9 +169,8 @@ def test_robust_score_is_a_fraction_and_success_is_the_unperturbed_trial(tmp_pat
     mesh = trimesh.creation.box((0.05, 0.04, 0.10))
     source = write_mesh(tmp_path, "brick", mesh)
     c = candidates(mesh, "brick", 8)
-    chunk = Chunk("brick", source, None, 0, c.T_obj_tcp, c.width_expected)
-    one, _ = simulate_chunk(chunk, CONFIG, 0, trials=1)
-    four, _ = simulate_chunk(chunk, CONFIG, 0, trials=4)
+    one = label_span(given(source, 0, c.T_obj_tcp, c.width_expected, trials=1)).rows
+    four = label_span(given(source, 0, c.T_obj_tcp, c.width_expected, trials=4)).rows
     pd.testing.assert_series_equal(one["success"], four["success"])
     assert set(np.round(four["score"] * 4, 6)) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     assert (four.loc[~four["success"], "score"] <= 0.75).all()

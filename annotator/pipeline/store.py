@@ -1,16 +1,19 @@
-"""Writing the label dataset: atomic per-chunk and per-object Parquet files and the run manifest.
+"""The output folder of one run: lock, manifest, verified label files, resume.
 
-Layout of an output directory::
+Layout::
 
     labels/
-      _manifest.json                          configuration, versions, objects and chunks done
-      ycb__mug-3f2a9c01d4.parquet             one file per finished object, exactly N rows
-      ycb__can-8c1e0b77aa.000050-000075.parquet   a finished chunk of an object still running
-      ...
+      _manifest.json                          what the run is (every label-affecting input) and
+                                              how far it got, with a checksum per file
+      .rg2-annotator.lock                     held (flock) by the run writing here
+      mug-3f2a9c01d4.parquet                  one file per finished object, exactly N rows
+      can-8c1e0b77aa.000050-000060.parquet    a finished chunk of an object still running
+      _stale/                                 labels of objects no longer in --objects
 
-Each chunk of candidates is written as soon as it is simulated (so labels appear within seconds
-and an interrupt loses at most the chunks in flight); when an object's last chunk is in, its
-chunks are merged into the object's file and deleted.
+Promises (README "Reliability"): one run per folder at a time; the manifest binds the run's
+settings (seed, N, trials, scale, chunk size, the whole configuration, the versions that shape
+labels) and each object's source digest, so a resume never mixes; every file is checked against
+its checksum before it is trusted; only files the tool wrote are ever deleted.
 """
 
 from __future__ import annotations
@@ -18,175 +21,76 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
-import glob
+import errno
+import fcntl
 import hashlib
 import importlib.metadata
 import json
 import logging
 import os
 import platform
-import re
-import tempfile
-from collections.abc import Callable, Iterable, Mapping
+import shutil
+import signal
+import socket
+import sys
+import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 
-from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
+from annotator import __version__
+from annotator.pipeline.files import (
+    FileRecord,
+    OutputError,
+    atomic_write,
+    chunk_filename,
+    file_sha256,
+    is_own_file,
+    is_temp_file,
+    object_filename,
+    output_error,
+    read_labels,
+    read_mark,
+    verify_labels,
+    write_labels,
+)
 
 log = logging.getLogger(__name__)
 
+TOOL = "rg2-annotator"
 MANIFEST_NAME = "_manifest.json"
-MANIFEST_VERSION = 2  # 2: chunks_done (labels written per chunk)
-_ARROW_TYPES = {STRING: pa.string(), "int64": pa.int64(), "float64": pa.float64(), "bool": pa.bool_()}
+MANIFEST_VERSION = 3  # 3: run binding, per-file checksums, source digests, marked files
+LOCK_NAME = ".rg2-annotator.lock"
+STALE_DIR = "_stale"
+# Libraries whose version can change a label: a resume with another version would mix datasets.
+BOUND_DISTRIBUTIONS = {"pybullet": "pybullet", "numpy": "numpy", "trimesh": "trimesh", "coacd": "coacd"}
+# Informative only (recorded, never compared).
+OTHER_DISTRIBUTIONS = {"pandas": "pandas", "pyarrow": "pyarrow", "joblib": "joblib"}
+# Errors of the file system that mean "this folder cannot be written", not a bug.
+_READ_ONLY = {errno.EROFS, errno.EACCES, errno.EPERM}
 
 
-class ManifestMismatchError(RuntimeError):
-    """The output directory holds a run with a different configuration."""
+class StoreError(Exception):
+    """The run cannot start on this output folder (a usage error: exit code 2); one line."""
 
 
-# ------------------------------------------------------------------------------------ files
+class LockedError(StoreError):
+    """Another run holds the folder."""
 
 
-def object_filename(object_id: str) -> str:
-    """A safe file name for ``object_id`` (which may contain ``/``), unique per id.
-
-    Readable part: ``/`` -> ``__``, other unsafe characters -> ``_``, no leading ``.``/``_``
-    (pyarrow would skip the file), at most 80 characters; then 10 hex digits of the id's SHA-256,
-    so distinct ids never collide even when their readable parts do (or differ only in case).
-    """
-    readable = re.sub(r"[^A-Za-z0-9.-]", "_", object_id.replace("/", "__").replace("\\", "__"))
-    readable = readable.lstrip("._")[:80] or "object"
-    digest = hashlib.sha256(object_id.encode("utf-8")).hexdigest()[:10]
-    return f"{readable}-{digest}.parquet"
+class RunMismatchError(StoreError):
+    """The folder holds a run with other settings."""
 
 
-def chunk_filename(object_id: str, start: int, stop: int) -> str:
-    """File name of candidates ``start..stop-1`` of an object: ``<object stem>.SSSSSS-EEEEEE.parquet``."""
-    return f"{object_filename(object_id)[: -len('.parquet')]}.{start:06d}-{stop:06d}.parquet"
+class ManifestUnreadableError(StoreError):
+    """The manifest is missing (with label files present) or cannot be read."""
 
 
-def _fsync_dir(path: Path) -> None:
-    """Make a rename in ``path`` durable (a no-op where directories cannot be opened)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _current_umask()
-
-
-def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Write ``path`` whole or not at all: hidden temp file in the same dir, fsync, os.replace."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # mkstemp creates 0600; a dataset is meant to be shared: the usual 0666 minus the umask
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    _fsync_dir(path.parent)
-
-
-def _arrow_table(df: pd.DataFrame) -> pa.Table:
-    """Required columns with fixed Arrow types first, extra columns after, no index.
-
-    Built column by column from numpy (``pa.Table.from_pandas`` plus a cast costs ~20 ms per
-    table, which the writer pays for every chunk).
-    """
-    extra = [c for c in df.columns if c not in COLUMNS]
-    arrays, fields = [], []
-    for c, t in COLUMNS.items():
-        values = df[c].to_numpy(dtype=object if t == STRING else t)
-        arrays.append(pa.array(values, type=_ARROW_TYPES[t]))
-        fields.append(pa.field(c, _ARROW_TYPES[t], nullable=False))
-    for c in extra:
-        column = df[c]
-        values = column.to_numpy(dtype=object) if pd.api.types.is_string_dtype(column) else column.to_numpy()
-        arrays.append(pa.array(values, from_pandas=True))
-        fields.append(pa.field(c, arrays[-1].type))
-    return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
-
-
-def _write_range(
-    out_dir: str | Path, df: pd.DataFrame, start: int, stop: int, name: Callable[[str], str]
-) -> Path:
-    """Validate rows of ONE object with ``grasp_id`` exactly ``start..stop-1``; write them atomically."""
-    out = validate_labels(df)
-    ids = out["object_id"].unique()
-    if len(ids) != 1:
-        raise SchemaError(f"a label file holds one object's labels, got object_ids {list(ids)[:5]}")
-    grasp_ids = np.sort(out["grasp_id"].to_numpy())
-    if not np.array_equal(grasp_ids, np.arange(start, stop)):
-        raise SchemaError(f"grasp_id of {ids[0]!r} must be exactly {start}..{stop - 1}")
-    out = out.sort_values("grasp_id", kind="stable").reset_index(drop=True)
-    path = Path(out_dir) / name(str(ids[0]))
-    table = _arrow_table(out)
-    _atomic_write(path, lambda fh: pq.write_table(table, fh))
-    log.debug("wrote %d labels of %s to %s", len(out), ids[0], path)
-    return path
-
-
-def write_object_labels(out_dir: str | Path, df: pd.DataFrame) -> Path:
-    """Validate the labels of ONE object and write them atomically to ``out_dir``.
-
-    ``df`` : N rows, one ``object_id``, ``grasp_id`` exactly 0..N-1. Extra columns are kept; write
-    the same extra columns for every object (``read_parquet`` on the directory takes the first
-    file's schema). Returns the path of the Parquet file, named by :func:`object_filename`.
-    """
-    return _write_range(out_dir, df, 0, len(df), object_filename)
-
-
-def write_chunk_labels(out_dir: str | Path, df: pd.DataFrame, start: int) -> Path:
-    """Write one chunk of one object: rows with ``grasp_id`` exactly ``start..start+len(df)-1``.
-
-    The file is named by :func:`chunk_filename`; :func:`merge_chunks` later folds an object's
-    chunks into its one file.
-    """
-    stop = start + len(df)
-    return _write_range(out_dir, df, start, stop, lambda oid: chunk_filename(oid, start, stop))
-
-
-def merge_chunks(out_dir: str | Path, object_id: str, files: Iterable[str]) -> pd.DataFrame:
-    """One object's labels from its chunk files (names in ``out_dir``), sorted by grasp_id."""
-    table = pa.concat_tables([pq.read_table(Path(out_dir) / f) for f in files])
-    df = table.to_pandas().sort_values("grasp_id", kind="stable", ignore_index=True)
-    if not (df["object_id"] == object_id).all():
-        raise SchemaError(f"chunk files of {object_id!r} hold other objects' labels")
-    return df
-
-
-def file_sha256(path: str | Path) -> str:
-    """Hex SHA-256 of a file's bytes (meshes for ``mesh_sha256``, label files for the manifest)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-# --------------------------------------------------------------------------------- manifest
+# ------------------------------------------------------------------------------------ the run
 
 
 def _now() -> str:
@@ -200,22 +104,20 @@ def _version(dist: str) -> str:
         return "not installed"
 
 
+def bound_versions() -> dict[str, str]:
+    """Versions that shape labels: this package and the libraries in BOUND_DISTRIBUTIONS."""
+    return {"annotator": __version__, **{k: _version(d) for k, d in BOUND_DISTRIBUTIONS.items()}}
+
+
 def collect_versions() -> dict[str, str]:
-    """Versions of Python and of the libraries that shape the labels (no pybullet import)."""
+    """Every version worth recording (no pybullet import): bound ones, Python, platform, others."""
     versions = {"python": platform.python_version(), "platform": platform.platform()}
-    for name, dist in [
-        ("annotator", "rg2-annotator"),
-        ("pybullet", "pybullet"),
-        ("numpy", "numpy"),
-        ("trimesh", "trimesh"),
-        ("pandas", "pandas"),
-        ("pyarrow", "pyarrow"),
-    ]:
-        versions[name] = _version(dist)
+    versions.update(bound_versions())
+    versions.update({k: _version(d) for k, d in OTHER_DISTRIBUTIONS.items()})
     return versions
 
 
-def _normalise(obj: Any) -> Any:
+def _canonical(obj: Any) -> Any:
     """JSON round trip so tuples/lists and numpy scalars compare equal after a reload."""
     return json.loads(json.dumps(obj, sort_keys=True, default=_json_default))
 
@@ -230,233 +132,610 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
-@dataclass
-class Manifest:
-    """What a run was asked to do and how far it got; saved as ``_manifest.json`` beside the labels.
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything that changes a label, bound by the manifest: a resume must match it exactly.
 
-    objects_done : object_id -> {"file", "n", "sha256" (of the label file), "mesh_sha256", "time"}
-    objects_failed : object_id -> one-line error
-    chunks_done : object_id -> {"mesh_sha256", "files": {"start-stop": chunk file name}} for
-        objects not finished yet; an object's entry goes when its chunks are merged.
+    ``inputs``: more inputs of a command (e.g. the digest of the grasps ``evaluate`` simulates).
     """
 
-    config: dict[str, Any]
     seed: int
     n: int
     trials: int
+    scale: float | None
+    chunk_size: int
+    config: dict[str, Any]
+    versions: dict[str, str] = field(default_factory=bound_versions)
+    inputs: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return _canonical(dataclasses.asdict(self))
+
+    @property
+    def key(self) -> str:
+        """SHA-256 of the canonical JSON: files written by this run carry it."""
+        return hashlib.sha256(json.dumps(self.to_json(), sort_keys=True).encode()).hexdigest()
+
+    def differences(self, recorded: dict[str, Any]) -> list[str]:
+        """What differs between the run recorded in a manifest and this one, one item each."""
+        mine = self.to_json()
+        diffs = []
+        for name in ("seed", "n", "trials", "scale", "chunk_size"):
+            if recorded.get(name) != mine[name]:
+                diffs.append(f"{name} {recorded.get(name)} in the folder, {mine[name]} now")
+        for section, values in sorted(mine["config"].items()):
+            old = (recorded.get("config") or {}).get(section) or {}
+            for key in sorted(set(values) | set(old)):
+                if old.get(key) != values.get(key):
+                    diffs.append(f"[{section}] {key} {old.get(key)} in the folder, {values.get(key)} now")
+        for name in ("versions", "inputs"):
+            old = recorded.get(name) or {}
+            for key in sorted(set(mine[name]) | set(old)):
+                if old.get(key) != mine[name].get(key):
+                    diffs.append(f"{key} {old.get(key)} in the folder, {mine[name].get(key)} now")
+        return diffs
+
+
+# ------------------------------------------------------------------------------------ manifest
+
+
+@dataclass
+class Manifest:
+    """What the folder's run is and how far it got; ``_manifest.json``.
+
+    objects_done : object_id -> {"file", "sha256", "n", "source_sha256", "stats", "time"}
+    objects_failed : object_id -> one-line error (retried on resume)
+    chunks_done : object_id -> {"source_sha256", "files": {"start-stop": {"file", "sha256", "n"}}}
+        for objects not finished yet; an object's entry goes when its chunks are merged
+    objects_info : object_id -> what the object was simulated as (geometry, mass, friction)
+    """
+
+    run: dict[str, Any]
+    run_key: str
     versions: dict[str, str] = field(default_factory=collect_versions)
     objects_done: dict[str, dict[str, Any]] = field(default_factory=dict)
     objects_failed: dict[str, str] = field(default_factory=dict)
     chunks_done: dict[str, dict[str, Any]] = field(default_factory=dict)
+    objects_info: dict[str, dict[str, Any]] = field(default_factory=dict)
     created: str = field(default_factory=_now)
     updated: str = field(default_factory=_now)
     manifest_version: int = MANIFEST_VERSION
-
-    def __post_init__(self) -> None:
-        self.config = _normalise(self.config)
-        self.seed, self.n, self.trials = int(self.seed), int(self.n), int(self.trials)
-
-    # -- persistence
-    @staticmethod
-    def path(out_dir: str | Path) -> Path:
-        return Path(out_dir) / MANIFEST_NAME
+    tool: str = TOOL
 
     @classmethod
-    def load(cls, out_dir: str | Path) -> Manifest | None:
-        """The manifest in ``out_dir``, or None if there is none."""
-        path = cls.path(out_dir)
-        if not path.exists():
-            return None
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-            known = {f.name for f in dataclasses.fields(cls)}
-            return cls(**{k: v for k, v in data.items() if k in known})
-        except (json.JSONDecodeError, TypeError) as exc:
-            raise ManifestMismatchError(
-                f"{path} is not a readable manifest ({exc}); pass --overwrite to start over"
-            ) from exc
+    def fresh(cls, spec: RunSpec) -> Manifest:
+        return cls(run=spec.to_json(), run_key=spec.key)
 
-    def save(self, out_dir: str | Path) -> Path:
-        """Write atomically; returns the path."""
+    @staticmethod
+    def path(out_dir: Path) -> Path:
+        return Path(out_dir) / MANIFEST_NAME
+
+    def to_json(self) -> dict[str, Any]:
+        return _canonical(dataclasses.asdict(self))
+
+    def save(self, out_dir: Path) -> None:
+        """Write atomically (OutputError if the folder cannot be written)."""
         self.updated = _now()
-        text = json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True, default=_json_default)
-        path = self.path(out_dir)
-        _atomic_write(path, lambda fh: fh.write(text.encode("utf-8") + b"\n"))
-        return path
+        text = json.dumps(self.to_json(), indent=1, sort_keys=True)
+        atomic_write(self.path(out_dir), lambda fh: fh.write(text.encode("utf-8") + b"\n"))
 
-    # -- progress
-    def mark_done(self, object_id: str, path: str | Path, n: int, mesh_sha256: str) -> None:
-        """Record a label file just written: ``path`` as returned by :func:`write_object_labels`."""
-        path = Path(path)
-        self.objects_done[object_id] = {
-            "file": path.name,
-            "n": int(n),
-            "sha256": file_sha256(path),
-            "mesh_sha256": mesh_sha256,
-            "time": _now(),
+    @classmethod
+    def load(cls, out_dir: Path) -> Manifest | None:
+        """The folder's manifest, None if there is none, ManifestUnreadableError if it is broken."""
+        path = cls.path(out_dir)
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            raise ManifestUnreadableError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
+        try:
+            data = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ManifestUnreadableError(f"{path} is not valid JSON ({exc})") from exc
+        return cls.from_json(data, path)
+
+    @classmethod
+    def from_json(cls, data: Any, path: Path) -> Manifest:
+        """Check every field's type; one line naming the first bad one."""
+
+        def bad(what: str) -> ManifestUnreadableError:
+            return ManifestUnreadableError(f"{path}: {what}")
+
+        if not isinstance(data, dict):
+            raise bad(f"expected a JSON object, found {type(data).__name__}")
+        if data.get("tool") != TOOL:
+            raise bad("not a manifest of rg2-annotator")
+        if data.get("manifest_version") != MANIFEST_VERSION:
+            found = data.get("manifest_version")
+            raise bad(f"manifest version {found!r}, this version reads {MANIFEST_VERSION}")
+        kinds: dict[str, type] = {
+            "run": dict,
+            "run_key": str,
+            "versions": dict,
+            "objects_done": dict,
+            "objects_failed": dict,
+            "chunks_done": dict,
+            "objects_info": dict,
+            "created": str,
+            "updated": str,
         }
-        self.objects_failed.pop(object_id, None)
-        self.chunks_done.pop(object_id, None)
-
-    def mark_chunk(self, object_id: str, start: int, path: str | Path, n: int, mesh_sha256: str) -> None:
-        """Record a chunk file just written (candidates ``start..start+n-1``) by write_chunk_labels."""
-        entry = self.chunks_done.get(object_id)
-        if entry is None or entry["mesh_sha256"] != mesh_sha256:
-            entry = self.chunks_done[object_id] = {"mesh_sha256": mesh_sha256, "files": {}}
-        entry["files"][f"{int(start)}-{int(start) + int(n)}"] = Path(path).name
-
-    def chunks_of(
-        self, object_id: str, out_dir: str | Path, mesh_sha256: str | None = None
-    ) -> dict[tuple[int, int], str]:
-        """Chunks of an unfinished object done earlier and still usable: (start, stop) -> file.
-
-        A chunk counts if its file exists and (when given) the mesh hash is unchanged.
-        """
-        entry = self.chunks_done.get(object_id)
-        if entry is None or (mesh_sha256 is not None and entry["mesh_sha256"] != mesh_sha256):
-            return {}
-        out: dict[tuple[int, int], str] = {}
-        for key, name in entry["files"].items():
-            start, stop = (int(v) for v in key.split("-"))
-            if (Path(out_dir) / name).exists():
-                out[(start, stop)] = name
-        return out
-
-    def mark_failed(self, object_id: str, error: BaseException | str) -> None:
-        """Record a failure as one line (``Type: message``); the object is retried on resume."""
-        if isinstance(error, BaseException):
-            text = f"{type(error).__name__}: {error}"
-        else:
-            text = str(error)
-        line = " ".join(text.split())[:500]
-        self.objects_failed[object_id] = line
-        self.objects_done.pop(object_id, None)
-        self.chunks_done.pop(object_id, None)
-
-    # -- resume
-    def differences(self, config: Mapping[str, Any], seed: int, n: int, trials: int) -> list[str]:
-        """Human-readable differences between this run and the requested one (empty if equal)."""
-        diffs = []
-        for name, mine, theirs in [
-            ("seed", self.seed, seed),
-            ("n", self.n, n),
-            ("trials", self.trials, trials),
-        ]:
-            if int(mine) != int(theirs):
-                diffs.append(f"{name}: {mine} in the manifest, {theirs} requested")
-        if self.config != _normalise(dict(config)):
-            diffs.append("config differs from the manifest's")
-        return diffs
-
-    def pending(
-        self,
-        object_ids: Iterable[str],
-        out_dir: str | Path,
-        mesh_sha256: Mapping[str, str] | None = None,
-    ) -> list[str]:
-        """The objects still to do, in the given order.
-
-        An object is skipped only if it is done, its label file exists, and (when
-        ``mesh_sha256`` is given) its mesh hash is unchanged. Failed objects are retried.
-        """
-        todo = []
-        for oid in object_ids:
-            done = self.objects_done.get(oid)
-            if (
-                done is None
-                or not (Path(out_dir) / done["file"]).exists()
-                or (mesh_sha256 is not None and done.get("mesh_sha256") != mesh_sha256.get(oid))
+        for name, kind in kinds.items():
+            if not isinstance(data.get(name), kind):
+                raise bad(f"field {name!r} is missing or not a {kind.__name__}")
+        for oid, entry in data["objects_done"].items():
+            if not (
+                isinstance(entry, dict)
+                and all(isinstance(entry.get(k), str) for k in ("file", "sha256", "source_sha256"))
+                and isinstance(entry.get("n"), int)
             ):
-                todo.append(oid)
-        return todo
+                raise bad(f"objects_done[{oid!r}] is malformed")
+        for oid, entry in data["chunks_done"].items():
+            files = entry.get("files") if isinstance(entry, dict) else None
+            if not (isinstance(files, dict) and isinstance(entry.get("source_sha256"), str)):
+                raise bad(f"chunks_done[{oid!r}] is malformed")
+            for key, rec in files.items():
+                parts = key.split("-")
+                if not (
+                    len(parts) == 2
+                    and all(p.isdigit() for p in parts)
+                    and isinstance(rec, dict)
+                    and isinstance(rec.get("file"), str)
+                    and isinstance(rec.get("sha256"), str)
+                ):
+                    raise bad(f"chunks_done[{oid!r}] entry {key!r} is malformed")
+        if not all(isinstance(v, str) for v in data["objects_failed"].values()):
+            raise bad("objects_failed holds a non-text reason")
+        known = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+    def referenced_files(self) -> set[str]:
+        """Every label file name the manifest vouches for."""
+        names = {e["file"] for e in self.objects_done.values()}
+        for entry in self.chunks_done.values():
+            names |= {rec["file"] for rec in entry["files"].values()}
+        return names
 
 
-def _remove_outputs(out_dir: Path) -> int:
-    """Delete label files, leftover temp files and the manifest at the top of ``out_dir``."""
-    removed = 0
-    for p in out_dir.iterdir():
-        if p.is_file() and (
-            p.suffix == ".parquet"
-            or p.name == MANIFEST_NAME
-            or (p.name.startswith(".") and p.suffix == ".tmp")
-        ):
-            p.unlink()
-            removed += 1
-    return removed
+# ------------------------------------------------------------------------------------ the lock
 
 
-def chunk_files(out_dir: str | Path, object_id: str) -> list[Path]:
-    """Every chunk file of ``object_id`` in ``out_dir``, recorded in a manifest or not."""
-    stem = object_filename(object_id)[: -len(".parquet")]
-    return sorted(Path(out_dir).glob(f"{glob.escape(stem)}.*-*.parquet"))
+@dataclass
+class RunLock:
+    """An exclusive ``flock`` on ``LOCK_NAME`` in the folder: the OS releases it when the process
+    ends, however it ends (a crash or SIGKILL included); the file tells who holds it."""
+
+    out_dir: Path
+    fd: int | None = None
+
+    def acquire(self) -> None:
+        """Take the lock, LockedError naming the holder, or OutputError if the folder is not writable."""
+        path = self.out_dir / LOCK_NAME
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        except OSError as exc:
+            raise output_error(path, exc) from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _read_holder(fd)
+            os.close(fd)
+            raise LockedError(
+                f"{self.out_dir} is in use by another run ({holder}); wait for it to finish or choose "
+                "another --out"
+            ) from None
+        info = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "started": _now(),
+            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])[:300],
+        }
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, json.dumps(info).encode(), 0)
+        self.fd = fd
+
+    def release(self) -> None:
+        if self.fd is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
 
 
-def remove_chunks(out_dir: str | Path, object_id: str, keep: Iterable[str] = ()) -> int:
-    """Delete ``object_id``'s chunk files except the names in ``keep``; returns how many."""
-    keep = set(keep)
-    stale = [p for p in chunk_files(out_dir, object_id) if p.name not in keep]
-    for p in stale:
-        p.unlink(missing_ok=True)
-    return len(stale)
+def _read_holder(fd: int) -> str:
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode())
+        return f"pid {info['pid']} on {info['host']}, started {info['started']}: {info['command']}"
+    except Exception:
+        return "a process that has not said who it is yet"
 
 
-def _remove_merged_chunks(out_dir: Path, manifest: Manifest) -> None:
-    """Delete chunk files of objects already merged into their file (a stop between the two steps)."""
-    for oid in manifest.objects_done:
-        if removed := remove_chunks(out_dir, oid):
-            log.info("removed %d chunk files of %s: already merged into its file", removed, oid)
+@contextlib.contextmanager
+def sigint_deferred() -> Iterator[None]:
+    """Hold back Ctrl-C (in the main thread) until the block is done, then raise it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received:
+            raise KeyboardInterrupt
 
 
-def open_run(
-    out_dir: str | Path,
-    config: Mapping[str, Any],
-    seed: int,
-    n: int,
-    trials: int,
-    overwrite: bool = False,
-) -> Manifest:
-    """Prepare ``out_dir`` for a run and return its manifest (already saved).
+# ------------------------------------------------------------------------------------ the store
 
-    * ``overwrite``: delete ``*.parquet``, stale temp files and the manifest there, start fresh.
-    * an existing manifest with the same config, seed, n and trials: resume it (use
-      :meth:`Manifest.pending` to choose the objects to run).
-    * a manifest that differs, or label files without a manifest: raise
-      :class:`ManifestMismatchError` telling the user to pass ``--overwrite``.
+
+@dataclass
+class Resume:
+    """What an opened folder already holds for the current objects.
+
+    done : finished object ids; chunks : object id -> set of (start, stop) finished;
+    stale : ids no longer among the objects (their labels moved to ``_stale/``);
+    changed : ids whose source changed (their labels deleted, to be redone).
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if overwrite:
-        removed = _remove_outputs(out)
+
+    done: set[str]
+    chunks: dict[str, set[tuple[int, int]]]
+    stale: list[str]
+    changed: list[str]
+
+
+class Store:
+    """One output folder for one run. ``open()`` locks and checks it; the runner then writes
+    chunks, finishes and fails objects through it; ``close()`` saves and unlocks."""
+
+    # The manifest is saved at most this often while chunks come in, always when an object is
+    # merged or fails and when the run ends; a hard kill loses at most this many seconds of
+    # chunks (unvouched chunk files are redone on resume).
+    SAVE_SECONDS = 2.0
+
+    def __init__(self, out_dir: Path, spec: RunSpec) -> None:
+        self.out_dir = Path(out_dir)
+        self.spec = spec
+        self.manifest = Manifest.fresh(spec)
+        self.lock = RunLock(self.out_dir)
+        self.read_only = False  # the folder cannot be written: only a finished run can be read
+        self.notes: list[str] = []  # one line per thing the user should know (redone, removed)
+        self._saved_at = 0.0
+
+    # --- opening -------------------------------------------------------------------------------
+
+    def open(self, *, overwrite: bool = False, repair: bool = False) -> None:
+        """Lock the folder and load, check and clean what it holds.
+
+        Raises LockedError, RunMismatchError, ManifestUnreadableError (usage errors) or
+        OutputError (the folder cannot be created).
+        """
+        out = self.out_dir
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise output_error(out, exc) from exc
+        try:
+            self.lock.acquire()
+        except OutputError as exc:
+            if exc.errno not in _READ_ONLY:
+                raise
+            self.read_only = True  # nobody can write here, so nobody needs the lock
+            log.warning("%s", exc)
+        try:
+            self._load(overwrite=overwrite, repair=repair)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _load(self, *, overwrite: bool, repair: bool) -> None:
+        out = self.out_dir
+        if overwrite:
+            self._require_writable()
+            self._remove_own_files()
+            self.manifest = Manifest.fresh(self.spec)
+            self.save(force=True)
+            return
+        try:
+            manifest = Manifest.load(out)
+        except ManifestUnreadableError as exc:
+            if not repair:
+                raise ManifestUnreadableError(
+                    f"{exc}; pass --repair to rebuild it from the label files that verify, or --overwrite "
+                    "to start over"
+                ) from exc
+            manifest = None
+        if manifest is None:
+            own = [p for p in self._parquet_files() if is_own_file(p)]
+            if own and not repair:
+                raise ManifestUnreadableError(
+                    f"{out} holds {len(own)} label file(s) but no {MANIFEST_NAME}; pass --repair to rebuild "
+                    "it from the files that verify, or --overwrite to start over"
+                )
+            manifest = self._rebuild() if own else Manifest.fresh(self.spec)
+        else:
+            diffs = self.spec.differences(manifest.run)
+            if diffs:
+                shown = "; ".join(diffs[:4]) + (f"; and {len(diffs) - 4} more" if len(diffs) > 4 else "")
+                raise RunMismatchError(
+                    f"{out} holds a run with other settings ({shown}); pass --overwrite to start over or "
+                    "choose another --out"
+                )
+        self.manifest = manifest
+        self._verify()
+        self._clean_unvouched()
+        if not self.read_only:
+            self.save(force=True)
+
+    def _require_writable(self) -> None:
+        if self.read_only:
+            raise output_error(self.out_dir, OSError(errno.EROFS, "the folder is read-only"))
+
+    def _parquet_files(self) -> list[Path]:
+        return sorted(p for p in self.out_dir.iterdir() if p.is_file() and p.suffix == ".parquet")
+
+    def _remove_own_files(self) -> None:
+        """--overwrite: the tool's files only (marked, or listed by an older manifest), never a user's."""
+        listed: set[str] = set()
+        with contextlib.suppress(Exception):
+            data = json.loads(Manifest.path(self.out_dir).read_text())
+            listed |= {e["file"] for e in data.get("objects_done", {}).values()}
+            for entry in data.get("chunks_done", {}).values():
+                listed |= {r["file"] if isinstance(r, dict) else r for r in entry["files"].values()}
+        removed = 0
+        for p in self._parquet_files():
+            if p.name in listed or is_own_file(p):
+                p.unlink()
+                removed += 1
+        for p in self.out_dir.iterdir():
+            if p.is_file() and is_temp_file(p):
+                p.unlink()
+        stale = self.out_dir / STALE_DIR
+        if stale.is_dir():
+            for p in stale.iterdir():
+                if p.suffix == ".parquet" and read_mark(p) is not None:
+                    p.unlink()
+                    removed += 1
+            with contextlib.suppress(OSError):
+                stale.rmdir()
+        Manifest.path(self.out_dir).unlink(missing_ok=True)
         if removed:
-            log.info("--overwrite: removed %d files from %s", removed, out)
-        manifest = Manifest(config=dict(config), seed=seed, n=n, trials=trials)
-        manifest.save(out)
+            log.info("--overwrite: removed %d label files from %s", removed, self.out_dir)
+
+    def _rebuild(self) -> Manifest:
+        """--repair: a manifest from the marked files of this run that verify; the rest removed."""
+        self._require_writable()
+        manifest = Manifest.fresh(self.spec)
+        kept = dropped = 0
+        for p in self._parquet_files():
+            if not is_own_file(p):
+                continue
+            mark = read_mark(p) or {}
+            oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
+            why = verify_labels(p, self.spec.key, oid, start, stop) if isinstance(oid, str) else "no id"
+            is_object = why is None and p.name == object_filename(oid) and start == 0 and stop == self.spec.n
+            is_chunk = why is None and p.name == chunk_filename(oid, start, stop)
+            if not (is_object or is_chunk):
+                why = why or "unexpected name"
+                log.warning("--repair: %s cannot be trusted (%s); removing it", p.name, why)
+                p.unlink()
+                dropped += 1
+                continue
+            record = {"file": p.name, "sha256": file_sha256(p), "n": stop - start}
+            source = str(mark.get("source_sha256", ""))
+            if is_object:
+                stats = object_stats(read_labels(self.out_dir, [p.name]))
+                done = {**record, "source_sha256": source, "stats": stats, "time": _now()}
+                manifest.objects_done[oid] = done
+            else:
+                entry = manifest.chunks_done.setdefault(oid, {"source_sha256": source, "files": {}})
+                entry["files"][f"{start}-{stop}"] = record
+            kept += 1
+        for oid in manifest.objects_done:  # an object's file supersedes its chunks
+            manifest.chunks_done.pop(oid, None)
+        self.notes.append(f"manifest rebuilt from {kept} label files that verify ({dropped} removed)")
+        log.warning("rebuilt %s from %d label files (%d removed)", Manifest.path(self.out_dir), kept, dropped)
         return manifest
-    manifest = Manifest.load(out)
-    if manifest is None:
-        if any(p.suffix == ".parquet" for p in out.iterdir()):
-            raise ManifestMismatchError(
-                f"{out} holds label files but no {MANIFEST_NAME}; pass --overwrite to start over "
-                "or choose another --out"
-            )
-        manifest = Manifest(config=dict(config), seed=seed, n=n, trials=trials)
-        manifest.save(out)
-        return manifest
-    diffs = manifest.differences(config, seed, n, trials)
-    if diffs:
-        raise ManifestMismatchError(
-            f"{out} holds a run with different settings ({'; '.join(diffs)}); pass --overwrite to "
-            "start over or choose another --out"
+
+    def _verify(self) -> None:
+        """Every file the manifest vouches for must exist and match its checksum; else redo it."""
+        m = self.manifest
+        for oid, entry in list(m.objects_done.items()):
+            why = self._check_file(entry)
+            if why:
+                self._distrust(entry["file"], why, oid)
+                del m.objects_done[oid]
+        for oid, entry in list(m.chunks_done.items()):
+            for key, rec in list(entry["files"].items()):
+                why = self._check_file(rec)
+                if why:
+                    self._distrust(rec["file"], why, oid)
+                    del entry["files"][key]
+
+    def _check_file(self, record: dict[str, Any]) -> str | None:
+        path = self.out_dir / record["file"]
+        try:
+            digest = file_sha256(path)
+        except FileNotFoundError:
+            return "missing"
+        except OSError as exc:
+            return f"unreadable ({exc.strerror or exc})"
+        return None if digest == record["sha256"] else "corrupt: checksum mismatch"
+
+    def _distrust(self, name: str, why: str, oid: str) -> None:
+        line = f"{name} {why}: redoing those labels of {oid}"
+        log.warning("%s", line)
+        self.notes.append(line)
+        if not self.read_only:
+            (self.out_dir / name).unlink(missing_ok=True)
+
+    def _clean_unvouched(self) -> None:
+        """The tool's files the manifest does not vouch for (a chunk written just before a kill,
+        a run stopped between writing and recording) go, and leftover temporary files."""
+        if self.read_only:
+            return
+        vouched = self.manifest.referenced_files()
+        for p in self._parquet_files():
+            if p.name in vouched:
+                continue
+            if is_own_file(p):
+                p.unlink()
+                log.info("removed %s: written but never recorded, or unreadable (redone)", p.name)
+            else:
+                log.warning("%s is not a label file of this tool; read_parquet will read it too", p)
+        for p in self.out_dir.iterdir():
+            if p.is_file() and is_temp_file(p):
+                p.unlink(missing_ok=True)
+
+    # --- resuming ------------------------------------------------------------------------------
+
+    def reconcile(self, sources: dict[str, str]) -> Resume:
+        """Match the folder to the objects of this run, ``sources``: object id -> source digest.
+
+        Objects whose source changed lose their labels (redone); objects no longer present have
+        their labels moved to ``_stale/`` (left out of the dataset); failed ones are retried.
+        """
+        m = self.manifest
+        stale, changed = [], []
+        for oid in sorted(set(m.objects_done) | set(m.chunks_done)):
+            recorded = (m.objects_done.get(oid) or m.chunks_done.get(oid))["source_sha256"]
+            if oid not in sources:
+                stale.append(oid)
+                self._set_aside(oid)
+            elif recorded != sources[oid]:
+                changed.append(oid)
+                self._forget(oid)
+                self.notes.append(f"{oid}: its source changed since its labels were made; redone")
+        for oid in stale:
+            self.notes.append(f"{oid}: no longer among the objects; its labels moved to {STALE_DIR}/")
+        m.objects_failed.clear()
+        for oid in list(m.objects_info):
+            if oid not in sources:
+                del m.objects_info[oid]
+        if (stale or changed) and not self.read_only:
+            self.save(force=True)
+        chunks = {
+            oid: {tuple(int(v) for v in key.split("-")) for key in entry["files"]}
+            for oid, entry in m.chunks_done.items()
+        }
+        return Resume(set(m.objects_done), chunks, stale, changed)
+
+    def _forget(self, oid: str) -> None:
+        self._require_writable()
+        m = self.manifest
+        for name in self._files_of(oid):
+            (self.out_dir / name).unlink(missing_ok=True)
+        m.objects_done.pop(oid, None)
+        m.chunks_done.pop(oid, None)
+        m.objects_info.pop(oid, None)
+
+    def _set_aside(self, oid: str) -> None:
+        self._require_writable()
+        stale = self.out_dir / STALE_DIR
+        try:
+            stale.mkdir(exist_ok=True)
+            for name in self._files_of(oid):
+                if (self.out_dir / name).exists():
+                    shutil.move(self.out_dir / name, stale / name)
+        except OSError as exc:
+            raise output_error(stale, exc) from exc
+        m = self.manifest
+        m.objects_done.pop(oid, None)
+        m.chunks_done.pop(oid, None)
+        m.objects_info.pop(oid, None)
+
+    def _files_of(self, oid: str) -> list[str]:
+        m = self.manifest
+        names = [m.objects_done[oid]["file"]] if oid in m.objects_done else []
+        if oid in m.chunks_done:
+            names += [rec["file"] for rec in m.chunks_done[oid]["files"].values()]
+        return names
+
+    # --- writing -------------------------------------------------------------------------------
+
+    def write_chunk(self, oid: str, df: pd.DataFrame, start: int, source_sha256: str) -> None:
+        """Write and record one chunk (candidates ``start..start+len(df)-1``)."""
+        self._require_writable()
+        stop = start + len(df)
+        rec = write_labels(
+            self.out_dir, df, start, stop, chunk_filename(oid, start, stop), self.spec.key, source_sha256
         )
-    _remove_merged_chunks(out, manifest)
-    current = collect_versions()
-    changed = {k: (manifest.versions.get(k), v) for k, v in current.items() if manifest.versions.get(k) != v}
-    if changed:
-        log.warning("resuming %s with different versions: %s", out, changed)
-    log.info(
-        "resuming %s: %d objects done, %d failed (failed ones are retried)",
-        out,
-        len(manifest.objects_done),
-        len(manifest.objects_failed),
-    )
-    return manifest
+        entry = self.manifest.chunks_done.setdefault(oid, {"source_sha256": source_sha256, "files": {}})
+        entry["files"][f"{start}-{stop}"] = rec.to_json()
+        self.save()
+
+    def finish_object(self, oid: str, source_sha256: str) -> dict[str, Any]:
+        """Merge the object's chunks into its file, record it, delete the chunks; returns its stats.
+
+        Ctrl-C waits for the three steps, so the folder never holds an object's file and its chunks.
+        """
+        self._require_writable()
+        chunks = sorted(self.manifest.chunks_done[oid]["files"].items(), key=_start)
+        files = [rec["file"] for _, rec in chunks]
+        df = read_labels(self.out_dir, files)
+        stats = object_stats(df)
+        with sigint_deferred():
+            rec: FileRecord = write_labels(
+                self.out_dir, df, 0, len(df), object_filename(oid), self.spec.key, source_sha256
+            )
+            self.manifest.objects_done[oid] = {
+                **rec.to_json(),
+                "source_sha256": source_sha256,
+                "stats": stats,
+                "time": _now(),
+            }
+            self.manifest.chunks_done.pop(oid, None)
+            self.save(force=True)
+            for name in files:
+                (self.out_dir / name).unlink(missing_ok=True)
+        return stats
+
+    def fail_object(self, oid: str, error: str) -> None:
+        """Record the failure (one line) and remove the object's chunk files: no partial labels stay."""
+        m = self.manifest
+        for rec in m.chunks_done.pop(oid, {"files": {}})["files"].values():
+            (self.out_dir / rec["file"]).unlink(missing_ok=True)
+        m.objects_failed[oid] = " ".join(str(error).split())[:500]
+        m.objects_done.pop(oid, None)
+        if not self.read_only:
+            self.save(force=True)
+
+    def record_info(self, oid: str, info: dict[str, Any]) -> None:
+        """What the object was simulated as (geometry, mass, friction), kept in the manifest."""
+        self.manifest.objects_info[oid] = _canonical(info)
+
+    def save(self, force: bool = False) -> None:
+        import time
+
+        now = time.monotonic()
+        if force or now - self._saved_at >= self.SAVE_SECONDS:
+            self.manifest.save(self.out_dir)
+            self._saved_at = now
+
+    def close(self) -> None:
+        """Save (if anything can be written) and release the lock."""
+        try:
+            if not self.read_only and self.lock.fd is not None:
+                self.save(force=True)
+        finally:
+            self.lock.release()
+
+
+def _start(item: tuple[str, Any]) -> int:
+    return int(item[0].split("-")[0])
+
+
+def object_stats(df: pd.DataFrame) -> dict[str, Any]:
+    """Per-object figures for the summary: rows, successes, mean score, outcome counts."""
+    return {
+        "n": int(len(df)),
+        "successes": int(df["success"].sum()),
+        "mean_score": float(df["score"].mean()) if len(df) else 0.0,
+        "outcomes": {str(k): int(v) for k, v in df["outcome"].value_counts().items()},
+    }
+
+
+def iter_ranges(n: int, chunk_size: int) -> Iterable[tuple[int, int]]:
+    """The chunks of N candidates: (0, c), (c, 2c), ..., the last one shorter."""
+    return ((a, min(n, a + chunk_size)) for a in range(0, n, chunk_size))

@@ -1,0 +1,251 @@
+"""Label files on disk: names, atomic writes with a checksum, the tool's mark, reading back.
+
+Every Parquet file the tool writes carries a key-value entry ``rg2_annotator`` in its schema
+metadata (the run key, the object id and the grasp range), so the tool can tell its own files from
+a user's (``--overwrite`` and clean-ups touch only marked files) and rebuild a lost manifest from
+the files themselves. pyarrow's dataset discovery skips names starting with ``.`` or ``_``: the
+manifest is ``_manifest.json`` and temporary files start with ``.``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import glob
+import hashlib
+import io
+import json
+import logging
+import os
+import re
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
+
+log = logging.getLogger(__name__)
+
+MARK_KEY = b"rg2_annotator"  # schema metadata key of every label file the tool writes
+_ARROW_TYPES = {STRING: pa.string(), "int64": pa.int64(), "float64": pa.float64(), "bool": pa.bool_()}
+_TEMP_RE = re.compile(r"^\..+\.[A-Za-z0-9_]+\.tmp$")  # mkstemp names of _atomic_write
+_LABEL_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}(\.\d{6}-\d{6})?\.parquet$")
+
+
+class OutputError(OSError):
+    """The output folder cannot be written (disk full, read-only, permissions): exit code 3."""
+
+
+def output_error(path: Path | str, exc: OSError) -> OutputError:
+    """One line naming the path and the system's reason, e.g. ``No space left on device``."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    err = OutputError(exc.errno or errno.EIO, f"cannot write {path}: {reason}")
+    err.filename = str(path)
+    return err
+
+
+def object_filename(object_id: str) -> str:
+    """A safe file name for ``object_id`` (which may contain ``/``), unique per id.
+
+    Readable part: ``/`` -> ``__``, other unsafe characters -> ``_``, no leading ``.``/``_``
+    (pyarrow would skip the file), at most 80 characters; then 10 hex digits of the id's SHA-256,
+    so distinct ids never collide even when their readable parts do (or differ only in case).
+    """
+    readable = re.sub(r"[^A-Za-z0-9.-]", "_", object_id.replace("/", "__").replace("\\", "__"))
+    readable = readable.lstrip("._")[:80] or "object"
+    digest = hashlib.sha256(object_id.encode("utf-8")).hexdigest()[:10]
+    return f"{readable}-{digest}.parquet"
+
+
+def chunk_filename(object_id: str, start: int, stop: int) -> str:
+    """File name of candidates ``start..stop-1`` of an object: ``<object stem>.SSSSSS-EEEEEE.parquet``."""
+    return f"{object_filename(object_id)[: -len('.parquet')]}.{start:06d}-{stop:06d}.parquet"
+
+
+def chunk_files(out_dir: str | Path, object_id: str) -> list[Path]:
+    """Every chunk file name of ``object_id`` present in ``out_dir`` (recorded in a manifest or not)."""
+    stem = object_filename(object_id)[: -len(".parquet")]
+    return sorted(Path(out_dir).glob(f"{glob.escape(stem)}.*-*.parquet"))
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename in ``path`` durable (a no-op where directories cannot be opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
+
+
+def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Write ``path`` whole or not at all: hidden temp file in the same dir, fsync, os.replace.
+
+    An OSError (disk full, read-only, permission) becomes :class:`OutputError` naming ``path``;
+    the temporary file is removed.
+    """
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        # mkstemp creates 0600; a dataset is meant to be shared: the usual 0666 minus the umask
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.replace(tmp, path)
+    except OSError as exc:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        raise output_error(path, exc) from exc
+    except BaseException:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        raise
+    _fsync_dir(path.parent)
+
+
+def is_temp_file(path: Path) -> bool:
+    """A leftover temporary file of :func:`atomic_write` (from a killed run)."""
+    return _TEMP_RE.match(path.name) is not None
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes (meshes for ``mesh_sha256``, label files for the manifest)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class FileRecord:
+    """A label file as written: its name in the output folder, SHA-256 of its bytes, rows."""
+
+    name: str
+    sha256: str
+    n: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"file": self.name, "sha256": self.sha256, "n": self.n}
+
+
+def arrow_table(df: pd.DataFrame, mark: dict[str, Any] | None = None) -> pa.Table:
+    """Required columns with fixed Arrow types first, extra columns after, no index.
+
+    Built column by column from numpy (``pa.Table.from_pandas`` plus a cast costs ~20 ms per
+    table, which the writer pays for every chunk). ``mark`` goes into the schema metadata.
+    """
+    extra = [c for c in df.columns if c not in COLUMNS]
+    arrays, fields = [], []
+    for c, t in COLUMNS.items():
+        values = df[c].to_numpy(dtype=object if t == STRING else t)
+        arrays.append(pa.array(values, type=_ARROW_TYPES[t]))
+        fields.append(pa.field(c, _ARROW_TYPES[t], nullable=False))
+    for c in extra:
+        column = df[c]
+        values = column.to_numpy(dtype=object) if pd.api.types.is_string_dtype(column) else column.to_numpy()
+        arrays.append(pa.array(values, from_pandas=True))
+        fields.append(pa.field(c, arrays[-1].type))
+    metadata = {MARK_KEY: json.dumps(mark, sort_keys=True).encode()} if mark is not None else None
+    return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=metadata))
+
+
+def write_labels(
+    out_dir: Path, df: pd.DataFrame, start: int, stop: int, name: str, run_key: str, source_sha256: str
+) -> FileRecord:
+    """Validate rows of ONE object with ``grasp_id`` exactly ``start..stop-1``; write them atomically
+    as ``out_dir / name``, marked as the tool's (``run_key`` and the object's ``source_sha256``, so
+    a lost manifest can be rebuilt from the files); return the file's record."""
+    out = validate_labels(df)
+    ids = out["object_id"].unique()
+    if len(ids) != 1:
+        raise SchemaError(f"a label file holds one object's labels, got object_ids {list(ids)[:5]}")
+    grasp_ids = np.sort(out["grasp_id"].to_numpy())
+    if not np.array_equal(grasp_ids, np.arange(start, stop)):
+        raise SchemaError(f"grasp_id of {ids[0]!r} must be exactly {start}..{stop - 1}")
+    out = out.sort_values("grasp_id", kind="stable").reset_index(drop=True)
+    mark = {
+        "run_key": run_key,
+        "object_id": str(ids[0]),
+        "start": int(start),
+        "stop": int(stop),
+        "source_sha256": source_sha256,
+    }
+    buffer = io.BytesIO()
+    pq.write_table(arrow_table(out, mark), buffer)
+    data = buffer.getvalue()
+    atomic_write(out_dir / name, lambda fh: fh.write(data))
+    log.debug("wrote %d labels of %s to %s", len(out), ids[0], name)
+    return FileRecord(name, hashlib.sha256(data).hexdigest(), len(out))
+
+
+def read_mark(path: Path) -> dict[str, Any] | None:
+    """The tool's mark of a Parquet file (footer only), or None for anything else or unreadable."""
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+        mark = json.loads(metadata[MARK_KEY])
+    except Exception:  # not Parquet, truncated, not ours: all mean "not a file we can vouch for"
+        return None
+    return mark if isinstance(mark, dict) else None
+
+
+def is_own_file(path: Path) -> bool:
+    """A file this tool wrote: marked, or named as the tool names files and no longer readable
+    (a truncated label file; a user's Parquet file that reads, unmarked, is never counted)."""
+    if read_mark(path) is not None:
+        return True
+    if not _LABEL_NAME_RE.match(path.name):
+        return False
+    try:
+        pq.read_schema(path)
+    except Exception:
+        return True
+    return False
+
+
+def read_labels(out_dir: Path, names: list[str]) -> pd.DataFrame:
+    """Rows of the named files in ``out_dir``, concatenated and sorted by (object_id, grasp_id)."""
+    table = pa.concat_tables([pq.read_table(out_dir / n) for n in names])
+    return table.to_pandas().sort_values(["object_id", "grasp_id"], kind="stable", ignore_index=True)
+
+
+def verify_labels(path: Path, run_key: str, object_id: str, start: int, stop: int) -> str | None:
+    """Why ``path`` cannot be trusted as rows ``start..stop-1`` of ``object_id`` of this run, or None.
+
+    Used when the manifest is lost: the file must be the tool's, of this run, readable, and hold
+    exactly the promised rows, valid against the schema.
+    """
+    mark = read_mark(path)
+    if mark is None:
+        return "not a label file of this tool (unreadable or unmarked)"
+    if mark.get("run_key") != run_key:
+        return "written by a run with other settings"
+    if (mark.get("object_id"), mark.get("start"), mark.get("stop")) != (object_id, start, stop):
+        return "its mark does not match its name"
+    try:
+        df = validate_labels(pq.read_table(path).to_pandas())
+    except Exception as exc:
+        return f"unreadable ({type(exc).__name__}: {exc})"
+    if set(df["object_id"]) != {object_id} or sorted(df["grasp_id"]) != list(range(start, stop)):
+        return "holds other rows than its name says"
+    return None

@@ -1,0 +1,69 @@
+"""Which spans of candidates are still to simulate, generated lazily (memory independent of N)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+from annotator.objects import ObjectSource
+from annotator.pipeline.worker import Span
+
+# Candidates per unit of work (and per chunk file): small enough that the first labels are on disk
+# within seconds, that 2..64 workers stay balanced and that an interrupt loses little; large enough
+# that the per-span overhead (a task, a chunk file, a manifest save) stays ~ 1 %.
+CHUNK_SIZE = 10
+# Chunks per object at most: for very large N the chunk grows so that the manifest (one entry
+# per finished chunk of an unfinished object) and the planning stay small.
+MAX_CHUNKS_PER_OBJECT = 2000
+# Candidates per object at most: a worker holds an object's N candidates (~190 bytes each) and one
+# object at 1e6 candidates is about 14 core-hours; more belongs in several runs (other seeds).
+MAX_N = 1_000_000
+
+
+def chunk_size_for(n: int) -> int:
+    """Candidates per chunk for N candidates per object (CHUNK_SIZE unless N is very large)."""
+    return max(CHUNK_SIZE, math.ceil(n / MAX_CHUNKS_PER_OBJECT))
+
+
+@dataclass(frozen=True)
+class PlannedObject:
+    """An object of the run and the chunks of it already on disk, (start, stop) pairs."""
+
+    source: ObjectSource
+    done: frozenset[tuple[int, int]] = frozenset()
+
+
+def _missing(obj: PlannedObject, n: int, chunk: int) -> Iterator[tuple[int, int]]:
+    for start in range(0, n, chunk):
+        rng = (start, min(n, start + chunk))
+        if rng not in obj.done:
+            yield rng
+
+
+def plan_spans(objects: Sequence[PlannedObject], n: int, chunk: int, scale: float | None) -> Iterator[Span]:
+    """The spans still to simulate: the first missing span of every object, then the rest object by
+    object. On a first run the workers thus load (and decompose) different objects at once
+    instead of the same one. Lazy: nothing of size N is built."""
+    firsts: list[tuple[int, int] | None] = []
+    for obj in objects:
+        first = next(_missing(obj, n, chunk), None)
+        firsts.append(first)
+        if first is not None:
+            yield Span(obj.source.object_id, obj.source, scale, *first)
+    for obj, first in zip(objects, firsts, strict=True):
+        for rng in _missing(obj, n, chunk):
+            if rng != first:
+                yield Span(obj.source.object_id, obj.source, scale, *rng)
+
+
+def spans_to_do(obj: PlannedObject, n: int, chunk: int) -> int:
+    """How many spans of ``obj`` are missing (without listing them)."""
+    total = math.ceil(n / chunk)
+    return total - sum(1 for a, b in obj.done if a % chunk == 0 and b == min(n, a + chunk))
+
+
+def candidates_to_do(obj: PlannedObject, n: int, chunk: int) -> int:
+    """How many candidates of ``obj`` are missing."""
+    done = sum(b - a for a, b in obj.done if a % chunk == 0 and b == min(n, a + chunk))
+    return n - done

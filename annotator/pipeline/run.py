@@ -1,0 +1,416 @@
+"""Run the job: objects -> spans on local worker processes (or a Dask cluster) -> one writer.
+
+The main process only discovers the objects, checks the output folder and hands out spans; it
+never loads a mesh, so work starts at once. Workers return labels; the store alone writes them.
+
+Faults (README "Reliability"): a worker process that dies costs the spans it had one retry each,
+run alone on a fresh worker; a span that kills its worker again fails its object with the reason
+and the run goes on. A full disk, a read-only or forbidden folder stops the run with one line and
+exit code 3; a lost Dask scheduler with one line and exit code 4; both keep what was written, and
+the same command resumes. Local workers exit within about a second of the main process.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import logging
+import os
+import shutil
+import signal
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
+from annotator.pipeline import status
+from annotator.pipeline.files import OutputError
+from annotator.pipeline.plan import (
+    MAX_N,
+    PlannedObject,
+    candidates_to_do,
+    chunk_size_for,
+    plan_spans,
+    spans_to_do,
+)
+from annotator.pipeline.store import RunSpec, Store, StoreError
+from annotator.pipeline.summary import ObjectStats, Summary, format_summary
+from annotator.pipeline.worker import Span, SpanResult, SpanTask, WorkerStats, label_span
+
+log = logging.getLogger(__name__)
+
+# Resident memory one local worker may reach (MB): measured peak 274 MB on the shipped objects
+# (bench/throughput.py), with headroom for larger meshes. --workers beyond what the machine's
+# available memory holds at this size is refused instead of swapping or being OOM-killed.
+WORKER_MEMORY_MB = 400
+# While waiting for results the display is refreshed this often (s); a status line appears when
+# a worker has been loading (decomposing) an object for longer than STATUS_AFTER seconds.
+TICK_SECONDS = 0.5
+STATUS_AFTER = 2.0
+
+
+class UsageError(Exception):
+    """The command cannot start (folder, manifest, lock, options): exit code 2."""
+
+
+class SchedulerLost(Exception):
+    """The Dask scheduler went away during the run: exit code 4 (the same command resumes)."""
+
+
+class Terminated(BaseException):
+    """SIGTERM: stop like Ctrl-C (what was written stays), exit code 143."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    objects_dir: Path
+    n: int
+    out_dir: Path = Path("labels")
+    workers: int = 1
+    seed: int = 0
+    trials: int = 1
+    scheduler: str | None = None
+    scale: float | None = None
+    overwrite: bool = False
+    repair: bool = False
+    quiet: bool = False
+
+
+# --- where spans run --------------------------------------------------------------------------------
+
+
+def _worker_died_errors() -> tuple[type[BaseException], ...]:
+    from joblib.externals.loky.process_executor import BrokenProcessPool, TerminatedWorkerError
+
+    errors: list[type[BaseException]] = [TerminatedWorkerError, BrokenProcessPool]
+    errors.append(cf.process.BrokenProcessPool)
+    with contextlib.suppress(ImportError):
+        from distributed import KilledWorker
+
+        errors.append(KilledWorker)
+    return tuple(errors)
+
+
+class Workers:
+    """Local worker processes (joblib's loky executor) or a Dask cluster's, behind one interface.
+
+    Both are ``concurrent.futures`` executors, which tell which task's process died (joblib's
+    ``Parallel`` does not): the runner retries exactly those tasks, alone.
+    """
+
+    def __init__(self, options: RunOptions) -> None:
+        self.client = None
+        self.count = options.workers
+        if options.scheduler:
+            try:
+                from distributed import Client
+            except ImportError as exc:
+                raise UsageError("--scheduler needs Dask: pip install 'rg2-annotator[cluster]'") from exc
+            try:
+                self.client = Client(options.scheduler)
+            except (OSError, ValueError, TypeError) as exc:  # unreachable, timed out, malformed
+                raise UsageError(f"--scheduler {options.scheduler}: cannot connect ({exc})") from exc
+            info = self.client.scheduler_info()["workers"].values()
+            self.count = max(1, sum(w.get("nthreads", 1) for w in info))
+            self.parent_pid = None
+        else:
+            self.parent_pid = os.getpid()
+        self._executor: cf.Executor | None = None
+
+    def executor(self) -> cf.Executor:
+        if self._executor is None:
+            if self.client is not None:
+                self._executor = self.client.get_executor(pure=False)
+            else:
+                # joblib's own reusable process pool (the one joblib.Parallel uses): workers, with
+                # their worlds and loaded objects, are kept between runs of one process
+                from joblib.executor import get_memmapping_executor
+
+                self._executor = get_memmapping_executor(self.count)
+        return self._executor
+
+    def submit(self, task: SpanTask) -> cf.Future:
+        return self.executor().submit(label_span, task)
+
+    def restart(self) -> None:
+        """After a worker died: a fresh pool (loky) for what follows."""
+        if self.client is None:
+            self._executor = None
+
+    def lost(self) -> bool:
+        return self.client is not None and self.client.status not in ("running", "connecting")
+
+    def close(self, *, kill: bool) -> None:
+        if self.client is not None:
+            with contextlib.suppress(Exception):
+                self.client.close()
+        elif kill and self._executor is not None:
+            with contextlib.suppress(Exception):
+                self._executor.shutdown(wait=False, kill_workers=True)
+
+
+def execute(
+    spans: Iterator[Span],
+    make_task: Callable[[Span], SpanTask],
+    workers: Workers,
+    on_result: Callable[[SpanResult], None],
+    on_tick: Callable[[], None] = lambda: None,
+) -> None:
+    """Run every span and hand each result to ``on_result`` (in the main process).
+
+    At most twice as many spans as workers are out at once. When a worker process dies, every span
+    that was out is retried once, alone on a fresh worker, so the one that kills its worker is
+    known; it then fails its object (an error result) and the run goes on.
+    """
+    died = _worker_died_errors()
+    capacity = 2 * workers.count
+    out: dict[cf.Future, Span] = {}
+    pending = iter(spans)
+    exhausted = False
+    while True:
+        while not exhausted and len(out) < capacity:
+            span = next(pending, None)
+            if span is None:
+                exhausted = True
+                break
+            out[workers.submit(make_task(span))] = span
+        if not out:
+            return
+        done, _ = cf.wait(out, timeout=TICK_SECONDS, return_when=cf.FIRST_COMPLETED)
+        on_tick()
+        if not done and workers.lost():
+            raise SchedulerLost("lost the Dask scheduler")
+        crashed: list[Span] = []
+        for future in done:
+            span = out.pop(future)
+            try:
+                result = future.result()
+            except died:
+                crashed.append(span)
+                continue
+            except cf.CancelledError:
+                if workers.lost():
+                    raise SchedulerLost("lost the Dask scheduler") from None
+                crashed.append(span)
+                continue
+            except Exception as exc:  # the task itself failed in a way the worker did not catch
+                if workers.lost():
+                    raise SchedulerLost(f"lost the Dask scheduler ({type(exc).__name__})") from exc
+                result = _failed(span, f"internal error: {type(exc).__name__}: {exc}")
+            on_result(result)
+        if crashed:
+            # the pool is broken: every span still out is lost with it
+            for future, span in list(out.items()):
+                future.cancel()
+                crashed.append(span)
+            out.clear()
+            log.warning("a worker process died; retrying its %d span(s) one at a time", len(crashed))
+            workers.restart()
+            for span in sorted(crashed, key=lambda s: s.key):
+                on_result(_retry_alone(span, make_task, workers, died, on_tick))
+
+
+def _retry_alone(span, make_task, workers: Workers, died, on_tick) -> SpanResult:
+    future = workers.submit(make_task(span))
+    while True:
+        done, _ = cf.wait([future], timeout=TICK_SECONDS)
+        on_tick()
+        if done:
+            break
+        if workers.lost():
+            raise SchedulerLost("lost the Dask scheduler")
+    try:
+        return future.result()
+    except died as exc:
+        workers.restart()
+        what = str(exc).split("\n")[0][:160]
+        where = f"candidates {span.start}-{span.stop - 1}"
+        return _failed(span, f"a worker process died twice while simulating {where} ({what})")
+
+
+def _failed(span: Span, error: str) -> SpanResult:
+    return SpanResult(span, None, error, WorkerStats(0.0, 0.0, 0.0, 0, ""))
+
+
+# --- the run ------------------------------------------------------------------------------------------
+
+
+def _check_workers(options: RunOptions) -> None:
+    """--workers above the cores is allowed with a warning; beyond what memory holds it is refused."""
+    if options.scheduler:
+        return
+    cores = os.cpu_count() or 1
+    try:
+        available_mb = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - platforms without sysconf
+        available_mb = float("inf")
+    most = max(1, int(available_mb // WORKER_MEMORY_MB))
+    if options.workers > most:
+        raise UsageError(
+            f"--workers {options.workers}: each worker needs up to {WORKER_MEMORY_MB} MB and this machine "
+            f"has {available_mb / 1024:.1f} GB available (at most {most}); use --scheduler for a cluster"
+        )
+    if options.workers > cores:
+        log.warning(
+            "--workers %d is more than the %d cores: workers will share cores (use --scheduler for more)",
+            options.workers,
+            cores,
+        )
+
+
+def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
+    """The whole job; returns the summary (also printed). Raises UsageError (exit 2); OutputError
+    (3) and SchedulerLost (4) after printing the summary of what was done; KeyboardInterrupt (130)
+    and Terminated (143) after saving."""
+    summary = Summary()
+    if not 1 <= options.n <= MAX_N:
+        raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
+    _check_workers(options)
+    try:
+        sources = discover_objects(options.objects_dir)
+    except ObjectDiscoveryError as exc:
+        raise UsageError(str(exc)) from exc
+
+    digests: dict[str, str] = {}
+    for source in sources:
+        try:
+            digests[source.object_id] = source_digest(source)
+        except ObjectError as exc:
+            summary.failed[source.object_id] = str(exc)
+    chunk = chunk_size_for(options.n)
+    spec = RunSpec(options.seed, options.n, options.trials, options.scale, chunk, config.to_dict())
+    store = Store(options.out_dir, spec)
+    try:
+        store.open(overwrite=options.overwrite, repair=options.repair)
+    except StoreError as exc:
+        raise UsageError(str(exc)) from exc
+    status_dir = tempfile.mkdtemp(prefix="rg2-status-")
+    previous_term = signal.getsignal(signal.SIGTERM)
+    with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
+        signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        _run(options, config, summary, store, sources, digests, status_dir)
+    except (OutputError, SchedulerLost) as exc:
+        summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
+        raise
+    finally:
+        with contextlib.suppress(ValueError):
+            signal.signal(signal.SIGTERM, previous_term)
+        shutil.rmtree(status_dir, ignore_errors=True)
+        with contextlib.suppress(OutputError):
+            store.close()
+        summary.notes = store.notes + summary.notes
+        summary.seconds = time.perf_counter() - summary.started
+        _print_summary(summary)
+    return summary
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
+
+
+def _run(options, config, summary: Summary, store: Store, sources, digests, status_dir: str) -> None:
+    """The body of :func:`run` once the folder is open."""
+    for oid, error in summary.failed.items():
+        store.fail_object(oid, error)
+    live = [s for s in sources if s.object_id in digests]
+    resume = store.reconcile(digests)
+    chunk = store.spec.chunk_size
+    n = options.n
+    for oid in sorted(resume.done):
+        summary.resumed[oid] = ObjectStats.from_json(store.manifest.objects_done[oid]["stats"], None)
+    planned = [
+        PlannedObject(s, frozenset(resume.chunks.get(s.object_id, set())))
+        for s in live
+        if s.object_id not in resume.done
+    ]
+    remaining = {p.source.object_id: spans_to_do(p, n, chunk) for p in planned}
+    for p in planned:
+        if remaining[p.source.object_id] == 0:  # every chunk on disk: only the merge was missing
+            oid = p.source.object_id
+            summary.done[oid] = ObjectStats.from_json(store.finish_object(oid, digests[oid]), 0.0)
+    total = sum(candidates_to_do(p, n, chunk) for p in planned)
+    if resume.done or any(p.done for p in planned):
+        log.info(
+            "resuming %s: %d objects done earlier, %d chunks of unfinished objects kept; %d candidates to do",
+            options.out_dir,
+            len(resume.done),
+            sum(len(p.done) for p in planned),
+            total,
+        )
+    if total == 0:
+        return
+
+    workers = Workers(options)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, unit="grasp", disable=options.quiet, smoothing=0.1, dynamic_ncols=True)
+    object_seconds: dict[str, float] = {}
+    versions = store.spec.versions
+
+    def make_task(span: Span) -> SpanTask:
+        return SpanTask(
+            span,
+            config,
+            options.seed,
+            n,
+            options.trials,
+            versions=versions,
+            parent_pid=workers.parent_pid,
+            status_dir=status_dir if workers.client is None else None,
+        )
+
+    def on_result(result: SpanResult) -> None:
+        span, oid = result.span, result.span.object_id
+        bar.update(span.size)
+        summary.peak_rss_mb[result.stats.pid] = result.stats.peak_rss_mb
+        summary.worker_seconds += result.stats.seconds
+        if oid in summary.failed:  # another span of it failed first: the object is failed
+            return
+        if result.error is not None:
+            summary.failed[oid] = result.error
+            store.fail_object(oid, result.error)
+            log.error("%s: %s", oid, result.error)
+            return
+        df = result.rows
+        object_seconds[oid] = object_seconds.get(oid, 0.0) + result.stats.seconds
+        summary.step_seconds += result.stats.step_seconds
+        summary.sim_steps += int(df["sim_steps"].sum())
+        summary.candidates += len(df)
+        summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
+        if result.info is not None and oid not in store.manifest.objects_info:
+            store.record_info(oid, result.info)
+        store.write_chunk(oid, df, span.start, digests[oid])
+        if summary.first_label_seconds is None:
+            summary.first_label_seconds = time.perf_counter() - summary.started
+        remaining[oid] -= 1
+        if remaining[oid] == 0:
+            stats = store.finish_object(oid, digests[oid])
+            summary.done[oid] = ObjectStats.from_json(stats, object_seconds[oid])
+
+    def on_tick() -> None:
+        if not options.quiet:
+            busy = status.read(status_dir, older_than=STATUS_AFTER)
+            bar.set_postfix_str("; ".join(busy)[:80] if busy else "", refresh=True)
+
+    interrupted = True
+    try:
+        execute(plan_spans(planned, n, chunk, options.scale), make_task, workers, on_result, on_tick)
+        interrupted = False
+    except (KeyboardInterrupt, Terminated):
+        log.info("interrupted: %d candidates written this run", summary.candidates)
+        raise
+    finally:
+        bar.close()
+        workers.close(kill=interrupted)
+
+
+def _print_summary(summary: Summary) -> None:
+    # the summary is the command's result: printed to stdout even with --quiet
+    import click
+
+    click.echo(format_summary(summary))

@@ -1,0 +1,86 @@
+"""The run's summary: one line per object (rate, mean score, outcome counts), failures, totals."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from annotator.dataset import OUTCOMES
+
+
+@dataclass
+class ObjectStats:
+    """One object's labels: rows, successes, mean score, outcome counts, worker seconds."""
+
+    n: int
+    successes: int
+    mean_score: float
+    outcomes: dict[str, int]
+    seconds: float | None = None  # None: labelled by an earlier run
+
+    @classmethod
+    def from_json(cls, stats: dict[str, Any], seconds: float | None) -> ObjectStats:
+        n, successes, score = int(stats["n"]), int(stats["successes"]), float(stats["mean_score"])
+        return cls(n, successes, score, dict(stats["outcomes"]), seconds)
+
+
+@dataclass
+class Summary:
+    """Everything the run reports; ``done`` and ``resumed`` hold per-object statistics."""
+
+    done: dict[str, ObjectStats] = field(default_factory=dict)  # labelled by this run
+    resumed: dict[str, ObjectStats] = field(default_factory=dict)  # labelled by an earlier run
+    failed: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # redone, removed, retried: one line each
+    stopped: str | None = None  # why the run stopped early (disk full, lost scheduler, ...)
+    seconds: float = 0.0
+    candidates: int = 0  # simulated by this run
+    physics_trials: int = 0
+    sim_steps: int = 0
+    worker_seconds: float = 0.0  # summed over workers
+    step_seconds: float = 0.0  # of which inside stepSimulation
+    first_label_seconds: float | None = None  # from start to the first label file written
+    peak_rss_mb: dict[int, float] = field(default_factory=dict)  # per worker pid
+    started: float = field(default_factory=time.perf_counter)
+
+    @property
+    def skipped(self) -> list[str]:
+        return sorted(self.resumed)
+
+
+def format_summary(summary: Summary) -> str:
+    """A per-object table (full column names), then failures, notes and totals."""
+    cols = list(OUTCOMES)
+    widths = [max(len(c), 5) for c in cols]
+    name_w = max([28, *(len(o) for o in [*summary.done, *summary.resumed, *summary.failed])])
+    name_w = min(name_w, 48)
+    head = (
+        f"{'object':<{name_w}} {'n':>6} {'rate':>6} {'score':>6} "
+        + " ".join(f"{c:>{w}}" for c, w in zip(cols, widths, strict=True))
+        + f" {'time':>7}"
+    )
+    lines = [head, "-" * len(head)]
+    rows = sorted([(o, s) for o, s in summary.done.items()] + [(o, s) for o, s in summary.resumed.items()])
+    for oid, st in rows:
+        rate = st.successes / st.n if st.n else 0.0
+        counts = " ".join(f"{st.outcomes.get(c, 0):>{w}}" for c, w in zip(cols, widths, strict=True))
+        when = f"{st.seconds:>6.1f}s" if st.seconds is not None else "earlier"
+        figures = f"{st.n:>6} {rate:>6.1%} {st.mean_score:>6.3f} {counts} {when:>7}"
+        lines.append(f"{_cut(oid, name_w):<{name_w}} {figures}")
+    for oid, err in sorted(summary.failed.items()):
+        lines.append(f"{_cut(oid, name_w):<{name_w}} FAILED: {err}")
+    lines += [f"note: {note}" for note in summary.notes]
+    if summary.stopped:
+        lines.append(f"STOPPED: {summary.stopped}")
+    rate = summary.candidates / summary.seconds if summary.seconds else 0.0
+    lines.append(
+        f"{len(summary.done)} objects labelled, {len(summary.resumed)} done earlier, "
+        f"{len(summary.failed)} failed; {summary.candidates} candidates simulated in "
+        f"{summary.seconds:.1f} s ({rate:.1f} candidates/s, {summary.physics_trials} physics trials)"
+    )
+    return "\n".join(lines)
+
+
+def _cut(text: str, width: int) -> str:
+    return text if len(text) <= width else "…" + text[-(width - 1) :]

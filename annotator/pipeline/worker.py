@@ -1,0 +1,373 @@
+"""The worker side of the job: one world per process, objects loaded on demand, spans labelled.
+
+A worker builds its world once (PyBullet DIRECT, floating RG2) and keeps it between spans; when a
+span of a new object arrives it loads the object (the convex decomposition comes from the cache),
+samples its N candidates (the same on every worker: the Generator is keyed on seed and object id)
+and creates its body. Each candidate starts from a restored snapshot with no contact memory
+(:meth:`annotator.sim.world.World.restore_state`), so a label depends only on (object, seed,
+candidate), never on which worker ran it or what it ran before.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform
+from annotator.objects import ObjectError, ObjectModel, ObjectSource, create_body, load_object
+from annotator.pipeline import status
+from annotator.pipeline.store import bound_versions
+from annotator.sampler import Candidates, object_rng, sample_candidates
+from annotator.trial import GraspTrial, Perturbation, trial_rng
+
+log = logging.getLogger(__name__)
+
+# How often (s) a local worker checks that the process that started it is still alive: a worker
+# outlives a killed main process by at most this long (plus the span it is in).
+PARENT_CHECK_SECONDS = 1.0
+# Where the floating gripper waits while no trial runs: 2 m above the object's mesh frame.
+PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class GivenGrasps:
+    """Poses to simulate instead of sampled candidates (``evaluate``, benches, tests).
+
+    T_obj_tcp : (k, 4, 4) float, TCP poses in the object's mesh frame; width : (k,) float, the
+    expected chord between the contacts (m).
+    """
+
+    T_obj_tcp: np.ndarray
+    width: np.ndarray
+
+
+@dataclass(frozen=True)
+class Span:
+    """A unit of work: candidates ``start..stop-1`` of one object (or ``given`` poses, numbered so)."""
+
+    object_id: str
+    source: ObjectSource
+    scale: float | None
+    start: int
+    stop: int
+    given: GivenGrasps | None = None
+
+    @property
+    def size(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.object_id, self.start)
+
+
+@dataclass(frozen=True)
+class SpanTask:
+    """What a worker is asked to do, with what it needs to check that it may.
+
+    ``versions``: the label-shaping versions the run expects (a cluster worker with others fails
+    the span instead of mixing); ``parent_pid``: the local main process (a worker exits when it
+    dies), None on a cluster; ``status_dir``: where a local worker says what it is doing.
+    """
+
+    span: Span
+    config: AnnotatorConfig
+    seed: int
+    n: int
+    trials: int = 1
+    versions: dict[str, str] | None = None
+    parent_pid: int | None = None
+    status_dir: str | None = None
+
+
+@dataclass(frozen=True)
+class WorkerStats:
+    """Worker time of one span (s), of which inside stepSimulation, peak memory (MB), the worker."""
+
+    seconds: float
+    step_seconds: float
+    peak_rss_mb: float
+    pid: int
+    host: str
+
+
+@dataclass(frozen=True)
+class SpanResult:
+    """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
+    as simulated (mass, scale, ...) for the manifest."""
+
+    span: Span
+    rows: pd.DataFrame | None
+    error: str | None
+    stats: WorkerStats
+    info: dict[str, Any] | None = None
+
+
+@dataclass
+class LoadedObject:
+    """The object a worker has in its world: model, body, trial runner, sampled candidates."""
+
+    key: tuple
+    model: ObjectModel
+    uid: int
+    trial: GraspTrial
+    candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)  # (seed, n) -> ...
+
+
+def _peak_rss_mb() -> float:
+    """This process's peak resident memory (MB); 0 where the platform does not say."""
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    except (ImportError, OSError):  # pragma: no cover - Windows
+        return 0.0
+
+
+def _canonical(q: np.ndarray) -> np.ndarray:
+    return -q if q[3] < 0 else q
+
+
+def object_info(model: ObjectModel) -> dict[str, Any]:
+    """What the object was simulated as, for the manifest (JSON-ready)."""
+    return {
+        "source": str(model.path),
+        "scale": float(model.scale),
+        "mass": float(model.mass),
+        "volume": float(model.volume),
+        "mesh_sha256": model.mesh_sha256,
+        "watertight": bool(model.watertight),
+        "convex": bool(model.convex),
+        "parts": len(model.parts),
+        "lateral_friction": float(model.config.lateral_friction),
+    }
+
+
+class WorkerState:
+    """This process's world, gripper and current object, built on first use and kept between spans."""
+
+    def __init__(self) -> None:
+        self.config: AnnotatorConfig | None = None
+        self.world = None  # annotator.sim.world.World
+        self.hand = None  # annotator.sim.hand.FloatingRG2
+        self.obj: LoadedObject | None = None
+        self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
+        self._watched_parent: int | None = None
+        self._versions_ok: dict[str, str] | None = None
+
+    # --- the world ------------------------------------------------------------------------------
+
+    def world_for(self, config: AnnotatorConfig):
+        """The world and floating gripper for ``config`` (rebuilt only when the config changes)."""
+        from annotator.sim.hand import FloatingRG2
+        from annotator.sim.world import World
+
+        if self.config != config or self.world is None:
+            self.close()
+            self.world = World(config.physics)
+            self.hand = FloatingRG2(self.world, config.gripper)
+            self.config = config
+            self.failed = {}
+        return self.world, self.hand
+
+    def close(self) -> None:
+        if self.world is not None:
+            self.world.close()
+        self.world = self.hand = self.obj = None
+
+    # --- objects ---------------------------------------------------------------------------------
+
+    def object_for(self, span: Span, config: AnnotatorConfig, status_dir: str | None) -> LoadedObject:
+        """The span's object in this world (its body is created once per object); ObjectError."""
+        world, hand = self.world_for(config)
+        try:
+            stat = os.stat(span.source.path)
+        except OSError as exc:
+            raise ObjectError(f"cannot read {span.source.path}: {exc.strerror or exc}") from exc
+        # Worker processes outlive a run (they are reused), so the key is the file as it is now.
+        key = (span.object_id, str(span.source.path), stat.st_mtime_ns, stat.st_size, span.scale)
+        if key in self.failed:
+            raise ObjectError(self.failed[key])
+        if self.obj is not None and self.obj.key == key:
+            return self.obj
+        if self.obj is not None:
+            self.obj.trial.close()
+            world.remove_body(self.obj.uid)
+            self.obj = None
+        status.write(status_dir, f"loading {span.object_id}")
+        try:
+            model = load_object(span.source, config.objects, scale=span.scale)
+        except ObjectError as exc:
+            self.failed[key] = str(exc)
+            raise
+        hand.teleport(PARKED, hand.rg2.max_width)
+        uid = create_body(world.client, model)
+        world.set_gravity(False)
+        self.obj = LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config))
+        return self.obj
+
+    def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
+        """The object's N candidates, sampled once per (seed, N) and kept."""
+        cands = loaded.candidates.get((seed, n))
+        if cands is None:
+            cands = object_candidates(loaded.model, n, seed, config, self.hand.rg2.max_width)
+            loaded.candidates[(seed, n)] = cands
+        return cands
+
+    # --- a span ---------------------------------------------------------------------------------
+
+    def label(self, task: SpanTask) -> SpanResult:
+        """Labels of one span, or its object's one-line error."""
+        t0 = time.perf_counter()
+        self._watch_parent(task.parent_pid)
+        span = task.span
+        try:
+            self._check_versions(task.versions)
+            loaded = self.object_for(span, task.config, task.status_dir)
+            if span.given is None:
+                cands = self.candidates(loaded, task.seed, task.n, task.config)
+                poses = cands.T_obj_tcp[span.start : span.stop]
+                widths = cands.width_expected[span.start : span.stop]
+            else:
+                poses, widths = span.given.T_obj_tcp, span.given.width
+        except ObjectError as exc:
+            return SpanResult(span, None, str(exc), self._stats(t0, 0.0))
+        except Exception as exc:  # an unexpected failure is this object's, not the run's
+            log.exception("%s: unexpected error while loading", span.object_id)
+            return SpanResult(span, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+        status.write(task.status_dir, f"simulating {span.object_id}")
+        steps0 = loaded.trial.world.step_seconds
+        rows = simulate(
+            loaded, poses, widths, span.start, task.config, task.seed, task.trials, span.object_id
+        )
+        stats = self._stats(t0, loaded.trial.world.step_seconds - steps0)
+        status.write(task.status_dir, None)
+        return SpanResult(span, rows, None, stats, object_info(loaded.model))
+
+    def _stats(self, t0: float, step_seconds: float) -> WorkerStats:
+        seconds = time.perf_counter() - t0
+        return WorkerStats(seconds, step_seconds, _peak_rss_mb(), os.getpid(), socket.gethostname())
+
+    def _check_versions(self, expected: dict[str, str] | None) -> None:
+        if expected is None or self._versions_ok == expected:
+            return
+        mine = bound_versions()
+        diffs = [f"{k} {mine.get(k)} (run: {v})" for k, v in sorted(expected.items()) if mine.get(k) != v]
+        if diffs:
+            raise ObjectError(f"worker on {socket.gethostname()} has other versions: {', '.join(diffs)}")
+        self._versions_ok = expected
+
+    def _watch_parent(self, parent_pid: int | None) -> None:
+        """Exit this worker soon after the local main process is gone (killed, even by SIGKILL)."""
+        if parent_pid is None or self._watched_parent == parent_pid:
+            return
+        self._watched_parent = parent_pid
+
+        def watch() -> None:
+            while True:
+                time.sleep(PARENT_CHECK_SECONDS)
+                if os.getppid() != parent_pid:
+                    os._exit(0)
+
+        threading.Thread(target=watch, name="rg2-parent-watch", daemon=True).start()
+
+
+def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float):
+    """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
+    return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
+
+
+def simulate(
+    loaded: LoadedObject,
+    T_obj_tcp: np.ndarray,
+    widths: np.ndarray,
+    first_id: int,
+    config: AnnotatorConfig,
+    seed: int,
+    trials: int,
+    object_id: str,
+) -> pd.DataFrame:
+    """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
+    from ``first_id``.
+
+    Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
+    pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
+    ``score`` is the fraction of all K trials that held. A candidate whose unperturbed pose
+    collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
+    cannot be executed).
+    """
+    trial, model = loaded.trial, loaded.model
+    rows = []
+    for k in range(len(widths)):
+        grasp_id = first_id + k
+        T = Transform.from_matrix(T_obj_tcp[k])
+        width_expected = float(widths[k])
+        try:
+            r = trial.run(T, width_expected)
+            outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
+            held = int(outcome == Outcome.SUCCESS)
+            if outcome != Outcome.COLLISION and trials > 1:
+                rng = trial_rng(seed, object_id, grasp_id)
+                for _ in range(trials - 1):
+                    p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
+                    held += int(p.outcome == Outcome.SUCCESS)
+                    steps += p.steps
+        except Exception as exc:  # a physics failure on one candidate must not lose the others
+            log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
+            outcome, T_label, width, steps, slip = Outcome.ERROR, T, width_expected, 0, np.nan
+            held = 0
+        rows.append(
+            {
+                "object_id": object_id,
+                "grasp_id": grasp_id,
+                **dict(zip(("x", "y", "z"), T_label.pos.tolist(), strict=True)),
+                **dict(zip(("qx", "qy", "qz", "qw"), _canonical(T_label.quat).tolist(), strict=True)),
+                "width": width,
+                "success": outcome == Outcome.SUCCESS,
+                "outcome": outcome.label,
+                "score": held / trials,
+                "object_scale": model.scale,
+                "mesh_sha256": model.mesh_sha256,
+                "seed": seed,
+                "sim_steps": steps,
+                "slip": slip,
+                "object_mass": model.mass,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+class _State:
+    """The one WorkerState of this process (created on first use in a worker)."""
+
+    instance: WorkerState | None = None
+
+
+def worker_state() -> WorkerState:
+    if _State.instance is None:
+        _State.instance = WorkerState()
+    return _State.instance
+
+
+def label_span(task: SpanTask) -> SpanResult:
+    """Entry point of a worker process (loky or Dask): label one span with this process's state."""
+    return worker_state().label(task)
+
+
+def max_width(config: AnnotatorConfig) -> float:
+    """The RG2 stroke from the model's FK (a throwaway DIRECT client)."""
+    from annotator.sim.hand import FloatingRG2
+    from annotator.sim.world import World
+
+    with World(config.physics) as world:
+        return FloatingRG2(world, config.gripper).rg2.max_width

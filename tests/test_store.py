@@ -1,0 +1,375 @@
+"""The store: atomic marked files, the manifest that binds a run, verification, the lock, resume.
+
+Unit tests of annotator.pipeline.store on label tables from the real sampler (no simulation);
+the end-to-end faults are in tests/test_reliability.py.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+import trimesh
+
+import annotator.dataset as ds
+from annotator.config import AnnotatorConfig
+from annotator.pipeline import files
+from annotator.pipeline.store import (
+    LOCK_NAME,
+    MANIFEST_NAME,
+    STALE_DIR,
+    LockedError,
+    ManifestUnreadableError,
+    RunMismatchError,
+    RunSpec,
+    Store,
+)
+from annotator.sampler import object_rng, sample_candidates
+
+N = 10
+SRC = "ab" * 32
+
+
+def _labels(object_id: str, n: int = N, start: int = 0, seed: int = 0) -> pd.DataFrame:
+    """A realistic label table: poses from the real sampler on a 40 mm box, mixed outcomes."""
+    rng = object_rng(seed, object_id)
+    cand = sample_candidates(
+        trimesh.creation.box(extents=(0.04, 0.04, 0.04)), n, rng, AnnotatorConfig().sampler, 0.11
+    )
+    outcomes = np.array(ds.OUTCOMES)[rng.integers(len(ds.OUTCOMES), size=n)]
+    df = ds.pose_columns(cand.T_obj_tcp)
+    df.insert(0, "object_id", object_id)
+    df.insert(1, "grasp_id", np.arange(start, start + n, dtype=np.int64))
+    df["width"] = cand.width_expected
+    df["success"] = outcomes == "success"
+    df["outcome"] = outcomes
+    df["score"] = df["success"].astype(np.float64)
+    df["object_scale"] = 1.0
+    df["mesh_sha256"] = "ab" * 32
+    df["seed"] = np.int64(seed)
+    df["antipodal"] = cand.antipodal  # an extra column is kept
+    return df
+
+
+def _spec(**changes) -> RunSpec:
+    args = {
+        "seed": 0,
+        "n": N,
+        "trials": 1,
+        "scale": None,
+        "chunk_size": 5,
+        "config": AnnotatorConfig().to_dict(),
+    }
+    return RunSpec(**(args | changes))
+
+
+def _finished(folder: Path, oids=("a", "b"), spec: RunSpec | None = None) -> Store:
+    """A folder with every object written chunk by chunk and merged; the store closed."""
+    store = Store(folder, spec or _spec())
+    store.open()
+    for oid in oids:
+        whole = _labels(oid)
+        store.write_chunk(oid, whole.iloc[:5], 0, SRC)
+        store.write_chunk(oid, whole.iloc[5:], 5, SRC)
+        store.finish_object(oid, SRC)
+    store.close()
+    return store
+
+
+def _open(folder: Path, spec: RunSpec | None = None, **kwargs) -> Store:
+    store = Store(folder, spec or _spec())
+    store.open(**kwargs)
+    return store
+
+
+# --- files ---------------------------------------------------------------------------------------
+
+
+def test_object_filename_is_safe_and_collision_free() -> None:
+    ids = ["ycb/mug", "ycb__mug", "ycb_mug", "YCB/mug", "a/b/c", "_hidden", ".dot", "with space/ü"]
+    names = [files.object_filename(i) for i in ids]
+    assert len(set(names)) == len(ids)
+    for name in names:
+        assert "/" not in name and "\\" not in name and " " not in name
+        assert name.endswith(".parquet") and name[0] not in "._"
+    assert files.object_filename("ycb/mug").startswith("ycb__mug-")
+    assert files.chunk_filename("ycb/mug", 0, 4).endswith(".000000-000004.parquet")
+
+
+def test_write_is_atomic_and_names_the_path_on_os_errors(tmp_path: Path) -> None:
+    good = tmp_path / "good.bin"
+    files.atomic_write(good, lambda fh: fh.write(b"whole"))
+
+    def disk_full(fh) -> None:
+        fh.write(b"PAR1 partial bytes")  # some bytes reach the disk, then the device is full
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(files.OutputError, match=r"cannot write .*bad.bin: No space left on device"):
+        files.atomic_write(tmp_path / "bad.bin", disk_full)
+
+    def interrupted(fh) -> None:
+        fh.write(b"garbage")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        files.atomic_write(good, interrupted)
+    assert good.read_bytes() == b"whole"  # a failed overwrite keeps the old file whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.bin"]  # no partial or temp file
+
+
+def test_label_files_have_fixed_types_a_mark_and_the_recorded_checksum(tmp_path: Path) -> None:
+    rec = files.write_labels(tmp_path, _labels("typed", 4), 0, 4, "t.parquet", "key", SRC)
+    path = tmp_path / "t.parquet"
+    schema = pq.read_schema(path)
+    assert str(schema.field("object_id").type) == "string" and str(schema.field("grasp_id").type) == "int64"
+    assert str(schema.field("success").type) == "bool" and str(schema.field("qw").type) == "double"
+    assert files.read_mark(path) == {
+        "run_key": "key",
+        "object_id": "typed",
+        "start": 0,
+        "stop": 4,
+        "source_sha256": SRC,
+    }
+    assert rec.sha256 == files.file_sha256(path) and rec.n == 4
+    pd.DataFrame({"a": [1]}).to_parquet(tmp_path / "user.parquet")
+    assert files.read_mark(tmp_path / "user.parquet") is None
+    (tmp_path / "junk.parquet").write_bytes(b"not parquet")
+    assert files.read_mark(tmp_path / "junk.parquet") is None
+
+
+def test_write_rejects_several_objects_and_gappy_ids(tmp_path: Path) -> None:
+    both = pd.concat([_labels("a", 3), _labels("b", 3)])
+    with pytest.raises(ds.SchemaError, match="one object"):
+        files.write_labels(tmp_path, both, 0, 6, "x.parquet", "k", SRC)
+    with pytest.raises(ds.SchemaError, match=r"exactly 4\.\.7"):  # rows must be the span they claim
+        files.write_labels(tmp_path, _labels("a", 4), 4, 8, "x.parquet", "k", SRC)
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- a run in a folder -----------------------------------------------------------------------------
+
+
+def test_chunks_are_readable_at_once_merged_and_resumed(tmp_path: Path) -> None:
+    store = _open(tmp_path)
+    whole = _labels("ycb/mug")
+    store.write_chunk("ycb/mug", whole.iloc[:5], 0, SRC)
+    got = pd.read_parquet(tmp_path)  # the user's one-liner reads chunks of an unfinished object
+    assert sorted(got["grasp_id"]) == [0, 1, 2, 3, 4]
+    store.close()
+
+    store = _open(tmp_path)
+    resume = store.reconcile({"ycb/mug": SRC})
+    assert resume.done == set() and resume.chunks == {"ycb/mug": {(0, 5)}}
+    store.write_chunk("ycb/mug", whole.iloc[5:], 5, SRC)
+    stats = store.finish_object("ycb/mug", SRC)
+    store.close()
+    assert stats["n"] == N and stats["successes"] == int(whole["success"].sum())
+    assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [files.object_filename("ycb/mug")]
+    pd.testing.assert_frame_equal(
+        ds.load_labels(tmp_path), ds.load_labels(tmp_path / files.object_filename("ycb/mug"))
+    )
+    data = json.loads((tmp_path / MANIFEST_NAME).read_text())
+    entry = data["objects_done"]["ycb/mug"]
+    assert entry["sha256"] == files.file_sha256(tmp_path / entry["file"]) and entry["source_sha256"] == SRC
+    assert data["run"]["seed"] == 0 and data["run"]["n"] == N and data["run"]["chunk_size"] == 5
+    assert data["run"]["config"]["sampler"]["n_rotations"] == AnnotatorConfig().sampler.n_rotations
+    assert {"annotator", "pybullet", "numpy", "trimesh", "coacd"} <= set(data["run"]["versions"])
+
+
+@pytest.mark.parametrize(
+    "changes, named",
+    [
+        ({"seed": 1}, "seed 0 in the folder, 1 now"),
+        ({"n": 12}, "n 10 in the folder, 12 now"),
+        ({"trials": 3}, "trials 1 in the folder, 3 now"),
+        ({"scale": 0.001}, "scale None in the folder, 0.001 now"),
+        (
+            {"config": AnnotatorConfig.from_dict({"gripper": {"stall_steps": 20}}).to_dict()},
+            "[gripper] stall_steps 12 in the folder, 20 now",
+        ),
+        ({"versions": {"annotator": "9.9"}}, "annotator"),
+    ],
+)
+def test_other_settings_are_refused_naming_what_differs(tmp_path: Path, changes, named) -> None:
+    _finished(tmp_path)
+    with pytest.raises(RunMismatchError) as info:
+        _open(tmp_path, _spec(**changes))
+    assert named in str(info.value) and "--overwrite" in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_overwrite_removes_only_the_tools_files(tmp_path: Path) -> None:
+    _finished(tmp_path)
+    pd.DataFrame({"mine": [1, 2]}).to_parquet(tmp_path / "my_notes.parquet")
+    (tmp_path / "README.txt").write_text("keep me")
+    store = _open(tmp_path, _spec(seed=1), overwrite=True)
+    store.close()
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith((".", "_"))) == [
+        "README.txt",
+        "my_notes.parquet",
+    ]
+    assert json.loads((tmp_path / MANIFEST_NAME).read_text())["run"]["seed"] == 1
+
+
+# --- state that rots -------------------------------------------------------------------------------
+
+
+def test_a_truncated_object_file_is_named_removed_and_redone(tmp_path: Path) -> None:
+    _finished(tmp_path)
+    path = tmp_path / files.object_filename("a")
+    path.write_bytes(path.read_bytes()[:100])
+    store = _open(tmp_path)
+    resume = store.reconcile({"a": SRC, "b": SRC})
+    store.close()
+    assert resume.done == {"b"} and "a" not in resume.chunks
+    assert not path.exists()
+    assert any(path.name in note and "checksum" in note for note in store.notes)
+    pd.read_parquet(tmp_path)  # the folder is readable again
+
+
+def test_a_truncated_chunk_the_manifest_lists_is_redone(tmp_path: Path) -> None:
+    store = _open(tmp_path)
+    whole = _labels("a")
+    store.write_chunk("a", whole.iloc[:5], 0, SRC)
+    store.write_chunk("a", whole.iloc[5:], 5, SRC)
+    store.close()
+    chunk = tmp_path / files.chunk_filename("a", 5, 10)
+    chunk.write_bytes(chunk.read_bytes()[:50])
+    store = _open(tmp_path)
+    assert store.reconcile({"a": SRC}).chunks == {"a": {(0, 5)}}
+    store.close()
+    assert not chunk.exists()
+
+
+def test_unvouched_files_of_the_tool_go_and_a_users_stay(tmp_path: Path) -> None:
+    store = _open(tmp_path)
+    store.close()
+    # a chunk written just before a kill (never recorded), a temp file, a user's own file
+    files.write_labels(tmp_path, _labels("a", 5), 0, 5, files.chunk_filename("a", 0, 5), _spec().key, SRC)
+    (tmp_path / ".x.parquet.abc123.tmp").write_bytes(b"half")
+    pd.DataFrame({"mine": [1]}).to_parquet(tmp_path / "mine.parquet")
+    _open(tmp_path).close()
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith((".", "_"))) == ["mine.parquet"]
+
+
+@pytest.mark.parametrize(
+    "content, reason",
+    [
+        (b"[]", "expected a JSON object"),
+        (b"null", "expected a JSON object"),
+        (bytes(range(256)), "not valid JSON"),
+        (b'{"tool": "rg2-annotator", "manifest_version": 3, "run": 5}', "field 'run'"),
+        (b"{", "not valid JSON"),
+    ],
+)
+def test_an_unreadable_manifest_is_one_line_and_repair_rebuilds_it(tmp_path: Path, content, reason) -> None:
+    _finished(tmp_path)
+    before = ds.load_labels(tmp_path)
+    (tmp_path / MANIFEST_NAME).write_bytes(content)
+    with pytest.raises(ManifestUnreadableError) as info:
+        _open(tmp_path)
+    text = str(info.value)
+    assert reason in text and "--repair" in text and "\n" not in text
+    store = _open(tmp_path, repair=True)
+    resume = store.reconcile({"a": SRC, "b": SRC})
+    store.close()
+    assert resume.done == {"a", "b"}
+    pd.testing.assert_frame_equal(ds.load_labels(tmp_path), before)
+
+
+def test_repair_keeps_only_files_that_verify(tmp_path: Path) -> None:
+    _finished(tmp_path)
+    (tmp_path / MANIFEST_NAME).unlink()
+    bad = tmp_path / files.object_filename("b")
+    bad.write_bytes(bad.read_bytes()[:-40])  # truncated: its rows cannot be read
+    with pytest.raises(ManifestUnreadableError, match="no _manifest.json.*--repair"):
+        _open(tmp_path)
+    store = _open(tmp_path, repair=True)
+    assert store.reconcile({"a": SRC, "b": SRC}).done == {"a"}
+    store.close()
+    assert not bad.exists()
+
+
+def test_other_runs_files_are_not_adopted_by_repair(tmp_path: Path) -> None:
+    _finished(tmp_path, spec=_spec(seed=5))
+    (tmp_path / MANIFEST_NAME).unlink()
+    store = _open(tmp_path, repair=True)  # this run has seed 0: the seed-5 files cannot be trusted
+    assert store.reconcile({"a": SRC, "b": SRC}).done == set()
+    store.close()
+    assert not list(tmp_path.glob("*.parquet"))
+
+
+# --- inputs that change ------------------------------------------------------------------------------
+
+
+def test_changed_source_is_redone_and_removed_object_set_aside(tmp_path: Path) -> None:
+    _finished(tmp_path, oids=("a", "b", "c"))
+    store = _open(tmp_path)
+    resume = store.reconcile({"a": SRC, "b": "ef" * 32})  # b's file changed, c is gone
+    store.close()
+    assert resume.done == {"a"} and resume.changed == ["b"] and resume.stale == ["c"]
+    assert set(pd.read_parquet(tmp_path)["object_id"]) == {"a"}  # c is left out of the dataset
+    assert (tmp_path / STALE_DIR / files.object_filename("c")).exists()  # but not lost
+    assert any("c: no longer among the objects" in n for n in store.notes)
+    assert any("b: its source changed" in n for n in store.notes)
+
+
+# --- one run per folder --------------------------------------------------------------------------------
+
+_HOLD = """
+import sys, time
+from pathlib import Path
+from annotator.config import AnnotatorConfig
+from annotator.pipeline.store import RunSpec, Store
+store = Store(Path(sys.argv[1]), RunSpec(0, 10, 1, None, 5, AnnotatorConfig().to_dict()))
+store.open()
+print("locked", flush=True)
+time.sleep(60)
+"""
+
+
+def test_a_second_run_is_refused_naming_the_holder_and_a_crash_releases(tmp_path: Path) -> None:
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(LockedError) as info:
+            _open(tmp_path)
+        assert f"pid {holder.pid}" in str(info.value) and "another --out" in str(info.value)
+        holder.send_signal(signal.SIGKILL)  # the holder crashes: the OS releases its lock
+        holder.wait(timeout=10)
+        _open(tmp_path).close()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert (tmp_path / LOCK_NAME).exists()
+
+
+def test_a_read_only_folder_reads_a_finished_run_and_refuses_writes(tmp_path: Path) -> None:
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    if subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)], capture_output=True
+    ).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        _finished(mount, oids=("a",))
+        subprocess.run(["mount", "-o", "remount,ro", str(mount)], check=True)
+        store = _open(mount)
+        assert store.read_only and store.reconcile({"a": SRC}).done == {"a"}
+        with pytest.raises(files.OutputError, match="read-only"):
+            store.write_chunk("b", _labels("b", 5), 0, SRC)
+        store.close()
+    finally:
+        time.sleep(0.1)
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+    assert os.path.isdir(mount)
