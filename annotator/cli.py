@@ -27,9 +27,20 @@ def _positive_finite(param: click.Parameter, value: float | None) -> float | Non
     return value
 
 
+class _QuietLibraries(logging.Filter):
+    """Dask and tornado log their own connection trouble, tracebacks included; the run says what
+    matters in one line (a lost scheduler, a dead worker). ``--verbose`` shows everything."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.name.startswith(("distributed", "tornado")) or record.levelno >= logging.CRITICAL
+
+
 def _setup_logging(quiet: bool, verbose: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    if not verbose:
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(_QuietLibraries())
 
 
 @click.command(

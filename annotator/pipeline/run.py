@@ -133,8 +133,8 @@ class Workers:
                 self._executor = get_memmapping_executor(self.count)
         return self._executor
 
-    def submit(self, task: SpanTask) -> cf.Future:
-        return self.executor().submit(label_span, task)
+    def submit(self, task: SpanTask, fn: Callable[[SpanTask], SpanResult] = label_span) -> cf.Future:
+        return self.executor().submit(fn, task)
 
     def restart(self) -> None:
         """After a worker died: a fresh pool (loky) for what follows."""
@@ -142,7 +142,8 @@ class Workers:
             self._executor = None
 
     def lost(self) -> bool:
-        return self.client is not None and self.client.status not in ("running", "connecting")
+        """The Dask scheduler is gone (the client lost it, or is trying to reconnect)."""
+        return self.client is not None and self.client.status != "running"
 
     def close(self, *, kill: bool) -> None:
         if self.client is not None:
@@ -159,8 +160,9 @@ def execute(
     workers: Workers,
     on_result: Callable[[SpanResult], None],
     on_tick: Callable[[], None] = lambda: None,
+    fn: Callable[[SpanTask], SpanResult] = label_span,
 ) -> None:
-    """Run every span and hand each result to ``on_result`` (in the main process).
+    """Run every span (``fn``, in a worker) and hand each result to ``on_result`` (in this process).
 
     At most twice as many spans as workers are out at once. When a worker process dies, every span
     that was out is retried once, alone on a fresh worker, so the one that kills its worker is
@@ -177,7 +179,7 @@ def execute(
             if span is None:
                 exhausted = True
                 break
-            out[workers.submit(make_task(span))] = span
+            out[workers.submit(make_task(span), fn)] = span
         if not out:
             return
         done, _ = cf.wait(out, timeout=TICK_SECONDS, return_when=cf.FIRST_COMPLETED)
@@ -189,17 +191,13 @@ def execute(
             span = out.pop(future)
             try:
                 result = future.result()
-            except died:
-                crashed.append(span)
-                continue
-            except cf.CancelledError:
+            except (Exception, cf.CancelledError) as exc:
                 if workers.lost():
-                    raise SchedulerLost("lost the Dask scheduler") from None
-                crashed.append(span)
-                continue
-            except Exception as exc:  # the task itself failed in a way the worker did not catch
-                if workers.lost():
-                    raise SchedulerLost(f"lost the Dask scheduler ({type(exc).__name__})") from exc
+                    raise SchedulerLost("lost the Dask scheduler") from exc
+                if isinstance(exc, (*died, cf.CancelledError)):
+                    crashed.append(span)
+                    continue
+                # the task itself failed in a way the worker did not catch
                 result = _failed(span, f"internal error: {type(exc).__name__}: {exc}")
             on_result(result)
         if crashed:
@@ -211,11 +209,11 @@ def execute(
             log.warning("a worker process died; retrying its %d span(s) one at a time", len(crashed))
             workers.restart()
             for span in sorted(crashed, key=lambda s: s.key):
-                on_result(_retry_alone(span, make_task, workers, died, on_tick))
+                on_result(_retry_alone(span, make_task, workers, died, on_tick, fn))
 
 
-def _retry_alone(span, make_task, workers: Workers, died, on_tick) -> SpanResult:
-    future = workers.submit(make_task(span))
+def _retry_alone(span, make_task, workers: Workers, died, on_tick, fn) -> SpanResult:
+    future = workers.submit(make_task(span), fn)
     while True:
         done, _ = cf.wait([future], timeout=TICK_SECONDS)
         on_tick()
@@ -225,7 +223,11 @@ def _retry_alone(span, make_task, workers: Workers, died, on_tick) -> SpanResult
             raise SchedulerLost("lost the Dask scheduler")
     try:
         return future.result()
-    except died as exc:
+    except (Exception, cf.CancelledError) as exc:
+        if workers.lost():
+            raise SchedulerLost("lost the Dask scheduler") from exc
+        if not isinstance(exc, (*died, cf.CancelledError)):
+            return _failed(span, f"internal error: {type(exc).__name__}: {exc}")
         workers.restart()
         what = str(exc).split("\n")[0][:160]
         where = f"candidates {span.start}-{span.stop - 1}"
@@ -359,6 +361,7 @@ def _run(options, config, summary: Summary, store: Store, sources, digests, stat
             options.seed,
             n,
             options.trials,
+            source_sha256=digests[span.object_id],
             versions=versions,
             parent_pid=workers.parent_pid,
             status_dir=status_dir if workers.client is None else None,

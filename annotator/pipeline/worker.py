@@ -75,9 +75,11 @@ class Span:
 class SpanTask:
     """What a worker is asked to do, with what it needs to check that it may.
 
-    ``versions``: the label-shaping versions the run expects (a cluster worker with others fails
-    the span instead of mixing); ``parent_pid``: the local main process (a worker exits when it
-    dies), None on a cluster; ``status_dir``: where a local worker says what it is doing.
+    ``source_sha256``: the object's source digest (a worker keeps a loaded object only while it is
+    the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
+    others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
+    exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
+    doing.
     """
 
     span: Span
@@ -85,6 +87,7 @@ class SpanTask:
     seed: int
     n: int
     trials: int = 1
+    source_sha256: str | None = None
     versions: dict[str, str] | None = None
     parent_pid: int | None = None
     status_dir: str | None = None
@@ -187,15 +190,20 @@ class WorkerState:
 
     # --- objects ---------------------------------------------------------------------------------
 
-    def object_for(self, span: Span, config: AnnotatorConfig, status_dir: str | None) -> LoadedObject:
+    def object_for(self, task: SpanTask) -> LoadedObject:
         """The span's object in this world (its body is created once per object); ObjectError."""
+        span, config = task.span, task.config
         world, hand = self.world_for(config)
-        try:
-            stat = os.stat(span.source.path)
-        except OSError as exc:
-            raise ObjectError(f"cannot read {span.source.path}: {exc.strerror or exc}") from exc
-        # Worker processes outlive a run (they are reused), so the key is the file as it is now.
-        key = (span.object_id, str(span.source.path), stat.st_mtime_ns, stat.st_size, span.scale)
+        # Worker processes outlive a run (they are reused), so the key is the object's source as it
+        # is now: its digest (a mesh behind an unchanged URDF included), else the file's stat.
+        version = task.source_sha256
+        if version is None:
+            try:
+                stat = os.stat(span.source.path)
+            except OSError as exc:
+                raise ObjectError(f"cannot read {span.source.path}: {exc.strerror or exc}") from exc
+            version = f"{stat.st_mtime_ns}-{stat.st_size}"
+        key = (span.object_id, str(span.source.path), version, span.scale)
         if key in self.failed:
             raise ObjectError(self.failed[key])
         if self.obj is not None and self.obj.key == key:
@@ -204,7 +212,7 @@ class WorkerState:
             self.obj.trial.close()
             world.remove_body(self.obj.uid)
             self.obj = None
-        status.write(status_dir, f"loading {span.object_id}")
+        status.write(task.status_dir, f"loading {span.object_id}")
         try:
             model = load_object(span.source, config.objects, scale=span.scale)
         except ObjectError as exc:
@@ -233,7 +241,7 @@ class WorkerState:
         span = task.span
         try:
             self._check_versions(task.versions)
-            loaded = self.object_for(span, task.config, task.status_dir)
+            loaded = self.object_for(task)
             if span.given is None:
                 cands = self.candidates(loaded, task.seed, task.n, task.config)
                 poses = cands.T_obj_tcp[span.start : span.stop]

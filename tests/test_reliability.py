@@ -1,0 +1,413 @@
+"""Faults injected on purpose, end to end: killed workers, two runs at once, a full or read-only
+disk, a lost scheduler, a killed or terminated main process, changed inputs, rotten files.
+
+Each test names the item of the reliability issue it covers (README "Reliability").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from annotator.cli import annotate_command
+from annotator.config import AnnotatorConfig
+from annotator.objects import discover_objects
+from annotator.pipeline.files import object_filename
+from annotator.pipeline.plan import PlannedObject, plan_spans
+from annotator.pipeline.run import RunOptions, Workers, execute
+from annotator.pipeline.store import MANIFEST_NAME, STALE_DIR
+from annotator.pipeline.worker import Span, SpanResult, SpanTask, label_span
+
+N = 20  # two spans per object
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _cache_dir(tmp_path_factory):
+    """Decomposition cache in a tmp dir, set before any run (and inherited by worker processes)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("RG2_CACHE_DIR", str(tmp_path_factory.mktemp("rg2-cache")))
+        yield
+
+
+def _objects(folder: Path, names=("box", "cylinder", "slab")) -> Path:
+    makers = {
+        "box": lambda: trimesh.creation.box((0.05, 0.04, 0.10)),
+        "cylinder": lambda: trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24),
+        "slab": lambda: trimesh.creation.box((0.08, 0.03, 0.06)),
+        "poison": lambda: trimesh.creation.box((0.04, 0.04, 0.04)),
+    }
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        makers[name]().export(folder / f"{name}.obj")
+    return folder
+
+
+def _annotate(*args, check: int | None = 0):
+    result = CliRunner().invoke(annotate_command, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, f"exit {result.exit_code}, output:\n{result.output}"
+    return result
+
+
+def _labels(out: Path) -> pd.DataFrame:
+    return pd.read_parquet(out).sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
+
+
+def _spawn(objs: Path, out: Path, *extra) -> subprocess.Popen:
+    cmd = [sys.executable, "-c", "from annotator.cli import annotate_main; annotate_main()"]
+    cmd += ["--objects", str(objs), "--out", str(out), "--quiet", *map(str, extra)]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=objs.parent)
+
+
+def _wait_for_labels(proc: subprocess.Popen, out: Path, timeout: float = 120) -> None:
+    deadline = time.monotonic() + timeout
+    while not list(out.glob("*.parquet")):
+        assert proc.poll() is None, f"finished before the first file:\n{proc.communicate()}"
+        assert time.monotonic() < deadline, "no label file in time"
+        time.sleep(0.02)
+
+
+def _workers_of(pid: int) -> list[int]:
+    """The loky worker processes of ``pid`` (not its resource trackers)."""
+    kids = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        kids += [int(k) for k in (task / "children").read_text().split()]
+    return [k for k in kids if b"popen_loky_posix" in Path(f"/proc/{k}/cmdline").read_bytes()]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.fixture(scope="module")
+def objs(tmp_path_factory) -> Path:
+    return _objects(tmp_path_factory.mktemp("objs"))
+
+
+@pytest.fixture(scope="module")
+def reference(objs, tmp_path_factory) -> pd.DataFrame:
+    out = tmp_path_factory.mktemp("ref") / "labels"
+    _annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet")
+    return _labels(out)
+
+
+# --- 2. one run per output folder ----------------------------------------------------------------
+
+
+def test_a_second_run_on_the_same_out_is_a_usage_error_naming_the_first(objs, reference, tmp_path):
+    out = tmp_path / "out"
+    first = _spawn(objs, out, "--n", N, "--workers", 1)
+    try:
+        _wait_for_labels(first, out)
+        second = _annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--seed", 1, check=2)
+        assert f"pid {first.pid}" in second.output and "in use by another run" in second.output
+        _, stderr = first.communicate(timeout=180)
+    finally:
+        first.kill()
+        first.wait()
+    assert first.returncode == 0, stderr
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)  # nothing mixed in
+
+
+# --- 3. resume binds every label-affecting input ---------------------------------------------------
+
+
+def test_changed_inputs_are_refused_or_redone(objs, reference, tmp_path):
+    local = shutil.copytree(objs, tmp_path / "objs")
+    out = tmp_path / "out"
+    args = ["--objects", local, "--n", N, "--workers", 1, "--out", out, "--quiet"]
+    _annotate(*args)
+    r = _annotate(*args, "--scale", 1.5, check=2)
+    assert "scale None in the folder, 1.5 now" in r.output
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[gripper]\nstall_steps = 20\n")
+    r = _annotate(*args, "--config", cfg, check=2)
+    assert "[gripper] stall_steps 12 in the folder, 20 now" in r.output
+    # one object's file changes: it alone is redone; another is removed: its labels are set aside
+    trimesh.creation.box((0.05, 0.045, 0.10)).export(local / "box.obj")
+    (local / "slab.obj").unlink()
+    r = _annotate(*args)
+    assert "box: its source changed" in r.output and "slab: no longer among the objects" in r.output
+    assert "1 objects labelled, 1 done earlier" in r.output
+    df = _labels(out)
+    assert set(df["object_id"]) == {"box", "cylinder"}
+    cyl = df[df.object_id == "cylinder"].reset_index(drop=True)
+    pd.testing.assert_frame_equal(cyl, reference[reference.object_id == "cylinder"].reset_index(drop=True))
+    assert not df[df.object_id == "box"]["mesh_sha256"].isin(reference["mesh_sha256"]).any()
+    assert (out / STALE_DIR / object_filename("slab")).exists()
+
+
+def test_a_mesh_changed_behind_an_unchanged_urdf_is_redone(tmp_path):
+    objs = tmp_path / "objs"
+    (objs / "thing").mkdir(parents=True)
+    trimesh.creation.box((0.05, 0.04, 0.08)).export(objs / "thing" / "thing.obj")
+    (objs / "thing" / "thing.urdf").write_text(
+        '<robot name="thing"><link name="base"><collision><geometry><mesh filename="thing.obj"/>'
+        "</geometry></collision></link></robot>"
+    )
+    out = tmp_path / "out"
+    args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
+    _annotate(*args)
+    before = _labels(out)
+    trimesh.creation.box((0.05, 0.05, 0.08)).export(objs / "thing" / "thing.obj")
+    r = _annotate(*args)
+    assert "thing/thing: its source changed" in r.output
+    after = _labels(out)
+    assert len(after) == 10 and set(after["mesh_sha256"]).isdisjoint(before["mesh_sha256"])
+
+
+# --- 4. state that rots --------------------------------------------------------------------------------
+
+
+def test_a_truncated_label_file_is_named_and_redone(objs, reference, tmp_path):
+    out = tmp_path / "out"
+    args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet"]
+    _annotate(*args)
+    victim = out / object_filename("cylinder")
+    victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
+    r = _annotate(*args)
+    assert victim.name in r.output and "checksum" in r.output
+    assert "1 objects labelled, 2 done earlier" in r.output
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
+
+
+@pytest.mark.parametrize("content", [b"[]", b"null", b"\x00\xff\x10binary", b'{"tool": "rg2-annotator"}'])
+def test_a_broken_manifest_is_one_line_and_repair_recovers(objs, reference, tmp_path, content):
+    out = tmp_path / "out"
+    args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet"]
+    _annotate(*args)
+    (out / MANIFEST_NAME).write_bytes(content)
+    r = _annotate(*args, check=2)
+    assert "--repair" in r.output and "Traceback" not in r.output
+    r = _annotate(*args, "--repair")
+    assert (
+        "manifest rebuilt from 3 label files" in r.output and "0 objects labelled, 3 done earlier" in r.output
+    )
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
+
+
+def test_overwrite_keeps_a_users_own_files(objs, tmp_path):
+    out = tmp_path / "out"
+    args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
+    _annotate(*args)
+    out.joinpath("notes.txt").write_text("mine")
+    pd.DataFrame({"mine": [1.0]}).to_parquet(out / "my_table.parquet")
+    _annotate(*args, "--seed", 3, "--overwrite")
+    assert (out / "notes.txt").read_text() == "mine"
+    assert pd.read_parquet(out / "my_table.parquet")["mine"].tolist() == [1.0]
+    assert json.loads((out / MANIFEST_NAME).read_text())["run"]["seed"] == 3
+
+
+# --- 6. faults --------------------------------------------------------------------------------------------
+
+
+def test_a_killed_worker_costs_a_retry_and_the_labels_are_the_same(objs, reference, tmp_path):
+    out = tmp_path / "out"
+    proc = _spawn(objs, out, "--n", N, "--workers", 2)
+    try:
+        _wait_for_labels(proc, out)
+        workers = _workers_of(proc.pid)
+        assert workers, "no worker processes found"
+        os.kill(workers[0], signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=180)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0, stderr
+    assert "a worker process died" in stderr and "Traceback" not in stderr
+    assert "3 objects labelled" in stdout
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
+
+
+def crash_on_poison(task: SpanTask) -> SpanResult:
+    """A worker function that dies (as a segfault would) on every span of the object 'poison'."""
+    if task.span.object_id == "poison":
+        os._exit(11)
+    return label_span(task)
+
+
+def test_a_span_that_kills_its_worker_twice_fails_its_object_only(tmp_path):
+    objs = _objects(tmp_path / "objs", ("box", "poison"))
+    config = AnnotatorConfig()
+    planned = [PlannedObject(s) for s in discover_objects(objs)]
+    results: list[SpanResult] = []
+    workers = Workers(RunOptions(objs, 20, workers=2))
+    try:
+        execute(
+            plan_spans(planned, 20, 10, None),
+            lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
+            workers,
+            results.append,
+            fn=crash_on_poison,
+        )
+    finally:
+        workers.close(kill=True)
+    by_object: dict[str, list[SpanResult]] = {}
+    for r in results:
+        by_object.setdefault(r.span.object_id, []).append(r)
+    assert sorted(r.span.start for r in by_object["box"]) == [0, 10]
+    assert all(r.error is None and len(r.rows) == 10 for r in by_object["box"])
+    assert by_object["poison"] and all(r.error for r in by_object["poison"])
+    assert all("a worker process died twice" in r.error for r in by_object["poison"])
+
+
+def _mount_tmpfs(where: Path, size: str) -> None:
+    where.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True
+    )
+    if done.returncode:
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.decode().strip()})")
+
+
+def _umount(where: Path) -> None:
+    subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, reference, tmp_path):
+    disk = tmp_path / "disk"
+    _mount_tmpfs(disk, "24k")
+    try:
+        out = disk / "labels"
+        args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out]
+        r = _annotate(*args, "--quiet", check=3)
+        assert "No space left on device" in r.output and "Traceback" not in r.output
+        assert "STOPPED" in r.output and "candidates simulated" in r.output  # the summary is printed
+        subprocess.run(["mount", "-o", "remount,size=16m", str(disk)], check=True)
+        _annotate(*args, "--quiet")
+        pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
+    finally:
+        _umount(disk)
+
+
+def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_path):
+    disk = tmp_path / "disk"
+    _mount_tmpfs(disk, "16m")
+    try:
+        out = disk / "labels"
+        args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
+        _annotate(*args)
+        subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+        r = _annotate(*args)  # finished: nothing to write, exit 0 with the statistics
+        assert "0 objects labelled, 3 done earlier" in r.output
+        r = _annotate(*[a if a != 10 else 12 for a in args], "--overwrite", check=3)
+        assert "Read-only file system" in r.output or "read-only" in r.output
+        assert "Traceback" not in r.output
+    finally:
+        _umount(disk)
+
+
+def test_workers_exit_soon_after_the_main_process_is_killed(objs, tmp_path):
+    out = tmp_path / "out"
+    proc = _spawn(objs, out, "--n", 60, "--workers", 2)
+    try:
+        _wait_for_labels(proc, out)
+        workers = _workers_of(proc.pid)
+        assert workers
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 5.0
+        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not [w for w in workers if _alive(w)], "workers outlived the main process by 5 s"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_sigterm_stops_like_ctrl_c_and_the_run_resumes(objs, reference, tmp_path):
+    out = tmp_path / "out"
+    proc = _spawn(objs, out, "--n", N, "--workers", 2)
+    try:
+        _wait_for_labels(proc, out)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 143, stderr
+    assert "terminated" in stderr and "Traceback" not in stderr
+    _annotate("--objects", objs, "--n", N, "--workers", 2, "--out", out, "--quiet")
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_lost_scheduler_is_one_line_and_exit_4(objs, tmp_path):
+    pytest.importorskip("distributed")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    dask_bin = Path(sys.executable).parent / "dask"
+    scheduler = subprocess.Popen(
+        [str(dask_bin), "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    worker = subprocess.Popen(
+        [str(dask_bin), "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    out = tmp_path / "out"
+    proc = None
+    try:
+        time.sleep(3)
+        proc = _spawn(objs, out, "--n", 60, "--scheduler", address)
+        _wait_for_labels(proc, out)
+        scheduler.kill()
+        _, stderr = proc.communicate(timeout=120)
+        assert proc.returncode == 4, stderr
+        assert "lost the Dask scheduler" in stderr and "resume" in stderr
+        assert "Traceback" not in stderr
+    finally:
+        for p in (proc, worker, scheduler):
+            if p is not None:
+                p.kill()
+                p.wait()
+
+
+# --- 8. bounded resources -----------------------------------------------------------------------------------
+
+
+def test_absurd_workers_and_n_are_usage_errors(objs, tmp_path):
+    r = _annotate("--objects", objs, "--n", 4, "--workers", 100000, "--out", tmp_path / "o", check=2)
+    assert "--workers 100000" in r.output and "GB available" in r.output
+    r = _annotate("--objects", objs, "--n", 10_000_000, "--out", tmp_path / "o", check=2)
+    assert "--n" in r.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_planning_is_lazy(objs):
+    """A million candidates per object plan without building a list of spans."""
+    import tracemalloc
+
+    planned = [PlannedObject(s) for s in discover_objects(objs)]
+    tracemalloc.start()
+    spans = plan_spans(planned, 1_000_000, 500, None)
+    first = [next(spans) for _ in range(5)]
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert [s.object_id for s in first[:3]] == ["box", "cylinder", "slab"]  # first span of each first
+    assert (first[3].object_id, first[3].start) == ("box", 500)
+    assert peak < 1_000_000, peak  # bytes: nothing of size N
+    assert isinstance(first[0], Span)
