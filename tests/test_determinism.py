@@ -66,3 +66,32 @@ def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
     shuffled = shuffled.drop_duplicates(["object_id", "grasp_id"], keep="last").reset_index(drop=True)
     pd.testing.assert_frame_equal(shuffled, reference, check_exact=True)
     _fresh_worker()
+
+
+def _annotate(objs: Path, out: Path, *extra) -> pd.DataFrame:
+    from click.testing import CliRunner
+
+    from annotator.cli import annotate_command
+
+    args = ["--objects", str(objs), "--n", str(N), "--out", str(out), "--quiet", *map(str, extra)]
+    result = CliRunner().invoke(annotate_command, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    return pd.read_parquet(out).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
+
+
+def test_labels_are_identical_cold_or_warm_on_any_worker_layout(concave, tmp_path, monkeypatch):
+    """Decomposed concave objects: a first run (empty cache, 2 workers) equals later runs with the
+    parts read back from the cache (1 worker, 2 workers, a Dask cluster), column for column."""
+    monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "fresh-cache"))
+    cold = _annotate(concave, tmp_path / "cold", "--workers", 2)
+    assert list((tmp_path / "fresh-cache").glob("*")), "nothing was decomposed: the test would hide the cache"
+    warm1 = _annotate(concave, tmp_path / "warm1", "--workers", 1)
+    pd.testing.assert_frame_equal(warm1, cold, check_exact=True)
+    warm2 = _annotate(concave, tmp_path / "warm2", "--workers", 2)
+    pd.testing.assert_frame_equal(warm2, cold, check_exact=True)
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as c:
+        dask = _annotate(concave, tmp_path / "dask", "--scheduler", c.scheduler_address)
+    pd.testing.assert_frame_equal(dask, cold, check_exact=True)

@@ -26,7 +26,13 @@ from pathlib import Path
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
-from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
+from annotator.objects import (
+    ObjectDiscoveryError,
+    ObjectError,
+    default_cache_dir,
+    discover_objects,
+    source_digest,
+)
 from annotator.pipeline import status
 from annotator.pipeline.files import OutputError
 from annotator.pipeline.plan import (
@@ -353,6 +359,7 @@ def _run(options, config, summary: Summary, store: Store, sources, digests, stat
     bar = tqdm(total=total, unit="grasp", disable=options.quiet, smoothing=0.1, dynamic_ncols=True)
     object_seconds: dict[str, float] = {}
     versions = store.spec.versions
+    cache_dir = default_cache_dir()  # read here, not in reused workers started under another env
 
     def make_task(span: Span) -> SpanTask:
         return SpanTask(
@@ -365,6 +372,7 @@ def _run(options, config, summary: Summary, store: Store, sources, digests, stat
             versions=versions,
             parent_pid=workers.parent_pid,
             status_dir=status_dir if workers.client is None else None,
+            cache_dir=str(cache_dir) if workers.client is None else None,
         )
 
     def on_result(result: SpanResult) -> None:

@@ -16,6 +16,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -79,7 +80,8 @@ class SpanTask:
     the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
     others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
     exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
-    doing.
+    doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
+    default, as on a cluster).
     """
 
     span: Span
@@ -91,6 +93,7 @@ class SpanTask:
     versions: dict[str, str] | None = None
     parent_pid: int | None = None
     status_dir: str | None = None
+    cache_dir: str | None = None
 
 
 @dataclass(frozen=True)
@@ -214,7 +217,8 @@ class WorkerState:
             self.obj = None
         status.write(task.status_dir, f"loading {span.object_id}")
         try:
-            model = load_object(span.source, config.objects, scale=span.scale)
+            cache = Path(task.cache_dir) if task.cache_dir is not None else None
+            model = load_object(span.source, config.objects, scale=span.scale, cache_dir=cache)
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
