@@ -71,6 +71,16 @@ MIMIC = {
     "gripper_finger2_finger_tip_joint": 1.0,
 }
 DRIVEN_EFFORT = 10.0  # [C] N m; 40 N squeeze needs 40 N x dw/dphi <= 4.4 N m
+
+
+# [D] A follower q_f = m q_d in the closed parallelogram transmits the drive's power: by virtual
+# work its torque is DRIVEN_EFFORT / |m| (10 N m for every |m| = 1). An effort of 0 would leave
+# a follower limp under the seed's per-joint position loop (it passes each joint's own maxForce);
+# the annotator switches the followers' motors off and couples them with gear constraints.
+def follower_effort(multiplier: float) -> float:
+    return DRIVEN_EFFORT / abs(multiplier)
+
+
 DRIVEN_VELOCITY = 1.2  # [D] rad/s: 127 mm/s max width speed [V datasheet] / 110 mm/rad at phi=0
 
 GREY = "0.35 0.35 0.38 1"
@@ -120,7 +130,7 @@ def _joint(
     s = f'  <joint name="{name}" type="{kind}">\n    <parent link="{parent}"/><child link="{child}"/>\n'
     s += f'    <origin xyz="{xyz[0]:.6f} {xyz[1]:.6f} {xyz[2]:.6f}" rpy="0 0 0"/>\n'
     if kind == "revolute":
-        effort = DRIVEN_EFFORT if mimic is None else 0.0
+        effort = DRIVEN_EFFORT if mimic is None else follower_effort(mimic)
         s += '    <axis xyz="0 -1 0"/>\n'
         s += f'    <limit lower="{lower:.6f}" upper="{upper:.6f}" effort="{effort}" '
         s += f'velocity="{DRIVEN_VELOCITY}"/>\n'
