@@ -192,7 +192,7 @@ def build_scene(world: World, config: SceneConfig | None = None) -> Scene:
     client = world.client
     data = Path(pybullet_data.getDataPath())
     urdf = paths.ur3_rg2_urdf()
-    robot = Body.load(client, urdf, Transform.identity(), fixed_base=True, flags=ROBOT_FLAGS)
+    robot = Body.load(client, urdf, Transform.identity(), flags=ROBOT_FLAGS)  # mounts itself
     rg2 = RG2(robot, urdf, config.gripper)
     table = Body.load(client, data / config.table_urdf, Transform(config.table_pos, [0, 0, 0, 1]))
     kinect = Body.load(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import subprocess
@@ -9,6 +10,7 @@ import sys
 
 import numpy as np
 import pybullet as pb
+import pybullet_data
 import pytest
 from click.testing import CliRunner
 from PIL import Image
@@ -17,8 +19,8 @@ from annotator import paths
 from annotator.config import PhysicsConfig
 from annotator.geometry import Transform
 from annotator.render import render_rgb
-from annotator.scene import ROBOT_FLAGS, SceneConfig, build_scene, scene_command
-from annotator.sim.body import Body
+from annotator.scene import SceneConfig, build_scene, scene_command
+from annotator.sim.rg2 import fk_table
 from annotator.sim.ur3 import JOINT_NAMES
 from annotator.sim.world import World
 
@@ -33,6 +35,8 @@ SEED_FOLLOWERS = {
     "gripper_finger2_finger_tip_joint": 1.0,
 }
 PADS = ("gripper_finger1_pad_link", "gripper_finger2_pad_link")
+PAD_THICKNESS = 0.01145  # m, the RG2 pad box along the closing axis (ROBOT_FACTS)
+SEED_GRIPPER_LIMITS = (-0.04547, 1.268131)  # the driven joint's URDF limits (rad)
 
 
 def frames_of(path) -> list[np.ndarray]:
@@ -64,66 +68,96 @@ def test_headless_gif(tmp_path):
     assert cube_z > 0.05, result.output
 
 
-def seed_loop_step(body: Body, arm_target: np.ndarray, angle: float) -> None:
-    """One iteration of the seed script's loop (its slider values replaced by fixed targets)."""
-    for name, q in zip(JOINT_NAMES, arm_target, strict=True):
-        j = body.joints[name]
-        pb.setJointMotorControl2(
-            body.uid,
-            j.index,
-            pb.POSITION_CONTROL,
-            targetPosition=q,
-            force=j.max_force,
-            physicsClientId=body.client,
+class SeedScript:
+    """The seed script, as written: raw PyBullet calls, joints read with getJointInfo, no annotator code.
+
+    ``loadURDF`` without ``useFixedBase`` and with the seed's only flag; every step each arm joint
+    and each gripper joint is position-controlled with its own ``maxForce`` and ``maxVelocity``
+    from ``getJointInfo`` (followers at multiplier x the gripper angle), then ``stepSimulation``.
+    """
+
+    def __init__(self, client: int, urdf, position, orientation) -> None:
+        self.client = client
+        data = pybullet_data.getDataPath()
+        pb.setGravity(0, 0, -9.8, physicsClientId=client)
+        pb.loadURDF(f"{data}/table/table.urdf", [0.5, 0, -0.65], [0, 0, 0, 1], physicsClientId=client)
+        self.robot = pb.loadURDF(
+            str(urdf),
+            position,
+            orientation,
+            flags=pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT,
+            physicsClientId=client,
         )
-    driven = body.joints[SEED_DRIVEN]
-    pb.setJointMotorControl2(
-        body.uid,
-        driven.index,
-        pb.POSITION_CONTROL,
-        targetPosition=angle,
-        force=driven.max_force,
-        physicsClientId=body.client,
-    )
-    for name, multiplier in SEED_FOLLOWERS.items():
-        # The followers' URDF effort is 0 (they are passive); the seed drove them like the driven joint.
+        self.joints = {}
+        for i in range(pb.getNumJoints(self.robot, physicsClientId=client)):
+            info = pb.getJointInfo(self.robot, i, physicsClientId=client)
+            self.joints[info[1].decode()] = (i, info[10], info[11])  # id, maxForce, maxVelocity
+
+    def control(self, name: str, target: float) -> None:
+        i, max_force, max_velocity = self.joints[name]
         pb.setJointMotorControl2(
-            body.uid,
-            body.joints[name].index,
+            self.robot,
+            i,
             pb.POSITION_CONTROL,
-            targetPosition=multiplier * angle,
-            force=driven.max_force,
-            physicsClientId=body.client,
+            targetPosition=target,
+            force=max_force,
+            maxVelocity=max_velocity,
+            physicsClientId=self.client,
         )
 
+    def step(self, arm_sliders: np.ndarray, gripper_opening_angle: float) -> None:
+        for name, q in zip(JOINT_NAMES, arm_sliders, strict=True):
+            self.control(name, q)
+        self.control(SEED_DRIVEN, gripper_opening_angle)
+        for name, multiplier in SEED_FOLLOWERS.items():
+            self.control(name, multiplier * gripper_opening_angle)
+        pb.stepSimulation(physicsClientId=self.client)
 
-def pad_separation(body: Body) -> float:
-    p1, p2 = (body.link_pose(n).pos for n in PADS)
-    return float(np.linalg.norm(p2 - p1))
+    def position(self, name: str) -> float:
+        return pb.getJointState(self.robot, self.joints[name][0], physicsClientId=self.client)[0]
+
+    def link_pose(self, name: str) -> Transform:
+        s = pb.getLinkState(
+            self.robot, self.joints[name][0], computeForwardKinematics=1, physicsClientId=self.client
+        )
+        return Transform(s[4], s[5])
+
+    def base_pose(self) -> Transform:
+        return Transform(*pb.getBasePositionAndOrientation(self.robot, physicsClientId=self.client))
+
+    def pad_width(self) -> float:
+        """Pad-face separation along the gripper's closing axis (m), as the RG2 FK table measures it."""
+        p1, p2 = (self.link_pose(n.replace("_link", "_joint")).pos for n in PADS)
+        x_axis = self.link_pose("rg2_mount_joint").rotation[:, 0]
+        return float(np.dot(p2 - p1, x_axis)) - PAD_THICKNESS
 
 
-def test_seed_control_loop_runs_on_combined_model():
-    """The seed's loop (no gear constraints, followers position-controlled by name) drives the model."""
+@pytest.mark.parametrize(
+    "position, yaw", [((0.0, 0.0, 0.0), 0.0), ((0.1, -0.2, 0.0), 0.7)], ids=["origin", "moved"]
+)
+def test_seed_script_runs_on_combined_model_as_written(position, yaw):
+    """The seed's loop, verbatim: the base stays put, the arm reaches the sliders, the fingers follow."""
+    urdf = paths.ur3_rg2_urdf()
+    table = fk_table(str(urdf), *SEED_GRIPPER_LIMITS)
+    orientation = [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
     with World(PhysicsConfig(gravity=-9.8)) as world:
-        body = Body.load(
-            world.client, paths.ur3_rg2_urdf(), Transform.identity(), fixed_base=True, flags=ROBOT_FLAGS
-        )
-        q0 = np.asarray(SceneConfig().initial_arm)
-        body.reset_joints(dict(zip(JOINT_NAMES, q0, strict=True)))
-        target = q0 + np.array([0.5, 0.4, -0.8, 0.3, -0.4, 0.6])
-        separations = {}
-        for angle, steps in ((0.8, 300), (0.0, 300)):
-            for _ in range(steps):
-                seed_loop_step(body, target, angle)
-                world.step()
-            separations[angle] = pad_separation(body)
-            np.testing.assert_allclose(body.joint_positions(JOINT_NAMES), target, atol=0.02)
-            assert body.joint_position(SEED_DRIVEN) == pytest.approx(angle, abs=0.02)
+        seed = SeedScript(world.client, urdf, position, orientation)
+        base0 = seed.base_pose()
+        target = np.asarray(SceneConfig().initial_arm) + np.array([0.5, 0.4, -0.8, 0.3, -0.4, 0.6])
+        widths = {}
+        for angle in (0.8, 0.0, 0.4):  # the seed's slider spans 0 .. 0.8 rad
+            for _ in range(480):  # 2 s: the gripper moves at most 1.2 rad/s
+                seed.step(target, angle)
+            np.testing.assert_allclose([seed.position(n) for n in JOINT_NAMES], target, atol=1e-3)
+            assert seed.position(SEED_DRIVEN) == pytest.approx(angle, abs=1e-3)
             for name, multiplier in SEED_FOLLOWERS.items():
-                assert body.joint_position(name) == pytest.approx(multiplier * angle, abs=0.03), name
-        # Pad centres: 0.8 rad opens the pads ~ 84 mm apart (+ one pad thickness); 0 nearly closes them.
-        assert separations[0.8] > 0.07, separations
-        assert separations[0.0] < 0.03, separations
+                assert seed.position(name) == pytest.approx(multiplier * angle, abs=2e-3), name
+            widths[angle] = seed.pad_width()
+            assert widths[angle] == pytest.approx(table.width_of(angle), abs=5e-4), angle
+        # base where it was put (a 2 kg free base fell off the table in the first second)
+        np.testing.assert_allclose(seed.base_pose().pos, base0.pos, atol=1e-9)
+        np.testing.assert_allclose(seed.base_pose().quat, base0.quat, atol=1e-9)
+        assert widths[0.8] > 0.08 and widths[0.0] < 0.006 and widths[0.0] < widths[0.4] < widths[0.8]
 
 
 def test_gui_under_xvfb(tmp_path):

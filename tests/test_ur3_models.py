@@ -28,6 +28,7 @@ UR3_MASSES = {
 }
 FRAME_LINKS = ("base", "tool0")  # massless frames (explicit tiny inertial)
 EFFORTS = [56.0, 56.0, 28.0, 12.0, 12.0, 12.0]  # N m, ROBOT_FACTS.md joint limits
+MOUNT_ROOT = "world"  # PyBullet makes an inertial-less root static only under this name
 HOME = np.array([0.0, -math.pi / 2, 0.0, 0.0, math.pi / 2, 0.0])  # the seed scene's start
 
 
@@ -71,8 +72,32 @@ def test_every_referenced_file_exists_and_every_link_has_inertial(name: str) -> 
     root = ET.parse(path).getroot()
     for mesh in root.iter("mesh"):
         assert (path.parent / mesh.attrib["filename"]).is_file(), mesh.attrib["filename"]
+    children = {j.find("child").attrib["link"] for j in root.iter("joint")}
+    roots = [link.attrib["name"] for link in root.iter("link") if link.attrib["name"] not in children]
+    assert len(roots) == 1, roots
     for link in root.iter("link"):
+        if link.attrib["name"] == MOUNT_ROOT and roots == [MOUNT_ROOT]:
+            # the mount: massless on purpose, so PyBullet treats the arm's base as static
+            assert link.find("inertial") is None
+            continue
         assert link.find("inertial") is not None, f"{name}: link {link.attrib['name']} has no <inertial>"
+    if name != "kinect_v2.urdf":
+        assert roots == [MOUNT_ROOT], f"{name}: the arm must be mounted on a massless '{MOUNT_ROOT}' root"
+
+
+@pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
+def test_arm_mounts_itself_without_use_fixed_base(client: int, model: Path) -> None:
+    """Loaded as the seed loads it (no useFixedBase), under gravity and a shove, the base stays put."""
+    body = p.loadURDF(str(model), [0.2, -0.1, 0.3], [0, 0, 0.6, 0.8], physicsClientId=client)
+    assert p.getDynamicsInfo(body, -1, physicsClientId=client)[0] == 0.0  # static root
+    links = ur3.link_indices_by_name(client, body)
+    before = ur3.link_pose_matrix(client, body, links["base_link"])
+    p.applyExternalForce(
+        body, links["base_link"], [200, 0, 0], [0, 0, 0], p.WORLD_FRAME, physicsClientId=client
+    )
+    for _ in range(240):
+        p.stepSimulation(physicsClientId=client)
+    np.testing.assert_allclose(ur3.link_pose_matrix(client, body, links["base_link"]), before, atol=1e-9)
 
 
 def test_dh_forward_kinematics_matches_published_figures() -> None:
@@ -257,11 +282,7 @@ def _generator():
 def test_shipped_urdfs_are_what_the_generator_writes() -> None:
     gen = _generator()
     folder = paths.assets_dir() / "ur3"
-    hint = "stale: run `python assets/ur3/make_ur3.py`"
-    assert (folder / "ur3.urdf").read_text() == gen.robot("ur3", gen.ur3_xml()), f"ur3.urdf {hint}"
-    assert (folder / "kinect_v2.urdf").read_text() == gen.robot("kinect_v2", gen.kinect_xml()), hint
-    rg2 = gen.load_rg2_generator()
-    combined = _combined_urdf()
-    if rg2 is not None:
-        expected = gen.robot("ur3_visual_grabbing_with_rg2", gen.ur3_xml() + rg2.gripper_xml("tool0"))
-        assert combined.read_text() == expected, f"{combined.name} {hint}"
+    written = gen.models()
+    assert "ur3_visual_grabbing_with_rg2.urdf" in written
+    for name, text in written.items():
+        assert (folder / name).read_text() == text, f"{name} stale: run `python assets/ur3/make_ur3.py`"

@@ -80,6 +80,12 @@ WRIST_LEN = 2 * R_WRIST
 FLANGE_COLLISION_CLEARANCE = 0.003
 FRAME_MASS = 1e-4
 FRAME_INERTIA = 1e-9
+# The mount (ROS convention): a root link named exactly "world" with no <inertial>, fixed to
+# base_link. PyBullet gives an inertial-less link mass 0 only when it is named "world" (any other
+# name gets 1 kg and a warning), and a multibody whose root has mass 0 is static: the arm stays
+# where it is loaded without useFixedBase, as the seed's script loads it.
+MOUNT_LINK = "world"
+MOUNT_JOINT = "world_joint"
 
 UR_GREY = ("ur_grey", "0.70 0.71 0.73 1")
 UR_BLUE = ("ur_blue", "0.29 0.56 0.82 1")
@@ -317,10 +323,21 @@ def link_com_and_inertia() -> list[tuple[np.ndarray, tuple[float, float, float]]
     return out
 
 
+def mount_xml(prefix: str = "") -> str:
+    """The massless root ``world`` (no ``<inertial>``) and the fixed joint to ``{prefix}base_link``.
+
+    The link keeps the name ``world`` whatever the prefix: PyBullet makes only that name static.
+    """
+    return f'  <link name="{MOUNT_LINK}"/>\n' + _fixed_joint(
+        f"{prefix}{MOUNT_JOINT}", MOUNT_LINK, f"{prefix}base_link", np.eye(4)
+    )
+
+
 def ur3_xml(prefix: str = "") -> str:
-    """The UR3's ``<link>``/``<joint>`` XML (no ``<robot>`` wrapper); root ``{prefix}base_link``.
+    """The UR3's ``<link>``/``<joint>`` XML (no ``<robot>`` wrapper), from ``{prefix}base_link`` on.
 
     Also holds the fixed frames ``{prefix}base`` (UR's DH base) and ``{prefix}tool0`` (the flange).
+    :func:`mount_xml` gives the root that mounts it.
     """
     p = prefix
     frames = link_frames_q0()
@@ -405,18 +422,26 @@ def load_rg2_generator() -> ModuleType | None:
     return module
 
 
-def main() -> None:
-    """Write the URDFs next to this script."""
-    (HERE / "ur3.urdf").write_text(robot("ur3", ur3_xml()))
-    (HERE / "kinect_v2.urdf").write_text(robot("kinect_v2", kinect_xml()))
-    written = ["ur3.urdf", "kinect_v2.urdf"]
+def models() -> dict[str, str]:
+    """File name -> URDF text of every model this script writes (the combined one needs make_rg2.py)."""
+    out = {
+        "ur3.urdf": robot("ur3", mount_xml() + ur3_xml()),
+        "kinect_v2.urdf": robot("kinect_v2", kinect_xml()),
+    }
     rg2 = load_rg2_generator()
     if rg2 is not None:
-        body = ur3_xml() + rg2.gripper_xml("tool0")
-        (HERE / "ur3_visual_grabbing_with_rg2.urdf").write_text(robot("ur3_visual_grabbing_with_rg2", body))
-        written.append("ur3_visual_grabbing_with_rg2.urdf")
+        body = mount_xml() + ur3_xml() + rg2.gripper_xml("tool0")
+        out["ur3_visual_grabbing_with_rg2.urdf"] = robot("ur3_visual_grabbing_with_rg2", body)
     else:
         print(f"{RG2_GENERATOR} not found: skipped the combined UR3 + RG2 model")
+    return out
+
+
+def main() -> None:
+    """Write the URDFs next to this script."""
+    written = models()
+    for name, text in written.items():
+        (HERE / name).write_text(text)
     print("wrote", ", ".join(written))
 
 
