@@ -114,6 +114,15 @@ class WidthTable:
         t = (angle - a[k - 1]) / (a[k] - a[k - 1])
         return self._slopes[k - 1] + t * (self._slopes[k] - self._slopes[k - 1])
 
+    def T_base_tcp(self, width: float) -> Transform:
+        """Pad-centre midpoint frame in the gripper base frame for opening ``width`` (m).
+
+        The fingertips move along arcs, so the point between the pads moves along the tool axis
+        as the gripper opens; its axes are those of the base (+z approach, +x closing).
+        """
+        pos = np.array([np.interp(width, self.width, self.tcp[:, i]) for i in range(3)])
+        return Transform(pos, np.array([0.0, 0.0, 0.0, 1.0]))
+
     @property
     def max_width(self) -> float:
         return float(self.width[-1])
@@ -273,13 +282,8 @@ class RG2:
         self.reset_angle(self.table.angle_of(width))
 
     def T_base_tcp(self, width: float) -> Transform:
-        """Pad-centre midpoint frame in the gripper base frame for opening ``width`` (m).
-
-        The fingertips move along arcs, so the point between the pads moves along the tool axis
-        as the gripper opens; its axes are those of the base (+z approach, +x closing).
-        """
-        pos = np.array([np.interp(width, self.table.width, self.table.tcp[:, i]) for i in range(3)])
-        return Transform(pos, np.array([0.0, 0.0, 0.0, 1.0]))
+        """Pad-centre midpoint frame in the gripper base frame for opening ``width`` (m)."""
+        return self.table.T_base_tcp(width)
 
     def driven_angle(self) -> float:
         return self.body.joint_position(self.driven)
