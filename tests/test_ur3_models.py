@@ -14,6 +14,7 @@ import pytest
 
 from annotator import paths
 from annotator.sim import ur3
+from annotator.sim.body import Body
 
 FLAGS = p.URDF_USE_INERTIA_FROM_FILE
 # ROBOT_FACTS.md: masses (kg) of the UR3 links
@@ -54,14 +55,21 @@ def _arm_models() -> list[Path]:
     return models
 
 
-def _load(client: int, path: Path, fixed: bool = True, flags: int = FLAGS) -> int:
-    return p.loadURDF(str(path), useFixedBase=fixed, flags=flags, physicsClientId=client)
+def _load(client: int, path: Path, fixed: bool = True, flags: int = FLAGS) -> Body:
+    return Body(client, p.loadURDF(str(path), useFixedBase=fixed, flags=flags, physicsClientId=client))
 
 
-def _tool0_position(client: int, body: int, q: np.ndarray) -> np.ndarray:
-    ur3.set_arm_configuration(client, body, q)
-    tool0 = ur3.link_indices_by_name(client, body)[ur3.TOOL0_LINK]
-    return ur3.link_pose_matrix(client, body, tool0)[:3, 3]
+def _set_arm(body: Body, q: np.ndarray) -> None:
+    body.reset_joints(dict(zip(ur3.JOINT_NAMES, map(float, q), strict=True)))
+
+
+def _tool0_position(body: Body, q: np.ndarray) -> np.ndarray:
+    _set_arm(body, q)
+    return body.link_pose(ur3.TOOL0_LINK).pos
+
+
+def _mass(body: Body, link: str) -> float:
+    return p.getDynamicsInfo(body.uid, body.links[link], physicsClientId=body.client)[0]
 
 
 @pytest.mark.parametrize("name", ["ur3.urdf", "kinect_v2.urdf", "ur3_visual_grabbing_with_rg2.urdf"])
@@ -88,16 +96,14 @@ def test_every_referenced_file_exists_and_every_link_has_inertial(name: str) -> 
 @pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
 def test_arm_mounts_itself_without_use_fixed_base(client: int, model: Path) -> None:
     """Loaded as the seed loads it (no useFixedBase), under gravity and a shove, the base stays put."""
-    body = p.loadURDF(str(model), [0.2, -0.1, 0.3], [0, 0, 0.6, 0.8], physicsClientId=client)
-    assert p.getDynamicsInfo(body, -1, physicsClientId=client)[0] == 0.0  # static root
-    links = ur3.link_indices_by_name(client, body)
-    before = ur3.link_pose_matrix(client, body, links["base_link"])
-    p.applyExternalForce(
-        body, links["base_link"], [200, 0, 0], [0, 0, 0], p.WORLD_FRAME, physicsClientId=client
-    )
+    body = Body(client, p.loadURDF(str(model), [0.2, -0.1, 0.3], [0, 0, 0.6, 0.8], physicsClientId=client))
+    assert _mass(body, ur3.MOUNT_LINK) == 0.0  # static root
+    before = body.link_pose(ur3.BASE_LINK).as_matrix()
+    base = body.links[ur3.BASE_LINK]
+    p.applyExternalForce(body.uid, base, [200, 0, 0], [0, 0, 0], p.WORLD_FRAME, physicsClientId=client)
     for _ in range(240):
         p.stepSimulation(physicsClientId=client)
-    np.testing.assert_allclose(ur3.link_pose_matrix(client, body, links["base_link"]), before, atol=1e-9)
+    np.testing.assert_allclose(body.link_pose(ur3.BASE_LINK).as_matrix(), before, atol=1e-9)
 
 
 def test_dh_forward_kinematics_matches_published_figures() -> None:
@@ -110,28 +116,26 @@ def test_dh_forward_kinematics_matches_published_figures() -> None:
 @pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
 def test_urdf_tool0_matches_dh_figures(client: int, model: Path) -> None:
     body = _load(client, model)
-    links = ur3.link_indices_by_name(client, body)
     # base_link is the world frame; the DH base frame `base` is Rz(pi) from it (ROS-Industrial).
-    t_world_base = ur3.link_pose_matrix(client, body, links[ur3.DH_BASE_LINK])
+    t_world_base = body.link_pose(ur3.DH_BASE_LINK).as_matrix()
     np.testing.assert_allclose(t_world_base, ur3.T_BASELINK_BASE, atol=1e-6)
     # q = 0: DH (-0.4569, -0.19425, 0.06655) becomes (+0.4569, +0.19425, 0.06655) in base_link.
-    pos = _tool0_position(client, body, np.zeros(6))
+    pos = _tool0_position(body, np.zeros(6))
     np.testing.assert_allclose(pos, [0.4569, 0.19425, 0.06655], atol=1e-3)
     p_dh = (np.linalg.inv(t_world_base) @ np.append(pos, 1.0))[:3]
     np.testing.assert_allclose(p_dh, [-0.4569, -0.19425, 0.06655], atol=1e-3)
-    pos = _tool0_position(client, body, np.array([0, -math.pi / 2, 0, -math.pi / 2, 0, 0]))
+    pos = _tool0_position(body, np.array([0, -math.pi / 2, 0, -math.pi / 2, 0, 0]))
     assert pos[2] == pytest.approx(0.69415, abs=1e-3)
 
 
 @pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
 def test_urdf_fk_equals_dh_fk_for_random_configurations(client: int, model: Path) -> None:
     body = _load(client, model)
-    tool0 = ur3.link_indices_by_name(client, body)[ur3.TOOL0_LINK]
     rng = np.random.default_rng(1234)
     worst_pos, worst_rot = 0.0, 0.0
     for q in rng.uniform(-math.pi, math.pi, size=(20, 6)):
-        ur3.set_arm_configuration(client, body, q)
-        t_urdf = ur3.link_pose_matrix(client, body, tool0)
+        _set_arm(body, q)
+        t_urdf = body.link_pose(ur3.TOOL0_LINK).as_matrix()
         t_dh = ur3.T_BASELINK_BASE @ ur3.dh_forward_kinematics(q)
         worst_pos = max(worst_pos, float(np.linalg.norm(t_urdf[:3, 3] - t_dh[:3, 3])))
         worst_rot = max(worst_rot, float(np.abs(t_urdf[:3, :3] - t_dh[:3, :3]).max()))
@@ -142,17 +146,15 @@ def test_urdf_fk_equals_dh_fk_for_random_configurations(client: int, model: Path
 @pytest.mark.parametrize("model", _arm_models(), ids=lambda m: m.name)
 def test_arm_masses_match_the_facts(client: int, model: Path) -> None:
     body = _load(client, model, fixed=False)  # a fixed base reports mass 0
-    links = ur3.link_indices_by_name(client, body)
     for name, mass in UR3_MASSES.items():
-        assert p.getDynamicsInfo(body, links[name], physicsClientId=client)[0] == pytest.approx(mass)
+        assert _mass(body, name) == pytest.approx(mass)
     for name in FRAME_LINKS:
-        assert p.getDynamicsInfo(body, links[name], physicsClientId=client)[0] < 1e-3
+        assert _mass(body, name) < 1e-3
 
 
 def test_bare_arm_total_mass_and_limits(client: int) -> None:
     body = _load(client, paths.ur3_urdf(), fixed=False)
-    links = ur3.link_indices_by_name(client, body)
-    total = sum(p.getDynamicsInfo(body, j, physicsClientId=client)[0] for j in links.values())
+    total = sum(_mass(body, name) for name in body.links)
     assert total == pytest.approx(sum(UR3_MASSES.values()), abs=1e-3)  # 10.63 kg
     expected = {  # (upper limit, velocity, effort), ROBOT_FACTS.md
         "shoulder_pan_joint": (2 * math.pi, math.pi, 56),
@@ -162,24 +164,23 @@ def test_bare_arm_total_mass_and_limits(client: int) -> None:
         "wrist_2_joint": (2 * math.pi, 2 * math.pi, 12),
         "wrist_3_joint": (2 * math.pi, 2 * math.pi, 12),
     }
-    joints = ur3.joint_indices_by_name(client, body)
     for name, (upper, velocity, effort) in expected.items():
-        info = p.getJointInfo(body, joints[name], physicsClientId=client)
-        assert info[2] == p.JOINT_REVOLUTE
-        assert (info[8], info[9]) == pytest.approx((-upper, upper), abs=1e-6)
-        assert info[10] == pytest.approx(effort)
-        assert info[11] == pytest.approx(velocity, abs=1e-6)
+        joint = body.joints[name]
+        assert joint.kind == "revolute"
+        assert (joint.lower, joint.upper) == pytest.approx((-upper, upper), abs=1e-6)
+        assert joint.max_force == pytest.approx(effort)
+        assert joint.max_velocity == pytest.approx(velocity, abs=1e-6)
+    np.testing.assert_allclose(ur3.arm_limits(body), ur3.JOINT_LIMITS, atol=1e-6)
 
 
 def test_kinect_mass_and_camera_frames(client: int) -> None:
     body = _load(client, paths.kinect_urdf(), fixed=False)
-    links = ur3.link_indices_by_name(client, body)
-    assert p.getDynamicsInfo(body, -1, physicsClientId=client)[0] == pytest.approx(0.9)
-    assert {"kinect_link", "camera_link", "camera_optical_frame"} <= set(links)
-    aabb_min, aabb_max = p.getAABB(body, -1, physicsClientId=client)
+    assert _mass(body, "kinect_link") == pytest.approx(0.9)
+    assert {"kinect_link", "camera_link", "camera_optical_frame"} <= set(body.links)
+    aabb_min, aabb_max = p.getAABB(body.uid, -1, physicsClientId=client)
     np.testing.assert_allclose(np.subtract(aabb_max, aabb_min), [0.066, 0.25, 0.067], atol=0.005)
-    cam = ur3.link_pose_matrix(client, body, links["camera_link"])
-    opt = ur3.link_pose_matrix(client, body, links["camera_optical_frame"])
+    cam = body.link_pose("camera_link").as_matrix()
+    opt = body.link_pose("camera_optical_frame").as_matrix()
     np.testing.assert_allclose(cam[:3, 3], [0.033, 0, 0], atol=1e-6)  # front face of the body
     np.testing.assert_allclose(opt[:3, 2], cam[:3, 0], atol=1e-6)  # optical z = viewing direction
     np.testing.assert_allclose(opt[:3, 0], -cam[:3, 1], atol=1e-6)  # optical x = image right
@@ -191,14 +192,14 @@ def test_kinect_mass_and_camera_frames(client: int) -> None:
 def test_no_self_collision_at_rest_poses(client: int, model: Path, q: np.ndarray) -> None:
     flags = FLAGS | p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT  # the seed's
     body = _load(client, model, flags=flags)
-    ur3.set_arm_configuration(client, body, q)
+    _set_arm(body, q)
     p.performCollisionDetection(physicsClientId=client)
-    names = {v: k for k, v in ur3.link_indices_by_name(client, body).items()}
+    names = {v: k for k, v in body.links.items()}
     arm_links = {*UR3_MASSES, *FRAME_LINKS}
     # pairs touching the arm (the RG2's own internal pairs are the gripper's business)
     contacts = [
         c
-        for c in p.getContactPoints(body, body, physicsClientId=client)
+        for c in p.getContactPoints(body.uid, body.uid, physicsClientId=client)
         if c[8] < -1e-4 and (names[c[3]] in arm_links or names[c[4]] in arm_links)
     ]
     assert not contacts, [(names[c[3]], names[c[4]], c[8]) for c in contacts]
@@ -208,33 +209,17 @@ def test_no_self_collision_at_rest_poses(client: int, model: Path, q: np.ndarray
 def test_one_second_under_random_position_targets_is_stable(client: int, model: Path) -> None:
     body = _load(client, model)
     rng = np.random.default_rng(7)
-    arm = ur3.arm_joint_indices(client, body)
-    ur3.set_arm_configuration(client, body, HOME)
+    _set_arm(body, HOME)
     targets = HOME + rng.uniform(-0.5, 0.5, size=6)
-    p.setJointMotorControlArray(
-        body,
-        list(arm),
-        p.POSITION_CONTROL,
-        targetPositions=targets.tolist(),
-        forces=EFFORTS,
-        physicsClientId=client,
-    )
-    n_links = p.getNumJoints(body, physicsClientId=client)
+    efforts = dict(zip(ur3.JOINT_NAMES, EFFORTS, strict=True))
+    body.position_control(dict(zip(ur3.JOINT_NAMES, targets, strict=True)), efforts)
     for step in range(240):
         if step == 120:  # a second random target half way
             targets = HOME + rng.uniform(-0.5, 0.5, size=6)
-            p.setJointMotorControlArray(
-                body,
-                list(arm),
-                p.POSITION_CONTROL,
-                targetPositions=targets.tolist(),
-                forces=EFFORTS,
-                physicsClientId=client,
-            )
+            body.position_control(dict(zip(ur3.JOINT_NAMES, targets, strict=True)), efforts)
         p.stepSimulation(physicsClientId=client)
-    states = p.getLinkStates(body, list(range(n_links)), computeForwardKinematics=1, physicsClientId=client)
-    positions = np.array([s[4] for s in states])
-    q = np.array([s[0] for s in p.getJointStates(body, list(arm), physicsClientId=client)])
+    positions = np.array([body.link_pose(name).pos for name in body.links])
+    q = body.joint_positions(ur3.JOINT_NAMES)
     assert np.all(np.isfinite(positions)) and np.all(np.isfinite(q))
     assert np.linalg.norm(positions, axis=1).max() < 2.0  # base at the origin
     # nothing beyond the stretched-out arm: d1 + |a2| + |a3| + d5 + d6 + the RG2 (< 0.25 m) < 1.25 m
@@ -255,18 +240,16 @@ def test_kinect_falls_and_rests_on_a_plane(client: int) -> None:
 
 def test_combined_model_has_gripper_on_tool0(client: int) -> None:
     body = _load(client, _combined_urdf())
-    links = ur3.link_indices_by_name(client, body)
-    joints = ur3.joint_indices_by_name(client, body)
     for name in ("rg2_base_link", "tcp"):
-        assert name in links
-    assert "gripper_finger1_joint" in joints
-    parent = p.getJointInfo(body, links["rg2_base_link"], physicsClientId=client)[16]
-    assert parent == links[ur3.TOOL0_LINK]
+        assert name in body.links
+    assert "gripper_finger1_joint" in body.joints
+    parent = p.getJointInfo(body.uid, body.links["rg2_base_link"], physicsClientId=client)[16]
+    assert parent == body.links[ur3.TOOL0_LINK]
     rng = np.random.default_rng(3)
     for q in rng.uniform(-math.pi, math.pi, size=(5, 6)):
-        ur3.set_arm_configuration(client, body, q)
-        t_tool0 = ur3.link_pose_matrix(client, body, links[ur3.TOOL0_LINK])
-        t_grip = ur3.link_pose_matrix(client, body, links["rg2_base_link"])
+        _set_arm(body, q)
+        t_tool0 = body.link_pose(ur3.TOOL0_LINK).as_matrix()
+        t_grip = body.link_pose("rg2_base_link").as_matrix()
         np.testing.assert_allclose(t_grip[:3, 2], t_tool0[:3, 2], atol=1e-6)  # +z along the flange
         np.testing.assert_allclose(t_grip[:3, 3], t_tool0[:3, 3], atol=1e-6)
 
