@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from annotator import paths
-from annotator.config import PhysicsConfig
+from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.render import render_rgb
 from annotator.scene import SceneConfig, build_scene, scene_command
@@ -138,7 +138,7 @@ class SeedScript:
 def test_seed_script_runs_on_combined_model_as_written(position, yaw):
     """The seed's loop, verbatim: the base stays put, the arm reaches the sliders, the fingers follow."""
     urdf = paths.ur3_rg2_urdf()
-    table = fk_table(str(urdf), *SEED_GRIPPER_LIMITS)
+    table = fk_table(str(urdf), *SEED_GRIPPER_LIMITS, GripperConfig().width_table_samples)
     orientation = [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
     with World(PhysicsConfig(gravity=-9.8)) as world:
         seed = SeedScript(world.client, urdf, position, orientation)

@@ -46,6 +46,7 @@ import numpy as np
 import pybullet as pb
 
 from annotator import paths
+from annotator.config import GripperConfig
 from annotator.geometry import Transform
 from annotator.sim.body import Body
 from annotator.sim.rg2 import WidthTable, fk_table, read_mimic_table
@@ -412,8 +413,11 @@ class ArmFrames:
 
 
 @functools.lru_cache(maxsize=4)
-def arm_frames(urdf: str | None = None) -> ArmFrames:
-    """Read :class:`ArmFrames` from a UR3 model (default: the UR3 + RG2) in a private DIRECT client."""
+def arm_frames(urdf: str | None = None, gripper_config: GripperConfig | None = None) -> ArmFrames:
+    """Read :class:`ArmFrames` from a UR3 model (default: the UR3 + RG2) in a private DIRECT client.
+
+    ``gripper_config`` sets how finely the RG2's FK table is sampled (as :class:`RG2` does).
+    """
     path = Path(urdf) if urdf is not None else paths.ur3_rg2_urdf()
     client = pb.connect(pb.DIRECT)
     try:
@@ -429,7 +433,8 @@ def arm_frames(urdf: str | None = None) -> ArmFrames:
     gripper = None
     if T_tool0_gripper is not None:
         driven = {m.driven for m in read_mimic_table(path).values()}.pop()
-        gripper = fk_table(str(path), *limits[driven])
+        samples = (gripper_config or GripperConfig()).width_table_samples
+        gripper = fk_table(str(path), *limits[driven], samples)
     return ArmFrames(T_baselink_base, T_tool0_gripper, gripper)
 
 
