@@ -267,6 +267,68 @@ class RobustConfig(_Section):
 
 
 @dataclass(frozen=True)
+class CellConfig(_Section):
+    """The seed's robot cell (annotator/cell): table, UR3 mount and Kinect v2, in the world frame.
+
+    Positions are metres, angles degrees. The seed script's numbers (../shared/ROBOT_FACTS.md
+    "Seed scene"): UR3 at the origin, table/table.urdf at (0.5, 0, -0.65), Kinect at (0.4, 0, 1.57).
+    """
+
+    table_urdf: str = _field("table/table.urdf")  # from the installed pybullet_data, as the seed
+    table_x: float = _field(0.5)
+    table_y: float = _field(0.0)
+    table_z: float = _field(-0.65)  # the top surface lands at z = -0.025 (0.6 + half its 0.05 m)
+    # The UR3's base_link pose: the seed's robot stands at the origin, unrotated.
+    robot_x: float = _field(0.0)
+    robot_y: float = _field(0.0)
+    robot_z: float = _field(0.0)
+    robot_yaw: float = _field(0.0)  # deg about world z
+    kinect_x: float = _field(0.4)
+    kinect_y: float = _field(0.0)
+    kinect_z: float = _field(1.57)
+    # The seed's Kinect orientation is not recorded (ROBOT_FACTS gives the position only); chosen:
+    # straight down (pitch 90 deg turns the body's +x, its viewing axis, to world -z), so the
+    # 70.6 x 60 deg depth frustum covers the table top in front of the arm from 1.6 m above it.
+    kinect_pitch: float = _field(90.0, ge=-90.0, le=90.0)  # deg about world y
+    kinect_yaw: float = _field(0.0)  # deg about world z, applied after the pitch
+
+
+@dataclass(frozen=True)
+class KinectConfig(_Section):
+    """The Kinect v2 as rendered (annotator/cell/kinect.py); ../shared/ROBOT_FACTS.md "Kinect v2".
+
+    Images are rendered with the pinhole intrinsics these fields imply: fx from the horizontal,
+    fy from the vertical field of view, principal point at the image centre (for depth fx = 361.6,
+    fy = 367.2 px; the sample calibration in ROBOT_FACTS has fx = fy = 365.5: within 1 %). Depth and
+    colour are rendered from one optical frame (the real colour camera sits ~5 cm beside the depth
+    camera; a learner that needs the offset should calibrate it on the real sensor).
+    """
+
+    depth_width: int = _field(512, ge=1)  # px [V]
+    depth_height: int = _field(424, ge=1)  # px [V]
+    depth_hfov: float = _field(70.6, gt=0.0, lt=180.0)  # deg [V]
+    depth_vfov: float = _field(60.0, gt=0.0, lt=180.0)  # deg [V]
+    color_width: int = _field(1920, ge=1)  # px [V]
+    color_height: int = _field(1080, ge=1)  # px [V]
+    color_hfov: float = _field(84.1, gt=0.0, lt=180.0)  # deg [V]
+    color_vfov: float = _field(53.8, gt=0.0, lt=180.0)  # deg [V]
+    # Depth range [V] 0.5..4.5 m: outside it the sensor reports 0 (no measurement), as here.
+    min_range: float = _field(0.5, gt=0.0)
+    max_range: float = _field(4.5, gt=0.0)
+    # Clip planes of the off-screen renderer (m): inside the near one and beyond the far one
+    # nothing is drawn; chosen to bracket the sensor's range so that range is cut explicitly.
+    near_plane: float = _field(0.05, gt=0.0)
+    far_plane: float = _field(6.0, gt=0.0)
+    # Optional depth noise (used only when a render is given a Generator). [C] Gaussian along the
+    # ray with sigma = noise_sigma_1m x z^2 (z in m), then rounded to noise_quantum, the sensor's
+    # millimetre output. The published Kinect v2 evaluations (Fankhauser et al., ICAR 2015; Corti
+    # et al., RAS 2016) report random errors of a few mm at 1 m growing with distance and with the
+    # surface's angle: 1.5 mm at 1 m is that order of magnitude, not a calibration of a sensor.
+    noise_sigma_1m: float = _field(0.0015, ge=0.0)  # m at z = 1 m
+    noise_quantum: float = _field(0.001, ge=0.0)  # m; 0 keeps floats
+
+
+@dataclass(frozen=True)
 class AnnotatorConfig:
     """All sections together; the single configuration object the runner passes to workers."""
 
@@ -276,6 +338,8 @@ class AnnotatorConfig:
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
     robust: RobustConfig = field(default_factory=RobustConfig)
+    cell: CellConfig = field(default_factory=CellConfig)
+    kinect: KinectConfig = field(default_factory=KinectConfig)
 
     @classmethod
     def thorough(cls, base: AnnotatorConfig | None = None) -> AnnotatorConfig:
@@ -345,4 +409,6 @@ _SECTION_NAMES = {
     "SamplerConfig": "sampler",
     "ProtocolConfig": "protocol",
     "RobustConfig": "robust",
+    "CellConfig": "cell",
+    "KinectConfig": "kinect",
 }

@@ -18,7 +18,6 @@ from PIL import Image
 from annotator import paths
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
-from annotator.render import render_rgb
 from annotator.scene import SceneConfig, build_scene, scene_command
 from annotator.sim.rg2 import fk_table
 from annotator.sim.ur3 import JOINT_NAMES
@@ -196,7 +195,7 @@ def test_build_scene_matches_seed_numbers():
         assert pb.getPhysicsEngineParameters(physicsClientId=world.client)["gravityAccelerationZ"] == -9.8
         np.testing.assert_allclose(scene.robot.base_pose().pos, 0.0, atol=1e-9)
         np.testing.assert_allclose(scene.arm_positions(), config.initial_arm, atol=1e-9)
-        np.testing.assert_allclose(scene.kinect.base_pose().pos, config.kinect_pos, atol=1e-9)
+        np.testing.assert_allclose(scene.kinect.base_pose().pos, (0.4, 0.0, 1.57), atol=1e-9)  # the seed's
         # The Kinect's optical axis (+z of its optical frame) points straight down at the table.
         optical_z = scene.kinect.link_pose("camera_optical_frame").rotation[:, 2]
         np.testing.assert_allclose(optical_z, [0.0, 0.0, -1.0], atol=1e-9)
@@ -209,8 +208,13 @@ def test_build_scene_matches_seed_numbers():
             world.step()
         np.testing.assert_allclose(scene.arm_positions(), config.initial_arm, atol=0.01)
         np.testing.assert_allclose(scene.cube.base_pose().pos, config.cube_pos, atol=0.002)
-        np.testing.assert_allclose(scene.table.base_pose().pos, config.table_pos, atol=1e-9)
-        # The Kinect sees the table (not a flat picture) from its 512 x 424 frame.
-        image = render_rgb(world.client, scene.kinect_camera())
-        assert image.shape == (424, 512, 3)
-        assert len(np.unique(image.reshape(-1, 3), axis=0)) > 50
+        np.testing.assert_allclose(scene.table.base_pose().pos, (0.5, 0.0, -0.65), atol=1e-9)
+        assert scene.cell.top.z == pytest.approx(-0.025, abs=1e-9)
+        # The Kinect sees the table top 1.562 m below it and the cube on it, in its 512 x 424 frame.
+        view = scene.cell.render_kinect(color=True, color_scale=0.25)
+        assert view.depth.shape == (424, 512) and view.color.shape == (270, 480, 3)
+        table_px = view.segmentation == scene.table.uid
+        assert table_px.mean() > 0.3  # 1.5 x 1 m of a 2.2 x 1.8 m footprint
+        np.testing.assert_allclose(np.median(view.depth[table_px]), 1.562, atol=0.002)
+        assert (view.segmentation == scene.cube.uid).any()
+        assert len(np.unique(view.color.reshape(-1, 3), axis=0)) > 50

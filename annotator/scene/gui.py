@@ -1,0 +1,103 @@
+"""The seed's slider loop in the PyBullet GUI, at real time (the one place that sleeps)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+import pybullet as pb
+
+from annotator.render import Camera, render_rgb, write_png
+from annotator.scene.demo import demo_script
+from annotator.scene.model import Scene, SceneConfig, build_scene, open_world
+from annotator.sim.ur3 import JOINT_NAMES
+
+GRIPPER_SLIDER = "gripper_opening_angle"  # the seed's slider name
+
+
+def add_sliders(scene: Scene) -> dict[str, int]:
+    """The seed's sliders: six joints over +-pi at the initial pose, and the gripper angle."""
+    c = scene.config
+    sliders = {
+        name: pb.addUserDebugParameter(name, -c.slider_range, c.slider_range, q, physicsClientId=scene.client)
+        for name, q in zip(JOINT_NAMES, c.initial_arm, strict=True)
+    }
+    lower, upper = scene.gripper_range()
+    sliders[GRIPPER_SLIDER] = pb.addUserDebugParameter(
+        GRIPPER_SLIDER, lower, upper, 0.0, physicsClientId=scene.client
+    )
+    return sliders
+
+
+def read_sliders(scene: Scene, sliders: dict[str, int]) -> tuple[np.ndarray, float]:
+    read = lambda name: pb.readUserDebugParameter(sliders[name], physicsClientId=scene.client)  # noqa: E731
+    return np.array([read(n) for n in JOINT_NAMES]), read(GRIPPER_SLIDER)
+
+
+def screenshot(scene: Scene) -> np.ndarray:
+    """The GUI window's current view, (h, w, 3) uint8, rendered with the window's own camera."""
+    width, height, view, projection = pb.getDebugVisualizerCamera(physicsClientId=scene.client)[:4]
+    camera = Camera(tuple(view), tuple(projection), width, height)
+    return render_rgb(scene.client, camera, renderer=pb.ER_BULLET_HARDWARE_OPENGL)
+
+
+def run_gui(
+    config: SceneConfig,
+    seconds: float | None,
+    screenshot_path: Path | None,
+    screenshot_at: float,
+    demo: bool,
+) -> None:
+    """The seed's slider loop at real time until the window closes or ``seconds`` of sim time pass."""
+    world = open_world(config, gui=True)
+    client = world.client
+    # Every PyBullet call in GUI mode waits for the window thread; loading and RG2's FK table with
+    # rendering on took ~40 s under software OpenGL, ~1-10 s with it off.
+    pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 0, physicsClientId=client)
+    scene = build_scene(world, config)
+    script = demo_script(scene) if demo else None
+    pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 1, physicsClientId=client)
+    pb.resetDebugVisualizerCamera(
+        config.camera_distance,
+        config.camera_yaw,
+        config.camera_pitch,
+        list(config.camera_target),
+        physicsClientId=client,
+    )
+    sliders = add_sliders(scene)
+    # One stepSimulation call per GUI frame, split into substeps of the usual time step.
+    substeps = max(1, round(1.0 / (config.gui_rate * world.dt)))
+    frame_dt = substeps * world.dt
+    pb.setPhysicsEngineParameter(fixedTimeStep=frame_dt, numSubSteps=substeps, physicsClientId=client)
+    frame, start = 0, time.monotonic()
+    try:
+        while seconds is None or frame * frame_dt < seconds:
+            try:
+                if script is not None:
+                    arm, angle = script.at((frame * frame_dt) % (script.duration + 1.0))
+                else:
+                    arm, angle = read_sliders(scene, sliders)
+                scene.command_arm(arm)
+                scene.command_gripper(angle)
+                pb.stepSimulation(physicsClientId=client)
+            except pb.error:  # the window was closed
+                break
+            frame += 1
+            t = frame * frame_dt
+            if screenshot_path is not None and t >= screenshot_at:
+                write_png(screenshot(scene), screenshot_path)
+                width, height = pb.getDebugVisualizerCamera(physicsClientId=client)[:2]
+                q = np.round(scene.arm_positions(), 4).tolist()
+                click.echo(f"screenshot {width}x{height} at t={t:.2f} s, arm q = {q} -> {screenshot_path}")
+                screenshot_path = None
+            lag = start + t - time.monotonic()
+            if lag > 0:
+                time.sleep(lag)  # real time in the interactive loop only
+        if pb.isConnected(physicsClientId=client):
+            wall = time.monotonic() - start
+            q = np.round(scene.arm_positions(), 4).tolist()
+            click.echo(f"ran {frame * frame_dt:.2f} s simulated in {wall:.2f} s; arm q = {q}")
+    finally:
+        world.close()
