@@ -209,6 +209,7 @@ def main() -> None:
     annotator annotate --objects objects/ --n 500   the batch job (same as `annotate`)
     annotator scene                                 the UR3 + RG2 scene with sliders (GUI)
     annotator scene --headless --gif scene.gif      a scripted sequence rendered to a GIF
+    annotator replay labels/ --object box --grasp 3 one label executed by the UR3 + RG2 on the table
     """
 
 
@@ -217,8 +218,10 @@ main.add_command(annotate_command)
 
 def _register_optional_commands() -> None:
     from annotator.scene import scene_command
+    from annotator.tools.commands import replay_command
 
     main.add_command(scene_command)
+    main.add_command(replay_command)
 
 
 _register_optional_commands()

@@ -291,6 +291,20 @@ class CellConfig(_Section):
     # 70.6 x 60 deg depth frustum covers the table top in front of the arm from 1.6 m above it.
     kinect_pitch: float = _field(90.0, ge=-90.0, le=90.0)  # deg about world y
     kinect_yaw: float = _field(0.0)  # deg about world z, applied after the pitch
+    # Placements (annotator/cell/placement.py): each object rests on the table top in its stable
+    # poses (trimesh's compute_stable_poses), its centre of mass over this point in front of the
+    # mount: 0.35 m out is mid-reach for the UR3 (the closed-form IK reaches a top-down TCP at the
+    # table out to 0.52 m; nearer than ~0.2 m the wrist centre runs into the d4 cylinder).
+    placement_x: float = _field(0.35)  # m, world
+    placement_y: float = _field(0.0)  # m, world
+    placements_per_object: int = _field(3, ge=1)  # the most probable few stable poses
+    # Stable poses whose "up" direction in the object frame differs by less than this are one
+    # placement (a cylinder's hull gives one pose per side facet, 7.5 deg apart): probabilities add.
+    placement_merge_angle: float = _field(20.0, ge=0.0, le=180.0)  # deg
+    placement_min_probability: float = _field(0.02, ge=0.0, le=1.0)  # rarer poses are not used
+    # Reachability (annotator/cell/reach.py): any arm or gripper link closer than this to the
+    # table, or arm link (not gripper) to the object, along the approach is a collision.
+    arm_collision_margin: float = _field(0.0, ge=0.0)  # m; 0: touching counts
 
 
 @dataclass(frozen=True)

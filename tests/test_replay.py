@@ -1,0 +1,120 @@
+"""Replay a label on the UR3 + RG2 in the cell: a box success lifts the box, a collision touches it."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+from annotator.cell import build_cell
+from annotator.config import AnnotatorConfig
+from annotator.dataset import load_labels
+from annotator.objects import create_body, load_object
+from annotator.runner import RunOptions, run
+from annotator.sim.world import World
+from annotator.tools.commands import replay_command
+from annotator.tools.replay import PLACEMENT_COLUMNS, plan_replay, replay
+
+CONFIG = AnnotatorConfig()
+SAMPLES = Path(__file__).resolve().parent.parent / "objects"
+
+
+@pytest.fixture(scope="module")
+def box_labels(tmp_path_factory):
+    """Real floating labels of the sample box (20 candidates, one worker)."""
+    root = tmp_path_factory.mktemp("replay")
+    objects = root / "objects"
+    objects.mkdir()
+    shutil.copy(SAMPLES / "box.obj", objects / "box.obj")
+    out = root / "labels"
+    run(RunOptions(objects_dir=objects, n=20, out_dir=out, workers=1, quiet=True), CONFIG)
+    return objects, out, load_labels(out)
+
+
+def _world_with_box(objects):
+    world = World(CONFIG.physics)
+    cell = build_cell(world, CONFIG.cell, gripper=CONFIG.gripper, kinect=False)
+    model = load_object(objects / "box.obj", CONFIG.objects)
+    return world, cell, model, create_body(world.client, model)
+
+
+def test_a_reachable_box_success_lifts_the_box(box_labels):
+    objects, _, labels = box_labels
+    successes = labels[labels.outcome == "success"]
+    assert len(successes) >= 3
+    world, cell, model, obj = _world_with_box(objects)
+    with world:
+        for _, row in successes.iterrows():
+            plan = plan_replay(cell, model, obj, row, CONFIG)
+            if plan.reach.reachable:
+                break
+        else:
+            pytest.fail("no box success is reachable in any placement")
+        # the placement puts the box on the table, the arm path ends at the label's TCP pose
+        assert plan.T_world_obj.pos[2] > cell.top.z
+        np.testing.assert_allclose(
+            cell.tcp_pose(plan.reach.q_grasp, plan.width).pos, plan.T_world_tcp.pos, atol=1e-9
+        )
+        result = replay(cell, obj, plan, CONFIG)
+        assert result.approach_contacts == []
+        assert result.pads_touching == 2
+        assert result.closed_width == pytest.approx(float(row["width"]), abs=0.003)
+        assert result.lifted(CONFIG.protocol.lift_height), result.rise
+        assert result.held(CONFIG.protocol.lift_height, CONFIG.protocol.max_slip)
+        assert result.slip < 0.005
+
+
+def test_a_collision_row_reports_the_contact(box_labels):
+    objects, _, labels = box_labels
+    collisions = labels[labels.outcome == "collision"]
+    assert len(collisions) >= 1
+    world, cell, model, obj = _world_with_box(objects)
+    with world:
+        for _, row in collisions.iterrows():
+            plan = plan_replay(cell, model, obj, row, CONFIG)
+            if plan.reach.reachable:
+                break
+        else:
+            pytest.skip("no collision row is reachable")
+        result = replay(cell, obj, plan, CONFIG)
+        assert any("the object" in c for c in result.approach_contacts), result.approach_contacts
+
+
+def test_a_labels_own_placement_is_used(box_labels):
+    """A label that carries the object's pose on the table (annotate --cell) is replayed there."""
+    objects, _, labels = box_labels
+    row = labels[labels.outcome == "success"].iloc[0].copy()
+    world, cell, model, obj = _world_with_box(objects)
+    with world:
+        chosen = plan_replay(cell, model, obj, row, CONFIG)
+        moved = chosen.T_world_obj.pos + np.array([0.03, -0.02, 0.0])
+        for name, value in zip(PLACEMENT_COLUMNS, [*moved, *chosen.T_world_obj.quat], strict=True):
+            row[name] = value
+        plan = plan_replay(cell, model, obj, row, CONFIG)
+        assert plan.note == "placement: the label's own"
+        np.testing.assert_allclose(plan.T_world_obj.pos, moved, atol=1e-12)
+
+
+def test_replay_command_prints_the_verdict_and_writes_a_gif(box_labels, tmp_path):
+    objects, out, labels = box_labels
+    grasp = int(labels[labels.outcome == "success"].iloc[0]["grasp_id"])
+    gif = tmp_path / "replay.gif"
+    args = [str(out), "--object", "box", "--grasp", str(grasp), "--objects", str(objects), "--gif", str(gif)]
+    result = CliRunner().invoke(replay_command, args)
+    assert result.exit_code == 0, result.output
+    assert "placement:" in result.output and "lift: the object" in result.output
+    assert "verdict:" in result.output
+    with Image.open(gif) as im:
+        assert im.n_frames > 20
+    bad = CliRunner().invoke(
+        replay_command, [str(out), "--object", "box", "--grasp", "999", "--objects", str(objects)]
+    )
+    assert bad.exit_code == 2 and "has no grasp 999" in bad.output
+    missing = CliRunner().invoke(
+        replay_command, [str(out), "--object", "nope", "--grasp", "0", "--objects", str(objects)]
+    )
+    assert missing.exit_code == 2 and "no labels for object 'nope'" in missing.output
