@@ -8,7 +8,10 @@ import click
 import numpy as np
 
 from annotator.cell.kinect import write_depth_png
+from annotator.config import AnnotatorConfig
+from annotator.objects import ObjectError
 from annotator.render import write_gif, write_png
+from annotator.scene.capture import Capturer, load_capture_object
 from annotator.scene.demo import demo_script, run_script
 from annotator.scene.gui import run_gui
 from annotator.scene.model import SceneConfig, build_scene, open_world
@@ -66,6 +69,21 @@ from annotator.scene.model import SceneConfig, build_scene, open_world
 @click.option(
     "--demo", is_flag=True, help="GUI: play the scripted sequence (looping) instead of reading the sliders."
 )
+@click.option(
+    "--object",
+    "object_path",
+    type=click.Path(dir_okay=False, exists=True, path_type=Path),
+    help="An object (mesh or object URDF, metres) instead of the seed's cube, resting on the table "
+    "0.35 m in front of the arm.",
+)
+@click.option(
+    "--capture-out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=Path("captures.parquet"),
+    show_default=True,
+    help="GUI: Enter captures the current grasp on the object, runs the label protocol on it and "
+    "appends the row here.",
+)
 def scene_command(
     headless: bool,
     gif_path: Path | None,
@@ -79,6 +97,8 @@ def scene_command(
     screenshot_path: Path | None,
     screenshot_at: float,
     demo: bool,
+    object_path: Path | None,
+    capture_out: Path,
 ) -> None:
     """The seed scene: UR3 + RG2 at the origin, table, cube and a Kinect looking down at the table.
 
@@ -92,6 +112,12 @@ def scene_command(
     pass --seconds to stop.
 
     \b
+    Capture (GUI): put the gripper around the object with the sliders and press Enter: the grasp
+    (its pose relative to the object, the expected width from the object's chord along the
+    closing axis) runs through the same trial as `annotate` (close, lift, shake) and one row with
+    the label schema is appended to --capture-out.
+
+    \b
     Headless (--headless): no window; the scripted sequence (sweep the joints, open, reach
     towards the cube from the side, close, lift) runs in simulated time and is rendered with the
     software renderer from the seed's camera (distance 2, yaw 0, pitch -40, target 0.5 -0.9 0.5).
@@ -102,17 +128,28 @@ def scene_command(
       annotator scene --headless --gif scene.gif --png last.png --kinect-png kinect.png
       annotator scene --headless --kinect-depth depth.png
       xvfb-run -a annotator scene --demo --seconds 3 --screenshot-at 2 --screenshot window.png
+      annotator scene --object objects/mug.obj --capture-out mug_captures.parquet
     """
     config = SceneConfig()
+    labels_config = AnnotatorConfig()
+    try:
+        obj = load_capture_object(object_path, labels_config, config.cube_urdf)
+    except ObjectError as exc:
+        raise click.UsageError(f"--object {object_path}: {exc}") from exc
+    scene_obj = obj if object_path is not None else None  # the seed's own cube body otherwise
     if not headless:
         if gif_path or png_path or kinect_path or kinect_depth_path:
             raise click.UsageError("--gif, --png, --kinect-png and --kinect-depth need --headless")
-        run_gui(config, seconds, screenshot_path, screenshot_at, demo)
+        capturer = Capturer(obj, labels_config, capture_out)
+        try:
+            run_gui(config, seconds, screenshot_path, screenshot_at, demo, capturer, scene_obj)
+        finally:
+            capturer.close()
         return
     if screenshot_path:
         raise click.UsageError("--screenshot is for the GUI; use --png with --headless")
     with open_world(config, gui=False) as world:
-        scene = build_scene(world, config)
+        scene = build_scene(world, config, scene_obj)
         camera = scene.seed_camera(*size, fov=fov) if (gif_path or png_path) else None
         script = demo_script(scene)
         rec = run_script(scene, script, camera, frames if gif_path else 2)

@@ -9,12 +9,16 @@ import click
 import numpy as np
 import pybullet as pb
 
+from annotator.objects import ObjectModel
 from annotator.render import Camera, render_rgb, write_png
+from annotator.scene.capture import Capturer, capture_now
 from annotator.scene.demo import demo_script
 from annotator.scene.model import Scene, SceneConfig, build_scene, open_world
 from annotator.sim.ur3 import JOINT_NAMES
 
 GRIPPER_SLIDER = "gripper_opening_angle"  # the seed's slider name
+# Enter captures the current grasp (PyBullet's window binds many letter keys to its own toggles).
+CAPTURE_KEYS = (pb.B3G_RETURN, 13)
 
 
 def add_sliders(scene: Scene) -> dict[str, int]:
@@ -43,20 +47,43 @@ def screenshot(scene: Scene) -> np.ndarray:
     return render_rgb(scene.client, camera, renderer=pb.ER_BULLET_HARDWARE_OPENGL)
 
 
+def _capture_key_pressed(client: int) -> bool:
+    keys = pb.getKeyboardEvents(physicsClientId=client)
+    return any(keys.get(k, 0) & pb.KEY_WAS_TRIGGERED for k in CAPTURE_KEYS)
+
+
+def _capture(scene: Scene, capturer: Capturer) -> None:
+    candidate, row = capture_now(scene, capturer)
+    r = row.iloc[0]
+    chord = "the object's chord" if candidate.chord_found else "the current opening"
+    text = f"capture {r['object_id']} #{r['grasp_id']}: {r['outcome']}, width {r['width'] * 1000:.1f} mm"
+    click.echo(f"{text} (expected width {candidate.width * 1000:.1f} mm, {chord}) -> {capturer.out}")
+    pb.addUserDebugText(
+        text, (scene.cube.base_pose().pos + [0.0, 0.0, 0.15]).tolist(), [0.1, 0.1, 0.6], 1.2,
+        lifeTime=4.0, physicsClientId=scene.client,
+    )  # fmt: skip
+
+
 def run_gui(
     config: SceneConfig,
     seconds: float | None,
     screenshot_path: Path | None,
     screenshot_at: float,
     demo: bool,
+    capturer: Capturer | None = None,
+    obj: ObjectModel | None = None,
 ) -> None:
-    """The seed's slider loop at real time until the window closes or ``seconds`` of sim time pass."""
+    """The seed's slider loop at real time until the window closes or ``seconds`` of sim time pass.
+
+    With a ``capturer``, the capture key (Enter) runs the current grasp through the protocol and
+    appends its label row (:func:`annotator.scene.capture.capture_now`). ``obj`` replaces the cube.
+    """
     world = open_world(config, gui=True)
     client = world.client
     # Every PyBullet call in GUI mode waits for the window thread; loading and RG2's FK table with
     # rendering on took ~40 s under software OpenGL, ~1-10 s with it off.
     pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 0, physicsClientId=client)
-    scene = build_scene(world, config)
+    scene = build_scene(world, config, obj)
     script = demo_script(scene) if demo else None
     pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 1, physicsClientId=client)
     pb.resetDebugVisualizerCamera(
@@ -86,6 +113,8 @@ def run_gui(
                 break
             frame += 1
             t = frame * frame_dt
+            if capturer is not None and _capture_key_pressed(client):
+                _capture(scene, capturer)
             if screenshot_path is not None and t >= screenshot_at:
                 write_png(screenshot(scene), screenshot_path)
                 width, height = pb.getDebugVisualizerCamera(physicsClientId=client)[:2]

@@ -15,8 +15,10 @@ import numpy as np
 import pybullet_data
 
 from annotator.cell import Cell, build_cell
+from annotator.cell.placement import place, stable_poses
 from annotator.config import CellConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
+from annotator.objects import ObjectModel, create_body
 from annotator.render import Camera, orbit_camera
 from annotator.sim.body import Body
 from annotator.sim.rg2 import RG2
@@ -56,7 +58,8 @@ class SceneConfig:
 
 @dataclass
 class Scene:
-    """The loaded seed scene: the cell (arm, RG2, table, Kinect) and the cube (or a chosen object)."""
+    """The loaded seed scene: the cell (arm, RG2, table, Kinect) and the cube (or a chosen object,
+    still called ``cube``)."""
 
     cell: Cell
     config: SceneConfig
@@ -145,12 +148,23 @@ def open_world(config: SceneConfig, *, gui: bool) -> World:
     return World(config.physics, gui=gui)
 
 
-def build_scene(world: World, config: SceneConfig | None = None) -> Scene:
-    """Load the seed scene into ``world`` and put the arm in the seed's initial pose."""
+def build_scene(world: World, config: SceneConfig | None = None, obj: ObjectModel | None = None) -> Scene:
+    """Load the seed scene into ``world`` and put the arm in the seed's initial pose.
+
+    ``obj``: an object to use instead of the seed's cube, resting on the table in its most
+    probable stable pose with its centre of mass over the cell's placement point (0.35 m in front
+    of the arm, where it can be grasped from above; the seed's cube at 0.7 m only from the side).
+    """
     config = config or SceneConfig()
     cell = build_cell(world, config.cell, gripper=config.gripper)
-    data = Path(pybullet_data.getDataPath())
-    cube = Body.load(world.client, data / config.cube_urdf, Transform(config.cube_pos, [0, 0, 0, 1]))
+    if obj is None:
+        data = Path(pybullet_data.getDataPath())
+        cube = Body.load(world.client, data / config.cube_urdf, Transform(config.cube_pos, [0, 0, 0, 1]))
+    else:
+        pose = stable_poses(obj.mesh, config.cell.placement_merge_angle)[0]
+        xy = np.array([config.cell.placement_x, config.cell.placement_y])
+        T_world_obj = place(pose, cell.top, xy, 0.0, obj.center_mass)
+        cube = Body(world.client, create_body(world.client, obj, T_world_obj))
     scene = Scene(cell, config, cube)
     scene.reset_pose(config.initial_arm, 0.0)
     return scene

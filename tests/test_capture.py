@@ -1,0 +1,133 @@
+"""Capture by hand: the code path of the scene's capture key, and the key itself under Xvfb."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import load_labels, poses_as_matrices
+from annotator.geometry import Transform
+from annotator.scene import SceneConfig, build_scene
+from annotator.scene.capture import Capturer, capture_now, load_capture_object
+from annotator.scene.demo import CUBE_SIZE
+from annotator.sim.world import World
+
+SAMPLES = Path(__file__).resolve().parent.parent / "objects"
+# the demo's side grasp: approach +x tilted 10 deg down, closing along world y
+SIDE = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+TILT = np.array(
+    [[math.cos(0.1745), 0, math.sin(0.1745)], [0, 1, 0], [-math.sin(0.1745), 0, math.cos(0.1745)]]
+)
+
+
+def _pose_gripper(scene, T_world_tcp: Transform, width: float, opening: float) -> None:
+    """Put the arm so the TCP (at ``width``) is at ``T_world_tcp``, the pads ``opening`` apart."""
+    q = scene.solve_ik(T_world_tcp, width)
+    scene.cell.reset_arm(q)
+    scene.rg2.reset_width(opening)
+
+
+def test_capture_key_path_appends_a_label_row(tmp_path):
+    config = SceneConfig()
+    labels_config = AnnotatorConfig()
+    out = tmp_path / "captures.parquet"
+    capturer = Capturer(load_capture_object(None, labels_config), labels_config, out)
+    try:
+        with World(config.physics) as world:
+            scene = build_scene(world, config)
+            cube = scene.cube.base_pose().pos
+            # 1: the gripper open around the cube's middle, as a user leaves it before pressing Enter
+            _pose_gripper(scene, Transform.from_rotation(TILT @ SIDE, cube), CUBE_SIZE, 0.09)
+            candidate, row = capture_now(scene, capturer)
+            assert candidate.chord_found and candidate.width == pytest.approx(CUBE_SIZE, abs=1e-4)
+            assert row.iloc[0]["outcome"] == "success" and bool(row.iloc[0]["success"])
+            assert row.iloc[0]["width"] == pytest.approx(CUBE_SIZE, abs=0.002)
+            # the stored pose is the TCP in the cube's frame: the cube's centre, approach tilted down
+            T = poses_as_matrices(row)[0]
+            np.testing.assert_allclose(T[:3, 3], 0.0, atol=0.003)
+            assert T[2, 2] == pytest.approx(-math.sin(0.1745), abs=0.01)
+            # 2: the gripper beside the cube, not around it: no chord, the opening is used
+            beside = Transform.from_rotation(TILT @ SIDE, cube + np.array([0.0, 0.12, 0.0]))
+            _pose_gripper(scene, beside, 0.06, 0.06)
+            candidate, row = capture_now(scene, capturer)
+            assert not candidate.chord_found
+            assert row.iloc[0]["outcome"] in ("no_contact", "collision")
+    finally:
+        capturer.close()
+    labels = load_labels(out)  # the label schema, readable as labels
+    assert labels["grasp_id"].tolist() == [0, 1]
+    assert set(labels["object_id"]) == {"cube_small"}
+    assert pd.read_parquet(out).shape[0] == 2
+
+
+def test_capture_on_a_chosen_object(tmp_path):
+    labels_config = AnnotatorConfig()
+    model = load_capture_object(SAMPLES / "box.obj", labels_config)
+    config = SceneConfig()
+    out = tmp_path / "box.parquet"
+    capturer = Capturer(model, labels_config, out)
+    try:
+        with World(config.physics) as world:
+            scene = build_scene(world, config, model)  # the box instead of the cube, on the table
+            T_world_obj = scene.cube.base_pose()
+            assert T_world_obj.pos[2] > scene.cell.top.z
+            # from the top, closing across the box's shortest horizontal extent
+            vertices = T_world_obj.apply(np.asarray(model.mesh.vertices))
+            aabb = np.array([vertices.min(axis=0), vertices.max(axis=0)])
+            centre = aabb.mean(axis=0)
+            down = np.diag([1.0, -1.0, -1.0])
+            x_extent, y_extent = aabb[1, :2] - aabb[0, :2]
+            R = down if x_extent <= y_extent else down @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])
+            T_world_tcp = Transform.from_rotation(R, centre)
+            _pose_gripper(scene, T_world_tcp, min(x_extent, y_extent), 0.1)
+            candidate, row = capture_now(scene, capturer)
+            assert candidate.chord_found
+            assert row.iloc[0]["object_id"] == "box" and row.iloc[0]["outcome"] == "success"
+            assert row.iloc[0]["mesh_sha256"] == model.mesh_sha256
+    finally:
+        capturer.close()
+
+
+def test_enter_key_captures_in_the_gui(tmp_path):
+    """`annotator scene` under Xvfb; xdotool presses Enter in the window; a row appears."""
+    if shutil.which("xvfb-run") is None or shutil.which("xdotool") is None:
+        pytest.skip("needs xvfb-run and xdotool")
+    out = tmp_path / "captures.parquet"
+    script = tmp_path / "press.sh"
+    script.write_text(
+        "#!/bin/sh\n"
+        f"{sys.executable} -m annotator.scene --seconds 60 --capture-out {out} > {tmp_path}/log.txt 2>&1 &\n"
+        "pid=$!\n"
+        "w=''\n"
+        "for i in $(seq 1 240); do\n"
+        '  w=$(xdotool search --name Bullet | head -1); [ -n "$w" ] && break; sleep 0.5\n'
+        "done\n"
+        "for i in $(seq 1 20); do\n"  # the loop may still be loading: press until a row is written
+        '  sleep 2; xdotool key --window "$w" Return\n'  # no window manager under Xvfb: to the window
+        f"  sleep 1; [ -f {out} ] && break\n"
+        "done\n"
+        "kill $pid; wait $pid\n"
+    )
+    script.chmod(0o755)
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        ["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24", str(script)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    log = (tmp_path / "log.txt").read_text() if (tmp_path / "log.txt").exists() else proc.stderr
+    if "cannot open display" in log.lower() or "Xvfb failed" in proc.stderr:
+        pytest.skip(f"Xvfb cannot start here: {log[-300:]}")
+    assert out.exists(), f"no capture after {time.monotonic() - t0:.0f} s: {log[-2000:]}"
+    assert "capture cube_small #0" in log
+    assert load_labels(out).shape[0] >= 1
