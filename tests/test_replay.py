@@ -14,7 +14,7 @@ from annotator.cell import build_cell
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.objects import create_body, load_object
-from annotator.runner import RunOptions, run
+from annotator.pipeline.run import RunOptions, run
 from annotator.sim.world import World
 from annotator.tools.commands import replay_command
 from annotator.tools.replay import PLACEMENT_COLUMNS, plan_replay, replay
