@@ -299,6 +299,7 @@ def replay(
 
 
 def default_camera(T_world_obj: Transform, size: tuple[int, int] = (320, 240)) -> Camera:
-    """A camera 0.8 m from the object on the far side from the arm, 25 deg above, looking at it."""
+    """A camera 0.7 m from the object, 20 deg above it, looking along the seed camera's direction
+    (the arm on the left, its reach to the right)."""
     target = T_world_obj.pos + np.array([0.0, 0.0, 0.08])
-    return orbit_camera(tuple(target), 0.8, 90.0, -25.0, *size, fov=60.0)
+    return orbit_camera(tuple(target), 0.7, 0.0, -20.0, *size, fov=60.0)
