@@ -1,0 +1,79 @@
+"""How often does the arm's replay agree with the floating label? Prints figures; never a test.
+
+For each object, up to K labels that reached the physics (every outcome but ``collision``) are
+replayed on the UR3 + RG2 in the cell (annotator.tools.replay: the placement that makes the grasp
+come most from above while reachable); the floating ``success`` is compared with the replay's
+*held*. Unreachable labels are counted apart, with their reasons.
+
+    python bench/replay_agreement.py                      # labels objects/ with --n 40 first
+    python bench/replay_agreement.py --labels labels/ --objects objects/ --per-object 8
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import tempfile
+import time
+from pathlib import Path
+
+from annotator.cell import build_cell
+from annotator.config import AnnotatorConfig
+from annotator.dataset import load_labels
+from annotator.objects import create_body, discover_objects, load_object
+from annotator.pipeline.run import RunOptions, run
+from annotator.sim.world import World
+from annotator.tools.replay import plan_replay, replay
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--labels", type=Path)
+    parser.add_argument("--objects", type=Path, default=REPO / "objects")
+    parser.add_argument("--per-object", type=int, default=6)
+    parser.add_argument("--n", type=int, default=40, help="candidates per object when labelling first")
+    args = parser.parse_args()
+    config = AnnotatorConfig()
+    labels_dir = args.labels
+    if labels_dir is None:
+        labels_dir = Path(tempfile.mkdtemp()) / "labels"
+        run(RunOptions(objects_dir=args.objects, n=args.n, out_dir=labels_dir, workers=2, quiet=True), config)
+    labels = load_labels(labels_dir)
+    sources = {s.object_id: s for s in discover_objects(args.objects)}
+    totals = collections.Counter()
+    reasons = collections.Counter()
+    t0 = time.perf_counter()
+    for object_id, rows in labels[labels.outcome != "collision"].groupby("object_id"):
+        rows = rows.head(args.per_object)
+        model = load_object(sources[object_id], config.objects, scale=float(rows.iloc[0]["object_scale"]))
+        counts = collections.Counter()
+        for _, row in rows.iterrows():
+            with World(config.physics) as world:
+                cell = build_cell(world, config.cell, gripper=config.gripper, kinect=False)
+                obj = create_body(world.client, model)
+                plan = plan_replay(cell, model, obj, row, config)
+                if not plan.reach.reachable:
+                    counts["unreachable"] += 1
+                    reasons[plan.reach.reason] += 1
+                    continue
+                result = replay(cell, obj, plan, config)
+            held = result.held(config.protocol.lift_height, config.protocol.max_slip)
+            counts[("agree" if held == bool(row["success"]) else "disagree")] += 1
+            floating = "success" if row["success"] else "failure"
+            counts[f"floating {floating} -> arm {'held' if held else 'not held'}"] += 1
+        totals.update(counts)
+        print(f"{object_id:24s} " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+    compared = totals["agree"] + totals["disagree"]
+    print(
+        f"\nreplayed {compared} reachable labels in {time.perf_counter() - t0:.0f} s: "
+        f"agreement {100 * totals['agree'] / max(1, compared):.1f} % ({totals['agree']}/{compared})"
+    )
+    for key in sorted(k for k in totals if isinstance(k, str) and k.startswith("floating")):
+        print(f"  {key}: {totals[key]}")
+    print(f"unreachable in every placement tried: {totals['unreachable']} " + str(dict(reasons)))
+
+
+if __name__ == "__main__":
+    main()
