@@ -11,6 +11,7 @@ start with ``.``.
 from __future__ import annotations
 
 import enum
+import hashlib
 import logging
 from pathlib import Path
 
@@ -204,3 +205,120 @@ def split_by_object(
     val_ids = set(objects[perm[:n_val]].tolist())
     in_val = df["object_id"].isin(val_ids)
     return df[~in_val].copy(), df[in_val].copy()
+
+
+# ------------------------------------------------------------------------------ dataset helpers
+#
+# What learners otherwise write by hand on every dataset: class balance, a score threshold and
+# near-duplicate removal. Each works per object, keeps the original rows (all columns, index
+# reset) and depends only on its arguments, never on row order or the global RNG.
+
+# The RG2 is a parallel gripper: turned 180 degrees about its approach axis (TCP +z) it is the
+# same grasp, finger 1 and finger 2 swapped. In the TCP frame that turn is diag(-1, -1, 1).
+RG2_SYMMETRY = np.diag([-1.0, -1.0, 1.0])
+# Length (m) that converts a rotation into a distance in grasp_distance: the RG2's half stroke
+# (110 mm / 2). Turning the gripper by theta about its TCP moves a pad centre, at most 55 mm
+# from the TCP, by at most 55 mm x theta, so the two terms are both "how far a pad moves".
+ROTATION_LENGTH = 0.055
+
+
+def _keyed_rng(*keys: object) -> np.random.Generator:
+    """A Generator that depends only on ``keys`` (SHA-256 of their text): stable across processes."""
+    digest = hashlib.sha256("\x00".join(str(k) for k in keys).encode()).digest()
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.frombuffer(digest, "<u4").tolist())))
+
+
+def balance_outcomes(df: pd.DataFrame, seed: int = 0, per_object: bool = True) -> pd.DataFrame:
+    """As many failures as successes: the larger class is subsampled to the smaller one's size.
+
+    ``per_object``: balance within each object (an object without successes or without failures
+    then contributes no rows); otherwise over the whole table. The rows kept depend on
+    ``seed``, the object id and each row's ``grasp_id`` only (not on the row order). Returns the
+    kept rows sorted by (object_id, grasp_id).
+    """
+    groups = df.groupby("object_id", sort=True) if per_object else [("*", df)]
+    kept = []
+    for key, group in groups:
+        group = group.sort_values(["object_id", "grasp_id"], kind="stable")
+        rng = _keyed_rng("balance", int(seed), key)
+        success = group["success"].to_numpy(dtype=bool)
+        n = int(min(success.sum(), (~success).sum()))
+        for mask in (success, ~success):
+            idx = np.flatnonzero(mask)
+            kept.append(group.iloc[np.sort(rng.permutation(idx)[:n]) if len(idx) else idx])
+    if not kept:
+        return df.iloc[:0].copy()
+    out = pd.concat(kept)
+    return out.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
+
+
+def filter_by_score(df: pd.DataFrame, min_score: float) -> pd.DataFrame:
+    """The grasps whose ``score`` (fraction of the K robust trials that held) is ``>= min_score``.
+
+    With ``--trials 1`` the score is 0 or 1, so ``min_score`` in (0, 1] keeps the successes.
+    """
+    if not 0.0 <= min_score <= 1.0:
+        raise ValueError(f"min_score must be in [0, 1], got {min_score}")
+    return df[df["score"].to_numpy() >= min_score].reset_index(drop=True)
+
+
+def grasp_distance(
+    T_a: np.ndarray, T_b: np.ndarray, rotation_length: float = ROTATION_LENGTH, symmetric: bool = True
+) -> np.ndarray:
+    """Distance (m) between TCP poses, ``||p_a - p_b|| + rotation_length x angle(R_a, R_b)``.
+
+    ``T_a`` : (n, 4, 4) or (4, 4), ``T_b`` : (m, 4, 4) or (4, 4) float -> (n, m) float (scalars
+    squeezed away as the inputs were single poses). ``angle`` is the geodesic angle (rad) of
+    ``R_a^T R_b``; with ``symmetric`` it is the smaller of that and the angle to ``R_b`` turned
+    180 degrees about its approach axis (:data:`RG2_SYMMETRY`): the same grasp for the RG2.
+    """
+    A = np.asarray(T_a, dtype=np.float64)
+    B = np.asarray(T_b, dtype=np.float64)
+    a1, b1 = A.ndim == 2, B.ndim == 2
+    A, B = A.reshape(-1, 4, 4), B.reshape(-1, 4, 4)
+    dpos = np.linalg.norm(A[:, None, :3, 3] - B[None, :, :3, 3], axis=-1)
+    # trace(R_a^T R_b) = sum over columns k of dot(a_k, b_k); the turned R_b negates columns x, y
+    dots = np.einsum("aik,bik->abk", A[:, :3, :3], B[:, :3, :3])  # (n, m, 3)
+    trace = dots.sum(axis=-1)
+    if symmetric:
+        trace = np.maximum(trace, -dots[..., 0] - dots[..., 1] + dots[..., 2])
+    angle = np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
+    d = dpos + rotation_length * angle
+    if a1 and b1:
+        return d[0, 0]
+    return d[0] if a1 else (d[:, 0] if b1 else d)
+
+
+def drop_near_duplicates(
+    df: pd.DataFrame,
+    min_distance: float = 0.01,
+    rotation_length: float = ROTATION_LENGTH,
+    same_success_only: bool = True,
+) -> pd.DataFrame:
+    """Keep one grasp of each cluster of near-identical ones (per object).
+
+    Two grasps are duplicates when :func:`grasp_distance` (position plus ``rotation_length`` x
+    angle, the RG2's 180-degree symmetry included) is below ``min_distance`` (m; the default
+    10 mm is e.g. 5 mm apart and 5 degrees turned). Greedy and deterministic: grasps are visited
+    best first (higher ``score``, then successes, then lower ``grasp_id``) and one is kept if it
+    is at least ``min_distance`` from every grasp kept so far. ``same_success_only``: a success
+    and a failure at nearly the same pose are not duplicates (both are kept: that boundary is
+    what a learner needs to see). Returns the kept rows sorted by (object_id, grasp_id).
+    """
+    if min_distance < 0:
+        raise ValueError(f"min_distance must be >= 0, got {min_distance}")
+    keep = np.zeros(len(df), dtype=bool)
+    T_all = poses_as_matrices(df)
+    keys = ["object_id", "success"] if same_success_only else ["object_id"]
+    for _, rows in df.reset_index(drop=True).groupby(keys, sort=True).indices.items():
+        sub = df.iloc[rows]
+        order = np.lexsort(
+            (sub["grasp_id"].to_numpy(), ~sub["success"].to_numpy(dtype=bool), -sub["score"].to_numpy())
+        )
+        kept: list[int] = []
+        for i in rows[order]:
+            if not kept or grasp_distance(T_all[i], T_all[kept], rotation_length).min() >= min_distance:
+                kept.append(i)
+        keep[kept] = True
+    out = df[keep]
+    return out.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
