@@ -97,3 +97,80 @@ def write_gif(frames: list[np.ndarray], path: Path | str, fps: float) -> None:
         duration=max(20, round(1000.0 / fps)),
         loop=0,
     )
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One rendered frame with its depth and segmentation.
+
+    ``rgb`` : (h, w, 3) uint8. ``depth`` : (h, w) float, metres along the viewing axis (eye-space
+    depth; ``far`` where nothing was drawn). ``segmentation`` : (h, w) int, the body id drawn at
+    each pixel (-1 for background).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    segmentation: np.ndarray
+    camera: Camera
+
+
+def _near_far(camera: Camera) -> tuple[float, float]:
+    """Near and far planes of a perspective projection matrix (column-major flat, as PyBullet's)."""
+    P = np.asarray(camera.projection, dtype=np.float64).reshape(4, 4).T
+    a, b = P[2, 2], P[2, 3]  # a = -(f + n) / (f - n), b = -2 f n / (f - n)
+    return b / (a - 1.0), b / (a + 1.0)
+
+
+def render_frame(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER) -> Frame:
+    """Render RGB, metric depth and body segmentation in one call (see :class:`Frame`)."""
+    _, _, rgba, zbuffer, seg = pb.getCameraImage(
+        camera.width,
+        camera.height,
+        viewMatrix=list(camera.view),
+        projectionMatrix=list(camera.projection),
+        renderer=renderer,
+        physicsClientId=client,
+    )
+    shape = (camera.height, camera.width)
+    rgb = np.ascontiguousarray(np.asarray(rgba, dtype=np.uint8).reshape(*shape, 4)[:, :, :3])
+    near, far = _near_far(camera)
+    z = np.asarray(zbuffer, dtype=np.float64).reshape(shape)
+    depth = far * near / (far - (far - near) * z)
+    seg = np.asarray(seg, dtype=np.int64).reshape(shape)  # body ids (no link bits without the flag)
+    return Frame(rgb, depth, seg, camera)
+
+
+def project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates and eye-space depth of world points.
+
+    ``points`` : (n, 3) float, m -> ``(uv (n, 2) float`` pixel column, row (row 0 at the top),
+    ``depth (n,) float`` m along the viewing axis, comparable with :attr:`Frame.depth`).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    V = np.asarray(camera.view, dtype=np.float64).reshape(4, 4).T
+    P = np.asarray(camera.projection, dtype=np.float64).reshape(4, 4).T
+    eye = np.c_[pts, np.ones(len(pts))] @ V.T
+    clip = eye @ P.T
+    ndc = clip[:, :2] / clip[:, 3:4]
+    uv = np.c_[(ndc[:, 0] + 1.0) / 2.0 * camera.width, (1.0 - ndc[:, 1]) / 2.0 * camera.height]
+    return uv, -eye[:, 2]
+
+
+def look_at_camera(
+    eye: np.ndarray,
+    target: np.ndarray,
+    up: np.ndarray,
+    width: int,
+    height: int,
+    fov: float = 40.0,
+    near: float = 0.01,
+    far: float = 5.0,
+) -> Camera:
+    """A camera at ``eye`` looking at ``target`` with ``up`` upwards in the image (vertical fov, deg)."""
+    view = pb.computeViewMatrix(
+        cameraEyePosition=np.asarray(eye, float).tolist(),
+        cameraTargetPosition=np.asarray(target, float).tolist(),
+        cameraUpVector=np.asarray(up, float).tolist(),
+    )
+    projection = pb.computeProjectionMatrixFOV(fov=fov, aspect=width / height, nearVal=near, farVal=far)
+    return Camera(tuple(view), tuple(projection), width, height)

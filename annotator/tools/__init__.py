@@ -1,1 +1,6 @@
-"""Tools around the labels: replay on the arm (more to come: show, report, export, evaluate)."""
+"""The tools researchers reach for after ``annotate``: replay on the arm, pictures, a report,
+exports, evaluation of given grasps, calibration against real trials.
+
+Each module is a library first (functions with typed results) and a thin click command second
+(:mod:`annotator.tools.commands`, registered on the ``annotator`` group by :mod:`annotator.cli`).
+"""
