@@ -210,6 +210,7 @@ def main() -> None:
     annotator scene                                 the UR3 + RG2 scene with sliders (GUI)
     annotator scene --headless --gif scene.gif      a scripted sequence rendered to a GIF
     annotator replay labels/ --object box --grasp 3 one label executed by the UR3 + RG2 on the table
+    annotator show labels/ --object mug --png mug.png   pictures of the grasps on an object
     """
 
 
@@ -222,6 +223,10 @@ def _register_optional_commands() -> None:
 
     main.add_command(scene_command)
     main.add_command(replay_command)
+    from annotator.tools.cli import COMMANDS
+
+    for command in COMMANDS:
+        main.add_command(command)
 
 
 _register_optional_commands()
