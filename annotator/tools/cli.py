@@ -81,4 +81,43 @@ def show_command(labels, object_id, png, outcomes, grasp_ids, n, seed, overview_
     click.echo(f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}")
 
 
-COMMANDS = [show_command]
+@click.command("report", context_settings=CONTEXT)
+@LABELS
+@click.option(
+    "--html",
+    "html_path",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The report to write (one file; open it in any browser, offline).",
+)
+@OBJECTS_OPTION
+@click.option(
+    "--pictures",
+    "picture_objects",
+    default=3,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Objects shown with pictures (those with the most successes); 0 for none.",
+)
+@click.option("--verbose", "-v", is_flag=True, help="Debug logging.")
+def report_command(labels, html_path, objects_dir, picture_objects, verbose):
+    """A dataset at a glance: one self-contained HTML file (pictures embedded, no network).
+
+    The run's configuration and versions (from _manifest.json), objects that failed and why,
+    per-object success rates and outcome mix with mass and collision error, width and score
+    histograms, the distribution of approach directions and pictures of a few objects (they
+    need the meshes: --objects, the folder the labels were made from).
+
+    \b
+    Example:
+      annotator report labels/ --objects objects/ --html report.html
+    """
+    _logging(verbose)
+    from annotator.tools.report import report
+
+    result = report(labels, html_path, objects_dir, picture_objects)
+    counts = f"{result.n_objects} objects, {result.n_grasps} grasps, {result.pictures} pictures"
+    click.echo(f"wrote {result.path}: {counts}")
+
+
+COMMANDS = [show_command, report_command]
