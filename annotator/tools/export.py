@@ -1,0 +1,240 @@
+"""The labels in the formats existing grasp learners read: ACRONYM-style HDF5 and GraspGen JSON.
+
+Both formats give a grasp as the pose of the gripper's *base* frame in the object's mesh frame,
+not of the TCP. For the RG2 that frame is ``rg2_base_link``: origin on the tool flange, +z out
+along the tool axis (the approach), +x the closing direction (finger 1 towards finger 2) -- the
+same axes as our TCP, which sits on the tool axis between the pads. The fingertips move on arcs,
+so the TCP's depth below the flange depends on the opening (161 mm fully open ... 200 mm closed),
+and every grasp is exported as
+
+    T_obj_base = T_obj_tcp * T_base_tcp(width)^-1,    T_base_tcp(width) = translation (0, 0, d(width))
+
+with ``d`` from the RG2 model's own forward kinematics (:meth:`annotator.sim.rg2.RG2.T_base_tcp`).
+The label's ``width`` is exported beside each transform, so ``T_obj_tcp`` is recovered exactly.
+
+Each object's mesh is written once, as the labels see it (metres, mesh frame, scale applied), to
+``meshes/<object id>.obj`` in the output folder; ``object/file`` names it and ``object/scale`` is 1.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from annotator.dataset import poses_as_matrices
+
+log = logging.getLogger(__name__)
+
+FORMATS = ("acronym", "graspgen")
+GRIPPER_TYPE = "onrobot_rg2"
+BASE_FRAME = "rg2_base_link"
+FRAME_NOTE = (
+    "grasps/transforms: rg2_base_link in the object mesh frame (origin on the tool flange, +z approach, "
+    "+x closing from finger 1 to finger 2). TCP (pad-centre midpoint, the rg2-annotator label pose) = "
+    "transform * translation(0, 0, tcp_depth); tcp_depth depends on the opening: see grasps/width"
+)
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    out_dir: Path
+    files: list[Path]
+    n_grasps: int
+
+
+class TcpDepth:
+    """``T_base_tcp(width)`` of the RG2 model: the TCP below the flange, from the model's own FK.
+
+    The model is loaded once in a private DIRECT client; :meth:`RG2.T_base_tcp` only reads the
+    FK table it tabulated, so it keeps working after the client is closed.
+    """
+
+    def __init__(self) -> None:
+        from annotator import paths
+        from annotator.config import GripperConfig
+        from annotator.sim.body import Body
+        from annotator.sim.rg2 import RG2
+        from annotator.sim.world import World
+
+        with World() as world:
+            urdf = paths.rg2_urdf()
+            self._rg2 = RG2(Body.load(world.client, urdf, fixed_base=True), urdf, GripperConfig())
+
+    def T_base_tcp(self, width: np.ndarray) -> np.ndarray:
+        """(n, 4, 4) gripper-base-to-TCP transforms for openings ``width`` : (n,) m."""
+        width = np.asarray(width, dtype=np.float64).reshape(-1)
+        return np.array([self._rg2.T_base_tcp(float(w)).as_matrix() for w in width]).reshape(-1, 4, 4)
+
+
+def base_poses(T_obj_tcp: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.ndarray:
+    """``T_obj_base`` : (n, 4, 4) from label poses ``T_obj_tcp`` : (n, 4, 4) at ``width`` : (n,)."""
+    return np.asarray(T_obj_tcp) @ np.linalg.inv(depth.T_base_tcp(width))
+
+
+def tcp_poses(T_obj_base: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.ndarray:
+    """The inverse of :func:`base_poses`: label poses ``T_obj_tcp`` : (n, 4, 4)."""
+    return np.asarray(T_obj_base) @ depth.T_base_tcp(width)
+
+
+def _write_atomically(path: Path, write) -> None:
+    """``write(tmp_path)`` then rename over ``path``: a file appears whole or not at all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _stem(object_id: str) -> str:
+    from annotator.pipeline.store import object_filename
+
+    return object_filename(object_id)[: -len(".parquet")]
+
+
+def _object_mass(rows: pd.DataFrame, record: pd.DataFrame | None) -> float:
+    oid = rows["object_id"].iloc[0]
+    if record is not None and {"object_id", "mass"} <= set(record.columns):
+        match = record.loc[record["object_id"] == oid, "mass"]
+        if len(match):
+            return float(match.iloc[0])
+    if "object_mass" in rows.columns:
+        return float(rows["object_mass"].median())
+    return float("nan")
+
+
+def _write_acronym(
+    path: Path, rows: pd.DataFrame, T_obj_base: np.ndarray, mesh_file: str, extra: dict
+) -> None:
+    import h5py
+
+    def write(target: Path) -> None:
+        with h5py.File(target, "w") as f:
+            g = f.create_group("grasps")
+            g.create_dataset("transforms", data=T_obj_base)
+            g.create_dataset(
+                "qualities/flex/object_in_gripper", data=rows["success"].to_numpy().astype(np.int64)
+            )
+            g.create_dataset("width", data=rows["width"].to_numpy())
+            g.create_dataset("grasp_id", data=rows["grasp_id"].to_numpy())
+            g.create_dataset("score", data=rows["score"].to_numpy())
+            g.create_dataset("outcome", data=rows["outcome"].to_numpy(dtype=object).astype("S"))
+            g.attrs["frame"] = FRAME_NOTE
+            o = f.create_group("object")
+            o.create_dataset("file", data=mesh_file)
+            o.create_dataset("scale", data=1.0)
+            o.create_dataset("mass", data=extra["mass"])
+            o.create_dataset("friction", data=extra["friction"])
+            o.create_dataset("id", data=extra["object_id"])
+            o.create_dataset("mesh_sha256", data=extra["mesh_sha256"])
+            o.create_dataset("label_scale", data=extra["label_scale"])
+            gr = f.create_group("gripper")
+            gr.create_dataset("type", data=GRIPPER_TYPE)
+            gr.create_dataset("frame", data=BASE_FRAME)
+            gr.create_dataset("force", data=extra["grip_force"])
+
+    _write_atomically(path, write)
+
+
+def _write_graspgen(
+    path: Path, rows: pd.DataFrame, T_obj_base: np.ndarray, mesh_file: str, extra: dict
+) -> None:
+
+    data = {
+        "object": {
+            "file": mesh_file,
+            "scale": 1.0,
+            "mass": extra["mass"],
+            "friction": extra["friction"],
+            "id": extra["object_id"],
+            "mesh_sha256": extra["mesh_sha256"],
+        },
+        "gripper": {"name": GRIPPER_TYPE, "frame": BASE_FRAME, "force": extra["grip_force"]},
+        "grasps": {
+            "transforms": T_obj_base.tolist(),
+            "object_in_gripper": rows["success"].to_numpy(dtype=bool).tolist(),
+            "width": rows["width"].to_numpy().tolist(),
+            "grasp_id": rows["grasp_id"].to_numpy().tolist(),
+            "score": rows["score"].to_numpy().tolist(),
+            "outcome": rows["outcome"].astype(str).tolist(),
+            "frame": FRAME_NOTE,
+        },
+    }
+    text = json.dumps(data, allow_nan=True)
+    _write_atomically(path, lambda target: target.write_text(text, encoding="utf-8"))
+
+
+def export(
+    labels_dir: Path,
+    fmt: str,
+    out_dir: Path,
+    objects_dir: Path | None = None,
+    object_ids: tuple[str, ...] = (),
+) -> ExportResult:
+    """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
+    its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
+    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0)."""
+    from annotator.config import AnnotatorConfig
+    from annotator.dataset import split_by_object
+    from annotator.tools.common import ToolError, object_mesh, object_rows, read_labels, read_manifest
+    from annotator.tools.report import _objects_record
+
+    if fmt not in FORMATS:
+        raise ToolError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
+    if fmt == "acronym":
+        try:
+            import h5py  # noqa: F401
+        except ImportError:
+            raise ToolError(
+                "--format acronym writes HDF5: pip install 'rg2-annotator[export]' (h5py)"
+            ) from None
+    labels = read_labels(labels_dir)
+    ids = list(object_ids) or sorted(labels["object_id"].unique())
+    manifest = read_manifest(labels_dir) or {}
+    config = manifest.get("config", {})
+    defaults = AnnotatorConfig()
+    friction = config.get("objects", {}).get("lateral_friction", defaults.objects.lateral_friction)
+    grip_force = config.get("gripper", {}).get("grip_force", defaults.gripper.grip_force)
+    record = _objects_record(Path(labels_dir))
+    out_dir = Path(out_dir)
+    (out_dir / "meshes").mkdir(parents=True, exist_ok=True)
+    depth = TcpDepth()
+    files: list[Path] = []
+    n = 0
+    for oid in ids:
+        rows = object_rows(labels, oid).sort_values("grasp_id", ignore_index=True)
+        mesh = object_mesh(labels_dir, oid, objects_dir, rows)
+        mesh_file = f"meshes/{_stem(oid)}.obj"
+        mesh.export(out_dir / mesh_file)
+        T_obj_base = base_poses(poses_as_matrices(rows), rows["width"].to_numpy(), depth)
+        extra = {
+            "object_id": oid,
+            "mass": _object_mass(rows, record),
+            "friction": float(friction),
+            "grip_force": float(grip_force),
+            "mesh_sha256": str(rows["mesh_sha256"].iloc[0]),
+            "label_scale": float(rows["object_scale"].iloc[0]),
+        }
+        if fmt == "acronym":
+            path = out_dir / f"{_stem(oid)}.h5"
+            _write_acronym(path, rows, T_obj_base, mesh_file, extra)
+        else:
+            path = out_dir / "grasps" / f"{_stem(oid)}.json"
+            _write_graspgen(path, rows, T_obj_base, mesh_file, extra)
+        files.append(path)
+        n += len(rows)
+    if fmt == "graspgen":
+        train, val = split_by_object(labels[labels["object_id"].isin(ids)], val_fraction=0.2, seed=0)
+        (out_dir / "splits").mkdir(exist_ok=True)
+        for name, part in (("train", train), ("valid", val)):
+            lines = [f"meshes/{_stem(o)}.obj" for o in sorted(part["object_id"].unique())]
+            (out_dir / "splits" / f"{name}.txt").write_text("".join(f"{x}\n" for x in lines))
+    log.info("exported %d grasps of %d objects to %s (%s)", n, len(ids), out_dir, fmt)
+    return ExportResult(out_dir, files, n)
