@@ -120,4 +120,38 @@ def report_command(labels, html_path, objects_dir, picture_objects, verbose):
     click.echo(f"wrote {result.path}: {counts}")
 
 
-COMMANDS = [show_command, report_command]
+@click.command("export", context_settings=CONTEXT)
+@LABELS
+@click.option(
+    "--format",
+    "fmt",
+    required=True,
+    type=click.Choice(["acronym", "graspgen"]),
+    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object.",
+)
+@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
+@OBJECTS_OPTION
+@click.option("--object", "object_ids", multiple=True, help="Only this object (repeat for several).")
+@click.option("--verbose", "-v", is_flag=True, help="Debug logging.")
+def export_command(labels, fmt, out_dir, objects_dir, object_ids, verbose):
+    """The labels in the formats existing grasp learners read, with each object's mesh.
+
+    Both formats store the pose of the RG2's base frame (rg2_base_link: on the tool flange,
+    +z approach, +x closing), not our TCP: T_obj_base = T_obj_tcp * T_base_tcp(width)^-1, with
+    the width of each grasp stored beside it (see the README, "Exports").
+
+    \b
+    Example:
+      annotator export labels/ --format acronym --objects objects/ --out acronym/
+      annotator export labels/ --format graspgen --objects objects/ --out graspgen/
+    """
+    _logging(verbose)
+    from annotator.tools.export import export
+
+    result = export(labels, fmt, out_dir, objects_dir, tuple(object_ids))
+    click.echo(
+        f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) and their meshes to {out_dir}"
+    )
+
+
+COMMANDS = [show_command, report_command, export_command]
