@@ -104,8 +104,11 @@ def agreement(
     idx = rng.integers(0, n, size=(samples, n))
     boot = _rates(real[idx], sim[idx])
     alpha = (1 - CONFIDENCE) / 2
-    lo = np.nanquantile(boot, alpha, axis=0) if n else np.full(4, np.nan)
-    hi = np.nanquantile(boot, 1 - alpha, axis=0) if n else np.full(4, np.nan)
+    lo, hi = np.full(4, np.nan), np.full(4, np.nan)
+    defined = ~np.all(np.isnan(boot), axis=0) if n else np.zeros(4, bool)  # e.g. precision, no successes
+    if defined.any():
+        lo[defined] = np.nanquantile(boot[:, defined], alpha, axis=0)
+        hi[defined] = np.nanquantile(boot[:, defined], 1 - alpha, axis=0)
     return Agreement(
         n,
         *(float(v) for v in point),

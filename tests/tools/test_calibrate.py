@@ -1,0 +1,87 @@
+"""annotator calibrate: recovers a hidden pad friction from "real" outcomes made by simulation.
+
+The "real" trials are the physics-reaching grasps of a small heavy dataset, simulated with hidden
+parameters (pad friction 0.45, 20 N) and with two outcomes flipped (a lab's mistakes or what the
+simulator cannot know). Calibration over a friction grid, given the recorded 20 N, must find the
+friction within +-0.1 (the grid's neighbours of the truth) and report an accuracy near the true
+agreement (n - 2) / n, with a confidence interval that holds it.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from annotator.cli import annotate_command, main
+from annotator.config import AnnotatorConfig
+from annotator.dataset import load_labels
+from annotator.tools import calibrate as cal
+from annotator.tools.common import read_manifest
+
+REPO = Path(__file__).resolve().parents[2]
+HIDDEN_FRICTION, HIDDEN_FORCE = 0.45, 20.0
+GRID = (0.25, 0.35, 0.45, 0.55, 0.7)
+TOLERANCE = 0.1  # recovered friction within this of the hidden one
+FLIPS = 2
+
+
+def test_agreement_statistics_and_intervals() -> None:
+    real = np.array([1, 1, 1, 1, 0, 0, 0, 0, 1, 0], bool)
+    sim = np.array([1, 1, 1, 0, 0, 0, 0, 1, 1, 0], bool)
+    a = cal.agreement(real, sim, samples=500)
+    assert (a.n, a.accuracy, a.precision, a.recall) == (10, 0.8, 0.8, 0.8)
+    assert a.accuracy_ci[0] < 0.8 < a.accuracy_ci[1] and 0.4 <= a.accuracy_ci[0]
+    perfect = cal.agreement(real, real, samples=200)
+    assert perfect.accuracy == 1.0 and perfect.accuracy_ci == (1.0, 1.0)
+    assert np.isnan(cal.agreement(real, np.zeros(10, bool)).precision)  # no simulated successes
+
+
+@pytest.mark.slow
+def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    for name in ("box.obj", "can.stl"):
+        shutil.copy(REPO / "objects" / name, objects / name)
+    # heavy objects (1500 kg/m^3: box 0.43 kg, can 0.59 kg), so that friction decides grasps at 20 N
+    (tmp_path / "heavy.toml").write_text("[objects]\ndensity = 1500.0\n")
+    labels_dir = tmp_path / "labels"
+    args = ["--objects", str(objects), "--n", "30", "--out", str(labels_dir), "--workers", "2", "--quiet"]
+    result = CliRunner().invoke(annotate_command, [*args, "--config", str(tmp_path / "heavy.toml")])
+    assert result.exit_code == 0, result.output
+    labels = load_labels(labels_dir)
+    trials = labels[labels.outcome != "collision"].reset_index(drop=True)  # what a robot can execute
+    n = len(trials)
+    assert n >= 15
+    base = AnnotatorConfig.from_dict(read_manifest(labels_dir)["config"])
+
+    hidden = cal.Setting(HIDDEN_FRICTION, HIDDEN_FORCE, 1.0)
+    truth = cal.simulate_grid(trials.assign(real_success=False), [hidden], base, objects, workers=2)[hidden]
+    assert 0.2 < truth.mean() < 0.8  # the hidden physics leaves both outcomes
+    real = truth.copy()
+    flipped = np.random.default_rng(7).choice(n, FLIPS, replace=False)
+    real[flipped] = ~real[flipped]
+    csv = tmp_path / "real.csv"
+    trials.assign(real_success=real.astype(int), grip_force=HIDDEN_FORCE)[
+        ["object_id", "grasp_id", "real_success", "grip_force"]
+    ].to_csv(csv, index=False)
+
+    out = tmp_path / "calibrated.toml"
+    grid = ",".join(map(str, GRID))
+    cmd = ["calibrate", str(labels_dir), str(csv), "--objects", str(objects), "--friction", grid]
+    result = CliRunner().invoke(main, [*cmd, "--severity", "1", "--workers", "2", "--write-config", str(out)])
+    assert result.exit_code == 0, result.output
+    config = AnnotatorConfig.from_toml(out)
+    recovered = config.gripper.pad_lateral_friction
+    print(result.output)  # the table, for the record (pytest -s)
+    assert abs(recovered - HIDDEN_FRICTION) <= TOLERANCE + 1e-9
+    assert config.gripper.grip_force == HIDDEN_FORCE and config.objects.density == 1500.0
+    best_line = next(line for line in result.output.splitlines() if line.startswith("best:"))
+    accuracy = float(best_line.split("accuracy ")[1].split(" %")[0]) / 100
+    low, high = (float(v) / 100 for v in best_line.split("[")[1].split("]")[0].split(","))
+    true_agreement = (n - FLIPS) / n
+    assert true_agreement - 1.5 / n <= accuracy <= 1.0
+    assert low <= true_agreement <= high
