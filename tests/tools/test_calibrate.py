@@ -85,3 +85,21 @@ def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
     true_agreement = (n - FLIPS) / n
     assert true_agreement - 1.5 / n <= accuracy <= 1.0
     assert low <= true_agreement <= high
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("object_id,grasp_id\nbox,0\n", "missing column(s) ['real_success']"),
+        ("object_id,grasp_id,real_success\nbox,0,maybe\n", "real_success must be 1/0 or true/false"),
+        ("object_id,grasp_id,real_success\ncup,3,1\n", "name no label, e.g. object 'cup' grasp 3"),
+        ("object_id,grasp_id,real_success,grip_force\nbox,0,1,strong\n", "grip_force must be a number"),
+    ],
+)
+def test_calibrate_bad_real_trials_are_one_line(labelled, tmp_path: Path, text: str, message: str) -> None:
+    csv = tmp_path / "real.csv"
+    csv.write_text(text)
+    args = ["calibrate", str(labelled.labels_dir), str(csv), "--objects", str(labelled.objects_dir)]
+    result = CliRunner().invoke(main, [*args, "--write-config", str(tmp_path / "c.toml")])
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert len(result.output.strip().splitlines()) == 1
