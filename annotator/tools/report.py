@@ -43,7 +43,7 @@ body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:24p
 color:#222;padding:0 16px}
 h1{font-size:1.6em;margin-bottom:4px}h2{margin-top:32px;border-bottom:1px solid #ddd;padding-bottom:4px}
 table{border-collapse:collapse;font-size:0.9em;margin:8px 0}
-td,th{border:1px solid #ddd;padding:3px 8px;text-align:right}th{background:#f5f5f5}
+td,th{border:1px solid #ddd;padding:3px 6px;text-align:right}th{background:#f5f5f5}
 td.l,th.l{text-align:left}.na{color:#999}.muted{color:#666;font-size:0.9em}
 .grid{display:flex;flex-wrap:wrap;gap:16px}.card{flex:1 1 480px}
 img{max-width:100%;border:1px solid #eee}details{margin:6px 0}code{background:#f5f5f5;padding:1px 4px}
@@ -323,7 +323,7 @@ def _objects_section(table: pd.DataFrame) -> str:
     head = (
         "<div style='overflow-x:auto'><table><tr><th class='l'>object</th><th>n</th>"
         "<th>success rate</th><th class='l'>outcome mix</th>"
-        + "".join(f"<th>{o}</th>" for o in OUTCOMES)
+        + "".join(f"<th>{o.replace('_', ' ')}</th>" for o in OUTCOMES)
         + "<th>mass (g)</th><th>collision error (mm)</th></tr>"
     )
     rows = []
