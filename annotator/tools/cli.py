@@ -226,17 +226,12 @@ def calibrate_command(
     _logging(verbose)
     import os
 
-    from annotator.config import AnnotatorConfig
-    from annotator.tools.common import ToolError, read_labels, read_manifest
+    from annotator.tools.common import labelling_config, read_labels
 
     frictions, forces, severities = _floats(friction), _floats(force), _floats(severity)
     labels_df = read_labels(labels)
     trials = cal.read_real_trials(real_csv, labels_df)
-    manifest = read_manifest(labels) or {}
-    try:
-        base = AnnotatorConfig.from_dict(manifest["config"]) if "config" in manifest else AnnotatorConfig()
-    except (ValueError, TypeError) as exc:
-        raise ToolError(f"{labels}: the manifest's configuration is not this version's ({exc})") from None
+    base = labelling_config(labels)
     settings = cal.grid(frictions, forces, severities, real_force="grip_force" in trials.columns)
     click.echo(
         f"{len(trials)} real trials ({int(trials.real_success.sum())} held) on {trials.object_id.nunique()} "

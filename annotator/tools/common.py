@@ -47,6 +47,35 @@ def read_manifest(labels: str | Path) -> dict | None:
         return None
 
 
+def run_settings(manifest: dict | None) -> dict:
+    """The run's settings (seed, n, trials, scale, config, ...) from a manifest of either layout:
+    flat (manifest version 2) or under ``run`` (the pipeline's store)."""
+    if not manifest:
+        return {}
+    run = manifest.get("run")
+    if isinstance(run, dict):
+        return run
+    return {k: manifest[k] for k in ("seed", "n", "trials", "scale", "config") if k in manifest}
+
+
+def labelling_config(labels_dir: str | Path):
+    """The :class:`AnnotatorConfig` the labels were made with (defaults without a manifest)."""
+    from annotator.config import AnnotatorConfig
+
+    config = run_settings(read_manifest(labels_dir)).get("config")
+    if not config:
+        return AnnotatorConfig()
+    try:
+        return AnnotatorConfig.from_dict(config)
+    except (ValueError, TypeError) as exc:
+        raise ToolError(f"{labels_dir}: the manifest's configuration is not this version's ({exc})") from None
+
+
+def object_info(manifest: dict | None, object_id: str) -> dict:
+    """What the run recorded about an object as simulated (mass, friction, ...), or {}."""
+    return ((manifest or {}).get("objects_info") or {}).get(object_id) or {}
+
+
 def object_rows(labels: pd.DataFrame, object_id: str) -> pd.DataFrame:
     """The labels of one object, or a :class:`ToolError` listing a few known ids."""
     rows = labels[labels["object_id"] == object_id]
@@ -82,7 +111,6 @@ def object_mesh(
             return load_object_mesh(labels_dir, object_id)
         except (FileNotFoundError, KeyError, ValueError) as exc:
             raise ToolError(f"{object_id}: no mesh in {labels_dir} ({exc}); pass --objects DIR") from None
-    from annotator.config import AnnotatorConfig
     from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, load_object
 
     try:
@@ -92,10 +120,7 @@ def object_mesh(
     if object_id not in sources:
         raise ToolError(f"object {object_id!r} is not in {objects_dir}")
     scale = float(rows["object_scale"].iloc[0]) if rows is not None and len(rows) else None
-    config = AnnotatorConfig()
-    manifest = read_manifest(labels_dir)
-    if manifest and "objects" in manifest.get("config", {}):
-        config = AnnotatorConfig.from_dict({"objects": manifest["config"]["objects"]})
+    config = labelling_config(labels_dir)
     try:
         model = load_object(sources[object_id], config.objects, scale=scale)
     except ObjectError as exc:

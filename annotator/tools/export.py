@@ -181,9 +181,16 @@ def export(
     """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
     its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
     (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0)."""
-    from annotator.config import AnnotatorConfig
     from annotator.dataset import split_by_object
-    from annotator.tools.common import ToolError, object_mesh, object_rows, read_labels, read_manifest
+    from annotator.tools.common import (
+        ToolError,
+        labelling_config,
+        object_info,
+        object_mesh,
+        object_rows,
+        read_labels,
+        read_manifest,
+    )
     from annotator.tools.report import _objects_record
 
     if fmt not in FORMATS:
@@ -197,11 +204,9 @@ def export(
             ) from None
     labels = read_labels(labels_dir)
     ids = list(object_ids) or sorted(labels["object_id"].unique())
-    manifest = read_manifest(labels_dir) or {}
-    config = manifest.get("config", {})
-    defaults = AnnotatorConfig()
-    friction = config.get("objects", {}).get("lateral_friction", defaults.objects.lateral_friction)
-    grip_force = config.get("gripper", {}).get("grip_force", defaults.gripper.grip_force)
+    manifest = read_manifest(labels_dir)
+    config = labelling_config(labels_dir)
+    friction, grip_force = config.objects.lateral_friction, config.gripper.grip_force
     record = _objects_record(Path(labels_dir))
     out_dir = Path(out_dir)
     (out_dir / "meshes").mkdir(parents=True, exist_ok=True)
@@ -216,7 +221,7 @@ def export(
         T_obj_base = base_poses(poses_as_matrices(rows), rows["width"].to_numpy(), depth)
         extra = {
             "object_id": oid,
-            "mass": _object_mass(rows, record),
+            "mass": float(object_info(manifest, oid).get("mass", _object_mass(rows, record))),
             "friction": float(friction),
             "grip_force": float(grip_force),
             "mesh_sha256": str(rows["mesh_sha256"].iloc[0]),

@@ -240,8 +240,14 @@ def _first_column(df: pd.DataFrame | None, names: tuple[str, ...]) -> str | None
     return next((n for n in names if n in df.columns), None)
 
 
-def per_object_table(df: pd.DataFrame, record: pd.DataFrame | None) -> pd.DataFrame:
-    """One row per object: n, successes, rate, outcome counts, mass (kg), collision error (or NaN)."""
+def per_object_table(
+    df: pd.DataFrame, record: pd.DataFrame | None, manifest: dict | None = None
+) -> pd.DataFrame:
+    """One row per object: n, successes, rate, outcome counts, mass (kg), collision error (or NaN).
+
+    Mass and collision error come from the objects record beside the labels, else from what the
+    manifest recorded per object (``objects_info``), else (mass only) the labels' ``object_mass``.
+    """
     counts = df.groupby("object_id")["outcome"].value_counts().unstack(fill_value=0)
     table = pd.DataFrame(index=counts.index)
     table["n"] = counts.sum(axis=1)
@@ -260,6 +266,14 @@ def per_object_table(df: pd.DataFrame, record: pd.DataFrame | None) -> pd.DataFr
     err_col = _first_column(rec, COLLISION_ERROR_COLUMNS)
     if err_col is not None:
         table["collision_error"] = rec[err_col].reindex(table.index).astype(float)
+    info = (manifest or {}).get("objects_info") or {}
+    for oid in table.index:
+        entry = info.get(oid) or {}
+        if mass_col is None and isinstance(entry.get("mass"), int | float):
+            table.loc[oid, "mass"] = float(entry["mass"])
+        err = next((entry[k] for k in COLLISION_ERROR_COLUMNS if isinstance(entry.get(k), int | float)), None)
+        if err_col is None and err is not None:
+            table.loc[oid, "collision_error"] = float(err)
     return table
 
 
@@ -269,10 +283,14 @@ def per_object_table(df: pd.DataFrame, record: pd.DataFrame | None) -> pd.DataFr
 def _run_section(manifest: dict | None) -> str:
     if manifest is None:
         return "<p class='muted'>No <code>_manifest.json</code> beside the labels: run settings unknown.</p>"
+    from annotator.tools.common import run_settings
+
+    run = run_settings(manifest)
     rows = [
-        ("seed", manifest.get("seed")),
-        ("candidates per object (n)", manifest.get("n")),
-        ("trials per candidate", manifest.get("trials")),
+        ("seed", run.get("seed")),
+        ("candidates per object (n)", run.get("n")),
+        ("trials per candidate", run.get("trials")),
+        ("scale", run.get("scale") or 1.0),
         ("started", manifest.get("created")),
         ("last update", manifest.get("updated")),
         (
@@ -287,7 +305,7 @@ def _run_section(manifest: dict | None) -> str:
         for k, v in manifest.get("versions", {}).items()
     ]
     out.append("</table><h3>Configuration</h3>")
-    for section, values in sorted(manifest.get("config", {}).items()):
+    for section, values in sorted(run.get("config", {}).items()):
         out.append(f"<details><summary><code>[{_e(section)}]</code></summary><table>")
         if isinstance(values, dict):
             out += [
@@ -424,7 +442,7 @@ def report(
     df = read_labels(labels_dir)
     manifest = read_manifest(labels_dir)
     record = _objects_record(Path(labels_dir))
-    table = per_object_table(df, record)
+    table = per_object_table(df, record, manifest)
     n, rate = len(df), float(df["success"].mean()) if len(df) else 0.0
     max_width = None
     if record is not None and "max_width" in record.columns:
