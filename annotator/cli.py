@@ -209,8 +209,15 @@ def main() -> None:
     annotator annotate --objects objects/ --n 500   the batch job (same as `annotate`)
     annotator scene                                 the UR3 + RG2 scene with sliders (GUI)
     annotator scene --headless --gif scene.gif      a scripted sequence rendered to a GIF
-    annotator replay labels/ --object box --grasp 3 one label executed by the UR3 + RG2 on the table
-    annotator show labels/ --object mug --png mug.png   pictures of the grasps on an object
+
+    \b
+    After annotate (each command's --help says more):
+    annotator replay labels/ --object box --grasp 3 --gif box3.gif
+    annotator show labels/ --object mug --objects objects/ --png mug.png
+    annotator report labels/ --objects objects/ --html report.html
+    annotator export labels/ --format acronym --objects objects/ --out acronym/
+    annotator evaluate predictions.parquet --objects objects/ --out evaluated/
+    annotator calibrate labels/ real_trials.csv --objects objects/
     """
 
 
