@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from annotator.objects import ObjectSource
-from annotator.pipeline.worker import Span
+from annotator.pipeline.worker import GivenGrasps, Span
 
 # Candidates per unit of work (and per chunk file): small enough that the first labels are on disk
 # within seconds, that 2..64 workers stay balanced and that an interrupt loses little; large enough
@@ -28,13 +28,29 @@ def chunk_size_for(n: int) -> int:
 
 @dataclass(frozen=True)
 class PlannedObject:
-    """An object of the run and the chunks of it already on disk, (start, stop) pairs."""
+    """An object of the run and the chunks of it already on disk, (start, stop) pairs.
+
+    ``n``: its number of candidates when it has its own (given grasps), else the run's N;
+    ``given``: where its spans' poses come from (a candidate source's ``given``), None when the
+    workers sample them.
+    """
 
     source: ObjectSource
     done: frozenset[tuple[int, int]] = frozenset()
+    n: int | None = None
+    given: Callable[[str, int, int], GivenGrasps | None] | None = None
+
+    def count(self, n: int) -> int:
+        return n if self.n is None else self.n
+
+    def span(self, start: int, stop: int, scale: float | None) -> Span:
+        oid = self.source.object_id
+        given = self.given(oid, start, stop) if self.given is not None else None
+        return Span(oid, self.source, scale, start, stop, given)
 
 
 def _missing(obj: PlannedObject, n: int, chunk: int) -> Iterator[tuple[int, int]]:
+    n = obj.count(n)
     for start in range(0, n, chunk):
         rng = (start, min(n, start + chunk))
         if rng not in obj.done:
@@ -50,20 +66,22 @@ def plan_spans(objects: Sequence[PlannedObject], n: int, chunk: int, scale: floa
         first = next(_missing(obj, n, chunk), None)
         firsts.append(first)
         if first is not None:
-            yield Span(obj.source.object_id, obj.source, scale, *first)
+            yield obj.span(*first, scale)
     for obj, first in zip(objects, firsts, strict=True):
         for rng in _missing(obj, n, chunk):
             if rng != first:
-                yield Span(obj.source.object_id, obj.source, scale, *rng)
+                yield obj.span(*rng, scale)
 
 
 def spans_to_do(obj: PlannedObject, n: int, chunk: int) -> int:
     """How many spans of ``obj`` are missing (without listing them)."""
+    n = obj.count(n)
     total = math.ceil(n / chunk)
     return total - sum(1 for a, b in obj.done if a % chunk == 0 and b == min(n, a + chunk))
 
 
 def candidates_to_do(obj: PlannedObject, n: int, chunk: int) -> int:
     """How many candidates of ``obj`` are missing."""
+    n = obj.count(n)
     done = sum(b - a for a, b in obj.done if a % chunk == 0 and b == min(n, a + chunk))
     return n - done

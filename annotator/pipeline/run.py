@@ -43,6 +43,7 @@ from annotator.pipeline.plan import (
     plan_spans,
     spans_to_do,
 )
+from annotator.pipeline.source import GivenCandidates, SampledCandidates
 from annotator.pipeline.store import RunSpec, Store, StoreError
 from annotator.pipeline.summary import ObjectStats, Summary, format_summary
 from annotator.pipeline.worker import Span, SpanResult, SpanTask, WorkerStats, label_span
@@ -270,11 +271,20 @@ def _check_workers(options: RunOptions) -> None:
         )
 
 
-def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
+def run(
+    options: RunOptions,
+    config: AnnotatorConfig,
+    candidates: SampledCandidates | GivenCandidates | None = None,
+) -> Summary:
     """The whole job; returns the summary (also printed). Raises UsageError (exit 2); OutputError
     (3) and SchedulerLost (4) after printing the summary of what was done; KeyboardInterrupt (130)
-    and Terminated (143) after saving."""
+    and Terminated (143) after saving.
+
+    ``candidates``: where the candidates come from, by default ``options.n`` sampled per object
+    (``annotate``); :class:`GivenCandidates` simulates given poses instead (``evaluate``).
+    """
     summary = Summary()
+    candidates = candidates or SampledCandidates(options.n)
     if not 1 <= options.n <= MAX_N:
         raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
     _check_workers(options)
@@ -282,6 +292,8 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
         sources = discover_objects(options.objects_dir)
     except ObjectDiscoveryError as exc:
         raise UsageError(str(exc)) from exc
+    sources, missing = candidates.select(sources)
+    summary.failed.update(missing)
 
     digests: dict[str, str] = {}
     for source in sources:
@@ -290,7 +302,15 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
         except ObjectError as exc:
             summary.failed[source.object_id] = str(exc)
     chunk = chunk_size_for(options.n)
-    spec = RunSpec(options.seed, options.n, options.trials, options.scale, chunk, config.to_dict())
+    spec = RunSpec(
+        options.seed,
+        options.n,
+        options.trials,
+        options.scale,
+        chunk,
+        config.to_dict(),
+        inputs=candidates.inputs(),
+    )
     store = Store(options.out_dir, spec)
     try:
         store.open(overwrite=options.overwrite, repair=options.repair)
@@ -301,7 +321,7 @@ def run(options: RunOptions, config: AnnotatorConfig) -> Summary:
     with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
         signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        _run(options, config, summary, store, sources, digests, status_dir)
+        _run(options, config, summary, store, sources, digests, status_dir, candidates)
     except (OutputError, SchedulerLost) as exc:
         summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
         raise
@@ -321,7 +341,9 @@ def _raise_terminated(signum, frame) -> None:
     raise Terminated()
 
 
-def _run(options, config, summary: Summary, store: Store, sources, digests, status_dir: str) -> None:
+def _run(
+    options, config, summary: Summary, store: Store, sources, digests, status_dir: str, candidates
+) -> None:
     """The body of :func:`run` once the folder is open."""
     for oid, error in summary.failed.items():
         store.fail_object(oid, error)
@@ -332,7 +354,12 @@ def _run(options, config, summary: Summary, store: Store, sources, digests, stat
     for oid in sorted(resume.done):
         summary.resumed[oid] = ObjectStats.from_json(store.manifest.objects_done[oid]["stats"], None)
     planned = [
-        PlannedObject(s, frozenset(resume.chunks.get(s.object_id, set())))
+        PlannedObject(
+            s,
+            frozenset(resume.chunks.get(s.object_id, set())),
+            candidates.count(s.object_id),
+            candidates.given,
+        )
         for s in live
         if s.object_id not in resume.done
     ]

@@ -151,6 +151,10 @@ class RunSpec:
     def to_json(self) -> dict[str, Any]:
         return _canonical(dataclasses.asdict(self))
 
+    def count(self, object_id: str) -> int:
+        """Candidates of one object: N, or its own count when the run's grasps are given."""
+        return int(self.inputs.get("counts", {}).get(object_id, self.n))
+
     @property
     def key(self) -> str:
         """SHA-256 of the canonical JSON: files written by this run carry it."""
@@ -514,7 +518,9 @@ class Store:
             mark = read_mark(p) or {}
             oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
             why = verify_labels(p, self.spec.key, oid, start, stop) if isinstance(oid, str) else "no id"
-            is_object = why is None and p.name == object_filename(oid) and start == 0 and stop == self.spec.n
+            is_object = (
+                why is None and p.name == object_filename(oid) and start == 0 and stop == self.spec.count(oid)
+            )
             is_chunk = why is None and p.name == chunk_filename(oid, start, stop)
             if not (is_object or is_chunk):
                 why = why or "unexpected name"
