@@ -123,6 +123,14 @@ class Transform:
         return t
 
     @classmethod
+    def exact(cls, pos, quat) -> Transform:
+        """From a recorded ``pos`` (3,) and unit ``quat`` (4,) bit for bit (no renormalisation), so
+        a pose written out and read back is the very transform that was used."""
+        return cls._trusted(
+            np.array(pos, dtype=np.float64).reshape(3), np.array(quat, dtype=np.float64).reshape(4), None
+        )
+
+    @classmethod
     def identity(cls) -> Transform:
         return cls(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 

@@ -45,11 +45,13 @@ class GivenGrasps:
     """Poses to simulate instead of sampled candidates (``evaluate``, benches, tests).
 
     T_obj_tcp : (k, 4, 4) float, TCP poses in the object's mesh frame; width : (k,) float, the
-    expected chord between the contacts (m).
+    expected chord between the contacts (m). quat : (k, 4) float xyzw or None: the rotations bit
+    for bit (a label's ``cmd_q*`` replayed exactly); without it they come from ``T_obj_tcp``.
     """
 
     T_obj_tcp: np.ndarray
     width: np.ndarray
+    quat: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -250,8 +252,9 @@ class WorkerState:
                 cands = self.candidates(loaded, task.seed, task.n, task.config)
                 poses = cands.T_obj_tcp[span.start : span.stop]
                 widths = cands.width_expected[span.start : span.stop]
+                quats = None
             else:
-                poses, widths = span.given.T_obj_tcp, span.given.width
+                poses, widths, quats = span.given.T_obj_tcp, span.given.width, span.given.quat
         except ObjectError as exc:
             return SpanResult(span, None, str(exc), self._stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
@@ -260,7 +263,7 @@ class WorkerState:
         status.write(task.status_dir, f"simulating {span.object_id}")
         steps0 = loaded.trial.world.step_seconds
         rows = simulate(
-            loaded, poses, widths, span.start, task.config, task.seed, task.trials, span.object_id
+            loaded, poses, widths, span.start, task.config, task.seed, task.trials, span.object_id, quats
         )
         stats = self._stats(t0, loaded.trial.world.step_seconds - steps0)
         status.write(task.status_dir, None)
@@ -308,9 +311,10 @@ def simulate(
     seed: int,
     trials: int,
     object_id: str,
+    quats: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
-    from ``first_id``.
+    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`).
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -322,7 +326,10 @@ def simulate(
     rows = []
     for k in range(len(widths)):
         grasp_id = first_id + k
-        T = Transform.from_matrix(T_obj_tcp[k])
+        if quats is None:
+            T = Transform.from_matrix(T_obj_tcp[k])
+        else:  # a recorded commanded pose: the very transform of the trial that recorded it
+            T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
         try:
             r = trial.run(T, width_expected)
@@ -354,6 +361,12 @@ def simulate(
                 "sim_steps": steps,
                 "slip": slip,
                 "object_mass": model.mass,
+                # the commanded grasp: the TCP pose the RG2 was placed at before closing (quaternion
+                # as simulated, not sign-canonicalised) and the expected chord the close started
+                # from; ``evaluate`` replays a label exactly from these
+                **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
+                **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
+                "cmd_width": width_expected,
             }
         )
     return pd.DataFrame(rows)
