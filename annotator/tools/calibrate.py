@@ -240,9 +240,9 @@ def simulate_grid(
 
 
 def _max_width(config: AnnotatorConfig) -> float:
-    from annotator.runner import _max_width as stroke
+    from annotator.pipeline.worker import max_width
 
-    return stroke(config)
+    return max_width(config)
 
 
 def calibrate(

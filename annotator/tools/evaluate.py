@@ -25,6 +25,8 @@ from annotator.dataset import POSE_COLUMNS
 
 log = logging.getLogger(__name__)
 
+# The commanded grasp a label records (annotator.pipeline.worker.simulate): replayed exactly.
+CMD_COLUMNS = ("cmd_x", "cmd_y", "cmd_z", "cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw", "cmd_width")
 # A quaternion this far from unit norm is renormalised silently (float32 predictions); further
 # off is an error in the input, not noise.
 QUAT_RENORMALISE_TOL = 1e-3
@@ -84,6 +86,13 @@ def read_grasps(path: str | Path) -> pd.DataFrame:
             raise ToolError(f"{path}: grasp {int(first.grasp_id)} of {first.object_id!r} appears twice")
     else:
         out["grasp_id"] = out.groupby("object_id", sort=False).cumcount().astype(np.int64)
+    if set(CMD_COLUMNS) <= set(df.columns):  # a label table: its commanded grasps, kept bit for bit
+        cmd = df[list(CMD_COLUMNS)].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+        norm = np.linalg.norm(cmd[:, 3:7], axis=1)
+        if np.isfinite(cmd).all() and np.all(np.abs(norm - 1.0) < 1e-9):
+            out[list(CMD_COLUMNS)] = cmd
+    if "outcome" in df.columns:
+        out["outcome"] = df["outcome"].astype(str).to_numpy(dtype=object)
     return out
 
 
@@ -103,3 +112,62 @@ def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float) -> np.ndarray:
     width = max_width - t1 - t2
     ok = (t1 <= half) & (t2 <= half) & np.isfinite(width)
     return np.where(ok, np.clip(width, 0.0, max_width), 0.0)
+
+
+def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: float | None, max_width: float):
+    """The grasps as the pipeline's :class:`GivenCandidates`, and the renumbering applied.
+
+    Per object the grasps keep their ``grasp_id`` when those are exactly 0..k-1 (a label table, or
+    ids given so); otherwise they are numbered 0..k-1 in the order of the file. Rows of a label
+    table that records its commanded grasps (``cmd_*`` columns) replay those bit for bit, so the
+    outcomes are reproduced exactly. Missing widths are
+    measured on the mesh (:func:`expected_width`); rows of a label table (an ``outcome`` column)
+    whose outcome is ``collision`` carry the open width, so their chord is that minus twice the
+    pregrasp clearance (:func:`annotator.tools.given.chord_width`).
+    Returns ``(candidates, renumbered object ids)``.
+    """
+    import hashlib
+
+    from annotator.dataset import poses_as_matrices
+    from annotator.geometry import quat_to_matrix
+    from annotator.objects import ObjectError, discover_objects, load_object
+    from annotator.pipeline.source import GivenCandidates
+    from annotator.pipeline.worker import GivenGrasps
+    from annotator.tools.common import ToolError
+
+    sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
+    out: dict[str, GivenGrasps] = {}
+    renumbered: list[str] = []
+    digest = hashlib.sha256()
+    for oid, rows in grasps.groupby("object_id", sort=True):
+        ids = rows["grasp_id"].to_numpy()
+        if np.array_equal(np.sort(ids), np.arange(len(rows))):
+            rows = rows.sort_values("grasp_id", kind="stable")
+        else:
+            renumbered.append(str(oid))
+        if set(CMD_COLUMNS) <= set(rows.columns):  # label rows: replay the commanded grasps exactly
+            cmd = rows[list(CMD_COLUMNS)].to_numpy(dtype=np.float64)
+            T = np.tile(np.eye(4), (len(rows), 1, 1))
+            T[:, :3, :3] = quat_to_matrix(cmd[:, 3:7])
+            T[:, :3, 3] = cmd[:, :3]
+            out[str(oid)] = GivenGrasps(T, cmd[:, 7].copy(), cmd[:, 3:7].copy())
+            digest.update(str(oid).encode() + b"\0" + cmd.tobytes())
+            continue
+        T = poses_as_matrices(rows)
+        width = rows["width"].to_numpy(dtype=np.float64).copy()
+        if "outcome" in rows.columns:
+            collision = rows["outcome"].astype(str).to_numpy() == "collision"
+            width[collision] = (
+                np.minimum(width[collision], max_width) - 2 * config.protocol.pregrasp_clearance
+            )
+        todo = ~np.isfinite(width)
+        if todo.any() and oid in sources:
+            try:
+                mesh = load_object(sources[oid], config.objects, scale=scale).mesh
+            except ObjectError as exc:
+                raise ToolError(f"{oid}: {exc}") from None
+            width[todo] = expected_width(mesh, T[todo], max_width)
+        width = np.clip(np.nan_to_num(width, nan=0.0), 0.0, max_width)
+        out[str(oid)] = GivenGrasps(T, width)
+        digest.update(str(oid).encode() + b"\0" + T.tobytes() + width.tobytes())
+    return GivenCandidates(out, digest.hexdigest()), renumbered

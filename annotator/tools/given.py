@@ -7,8 +7,8 @@ closed from ``width + 2 x preclose_gap``, exactly as a sampled candidate whose e
 ``width``. For a ``collision`` label the width stored is the open width, so its chord is that
 minus ``2 x pregrasp_clearance`` (:func:`chord_width`).
 
-The trial itself is the job's (:func:`annotator.runner.simulate_chunk` in a worker's world), so a
-given grasp and a sampled one are judged by the same code.
+The trial itself is the job's (:mod:`annotator.pipeline.worker`, in a worker's world), so a given
+grasp and a sampled one are judged by the same code.
 """
 
 from __future__ import annotations
@@ -49,18 +49,16 @@ def simulate_given(span: GivenSpan, config: AnnotatorConfig, seed: int = 0, tria
     """Label rows (the job's columns) for the given grasps of one object; runs in a worker.
 
     Returns ``(rows, error)``: rows with ``grasp_id`` from the span, or ``(None, reason)`` when the
-    object cannot be loaded.
+    object cannot be loaded. The worker's world is the job's (:mod:`annotator.pipeline.worker`).
     """
-    from annotator.objects import ObjectError
-    from annotator.runner import Chunk, _worker_object, simulate_chunk
+    from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 
-    try:
-        loaded = _worker_object(span.object_id, span.source, span.scale, config)
-    except ObjectError as exc:
-        return None, str(exc)
-    chunk = Chunk(
-        span.object_id, span.source, span.scale, 0, np.asarray(span.T_obj_tcp), np.asarray(span.width)
-    )
-    rows, _ = simulate_chunk(chunk, config, seed, trials, loaded)
+    k = len(span.width)
+    given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64))
+    task = SpanTask(Span(span.object_id, span.source, span.scale, 0, k, given), config, seed, k, trials)
+    result = label_span(task)
+    if result.error is not None:
+        return None, result.error
+    rows = result.rows
     rows["grasp_id"] = np.asarray(span.grasp_id, dtype=np.int64)
     return rows, None
