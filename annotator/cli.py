@@ -157,20 +157,18 @@ def annotate_command(
       130  interrupted (Ctrl-C); 143 terminated (SIGTERM); re-run to resume
     """
     _setup_logging(quiet, verbose)
-    from annotator.pipeline.files import OutputError
-    from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
-
     try:
         config = AnnotatorConfig.from_toml(config_file) if config_file else AnnotatorConfig()
     except (ValueError, OSError) as exc:
         raise click.UsageError(f"--config {config_file}: {exc}") from exc
     if overwrite and repair:
         raise click.UsageError("--overwrite and --repair exclude each other")
-    options = RunOptions(
+    run_pipeline(
+        "annotate",
         objects_dir=objects_dir,
         n=n,
         out_dir=out_dir,
-        workers=workers or os.cpu_count() or 1,
+        workers=workers,
         seed=seed,
         trials=trials,
         scheduler=scheduler,
@@ -178,24 +176,36 @@ def annotate_command(
         overwrite=overwrite,
         repair=repair,
         quiet=quiet,
+        config=config,
     )
+
+
+def run_pipeline(
+    command: str, *, config: AnnotatorConfig, candidates=None, workers: int | None, **options
+) -> None:
+    """Run the job's pipeline (``annotate``, or ``evaluate`` with given ``candidates``) and exit
+    with the documented code; problems are one line prefixed with ``command``."""
+    from annotator.pipeline.files import OutputError
+    from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
+
+    run_options = RunOptions(workers=workers or os.cpu_count() or 1, **options)
     try:
-        summary = run(options, config)
+        summary = run(run_options, config, candidates)
     except UsageError as exc:
         raise click.UsageError(str(exc)) from exc
     except OutputError as exc:
-        click.echo(f"annotate: {exc}", err=True)
+        click.echo(f"{command}: {exc}", err=True)
         sys.exit(EXIT_OUTPUT)
     except SchedulerLost as exc:
-        click.echo(f"annotate: {exc} ({scheduler}); re-run the same command to resume", err=True)
+        click.echo(f"{command}: {exc} ({run_options.scheduler}); re-run the same command to resume", err=True)
         sys.exit(EXIT_SCHEDULER)
     except KeyboardInterrupt:
         # Ctrl-C: finished work is on disk; exit 130 (128 + SIGINT), not click's "Aborted!" + 1,
         # which would read as "some objects failed".
-        click.echo("annotate: interrupted; re-run the same command to resume", err=True)
+        click.echo(f"{command}: interrupted; re-run the same command to resume", err=True)
         sys.exit(EXIT_INTERRUPTED)
     except Terminated:
-        click.echo("annotate: terminated; re-run the same command to resume", err=True)
+        click.echo(f"{command}: terminated; re-run the same command to resume", err=True)
         sys.exit(EXIT_TERMINATED)
     sys.exit(EXIT_OK if not summary.failed else EXIT_SOME_FAILED)
 
