@@ -2,8 +2,8 @@
 
 The user executes some labelled grasps on their real UR3 + RG2 and records ``object_id,
 grasp_id, real_success`` (optionally ``grip_force``, N, the force they used). Each of those grasps
-is re-simulated (:mod:`annotator.tools.given`: the label's pose and width, as the robot executes
-it) under every setting of a grid, and the simulated outcome is compared with the real one:
+is re-simulated (:mod:`annotator.tools.given`: the grasp the label records as commanded, as the
+robot executes it) under every setting of a grid, and the simulated outcome is compared with the real one:
 accuracy, precision and recall of "success", with percentile bootstrap confidence intervals
 over the trials. The best setting (highest accuracy; ties: higher balanced accuracy, then the
 setting nearest the labelling configuration) is written as a TOML file for ``--config``.
@@ -202,10 +202,9 @@ def simulate_grid(
     """Simulated success of every trial (row order of ``trials``) under every setting."""
     import joblib
 
-    from annotator.dataset import poses_as_matrices
     from annotator.objects import ObjectDiscoveryError, discover_objects
     from annotator.tools.common import ToolError
-    from annotator.tools.given import GivenSpan, chord_width
+    from annotator.tools.given import GivenSpan, replay_grasps
 
     try:
         sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
@@ -216,16 +215,15 @@ def simulate_grid(
         raise ToolError(f"object(s) {missing} are not in {objects_dir}")
     has_force = "grip_force" in trials.columns
     groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
-    chords = chord_width(trials, base, _max_width(base))
+    stroke = _max_width(base)
     tasks, where = [], {}
     for key, idx in groups.indices.items():
         key = key if isinstance(key, tuple) else (key,)
         oid, force = str(key[0]), (float(key[1]) if has_force else None)
         rows = trials.iloc[idx]
         scale = float(rows["object_scale"].iloc[0])
-        span = GivenSpan(
-            oid, sources[oid], scale, poses_as_matrices(rows), chords[idx], rows["grasp_id"].to_numpy()
-        )
+        T, width, quat = replay_grasps(rows, base, stroke)
+        span = GivenSpan(oid, sources[oid], scale, T, width, rows["grasp_id"].to_numpy(), quat)
         where[(oid, force)] = idx
         for setting in settings:
             tasks.append(joblib.delayed(_simulate_task)(setting, base, span, force, seed))

@@ -22,11 +22,10 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import POSE_COLUMNS
+from annotator.tools.given import CMD_COLUMNS, records_commands, replay_grasps
 
 log = logging.getLogger(__name__)
 
-# The commanded grasp a label records (annotator.pipeline.worker.simulate): replayed exactly.
-CMD_COLUMNS = ("cmd_x", "cmd_y", "cmd_z", "cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw", "cmd_width")
 # A quaternion this far from unit norm is renormalised silently (float32 predictions); further
 # off is an error in the input, not noise.
 QUAT_RENORMALISE_TOL = 1e-3
@@ -119,17 +118,14 @@ def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: flo
 
     Per object the grasps keep their ``grasp_id`` when those are exactly 0..k-1 (a label table, or
     ids given so); otherwise they are numbered 0..k-1 in the order of the file. Rows of a label
-    table that records its commanded grasps (``cmd_*`` columns) replay those bit for bit, so the
-    outcomes are reproduced exactly. Missing widths are
-    measured on the mesh (:func:`expected_width`); rows of a label table (an ``outcome`` column)
-    whose outcome is ``collision`` carry the open width, so their chord is that minus twice the
-    pregrasp clearance (:func:`annotator.tools.given.chord_width`).
+    table (an ``outcome`` column) are replayed (:func:`annotator.tools.given.replay_grasps`: their
+    commanded grasps bit for bit, so their outcomes are reproduced exactly). Missing widths are
+    measured on the mesh (:func:`expected_width`).
     Returns ``(candidates, renumbered object ids)``.
     """
     import hashlib
 
     from annotator.dataset import poses_as_matrices
-    from annotator.geometry import quat_to_matrix
     from annotator.objects import ObjectError, discover_objects, load_object
     from annotator.pipeline.source import GivenCandidates
     from annotator.pipeline.worker import GivenGrasps
@@ -145,21 +141,13 @@ def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: flo
             rows = rows.sort_values("grasp_id", kind="stable")
         else:
             renumbered.append(str(oid))
-        if set(CMD_COLUMNS) <= set(rows.columns):  # label rows: replay the commanded grasps exactly
-            cmd = rows[list(CMD_COLUMNS)].to_numpy(dtype=np.float64)
-            T = np.tile(np.eye(4), (len(rows), 1, 1))
-            T[:, :3, :3] = quat_to_matrix(cmd[:, 3:7])
-            T[:, :3, 3] = cmd[:, :3]
-            out[str(oid)] = GivenGrasps(T, cmd[:, 7].copy(), cmd[:, 3:7].copy())
-            digest.update(str(oid).encode() + b"\0" + cmd.tobytes())
+        if records_commands(rows) or "outcome" in rows.columns:  # label rows: replay them
+            T, width, quat = replay_grasps(rows, config, max_width)
+            out[str(oid)] = GivenGrasps(T, width, quat)
+            digest.update(str(oid).encode() + b"\0" + T.tobytes() + width.tobytes())
             continue
         T = poses_as_matrices(rows)
         width = rows["width"].to_numpy(dtype=np.float64).copy()
-        if "outcome" in rows.columns:
-            collision = rows["outcome"].astype(str).to_numpy() == "collision"
-            width[collision] = (
-                np.minimum(width[collision], max_width) - 2 * config.protocol.pregrasp_clearance
-            )
         todo = ~np.isfinite(width)
         if todo.any() and oid in sources:
             try:

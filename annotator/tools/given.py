@@ -1,11 +1,15 @@
-"""Simulating grasps that are given (a network's predictions, labels replayed, real-trial grasps).
+"""Simulating given grasps (a network's predictions, labels replayed, real-trial grasps).
 
-A given grasp is a TCP pose in the object's mesh frame and an opening ``width`` (m), as in the
-labels: the RG2 is placed so that its TCP at that opening is at the pose (the base pose follows
-from the model's FK), opened ``2 x pregrasp_clearance`` wider, checked along the approach and
-closed from ``width + 2 x preclose_gap``, exactly as a sampled candidate whose expected chord is
-``width``. For a ``collision`` label the width stored is the open width, so its chord is that
-minus ``2 x pregrasp_clearance`` (:func:`chord_width`).
+A given grasp is a TCP pose in the object's mesh frame and the expected chord ``width`` (m): the
+RG2 is placed so that its TCP at that opening is at the pose (the base pose follows from the
+model's FK), opened ``2 x pregrasp_clearance`` wider, checked along the approach and closed from
+``width + 2 x preclose_gap``, exactly as a sampled candidate whose expected chord is ``width``.
+
+Label rows are replayed from the grasp they record as commanded (``cmd_x`` .. ``cmd_qw``,
+``cmd_width``), bit for bit, so a replay is the label's own trial. Labels written before those
+columns existed fall back to the label pose (where the pads ended: the object may have moved
+during the close) with its width as the chord; a ``collision`` row's width is the open width, so
+its chord is that minus ``2 x pregrasp_clearance``.
 
 The trial itself is the job's (:mod:`annotator.pipeline.worker`, in a worker's world), so a given
 grasp and a sampled one are judged by the same code.
@@ -23,10 +27,14 @@ from annotator.config import AnnotatorConfig
 
 log = logging.getLogger(__name__)
 
+# The commanded grasp a label records (annotator.pipeline.worker.simulate).
+CMD_COLUMNS = ("cmd_x", "cmd_y", "cmd_z", "cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw", "cmd_width")
+
 
 @dataclass(frozen=True)
 class GivenSpan:
-    """Given grasps of one object: ``T_obj_tcp`` (n, 4, 4), ``width`` (n,) m, ``grasp_id`` (n,)."""
+    """Given grasps of one object: ``T_obj_tcp`` (n, 4, 4), ``width`` (n,) m, ``grasp_id`` (n,);
+    ``quat`` (n, 4) the rotations bit for bit, or None."""
 
     object_id: str
     source: object  # an annotator.objects.ObjectSource
@@ -34,15 +42,35 @@ class GivenSpan:
     T_obj_tcp: np.ndarray
     width: np.ndarray
     grasp_id: np.ndarray
+    quat: np.ndarray | None = None
 
 
-def chord_width(labels: pd.DataFrame, config: AnnotatorConfig, max_width: float) -> np.ndarray:
-    """The expected chord of each label row to replay it: its ``width``, except for collisions,
-    whose stored width is the open width ``min(max_width, chord + 2 x clearance)``."""
-    width = labels["width"].to_numpy(dtype=np.float64).copy()
-    collision = labels["outcome"].to_numpy() == "collision"
-    width[collision] = np.minimum(width[collision], max_width) - 2 * config.protocol.pregrasp_clearance
-    return np.maximum(width, 0.0)
+def records_commands(rows: pd.DataFrame) -> bool:
+    """Do these label rows carry their commanded grasps (all ``cmd_*`` columns, finite)?"""
+    if not set(CMD_COLUMNS) <= set(rows.columns):
+        return False
+    return bool(np.isfinite(rows[list(CMD_COLUMNS)].to_numpy(dtype=np.float64)).all())
+
+
+def replay_grasps(
+    rows: pd.DataFrame, config: AnnotatorConfig, max_width: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """What to simulate to replay label rows: ``(T_obj_tcp (n, 4, 4), width (n,), quat (n, 4) or
+    None)``; see the module docstring."""
+    from annotator.dataset import poses_as_matrices
+    from annotator.geometry import quat_to_matrix
+
+    if records_commands(rows):
+        cmd = rows[list(CMD_COLUMNS)].to_numpy(dtype=np.float64)
+        T = np.tile(np.eye(4), (len(rows), 1, 1))
+        T[:, :3, :3] = quat_to_matrix(cmd[:, 3:7]).reshape(-1, 3, 3)
+        T[:, :3, 3] = cmd[:, :3]
+        return T, cmd[:, 7].copy(), cmd[:, 3:7].copy()
+    width = rows["width"].to_numpy(dtype=np.float64).copy()
+    if "outcome" in rows.columns:
+        collision = rows["outcome"].astype(str).to_numpy() == "collision"
+        width[collision] = np.minimum(width[collision], max_width) - 2 * config.protocol.pregrasp_clearance
+    return poses_as_matrices(rows), np.maximum(width, 0.0), None
 
 
 def simulate_given(span: GivenSpan, config: AnnotatorConfig, seed: int = 0, trials: int = 1):
@@ -54,7 +82,7 @@ def simulate_given(span: GivenSpan, config: AnnotatorConfig, seed: int = 0, tria
     from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 
     k = len(span.width)
-    given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64))
+    given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64), span.quat)
     task = SpanTask(Span(span.object_id, span.source, span.scale, 0, k, given), config, seed, k, trials)
     result = label_span(task)
     if result.error is not None:

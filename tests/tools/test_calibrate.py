@@ -20,7 +20,7 @@ from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.tools import calibrate as cal
-from annotator.tools.common import read_manifest
+from annotator.tools.common import labelling_config
 
 REPO = Path(__file__).resolve().parents[2]
 HIDDEN_FRICTION, HIDDEN_FORCE = 0.45, 20.0
@@ -56,7 +56,7 @@ def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
     trials = labels[labels.outcome != "collision"].reset_index(drop=True)  # what a robot can execute
     n = len(trials)
     assert n >= 15
-    base = AnnotatorConfig.from_dict(read_manifest(labels_dir)["config"])
+    base = labelling_config(labels_dir)
 
     hidden = cal.Setting(HIDDEN_FRICTION, HIDDEN_FORCE, 1.0)
     truth = cal.simulate_grid(trials.assign(real_success=False), [hidden], base, objects, workers=2)[hidden]
