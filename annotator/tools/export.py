@@ -11,6 +11,9 @@ and every grasp is exported as
 
 with ``d`` from the RG2 model's own forward kinematics (:meth:`annotator.sim.rg2.RG2.T_base_tcp`).
 The label's ``width`` is exported beside each transform, so ``T_obj_tcp`` is recovered exactly.
+Labels that record their commanded grasp (``cmd_*``) also give ``commanded_transforms``: the
+flange pose where the gripper was placed before closing (the same transform of the ``cmd`` pose
+at ``cmd_width``), which is what a robot executes.
 
 Each object's mesh is written once, as the labels see it (metres, mesh frame, scale applied), to
 ``meshes/<object id>.obj`` in the output folder; ``object/file`` names it and ``object/scale`` is 1.
@@ -65,6 +68,10 @@ class TcpDepth:
         with World() as world:
             urdf = paths.rg2_urdf()
             self._rg2 = RG2(Body.load(world.client, urdf, fixed_base=True), urdf, GripperConfig())
+
+    @property
+    def max_width(self) -> float:
+        return self._rg2.max_width
 
     def T_base_tcp(self, width: np.ndarray) -> np.ndarray:
         """(n, 4, 4) gripper-base-to-TCP transforms for openings ``width`` : (n,) m."""
@@ -126,6 +133,9 @@ def _write_acronym(
             g.create_dataset("grasp_id", data=rows["grasp_id"].to_numpy())
             g.create_dataset("score", data=rows["score"].to_numpy())
             g.create_dataset("outcome", data=rows["outcome"].to_numpy(dtype=object).astype("S"))
+            if extra.get("commanded") is not None:
+                g.create_dataset("commanded_transforms", data=extra["commanded"])
+                g.create_dataset("commanded_width", data=rows["cmd_width"].to_numpy())
             g.attrs["frame"] = FRAME_NOTE
             o = f.create_group("object")
             o.create_dataset("file", data=mesh_file)
@@ -164,6 +174,14 @@ def _write_graspgen(
             "grasp_id": rows["grasp_id"].to_numpy().tolist(),
             "score": rows["score"].to_numpy().tolist(),
             "outcome": rows["outcome"].astype(str).tolist(),
+            **(
+                {
+                    "commanded_transforms": extra["commanded"].tolist(),
+                    "commanded_width": rows["cmd_width"].to_numpy().tolist(),
+                }
+                if extra.get("commanded") is not None
+                else {}
+            ),
             "frame": FRAME_NOTE,
         },
     }
@@ -191,6 +209,7 @@ def export(
         read_labels,
         read_manifest,
     )
+    from annotator.tools.given import records_commands, replay_grasps
     from annotator.tools.report import _objects_record
 
     if fmt not in FORMATS:
@@ -219,6 +238,10 @@ def export(
         mesh_file = f"meshes/{_stem(oid)}.obj"
         mesh.export(out_dir / mesh_file)
         T_obj_base = base_poses(poses_as_matrices(rows), rows["width"].to_numpy(), depth)
+        commanded = None
+        if records_commands(rows):  # where the gripper was placed before closing, flange frame
+            T_cmd, cmd_width, _ = replay_grasps(rows, labelling_config(labels_dir), depth.max_width)
+            commanded = base_poses(T_cmd, cmd_width, depth)
         extra = {
             "object_id": oid,
             "mass": float(object_info(manifest, oid).get("mass", _object_mass(rows, record))),
@@ -226,6 +249,7 @@ def export(
             "grip_force": float(grip_force),
             "mesh_sha256": str(rows["mesh_sha256"].iloc[0]),
             "label_scale": float(rows["object_scale"].iloc[0]),
+            "commanded": commanded,
         }
         if fmt == "acronym":
             path = out_dir / f"{_stem(oid)}.h5"

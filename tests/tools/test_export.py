@@ -41,11 +41,15 @@ def test_acronym_round_trip(labelled, depth: TcpDepth, tmp_path: Path) -> None:
             mesh_file, scale = f["object/file"][()].decode(), float(f["object/scale"][()])
             assert f["gripper/type"][()].decode() == "onrobot_rg2"
             mass = float(f["object/mass"][()])
+            commanded = np.array(f["grasps/commanded_transforms"])
+            cmd_width = np.array(f["grasps/commanded_width"])
         rows = labelled.df[labelled.df.object_id == oid].sort_values("grasp_id")
         assert T_obj_base.shape == (len(rows), 4, 4)
         assert np.abs(tcp_poses(T_obj_base, width, depth) - poses_as_matrices(rows)).max() < 1e-9
         assert np.array_equal(held.astype(bool), rows.success.to_numpy())
         assert mass == pytest.approx(rows.object_mass.iloc[0])
+        T_cmd = tcp_poses(commanded, cmd_width, depth)
+        assert np.allclose(T_cmd[:, :3, 3], rows[["cmd_x", "cmd_y", "cmd_z"]].to_numpy(), atol=1e-9)
         # the transform is the flange (gripper base): 161..200 mm behind the TCP along its +z
         back = np.einsum("nij,nj->ni", np.linalg.inv(T_obj_base), poses_as_matrices(rows)[:, :, 3])[:, :3]
         assert np.allclose(back[:, :2], 0.0, atol=1e-9) and np.all((back[:, 2] > 0.16) & (back[:, 2] < 0.201))
