@@ -15,11 +15,14 @@ import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from annotator.config import AnnotatorConfig
+
+if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` stays fast
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -131,6 +134,8 @@ class CalibrationResult:
 
 def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
     """REAL.csv joined with the labels (pose, width, outcome); one-line errors for bad input."""
+    import pandas as pd
+
     from annotator.tools.common import ToolError
 
     try:
@@ -283,6 +288,8 @@ def calibrate(
                 "_setting": s,
             }
         )
+    import pandas as pd
+
     table = pd.DataFrame(records)
     ranked = table.sort_values(
         ["accuracy", "balanced", "_near"], ascending=[False, False, True], kind="stable"

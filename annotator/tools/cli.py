@@ -13,9 +13,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.dataset import OUTCOMES
 from annotator.tools import calibrate as cal
 
+# annotator.dataset.OUTCOMES, spelled out so that `annotator --help` does not import pandas
+# (tests/tools/test_show.py checks they are the same)
+OUTCOMES = ("success", "collision", "no_contact", "slipped_lift", "slipped_shake", "error")
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 LABELS = click.argument("labels", type=click.Path(path_type=Path))
 OBJECTS_OPTION = click.option(

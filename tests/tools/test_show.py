@@ -24,6 +24,13 @@ def _not_blank(path: Path) -> np.ndarray:
     return img
 
 
+def test_command_line_outcomes_are_the_schema_s() -> None:
+    from annotator.dataset import OUTCOMES
+    from annotator.tools.cli import OUTCOMES as CLI_OUTCOMES
+
+    assert CLI_OUTCOMES == OUTCOMES
+
+
 def test_show_command_writes_pictures(labelled, tmp_path: Path) -> None:
     png = tmp_path / "box.png"
     args = ["show", str(labelled.labels_dir), "--object", "box", "--objects", str(labelled.objects_dir)]
