@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 OBJECTS_RECORD = "objects.parquet"  # per-object geometry record beside the labels (objects work)
 # Column names in that record (or the labels) for the per-object table; the first present is used.
 MASS_COLUMNS = ("mass", "object_mass")
-COLLISION_ERROR_COLUMNS = ("collision_error", "collision_error_m", "hull_error", "decomposition_error")
+# mean distance (m) between the collision shape and the mesh surface; the objects work records
+# collision_error_mean / _max per object in the manifest (objects_info.<id>.geometry)
+COLLISION_ERROR_COLUMNS = ("collision_error_mean", "collision_error", "collision_error_m", "hull_error")
 OUTCOME_HEX = {
     "success": "#009e73",
     "collision": "#999999",
@@ -245,8 +247,10 @@ def per_object_table(
 ) -> pd.DataFrame:
     """One row per object: n, successes, rate, outcome counts, mass (kg), collision error (or NaN).
 
-    Mass and collision error come from the objects record beside the labels, else from what the
-    manifest recorded per object (``objects_info``), else (mass only) the labels' ``object_mass``.
+    Mass and collision error (mean distance of the collision shape from the mesh) come from an
+    objects record beside the labels, else from what the manifest recorded per object
+    (``objects_info``, with its ``geometry`` record), else from the labels' own columns
+    (``object_mass``, a collision error column); ``NaN`` (shown n/a) when none has them.
     """
     counts = df.groupby("object_id")["outcome"].value_counts().unstack(fill_value=0)
     table = pd.DataFrame(index=counts.index)
@@ -269,11 +273,17 @@ def per_object_table(
     info = (manifest or {}).get("objects_info") or {}
     for oid in table.index:
         entry = info.get(oid) or {}
+        if isinstance(entry.get("geometry"), dict):  # the objects' geometry record
+            entry = {**entry, **entry["geometry"]}
         if mass_col is None and isinstance(entry.get("mass"), int | float):
             table.loc[oid, "mass"] = float(entry["mass"])
         err = next((entry[k] for k in COLLISION_ERROR_COLUMNS if isinstance(entry.get(k), int | float)), None)
         if err_col is None and err is not None:
             table.loc[oid, "collision_error"] = float(err)
+    if table["collision_error"].isna().all():  # a per-row label column, when the labels carry one
+        col = next((c for c in COLLISION_ERROR_COLUMNS if c in df.columns), None)
+        if col is not None and pd.api.types.is_numeric_dtype(df[col]):
+            table["collision_error"] = df.groupby("object_id")[col].median()
     return table
 
 

@@ -93,3 +93,22 @@ def test_report_loads_cleanly_in_chromium(labelled, tmp_path: Path) -> None:
 def test_report_errors_are_one_line(tmp_path: Path) -> None:
     result = CliRunner().invoke(main, ["report", str(tmp_path / "none"), "--html", str(tmp_path / "r.html")])
     assert result.exit_code == 2 and result.output.strip() == f"Error: no labels at {tmp_path / 'none'}"
+
+
+def test_per_object_table_takes_mass_and_collision_error_where_recorded() -> None:
+    import pandas as pd
+
+    from annotator.tools.report import per_object_table
+
+    df = pd.DataFrame(
+        {
+            "object_id": ["a", "a", "b"],
+            "outcome": ["success", "collision", "success"],
+            "object_mass": [0.1] * 3,
+        }
+    )
+    manifest = {"objects_info": {"a": {"geometry": {"mass": 0.11, "collision_error_mean": 0.0004}}}}
+    table = per_object_table(df, None, manifest)
+    assert table.loc["a", ["n", "successes", "collision"]].tolist() == [2, 1, 1]
+    assert table.loc["a", "mass"] == 0.11 and table.loc["a", "collision_error"] == 0.0004
+    assert table.loc["b", "mass"] == 0.1 and np.isnan(table.loc["b", "collision_error"])  # shown n/a
