@@ -222,7 +222,7 @@ RG2_SYMMETRY = np.diag([-1.0, -1.0, 1.0])
 ROTATION_LENGTH = 0.055
 
 
-def _keyed_rng(*keys: object) -> np.random.Generator:
+def keyed_rng(*keys: object) -> np.random.Generator:
     """A Generator that depends only on ``keys`` (SHA-256 of their text): stable across processes."""
     digest = hashlib.sha256("\x00".join(str(k) for k in keys).encode()).digest()
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.frombuffer(digest, "<u4").tolist())))
@@ -240,7 +240,7 @@ def balance_outcomes(df: pd.DataFrame, seed: int = 0, per_object: bool = True) -
     kept = []
     for key, group in groups:
         group = group.sort_values(["object_id", "grasp_id"], kind="stable")
-        rng = _keyed_rng("balance", int(seed), key)
+        rng = keyed_rng("balance", int(seed), key)
         success = group["success"].to_numpy(dtype=bool)
         n = int(min(success.sum(), (~success).sum()))
         for mask in (success, ~success):

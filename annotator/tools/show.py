@@ -21,7 +21,7 @@ import pandas as pd
 
 from annotator import paths
 from annotator.config import GripperConfig
-from annotator.dataset import OUTCOMES, poses_as_matrices
+from annotator.dataset import OUTCOMES, keyed_rng, poses_as_matrices
 from annotator.geometry import Transform
 from annotator.render import Camera, Frame, look_at_camera, project, render_frame
 from annotator.sim import pb
@@ -142,9 +142,7 @@ def choose_grasps(
     pool = rows[rows["outcome"].isin(outcomes)] if outcomes else rows
     pool = pool.sort_values("grasp_id")
     oid = str(rows["object_id"].iloc[0]) if len(rows) else ""
-    from annotator.dataset import _keyed_rng
-
-    pick = np.sort(_keyed_rng("show", int(seed), oid).permutation(len(pool))[:n])
+    pick = np.sort(keyed_rng("show", int(seed), oid).permutation(len(pool))[:n])
     return pool.iloc[pick].reset_index(drop=True)
 
 
