@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import h5py
@@ -79,8 +80,12 @@ def test_graspgen_round_trip(labelled, depth: TcpDepth, tmp_path: Path) -> None:
 
 
 def test_export_errors(labelled, tmp_path: Path) -> None:
-    args = ["export", str(labelled.labels_dir), "--out", str(tmp_path)]
-    bad = CliRunner().invoke(main, [*args, "--format", "acronym"])  # no meshes anywhere
+    bare = tmp_path / "bare"  # label files without the run's manifest: no record of the meshes
+    bare.mkdir()
+    for path in labelled.labels_dir.glob("*.parquet"):
+        shutil.copy(path, bare / path.name)
+    bad = CliRunner().invoke(main, ["export", str(bare), "--out", str(tmp_path / "x"), "--format", "acronym"])
     assert bad.exit_code == 2 and "pass --objects" in bad.output
+    args = ["export", str(labelled.labels_dir), "--out", str(tmp_path)]
     bad = CliRunner().invoke(main, [*args, "--format", "npz", "--objects", str(labelled.objects_dir)])
     assert bad.exit_code == 2 and "'npz'" in bad.output
