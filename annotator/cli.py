@@ -236,12 +236,9 @@ main.add_command(annotate_command)
 
 def _register_optional_commands() -> None:
     from annotator.scene import scene_command
-    from annotator.tools.commands import replay_command
+    from annotator.tools.commands import COMMANDS
 
     main.add_command(scene_command)
-    main.add_command(replay_command)
-    from annotator.tools.cli import COMMANDS
-
     for command in COMMANDS:
         main.add_command(command)
 

@@ -26,7 +26,7 @@ def _not_blank(path: Path) -> np.ndarray:
 
 def test_command_line_outcomes_are_the_schema_s() -> None:
     from annotator.dataset import OUTCOMES
-    from annotator.tools.cli import OUTCOMES as CLI_OUTCOMES
+    from annotator.tools.commands import OUTCOMES as CLI_OUTCOMES
 
     assert CLI_OUTCOMES == OUTCOMES
 
