@@ -538,3 +538,8 @@ def test_no_pybullet_banner_in_the_output():
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "imported"
     assert "build time" not in proc.stderr + proc.stdout
+    # every command imports its modules (scene, cell, tools) for --help: none may print it either
+    code = "from annotator.cli import main; main()"
+    proc = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and "Commands:" in proc.stdout, proc.stderr
+    assert "build time" not in proc.stderr + proc.stdout

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 
 from annotator.config import KinectConfig
 from annotator.geometry import Transform
+from annotator.sim import pb
 
 # T_gl_optical: OpenGL's eye frame (looks along -z, y up) from the optical frame (z forward, y down).
 _GL_FROM_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -17,11 +17,10 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-import pybullet as pb
 
 from annotator.cell.world import Cell
 from annotator.geometry import Transform
-from annotator.sim import ur3
+from annotator.sim import pb, ur3
 from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
 from annotator.sim.rg2 import FINGER_CHAINS
 

@@ -15,14 +15,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 import pybullet_data
 
 from annotator import paths
 from annotator.cell.kinect import KinectView, render_view
 from annotator.config import CellConfig, GripperConfig, KinectConfig
 from annotator.geometry import Transform
-from annotator.sim import ur3
+from annotator.sim import pb, ur3
 from annotator.sim.body import Body
 from annotator.sim.rg2 import RG2
 from annotator.sim.world import World

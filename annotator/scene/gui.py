@@ -7,13 +7,13 @@ from pathlib import Path
 
 import click
 import numpy as np
-import pybullet as pb
 
 from annotator.objects import ObjectModel
 from annotator.render import Camera, render_rgb, write_png
 from annotator.scene.capture import Capturer, capture_now
 from annotator.scene.demo import demo_script
 from annotator.scene.model import Scene, SceneConfig, build_scene, open_world
+from annotator.sim import pb
 from annotator.sim.ur3 import JOINT_NAMES
 
 GRIPPER_SLIDER = "gripper_opening_angle"  # the seed's slider name

@@ -155,7 +155,7 @@ def _hold_window(world, seconds: float | None) -> None:
     """Keep the GUI open (stepping, real time) until it is closed or ``seconds`` pass."""
     import time
 
-    import pybullet as pb
+    from annotator.sim import pb
 
     start = time.monotonic()
     while seconds is None or time.monotonic() - start < seconds:

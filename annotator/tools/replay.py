@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-import pybullet as pb
 
 from annotator.cell.placement import place, stable_poses
 from annotator.cell.reach import Reach, check_reach
@@ -42,6 +41,7 @@ from annotator.dataset import Outcome, poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, get_object_pose, reset_object_pose
 from annotator.render import Camera, orbit_camera, render_rgb
+from annotator.sim import pb
 from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
 
 log = logging.getLogger(__name__)
