@@ -108,6 +108,14 @@ class PhysicsConfig(_Section):
     # objects got widths far below their thickness; 0.8 keeps it under 1 mm (bench/fidelity.py,
     # tests/test_protocol.py::test_thin_plate_width_is_its_thickness).
     contact_erp: float = _field(0.8, gt=0.0, le=1.0)
+    # Objects lighter than this are simulated with ceil(sqrt(light_object_mass / mass)) physics
+    # steps per time_step (annotator.objects.contact_substeps). Squeezed between the heavy
+    # (armature-loaded) fingers, a light object's contacts are too stiff for its mass at 1/240 s:
+    # a 4 g, 6.35 mm plate held 2 of 49 face-to-face grasps with the pads 3.9 mm deep; at 1/760 s
+    # 49 of 49, 0.15 mm. Neither contact stiffness/damping (k 3e4..1e6 N/m), CCD (swept sphere
+    # 2 mm), 300 solver iterations, the Dantzig or PGS solvers, a global CFM nor a friction anchor
+    # helped; a 40 g plate holds 48 of 49 at 1/240 s with the pads 0.1 mm deep, hence 40 g.
+    light_object_mass: float = _field(0.04, gt=0.0)  # kg
 
 
 @dataclass(frozen=True)
@@ -157,16 +165,39 @@ class GripperConfig(_Section):
 
 @dataclass(frozen=True)
 class ObjectConfig(_Section):
-    """How object meshes are loaded and given mass (owned by annotator/objects.py)."""
+    """How object meshes are loaded, weighed and given collision shapes (annotator/objects/).
 
-    # Objects are simulated solid, but real ones are hollow or partly filled: ~ 0.5 g/cm^3 over the
-    # enclosed volume is a middle ground (a 40 mm cube 32 g, the 66 x 115 mm can 196 g, a 60 x 40 x
-    # 120 mm box 144 g), within the RG2's 2 kg friction payload; a thin-walled mesh (mug, bowl)
-    # gets only its wall volume, so it comes out light (the sample mug 65 g).
+    A sidecar ``objects.toml`` in the objects folder overrides mass, density, friction, scale and
+    the mass model per object (annotator/objects/properties.py).
+    """
+
+    # Solid objects: real ones are hollow or partly filled, ~ 0.5 g/cm^3 over the enclosed volume is
+    # a middle ground (a 40 mm cube 32 g, the 66 x 115 mm can 196 g, a 60 x 40 x 120 mm box 144 g),
+    # within the RG2's 2 kg friction payload.
     density: float = _field(500.0, gt=0.0)  # kg/m^3
+    # Thin-walled objects (the "shell" mass model): a closed mesh whose walls are modelled (a mug,
+    # a bowl, a pot) is weighed at the wall material's density, household plastics 900-1400 kg/m^3
+    # (PP, PET, ABS; ceramics ~2300 go in the sidecar): the sample mug 130 g, the bowl 96 g (a real
+    # plastic mug ~120 g, YCB's plastic bowl 147 g). At 500 kg/m^3 they weighed half that.
+    shell_density: float = _field(1000.0, gt=0.0)  # kg/m^3
+    # An open sheet (a surface with no thickness, e.g. a scanned pot) is given this wall thickness.
+    shell_thickness: float = _field(0.002, gt=0.0)  # m, a moulded plastic or thin ceramic wall
+    # "auto" picks "shell" for a closed mesh whose mean wall (2 x volume / area) is at most
+    # shell_max_wall and whose material fills at most shell_max_fill of its convex hull: the sample
+    # mug (4.2 mm, 26 %) and bowl are shells; the 8 mm plate (fills 100 %), the ring (9 mm tube)
+    # and the banana (~15 mm) are solid.
+    shell_max_wall: float = _field(0.008, ge=0.0)  # m
+    shell_max_fill: float = _field(0.5, ge=0.0, le=1.0)
     # A mesh whose largest bounding-box side exceeds this many metres is almost surely in millimetres.
     max_extent: float = _field(2.0, gt=0.0)
     min_extent: float = _field(0.005, gt=0.0)  # m; smaller than any graspable household object
+    # Below this volume (m^3, a 1 mm cube) a mesh's hull is flat or collinear, whatever its extent.
+    min_volume: float = _field(1e-9, gt=0.0)
+    min_faces: int = _field(4, ge=4)  # a tetrahedron
+    # Above this many faces a mesh is simplified (quadric decimation, fast-simplification) to it:
+    # a 2,000,000-face scan took 63 s and 2.1 GB before PyBullet rejected it; 200,000 faces keep a
+    # household object's surface within a fraction of a millimetre.
+    max_faces: int = _field(200_000, ge=4)
     lateral_friction: float = _field(1.0, ge=0.0)  # as ACRONYM; paired with the pads' 1.0
     spinning_friction: float = _field(0.002, ge=0.0)
     rolling_friction: float = _field(0.0001, ge=0.0)
@@ -174,8 +205,27 @@ class ObjectConfig(_Section):
     # with the default the pads stopped 0.9 mm short of each face, so every label's width read
     # 1.8 mm wide of the object's chord. Zero margin: within 0.25 mm (tests/test_protocol.py).
     collision_margin: float = _field(0.0, ge=0.0)  # m
-    # Convex decomposition (CoACD) concavity threshold: 0.05 is the library's default quality.
+    # A mesh is treated as convex (its hull is its collision shape) when its volume is within this
+    # fraction of its convex hull's volume: 2 % leaves out the chamfers of a real box but not a mug.
+    convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
+    # Convex decomposition (CoACD): concavity thresholds tried from the first (0.05, the library's
+    # default quality) down to the last, x 0.6 each time (0.05, 0.03, 0.02), until the collision
+    # error is within the limits below; finer ones cost minutes per object (the mug at 0.01: 104
+    # parts, 59 s). See annotator/objects/decomposition.py.
     decomposition_threshold: float = _field(0.05, gt=0.0, le=1.0)
+    decomposition_min_threshold: float = _field(0.02, gt=0.0, le=1.0)
+    # A decomposition (all thresholds) that runs longer than this fails its object: CoACD has hung
+    # and segfaulted on real meshes; the slowest sample object (bowl) takes ~ 50 s on one core.
+    decomposition_timeout: float = _field(900.0, gt=0.0)  # s
+    # Collision error targets (issue 9): distance between collision geometry and mesh surface,
+    # mean <= 0.5 mm and max <= 2 mm; an object beyond them is reported approximate with its figure.
+    collision_mean_limit: float = _field(0.0005, gt=0.0)  # m
+    collision_max_limit: float = _field(0.002, gt=0.0)  # m
+    # Surface points sampled per direction to measure it (seeded): repeat runs with other seeds
+    # moved the sample objects' mean by < 2 %.
+    collision_error_samples: int = _field(10_000, ge=100)
+    # Keep a multi-node .glb as one object (default: one object per node, id file/part).
+    merge_parts: bool = False
 
 
 @dataclass(frozen=True)

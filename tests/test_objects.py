@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import shutil
+import sys
 from pathlib import Path
 
+import joblib
 import numpy as np
 import pybullet
 import pytest
@@ -15,11 +19,15 @@ from annotator.geometry import Transform
 from annotator.objects import (
     ObjectDiscoveryError,
     ObjectError,
+    ObjectSource,
     create_body,
+    decomposition,
     discover_objects,
     get_object_pose,
     load_object,
+    mass,
     reset_object_pose,
+    source_digest,
 )
 
 REPO_OBJECTS = Path(__file__).resolve().parents[1] / "objects"
@@ -37,6 +45,12 @@ def client():
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("decomposition-cache")
+
+
+@pytest.fixture(scope="module")
+def shipped_models(cache_dir):
+    """Every shipped object, loaded once per module (the concave ones decomposed into cache_dir)."""
+    return {s.object_id: load_object(s, CONFIG, cache_dir=cache_dir) for s in discover_objects(REPO_OBJECTS)}
 
 
 @pytest.fixture(scope="module")
@@ -135,15 +149,62 @@ def _bad_inputs(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     p = tmp_path / "tiny.obj"
     p.write_text(_obj_text(cube.vertices * 0.05, cube.faces))
     cases["too-small"] = (p, "too small")
+    cases["missing"] = (tmp_path / "nowhere.obj", "file not found")
+    junk = np.random.default_rng(7).bytes(3000)
+    for suffix, reason in [
+        ("stl", r"not an STL mesh \(neither binary STL of matching size nor ASCII 'solid'\): junk.stl"),
+        ("obj", r"not an OBJ mesh \(binary data in a text format\): junk.obj"),
+        ("off", r"not an OFF mesh \(binary data in a text format\): junk.off"),
+        ("ply", r"not a PLY mesh \(no 'ply' header\): junk.ply"),
+        ("glb", r"not a GLB file \(no glTF header\): junk.glb"),
+        ("urdf", r"junk.urdf: not a valid URDF \(XML error"),
+    ]:
+        p = tmp_path / f"junk.{suffix}"
+        p.write_bytes(junk)
+        cases[f"random-{suffix}"] = (p, reason)
+    p = tmp_path / "dup.obj"  # every face twice and a zero-area sliver: nothing left but 2 faces
+    p.write_text(
+        _obj_text([[0, 0, 0], [0.05, 0, 0], [0, 0.05, 0], [0.1, 0, 0]], [(0, 1, 2), (0, 1, 2), (0, 1, 3)])
+    )
+    cases["degenerate"] = (p, r"degenerate mesh \(1 non-degenerate faces\)")
+    outside = tmp_path.parent / f"{tmp_path.name}-outside.obj"
+    outside.write_text(_obj_text(cube.vertices, cube.faces))
+    for name, filename in [
+        ("urdf-absolute", str(outside)),
+        ("urdf-escape", f"../{outside.name}"),
+    ]:
+        p = tmp_path / f"{name}.urdf"
+        p.write_text(
+            f'<robot name="x"><link name="base"><collision><geometry><mesh filename="{filename}"/>'
+            "</geometry></collision></link></robot>"
+        )
+        why = "is absolute" if name == "urdf-absolute" else "leads outside the objects folder"
+        cases[name] = (p, why)
+    link = tmp_path / "link.obj"
+    link.symlink_to(outside)
+    p = tmp_path / "urdf-symlink.urdf"
+    p.write_text(
+        '<robot name="x"><link name="base"><collision><geometry><mesh filename="link.obj"/>'
+        "</geometry></collision></link></robot>"
+    )
+    cases["urdf-symlink"] = (p, "leads outside the objects folder")
     return cases
 
 
-@pytest.mark.parametrize("case", ["empty", "text", "nan", "millimetres", "zero-volume", "too-small"])
-def test_bad_input_gives_object_error(tmp_path, case):
-    path, message = _bad_inputs(tmp_path)[case]
+BAD = ["empty", "text", "nan", "millimetres", "zero-volume", "too-small", "missing", "degenerate"]
+BAD += [f"random-{s}" for s in ("stl", "obj", "off", "ply", "glb", "urdf")]
+BAD += ["urdf-absolute", "urdf-escape", "urdf-symlink"]
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_gives_a_one_line_reason_naming_the_files_problem(tmp_path, case):
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    path, message = _bad_inputs(objects)[case]
     with pytest.raises(ObjectError, match=message) as info:
-        load_object(path, CONFIG, cache_dir=tmp_path / "cache")
+        load_object(ObjectSource(path.stem, path, objects), CONFIG, cache_dir=tmp_path / "cache")
     assert "\n" not in str(info.value)
+    assert "ModuleNotFoundError" not in str(info.value) and "No module" not in str(info.value)
 
 
 def test_millimetre_mesh_loads_with_explicit_scale(tmp_path):
@@ -179,10 +240,11 @@ def test_open_mesh_hole_is_closed(tmp_path, caplog):
         model = load_object(path, CONFIG, cache_dir=tmp_path)
     assert model.watertight and model.convex
     assert model.mass == pytest.approx(0.05**3 * CONFIG.density, rel=1e-9)
-    assert "closed 1 hole" in caplog.text
+    assert model.cleaning.holes_filled == 1 and len(model.mesh.faces) == 12
+    assert "filled 1 hole" in caplog.text
 
 
-def test_unrepairable_open_mesh_uses_hull_with_warning(tmp_path, caplog):
+def test_unrepairable_open_mesh_is_a_sheet_with_its_hull_for_collision(tmp_path, caplog):
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     # a fin from one edge to the centre: that edge has three faces, no hole filling can fix it
     verts = np.vstack([box.vertices, [[0.0, 0.0, 0.0]]])
@@ -192,8 +254,13 @@ def test_unrepairable_open_mesh_uses_hull_with_warning(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="annotator.objects"):
         model = load_object(path, CONFIG, cache_dir=tmp_path)
     assert not model.watertight
-    assert model.mass == pytest.approx(0.05**3 * CONFIG.density, rel=1e-9)  # the hull is the cube
-    assert len(model.parts) == 1 and model.collision_file is None
+    # an open surface has no inside: weighed as a sheet of shell_thickness (the old rule, hull x
+    # density, made open pots and plates weigh a kilogram)
+    assert model.mass_model == "shell"
+    assert model.mass == pytest.approx(
+        model.mesh.area * CONFIG.shell_thickness * CONFIG.shell_density, rel=1e-9
+    )
+    assert len(model.parts) == 1 and model.collision_file is None  # the hull collides
     assert "not watertight" in caplog.text
 
 
@@ -221,13 +288,15 @@ def test_mug_is_decomposed_and_cached(mug_models, cache_dir):
     assert len(first.parts) > 1
     assert first.collision_file is not None and first.collision_file.is_file()
     assert first.collision_file.parent == cache_dir
-    assert first.mesh_sha256 in first.collision_file.name
     assert not first.from_cache and first.decomposition_seconds > 0
     assert second.from_cache and second.decomposition_seconds == 0.0
     assert second.collision_file == first.collision_file
     assert len(second.parts) == len(first.parts)
     assert sum(p.volume for p in first.parts) < 0.5 * first.mesh.convex_hull.volume  # cavity kept open
     assert list(cache_dir.glob("*.tmp")) == []
+    # fresh and cached parts are the same float64 numbers (a first run simulates what later runs do)
+    for a, b in zip(first.parts, second.parts, strict=True):
+        assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
 
 
 def test_cache_dir_defaults_to_env_var(tmp_path, monkeypatch):
@@ -287,3 +356,250 @@ def test_bodies_dropped_on_a_plane_come_to_rest(client, mug_models, tmp_path):
         assert T.rotation[2, 2] > 0.999, name  # upright
     ball_z = pybullet.getBasePositionAndOrientation(ball, physicsClientId=client)[0][2]
     assert 0.006 < ball_z < 0.03  # on the mug's 6 mm base, well below its 95 mm rim
+
+
+# ---------------------------------------------------------------------------------------------- cleaning
+
+
+def _write_seam_split_obj(path: Path, mesh: trimesh.Trimesh, corner_uv: np.ndarray) -> Path:
+    """An OBJ whose face corners carry UVs ``corner_uv`` (n_faces, 3, 2): a loader splits every
+    vertex that has two UVs (a texture seam) into two, as exporters do."""
+    uv_rows, uv_index = np.unique(np.round(corner_uv.reshape(-1, 2), 9), axis=0, return_inverse=True)
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in mesh.vertices.tolist()]
+    lines += [f"vt {u!r} {v!r}" for u, v in uv_rows.tolist()]
+    for f, t in zip(mesh.faces.tolist(), uv_index.reshape(-1, 3).tolist(), strict=True):
+        lines.append("f " + " ".join(f"{a + 1}/{b + 1}" for a, b in zip(f, t, strict=True)))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_seam_split_sphere_and_box_load_watertight_without_a_membrane(tmp_path):
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    u = (np.arctan2(sphere.vertices[:, 1], sphere.vertices[:, 0]) / (2 * np.pi)) % 1.0
+    corner_u = u[sphere.faces]
+    wrap = (corner_u.max(axis=1) - corner_u.min(axis=1)) > 0.5  # faces across the seam
+    corner_u = np.where(wrap[:, None] & (corner_u < 0.5), corner_u + 1.0, corner_u)
+    corner_v = sphere.vertices[sphere.faces][:, :, 2] / 0.06 + 0.5
+    box = trimesh.creation.box(extents=(0.06, 0.04, 0.03))
+    side = np.argmax(np.abs(box.face_normals), axis=1) * 2 + (box.face_normals.max(axis=1) > 0.5)
+    box_uv = np.stack([np.repeat(side[:, None], 3, 1) / 6.0, np.zeros((len(box.faces), 3))], axis=2)
+    cases = {
+        "sphere": (sphere, np.stack([corner_u, corner_v], axis=2)),
+        "box": (box, box_uv),  # each side its own UV island: every edge of the box is a seam
+    }
+    for name, (mesh, uv) in cases.items():
+        path = _write_seam_split_obj(tmp_path / f"{name}.obj", mesh, uv)
+        raw = trimesh.load(path, force="mesh", process=False)
+        assert len(raw.vertices) > len(mesh.vertices) and not raw.is_watertight, name  # really split
+        model = load_object(path, CONFIG, cache_dir=tmp_path)
+        assert model.watertight and model.cleaning.holes_filled == 0, name
+        assert model.cleaning.vertices_merged == len(raw.vertices) - len(mesh.vertices), name
+        # no membrane: exactly the original faces, the original volume, convex (its hull collides)
+        assert len(model.mesh.faces) == len(mesh.faces), name
+        assert model.volume == pytest.approx(mesh.volume, rel=1e-9), name
+        assert model.convex and len(model.parts) == 1, name
+
+
+def test_duplicate_and_degenerate_faces_are_dropped_before_judging(tmp_path):
+    box = trimesh.creation.box(extents=(0.05, 0.04, 0.03))
+    faces = np.vstack([box.faces, box.faces[:3], box.faces[4:5][:, ::-1]])  # 3 copies, 1 flipped copy
+    verts = np.vstack([box.vertices, box.vertices[:1]])  # a vertex twice: a zero-area sliver
+    faces = np.vstack([faces, [[0, 8, 1]]])
+    path = tmp_path / "messy.obj"
+    path.write_text(_obj_text(verts, faces))
+    model = load_object(path, CONFIG, cache_dir=tmp_path)
+    assert model.cleaning.duplicate_faces == 4 and model.cleaning.degenerate_faces == 1
+    assert model.watertight and model.convex and len(model.mesh.faces) == 12
+    assert model.mass == pytest.approx(0.05 * 0.04 * 0.03 * CONFIG.density, rel=1e-9)
+
+
+def test_meshes_above_the_face_budget_are_simplified_and_reported(tmp_path, caplog):
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.04)  # 20,480 faces
+    path = tmp_path / "dense.stl"
+    sphere.export(path)
+    config = dataclasses.replace(CONFIG, max_faces=2000)
+    with caplog.at_level(logging.WARNING, logger="annotator.objects"):
+        model = load_object(path, config, cache_dir=tmp_path)
+    assert len(model.mesh.faces) <= 2000 and model.cleaning.simplified_to == len(model.mesh.faces)
+    assert "simplified to" in caplog.text and "20480 faces" in caplog.text
+    assert model.watertight
+    assert model.volume == pytest.approx(sphere.volume, rel=0.02)
+
+
+# ---------------------------------------------------------------------------------------------- multi-part
+
+
+def _three_node_glb(path: Path) -> dict[str, np.ndarray]:
+    scene = trimesh.Scene()
+    centres = {"cup": (0.0, 0.0, 0.02), "lid": (0.1, 0.0, 0.01), "spoon": (0.0, 0.1, 0.005)}
+    sizes = {"cup": (0.05, 0.05, 0.04), "lid": (0.06, 0.06, 0.02), "spoon": (0.12, 0.02, 0.01)}
+    for name, c in centres.items():
+        scene.add_geometry(
+            trimesh.creation.box(extents=sizes[name]),
+            node_name=name,
+            geom_name=name,
+            transform=trimesh.transformations.translation_matrix(c),
+        )
+    path.write_bytes(scene.export(file_type="glb"))
+    return {name: np.asarray(sizes[name]) for name in centres} | {
+        f"{n}@": np.asarray(c) for n, c in centres.items()
+    }
+
+
+def test_multi_node_glb_is_one_object_per_node_unless_merged(tmp_path):
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    truth = _three_node_glb(objects / "kitchen.glb")
+    sources = discover_objects(objects)
+    assert [s.object_id for s in sources] == ["kitchen/cup", "kitchen/lid", "kitchen/spoon"]
+    for source in sources:
+        name = source.object_id.split("/")[1]
+        model = load_object(source, CONFIG, cache_dir=tmp_path / "cache")
+        np.testing.assert_allclose(model.mesh.extents, truth[name], atol=1e-6)
+        # poses are in the file's frame: each part sits where the scene put it
+        np.testing.assert_allclose(model.mesh.bounds.mean(axis=0), truth[f"{name}@"], atol=1e-6)
+        assert model.convex
+    assert len({source_digest(s) for s in sources}) == 3
+    (objects / "objects.toml").write_text('["kitchen"]\nmerge_parts = true\n')
+    merged = discover_objects(objects)
+    assert [s.object_id for s in merged] == ["kitchen"]
+    model = load_object(merged[0], CONFIG, cache_dir=tmp_path / "cache")
+    assert model.mass == pytest.approx(
+        CONFIG.density * sum(np.prod(truth[n]) for n in ("cup", "lid", "spoon"))
+    )
+
+
+# ---------------------------------------------------------------------------------------------- mass
+
+
+def _pot(wall: float = 0.003) -> trimesh.Trimesh:
+    """A 100 mm pot, 80 mm tall, ``wall`` thick walls and base (closed, hollow, concave)."""
+    r, h = 0.05, 0.08
+    profile = [(0, 0), (r, 0), (r, h), (r - wall, h), (r - wall, wall), (0, wall)]
+    return trimesh.creation.revolve(np.asarray(profile, dtype=float), sections=48)
+
+
+def test_thin_walled_pot_is_weighed_as_a_shell_and_a_brick_as_a_solid(tmp_path):
+    pot = _pot()
+    props = mass.weigh(pot, pot.convex_hull, True, CONFIG)
+    assert props.model == "shell"
+    assert props.mass == pytest.approx(pot.volume * CONFIG.shell_density, rel=1e-12)
+    assert 0.05 < props.mass < 0.25  # a plastic pot weighs tens to a couple of hundred grams
+    np.testing.assert_allclose(props.center_mass[:2], 0.0, atol=1e-9)
+    brick = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    assert mass.weigh(brick, brick.convex_hull, True, CONFIG).model == "solid"
+    # a plate as thin as the pot's walls is still solid: it fills its hull
+    plate = trimesh.creation.box(extents=(0.12, 0.08, 0.003))
+    assert mass.weigh(plate, plate.convex_hull, True, CONFIG).model == "solid"
+
+
+def test_shipped_mug_and_bowl_are_shells(shipped_models):
+    for oid in ("mug", "bowl"):
+        model = shipped_models[oid]
+        assert model.mass_model == "shell", oid
+        assert model.mass == pytest.approx(model.mesh.volume * CONFIG.shell_density, rel=1e-9), oid
+    for oid in ("plate", "banana", "ring", "box", "can"):
+        assert shipped_models[oid].mass_model == "solid", oid
+
+
+def test_sidecar_sets_mass_friction_and_scale_by_id_and_glob(tmp_path, client):
+    _write_cube(tmp_path / "shelf" / "a.obj", 40.0)  # millimetres
+    _write_cube(tmp_path / "shelf" / "b.obj", 40.0)
+    (tmp_path / "objects.toml").write_text(
+        '["shelf/*"]\nscale = 0.001\nfriction = 0.4\n\n["shelf/b"]\nmass = 0.25\n'
+    )
+    sources = {s.object_id: s for s in discover_objects(tmp_path)}
+    a = load_object(sources["shelf/a"], CONFIG, cache_dir=tmp_path / "c")
+    b = load_object(sources["shelf/b"], CONFIG, cache_dir=tmp_path / "c")
+    assert a.scale == b.scale == 0.001
+    assert a.mass == pytest.approx(0.04**3 * CONFIG.density) and a.mass_model == "solid"
+    assert b.mass == 0.25 and b.mass_model == "given"
+    np.testing.assert_allclose(b.inertia, np.eye(3) * 0.25 * 2 * 0.04**2 / 12, rtol=1e-9)
+    body = create_body(client, b)
+    info = pybullet.getDynamicsInfo(body, -1, physicsClientId=client)
+    assert info[0] == pytest.approx(0.25) and info[1] == pytest.approx(0.4)  # what is simulated
+    assert b.geometry_record()["mass"] == 0.25 and b.geometry_record()["friction"] == 0.4
+    assert source_digest(sources["shelf/a"]) != source_digest(sources["shelf/b"])
+
+
+@pytest.mark.parametrize(
+    "text", ['["a"]\nmass = -1\n', '["a"]\nweight = 1\n', '["a"]\nmass_model = "foam"\n', "[a\n"]
+)
+def test_broken_sidecar_is_a_one_line_usage_error(tmp_path, text):
+    _write_cube(tmp_path / "a.obj", 0.04)
+    (tmp_path / "objects.toml").write_text(text)
+    with pytest.raises(ObjectDiscoveryError, match="objects.toml") as info:
+        discover_objects(tmp_path)
+    assert "\n" not in str(info.value)
+
+
+def test_urdf_inertial_is_honoured_and_the_digest_covers_its_meshes(tmp_path):
+    shutil.copytree(REPO_OBJECTS / "urdf", tmp_path / "urdf")
+    source = next(s for s in discover_objects(tmp_path) if s.is_urdf)
+    model = load_object(source, CONFIG, cache_dir=tmp_path / "c")
+    assert model.mass == pytest.approx(0.3) and model.mass_model == "urdf"
+    np.testing.assert_allclose(model.center_mass, [0, 0, 0.09], atol=1e-12)
+    np.testing.assert_allclose(np.diag(model.inertia), [0.0009, 0.0008, 0.0001], rtol=1e-9)
+    assert model.source_files == (
+        "urdf/shampoo/shampoo.urdf",
+        "urdf/shampoo/shampoo_collision.obj",
+        "urdf/shampoo/shampoo.obj",
+    )
+    before = source_digest(source)
+    visual = tmp_path / "urdf" / "shampoo" / "shampoo.obj"
+    visual.write_text(visual.read_text() + "# touched\n")  # a mesh behind an unchanged URDF
+    assert source_digest(source) != before
+
+
+# ---------------------------------------------------------------------------------------------- decomposition
+
+
+def _write_l(path: Path) -> Path:
+    """A small concave L-shaped block, 60 x 20 x 50 mm (CoACD splits it in two within a second)."""
+    outline = np.array([(-0.03, 0), (0.03, 0), (0.03, 0.02), (-0.01, 0.02), (-0.01, 0.05), (-0.03, 0.05)])
+    fan = np.array([(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 5)])
+    trimesh.creation.extrude_triangulation(outline, fan, 0.02).export(path)
+    return path
+
+
+def test_a_crashing_decomposition_fails_its_object_only(tmp_path, monkeypatch):
+    concave = _write_l(tmp_path / "corner.obj")
+    box = _write_cube(tmp_path / "cube.obj", 0.04)
+    monkeypatch.setattr(
+        decomposition, "child_command", lambda job: [sys.executable, "-c", "import os; os.abort()"]
+    )
+    with pytest.raises(ObjectError, match=r"corner: convex decomposition failed \(killed by SIGABRT\)"):
+        load_object(concave, CONFIG, cache_dir=tmp_path / "c")
+    assert load_object(box, CONFIG, cache_dir=tmp_path / "c").convex  # the process goes on
+    slow = dataclasses.replace(CONFIG, decomposition_timeout=1.0)
+    monkeypatch.setattr(
+        decomposition, "child_command", lambda job: [sys.executable, "-c", "import time; time.sleep(30)"]
+    )
+    with pytest.raises(ObjectError, match=r"corner: convex decomposition took longer than 1 s"):
+        load_object(concave, slow, cache_dir=tmp_path / "c")
+
+
+def _load_from_cache(path: Path, cache: Path) -> tuple[bool, list[np.ndarray]]:
+    model = load_object(path, CONFIG, cache_dir=cache)
+    return model.from_cache, [p.vertices.copy() for p in model.parts]
+
+
+def test_two_workers_decompose_a_new_object_once_and_agree_bit_for_bit(tmp_path):
+    concave = _write_l(tmp_path / "corner.obj")
+    cache = tmp_path / "cache"
+    results = joblib.Parallel(n_jobs=2)(joblib.delayed(_load_from_cache)(concave, cache) for _ in range(2))
+    assert sorted(r[0] for r in results) == [False, True]  # one computed it, the other waited and read
+    assert len(results[0][1]) > 1
+    for a, b in zip(results[0][1], results[1][1], strict=True):
+        assert np.array_equal(a, b)
+    assert len(list(cache.glob("*.npz"))) == 1
+
+
+def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_models):
+    for oid, model in shipped_models.items():
+        record = model.geometry_record()
+        mean, worst = record["collision_error_mean"], record["collision_error_max"]
+        assert np.isfinite(mean) and np.isfinite(worst), oid
+        within = mean <= CONFIG.collision_mean_limit and worst <= CONFIG.collision_max_limit
+        assert record["collision_approximate"] == (not within), oid
+        assert within, f"{oid}: collision error mean {mean * 1e3:.2f} mm, max {worst * 1e3:.2f} mm"

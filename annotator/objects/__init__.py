@@ -1,0 +1,39 @@
+"""Objects: find them, read and clean their meshes, weigh them, give them collision geometry
+(hull or convex parts, with its measured error), and PyBullet bodies.
+
+Steps, one module each: :mod:`~annotator.objects.discovery` (what objects a folder holds),
+:mod:`~annotator.objects.reading` (read + clean), :mod:`~annotator.objects.mass` (mass models),
+:mod:`~annotator.objects.decomposition` (collision geometry, cached, in an isolated process),
+:mod:`~annotator.objects.fidelity` (collision error), :mod:`~annotator.objects.bodies` (PyBullet),
+:mod:`~annotator.objects.properties` (the ``objects.toml`` sidecar), tied together by
+:mod:`~annotator.objects.model` (:func:`load_object`).
+"""
+
+from annotator.objects.bodies import create_body, get_object_pose, quiet_c_output, reset_object_pose
+from annotator.objects.decomposition import add_progress_hook, default_cache_dir
+from annotator.objects.discovery import MESH_SUFFIXES, URDF_SUFFIX, ObjectSource, discover_objects
+from annotator.objects.errors import ObjectDiscoveryError, ObjectError
+from annotator.objects.fidelity import CollisionError
+from annotator.objects.model import ObjectModel, contact_substeps, load_object, source_digest
+from annotator.objects.properties import ObjectProperties
+
+__all__ = [
+    "MESH_SUFFIXES",
+    "URDF_SUFFIX",
+    "CollisionError",
+    "ObjectDiscoveryError",
+    "ObjectError",
+    "ObjectModel",
+    "ObjectProperties",
+    "ObjectSource",
+    "add_progress_hook",
+    "contact_substeps",
+    "create_body",
+    "default_cache_dir",
+    "discover_objects",
+    "get_object_pose",
+    "load_object",
+    "quiet_c_output",
+    "reset_object_pose",
+    "source_digest",
+]

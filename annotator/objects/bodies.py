@@ -1,0 +1,139 @@
+"""PyBullet bodies of loaded objects, and their poses in the mesh frame.
+
+PyBullet reports and resets a body's pose at its centre of mass; :func:`get_object_pose` and
+:func:`reset_object_pose` convert to and from the mesh frame. PyBullet's C-level output while a
+shape is created (warnings printed by createCollisionShape) is captured at the file-descriptor
+level and logged at DEBUG, so it never reaches the user's terminal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+
+import numpy as np
+
+from annotator.geometry import Transform
+from annotator.objects.errors import ObjectError
+from annotator.sim import pb
+
+log = logging.getLogger(__name__)
+
+# PyBullet's createVisualShape(vertices=..., indices=...) rejects very large arrays; bigger meshes
+# get their convex hull as the visual (visuals only matter for pictures).
+MAX_VISUAL_INDICES = 24_000
+OBJECT_RGBA = (0.8, 0.55, 0.3, 1.0)
+
+
+@contextlib.contextmanager
+def quiet_c_output(what: str) -> Iterator[None]:
+    """Capture what C code writes to fd 1 and 2 inside the block; log it at DEBUG."""
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = (os.dup(1), os.dup(2))
+    except (AttributeError, OSError, ValueError):  # no real descriptors (embedded interpreters)
+        yield
+        return
+    with tempfile.TemporaryFile() as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            sink.seek(0)
+            text = sink.read().decode(errors="replace").strip()
+            if text:
+                log.debug("%s: PyBullet said: %s", what, text.replace("\n", " | ")[:2000])
+
+
+def principal_axes(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal moments (3,) and a proper rotation (3, 3) whose columns are the principal axes."""
+    moments, R = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    if np.linalg.det(R) < 0:
+        R[:, 2] *= -1.0
+    return np.maximum(moments, 0.0), R
+
+
+def create_body(client: int, model, T_world_obj: Transform | None = None, config=None) -> int:
+    """A dynamic PyBullet body for ``model`` (an ObjectModel) in ``client``; returns its body id.
+
+    Collision: the convex hull, or a compound of the convex parts (the cached multi-part .obj).
+    Visual: the mesh. Mass and inertia from the model with the inertial frame at the centre of
+    mass along the principal axes, so the body's link frame is the mesh frame; ``T_world_obj``
+    places that frame. Friction: the model's (sidecar or ``config``); the contact settings of
+    ``config`` (an ObjectConfig, by default the one the model was loaded with).
+    """
+    config = config or model.config
+    T_world_obj = T_world_obj or Transform.identity()
+    with quiet_c_output(model.object_id):
+        if len(model.parts) <= 1:
+            hull = model.parts[0] if model.parts else model.mesh.convex_hull
+            col = pb.createCollisionShape(
+                pb.GEOM_MESH, vertices=np.asarray(hull.vertices).tolist(), physicsClientId=client
+            )
+        else:
+            path = model.collision_file
+            if path is None or not path.is_file():
+                raise ObjectError(f"{model.object_id}: collision parts file missing: {path}")
+            col = pb.createCollisionShape(pb.GEOM_MESH, fileName=str(path), physicsClientId=client)
+        if col < 0:
+            raise ObjectError(f"{model.object_id}: PyBullet rejected the collision shape")
+        visual = model.mesh if 3 * len(model.mesh.faces) <= MAX_VISUAL_INDICES else model.mesh.convex_hull
+        vis = pb.createVisualShape(
+            pb.GEOM_MESH,
+            vertices=np.asarray(visual.vertices).tolist(),
+            indices=np.asarray(visual.faces).reshape(-1).tolist(),
+            rgbaColor=list(OBJECT_RGBA),
+            physicsClientId=client,
+        )
+    moments, R = principal_axes(model.inertia)
+    T_obj_com = Transform.from_rotation(R, model.center_mass)
+    pos, quat = T_world_obj.to_pybullet()
+    body = pb.createMultiBody(
+        baseMass=model.mass,
+        baseCollisionShapeIndex=col,
+        baseVisualShapeIndex=vis,
+        basePosition=pos,
+        baseOrientation=quat,
+        baseInertialFramePosition=T_obj_com.pos.tolist(),
+        baseInertialFrameOrientation=T_obj_com.quat.tolist(),
+        physicsClientId=client,
+    )
+    pb.changeDynamics(
+        body,
+        -1,
+        localInertiaDiagonal=moments.tolist(),
+        lateralFriction=model.friction,
+        spinningFriction=config.spinning_friction,
+        rollingFriction=config.rolling_friction,
+        collisionMargin=config.collision_margin,
+        physicsClientId=client,
+    )
+    return body
+
+
+def _T_com_obj(client: int, body: int) -> Transform:
+    info = pb.getDynamicsInfo(body, -1, physicsClientId=client)
+    return Transform(np.asarray(info[3]), np.asarray(info[4])).inverse()
+
+
+def get_object_pose(client: int, body: int) -> Transform:
+    """``T_world_obj`` of the body's mesh frame (PyBullet's base pose is its centre of mass)."""
+    T_world_com = Transform.from_pybullet(pb.getBasePositionAndOrientation(body, physicsClientId=client))
+    return T_world_com * _T_com_obj(client, body)
+
+
+def reset_object_pose(client: int, body: int, T_world_obj: Transform) -> None:
+    """Teleport the body so its mesh frame is at ``T_world_obj`` (velocities are left unchanged)."""
+    T_world_com = T_world_obj * _T_com_obj(client, body).inverse()
+    pos, quat = T_world_com.to_pybullet()
+    pb.resetBasePositionAndOrientation(body, pos, quat, physicsClientId=client)

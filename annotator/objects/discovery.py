@@ -1,0 +1,100 @@
+"""Find the objects under a folder without reading their geometry.
+
+An object is a mesh file (``MESH_SUFFIXES``), an object ``.urdf`` (the meshes it references are
+part of it, not objects of their own), or one mesh node of a multi-node ``.glb`` (id
+``file/part``) unless ``merge_parts`` keeps the file whole. Cost: a directory walk, each URDF's
+XML and each ``.glb``'s JSON chunk; no mesh is read, so folders of thousands of files list fast.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from annotator.config import ObjectConfig
+from annotator.objects import gltf, urdf
+from annotator.objects.errors import ObjectDiscoveryError, ObjectError
+from annotator.objects.properties import ObjectProperties, Sidecar
+
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb")
+URDF_SUFFIX = ".urdf"
+
+
+@dataclass(frozen=True)
+class ObjectSource:
+    """An object found on disk.
+
+    ``object_id``: its path relative to the search root without suffix (``file/part`` for one
+    node of a multi-node .glb). ``root``: the objects folder (URDF meshes must lie inside it;
+    ``None``: the file's own folder). ``node``: the .glb node index of a part (``None``: the whole
+    file). ``properties``: what the sidecar ``objects.toml`` sets for it.
+    """
+
+    object_id: str
+    path: Path
+    root: Path | None = None
+    node: int | None = None
+    properties: ObjectProperties = field(default_factory=ObjectProperties)
+
+    @property
+    def is_urdf(self) -> bool:
+        return self.path.suffix.lower() == URDF_SUFFIX
+
+    @property
+    def folder(self) -> Path:
+        """The folder every file of this object must lie in."""
+        return Path(self.root) if self.root is not None else self.path.parent
+
+
+def discover_objects(root: Path, config: ObjectConfig | None = None) -> list[ObjectSource]:
+    """All objects under ``root`` (recursive), sorted by ``object_id``.
+
+    Raises :class:`ObjectDiscoveryError` when ``root`` is not a folder, holds no objects, two
+    files give one id, or its ``objects.toml`` is broken. A file that cannot be parsed (a broken
+    URDF or .glb) is still listed as one object; loading it reports the reason.
+    """
+    config = config or ObjectConfig()
+    root = Path(root)
+    if not root.is_dir():
+        raise ObjectDiscoveryError(f"objects folder not found: {root}")
+    sidecar = Sidecar.load(root)
+    files = sorted(p for p in root.rglob("*") if p.is_file())
+    owned: set[Path] = set()
+    for path in files:
+        if path.suffix.lower() == URDF_SUFFIX:
+            try:
+                owned.update(ref.path for ref in urdf.mesh_refs(path, root))
+            except ObjectError:
+                pass  # a broken URDF is still listed; load_object reports it
+    sources = []
+    for path in files:
+        suffix = path.suffix.lower()
+        if not (suffix == URDF_SUFFIX or (suffix in MESH_SUFFIXES and path.resolve() not in owned)):
+            continue
+        file_id = path.relative_to(root).with_suffix("").as_posix()
+        props = sidecar.for_object(file_id)
+        merge = props.merge_parts if props.merge_parts is not None else config.merge_parts
+        nodes: list[gltf.GlbNode] = []
+        if suffix == ".glb" and not merge:
+            try:
+                nodes = gltf.mesh_nodes(path)
+            except (ObjectError, OSError):
+                nodes = []  # listed whole; loading names the problem
+        if len(nodes) > 1:
+            for node in nodes:
+                part_id = f"{file_id}/{node.name}"
+                sources.append(
+                    ObjectSource(part_id, path, root, node.index, sidecar.for_object(file_id, part_id))
+                )
+        else:
+            sources.append(ObjectSource(file_id, path, root, None, props))
+    if not sources:
+        raise ObjectDiscoveryError(
+            f"no objects in {root} (searched recursively for {' '.join(MESH_SUFFIXES)} {URDF_SUFFIX})"
+        )
+    counts = Counter(s.object_id for s in sources)
+    dupes = sorted(i for i, n in counts.items() if n > 1)
+    if dupes:
+        raise ObjectDiscoveryError(f"two files give the same object id(s) {dupes}; rename one")
+    return sorted(sources, key=lambda s: s.object_id)

@@ -1,0 +1,318 @@
+"""Load one object: read, clean, weigh, give it collision geometry; its digest and its record.
+
+Frames: every pose of an object is of its *mesh frame*: the frame its file is written in, scaled
+to metres (for a URDF, the base link frame; for one node of a .glb, the file's frame). The
+geometry record says which file(s) and scale that is, so a pose can be tied to its geometry.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from annotator.config import ObjectConfig, PhysicsConfig
+from annotator.geometry import Transform
+from annotator.objects import mass as mass_model
+from annotator.objects import reading, urdf
+from annotator.objects.bodies import principal_axes
+from annotator.objects.decomposition import collision_geometry
+from annotator.objects.discovery import ObjectSource
+from annotator.objects.errors import ObjectError
+from annotator.objects.fidelity import CollisionError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ObjectModel:
+    """A loaded, validated object in metres in its mesh frame.
+
+    ``mesh`` : trimesh.Trimesh, the cleaned geometry the poses refer to (a URDF's collision mesh).
+    ``center_mass`` : (3,) float, mesh frame. ``inertia`` : (3, 3) float, kg m^2, about the centre
+    of mass, axes of the mesh frame. ``parts`` : convex trimesh.Trimesh pieces of the collision
+    shape (one, the hull, for a convex object). ``collision_file`` : the multi-part .obj (``o``
+    group per part) PyBullet loads as a compound, ``None`` for a single hull.
+    ``collision_error`` : distance between collision shape and mesh surface (mean, max, m);
+    ``approximate`` : beyond the configured limits. ``mass_model`` : solid, shell, urdf or given.
+    ``digest`` : :func:`source_digest` of the source.
+    """
+
+    object_id: str
+    path: Path
+    mesh: trimesh.Trimesh
+    scale: float
+    mass: float
+    volume: float
+    center_mass: np.ndarray
+    inertia: np.ndarray
+    mesh_sha256: str
+    watertight: bool
+    convex: bool
+    parts: list[trimesh.Trimesh] = field(default_factory=list)
+    collision_file: Path | None = None
+    from_cache: bool = False
+    decomposition_seconds: float = 0.0
+    config: ObjectConfig = field(default_factory=ObjectConfig)
+    friction: float = 1.0
+    mass_model: str = "solid"
+    collision_error: CollisionError | None = None
+    collision_method: str = "hull"
+    approximate: bool = False
+    cleaning: reading.Cleaning = field(default_factory=reading.Cleaning)
+    source_files: tuple[str, ...] = ()
+    digest: str = ""
+    properties: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def T_obj_com(self) -> Transform:
+        """Centre-of-mass frame (principal axes) in the mesh frame."""
+        _, R = principal_axes(self.inertia)
+        return Transform.from_rotation(R, self.center_mass)
+
+    def substeps(self, physics: PhysicsConfig) -> int:
+        """Physics steps per protocol step this object needs (see :func:`contact_substeps`)."""
+        return contact_substeps(self.mass, physics)
+
+    def geometry_record(self) -> dict[str, Any]:
+        """One row of ``objects.parquet``: what the poses of this object refer to and what was
+        simulated (flat columns: str, float, int, bool)."""
+        err = self.collision_error
+        return {
+            "object_id": self.object_id,
+            "source_files": json.dumps(list(self.source_files)),
+            "scale": float(self.scale),
+            "pose_frame": "urdf base link" if self.path.suffix.lower() == ".urdf" else "mesh file frame",
+            "pose_units": "m",
+            "mass": float(self.mass),
+            "mass_model": self.mass_model,
+            "friction": float(self.friction),
+            "volume": float(self.volume),
+            "watertight": bool(self.watertight),
+            "faces": int(len(self.mesh.faces)),
+            "cleaning": self.cleaning.summary(),
+            "collision_method": self.collision_method,
+            "collision_parts": int(len(self.parts)),
+            "collision_error_mean": float(err.mean) if err else float("nan"),
+            "collision_error_max": float(err.max) if err else float("nan"),
+            "collision_approximate": bool(self.approximate),
+            "properties": json.dumps(self.properties, sort_keys=True),
+            "digest": self.digest,
+        }
+
+
+def contact_substeps(mass: float, physics: PhysicsConfig) -> int:
+    """Steps per ``time_step`` that resolve a light object's contacts: ceil(sqrt(m_ref / m)), >= 1.
+
+    A light object squeezed between heavy fingers is stiff against a light mass: its contact
+    dynamics need a time step ~ sqrt(m) (a 4 g plate at 1/240 s: 2 of 49 face grasps held,
+    pads 3.9 mm deep; at 1/760 s 49 of 49, 0.15 mm). See PhysicsConfig.light_object_mass.
+    """
+    if not mass > 0 or mass >= physics.light_object_mass:
+        return 1
+    return int(np.ceil(np.sqrt(physics.light_object_mass / mass) - 1e-9))
+
+
+def _source_files(source: ObjectSource) -> list[Path]:
+    """The files whose bytes make the object: a URDF and every mesh it references, or the mesh."""
+    if not source.is_urdf:
+        return [source.path]
+    refs = urdf.mesh_refs(source.path, source.folder)
+    seen: list[Path] = []
+    for ref in refs:
+        if ref.path not in seen:
+            seen.append(ref.path)
+    return [source.path, *seen]
+
+
+def source_digest(source: ObjectSource | Path) -> str:
+    """SHA-256 over everything the object is made of, for the run manifest.
+
+    The file's bytes (for a URDF: the URDF, then every mesh it references in document order, each
+    with its path relative to the URDF), the .glb node of a part, and the sidecar properties that
+    apply to it. Raises ObjectError when a file cannot be read or a URDF path is not allowed.
+    """
+    source = _as_source(source)
+    h = hashlib.sha256(b"rg2-annotator object v1\0")
+    try:
+        for path in _source_files(source):
+            rel = (
+                path.relative_to(source.path.parent)
+                if source.is_urdf and path != source.path
+                else Path(path.name)
+            )
+            data = path.read_bytes()
+            h.update(f"{rel.as_posix()}\0{len(data)}\0".encode())
+            h.update(data)
+    except OSError as exc:
+        raise ObjectError(f"cannot read {source.object_id}: {exc.strerror or exc}") from None
+    h.update(f"node\0{source.node}\0".encode())
+    h.update(json.dumps(source.properties.as_dict(), sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def _as_source(source: ObjectSource | Path | str) -> ObjectSource:
+    if isinstance(source, ObjectSource):
+        return source
+    path = Path(source)
+    return ObjectSource(path.stem, path)
+
+
+def _read_urdf(source: ObjectSource) -> tuple[trimesh.Trimesh, bytes]:
+    refs = urdf.mesh_refs(source.path, source.folder)
+    collision = [r for r in refs if r.kind == "collision"] or [r for r in refs if r.kind == "visual"]
+    if not collision:
+        raise ObjectError(f"{source.path.name}: no mesh in its base link (only mesh objects are supported)")
+    pieces, blobs = [], []
+    for ref in collision:
+        piece = reading.read_triangles(ref.path)
+        blobs.append(ref.path.read_bytes())
+        piece = trimesh.Trimesh(piece.vertices * ref.scale, piece.faces, process=False)
+        piece.apply_transform(ref.T_link_geom)
+        pieces.append(piece)
+    mesh = trimesh.util.concatenate(pieces) if len(pieces) > 1 else pieces[0]
+    return mesh, b"".join(blobs)
+
+
+def _check_size(mesh: trimesh.Trimesh, name: str, config: ObjectConfig) -> trimesh.Trimesh:
+    """Extent within limits and a hull with volume; returns the hull."""
+    if len(mesh.faces) < config.min_faces:
+        raise ObjectError(f"{name}: degenerate mesh ({len(mesh.faces)} non-degenerate faces)")
+    extent = float(np.max(mesh.extents))
+    if extent > config.max_extent:
+        hint = "looks like millimetres" if extent / 1000.0 <= config.max_extent else "far too large"
+        raise ObjectError(f"{name}: {hint} (extent {extent:.3g} m); pass --scale 0.001")
+    if extent < config.min_extent:
+        raise ObjectError(
+            f"{name}: too small (extent {extent * 1000:.3g} mm < {config.min_extent * 1000:.3g} mm); "
+            "check units or pass --scale"
+        )
+    try:
+        hull = mesh.convex_hull
+        hull_volume = float(hull.volume)
+    except Exception as exc:  # qhull fails on flat or collinear input
+        raise ObjectError(f"{name}: degenerate mesh (zero volume: flat or collinear)") from exc
+    if not hull_volume > config.min_volume:
+        raise ObjectError(f"{name}: degenerate mesh (zero volume: flat or collinear)")
+    return hull
+
+
+def load_object(
+    source: ObjectSource | Path,
+    config: ObjectConfig,
+    scale: float | None = None,
+    cache_dir: Path | None = None,
+) -> ObjectModel:
+    """Load, clean, validate, weigh and give collision geometry to one object.
+
+    ``scale`` multiplies the file's coordinates (after a URDF's own mesh scale); ``None`` is 1; a
+    sidecar ``scale`` overrides it. Steps: read (reasons name the file's problem), clean (merge
+    seam vertices, drop degenerate and duplicate faces), simplify above ``config.max_faces``,
+    check size, close real holes (MeshFix), weigh (:mod:`annotator.objects.mass`; a sidecar mass,
+    else a URDF's ``<inertial>``, else the mass model), collision geometry (hull for convex or
+    open meshes, CoACD parts otherwise) with its error against the mesh.
+    Raises :class:`ObjectError` with a one-line reason for unusable input.
+    """
+    source = _as_source(source)
+    props = source.properties
+    user_scale = props.scale if props.scale is not None else (1.0 if scale is None else float(scale))
+    if not np.isfinite(user_scale) or user_scale <= 0:
+        raise ObjectError(f"scale must be a positive number, got {scale}")
+    name = source.object_id
+
+    if source.is_urdf:
+        raw, blob = _read_urdf(source)
+        inertial = urdf.base_inertial(source.path)
+    else:
+        raw = reading.read_triangles(source.path, source.node)
+        blob, inertial = source.path.read_bytes(), None
+    mesh_sha = hashlib.sha256(blob).hexdigest()
+    if not np.all(np.isfinite(raw.vertices)):
+        raise ObjectError(f"{name}: vertices contain NaN or inf")
+    raw = trimesh.Trimesh(raw.vertices * user_scale, raw.faces, process=False)
+
+    report = reading.Cleaning()
+    mesh = reading.clean(raw, name, report)
+    mesh = reading.simplify(mesh, config.max_faces, name, report)
+    hull = _check_size(mesh, name, config)
+
+    watertight = bool(mesh.is_watertight and mesh.is_winding_consistent)
+    if not watertight:
+        mesh, report.holes_filled = reading.fill_holes(mesh)
+        watertight = report.holes_filled > 0
+        if watertight:
+            log.warning("%s: mesh was open; filled %d hole(s)", name, report.holes_filled)
+    if watertight:
+        if mesh.volume < 0:
+            mesh.invert()
+        if not mesh.volume > config.min_volume:
+            raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
+    else:
+        log.warning("%s: mesh is not watertight; its convex hull is its collision shape", name)
+    if report.vertices_merged or report.degenerate_faces or report.duplicate_faces:
+        log.info("%s: cleaned: %s", name, report.summary())
+
+    props_mass = mass_model.weigh(
+        mesh, hull, watertight, config, props.mass_model or "auto", props.density, props.shell_thickness
+    )
+    if props.mass is not None:
+        props_mass = props_mass.with_mass(props.mass, "given")
+    elif inertial is not None:
+        s = user_scale
+        props_mass = mass_model.MassProperties(
+            inertial.mass, props_mass.volume, inertial.center_mass * s, inertial.inertia * s * s, "urdf"
+        )
+
+    convex = watertight and float(mesh.volume) >= (1.0 - config.convex_volume_tolerance) * float(hull.volume)
+    geometry = collision_geometry(mesh, convex or not watertight, config, cache_dir, name)
+    approximate = not geometry.within(config)
+    if approximate:
+        log.warning(
+            "%s: approximate collision shape: error mean %.2f mm, max %.2f mm (limits %.2f / %.2f mm)",
+            name,
+            geometry.error.mean * 1e3,
+            geometry.error.max * 1e3,
+            config.collision_mean_limit * 1e3,
+            config.collision_max_limit * 1e3,
+        )
+    files = [p.as_posix() if source.root is None else _rel(p, source.folder) for p in _source_files(source)]
+    return ObjectModel(
+        object_id=name,
+        path=source.path,
+        mesh=mesh,
+        scale=user_scale,
+        mass=float(props_mass.mass),
+        volume=float(props_mass.volume),
+        center_mass=np.asarray(props_mass.center_mass, dtype=np.float64),
+        inertia=np.asarray(props_mass.inertia, dtype=np.float64),
+        mesh_sha256=mesh_sha,
+        watertight=watertight,
+        convex=convex,
+        parts=geometry.parts,
+        collision_file=geometry.obj_file if len(geometry.parts) > 1 else None,
+        from_cache=geometry.from_cache,
+        decomposition_seconds=0.0 if geometry.from_cache else geometry.seconds,
+        config=config,
+        friction=config.lateral_friction if props.friction is None else props.friction,
+        mass_model=props_mass.model,
+        collision_error=geometry.error,
+        collision_method=geometry.method,
+        approximate=approximate,
+        cleaning=report,
+        source_files=tuple(files),
+        digest=source_digest(source),
+        properties=props.as_dict(),
+    )
+
+
+def _rel(path: Path, root: Path) -> str:
+    try:
+        return path.resolve().relative_to(Path(root).resolve()).as_posix()
+    except ValueError:
+        return path.as_posix()

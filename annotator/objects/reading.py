@@ -1,0 +1,180 @@
+"""Read a mesh file and clean it before anything judges it.
+
+Order matters: texture seams duplicate vertices (an OBJ splits them along UV seams), so vertices
+are merged by position first, then degenerate and duplicate faces dropped, and only then is the
+surface judged watertight; a hole that is still there is really open and is filled with MeshFix
+(pymeshfix), a maintained repair library. Meshes above the face budget are simplified
+(fast-simplification, quadric decimation) with the change reported.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from annotator.objects import gltf
+from annotator.objects.errors import ObjectError
+
+log = logging.getLogger(__name__)
+
+_TEXT_SUFFIXES = (".obj", ".off")
+
+
+@dataclass
+class Cleaning:
+    """What cleaning changed: counts, for the log and the geometry record."""
+
+    faces_read: int = 0
+    vertices_merged: int = 0
+    degenerate_faces: int = 0
+    duplicate_faces: int = 0
+    holes_filled: int = 0
+    simplified_to: int = 0  # faces after simplification; 0: not simplified
+
+    def summary(self) -> str:
+        parts = [
+            f"{self.vertices_merged} seam vertices merged" if self.vertices_merged else "",
+            f"{self.degenerate_faces} degenerate faces dropped" if self.degenerate_faces else "",
+            f"{self.duplicate_faces} duplicate faces dropped" if self.duplicate_faces else "",
+            f"{self.holes_filled} holes filled" if self.holes_filled else "",
+            f"simplified {self.faces_read} -> {self.simplified_to} faces" if self.simplified_to else "",
+        ]
+        return ", ".join(p for p in parts if p) or "clean"
+
+
+def _looks_binary(head: bytes) -> bool:
+    """Random or binary bytes: a NUL, or more than 10 % control characters outside whitespace."""
+    if b"\x00" in head:
+        return True
+    control = sum(1 for b in head if b < 32 and b not in (9, 10, 12, 13))
+    return control > 0.1 * max(1, len(head))
+
+
+def sniff(path: Path) -> None:
+    """Check the file looks like its suffix says, naming the file's problem if not."""
+    if not path.is_file():
+        raise ObjectError(f"file not found: {path}")
+    size = path.stat().st_size
+    if size == 0:
+        raise ObjectError(f"empty file: {path.name}")
+    suffix = path.suffix.lower()
+    with path.open("rb") as fh:
+        head = fh.read(4096)
+    if suffix == ".stl":
+        if size >= 84:
+            n = int(np.frombuffer(head[80:84], dtype="<u4")[0])
+            if size == 84 + 50 * n:
+                return  # binary STL whose size matches its triangle count
+        if head.lstrip()[:5].lower() == b"solid" and not _looks_binary(head):
+            return
+        raise ObjectError(
+            f"not an STL mesh (neither binary STL of matching size nor ASCII 'solid'): {path.name}"
+        )
+    if suffix == ".ply":
+        if not head.startswith(b"ply"):
+            raise ObjectError(f"not a PLY mesh (no 'ply' header): {path.name}")
+        return
+    if suffix == ".glb":
+        if not head.startswith(gltf.GLB_MAGIC):
+            raise ObjectError(f"not a GLB file (no glTF header): {path.name}")
+        return
+    if suffix in _TEXT_SUFFIXES and _looks_binary(head):
+        raise ObjectError(f"not an {suffix[1:].upper()} mesh (binary data in a text format): {path.name}")
+    if suffix == ".off" and not head.lstrip()[:4].upper().lstrip(b"CNST4").startswith(b"OFF"):
+        raise ObjectError(f"not an OFF mesh (no OFF header): {path.name}")
+
+
+def read_triangles(path: Path, node: int | None = None) -> trimesh.Trimesh:
+    """The file's triangles (vertices as written, no visuals, nothing merged), or ObjectError.
+
+    ``node``: one mesh node of a .glb (None: all of them, in the file's frame).
+    """
+    sniff(path)
+    if path.suffix.lower() == ".glb":
+        mesh = gltf.read_nodes(path, None if node is None else [node])
+    else:
+        try:
+            loaded = trimesh.load(path, force="mesh", process=False)
+        except ImportError as exc:  # a format reader's dependency is missing: the install's fault
+            raise ObjectError(
+                f"cannot read {path.name}: the install lacks the package {exc.name!r}"
+            ) from None
+        except Exception as exc:  # trimesh raises many types for unreadable input
+            raise ObjectError(f"not a readable mesh: {path.name} ({type(exc).__name__}: {exc})") from None
+        if not isinstance(loaded, trimesh.Trimesh):
+            raise ObjectError(f"not a mesh (no triangles found): {path.name}")
+        mesh = trimesh.Trimesh(np.asarray(loaded.vertices), np.asarray(loaded.faces), process=False)
+    if len(mesh.faces) == 0:
+        raise ObjectError(f"not a mesh (no triangles found): {path.name}")
+    return mesh
+
+
+def clean(mesh: trimesh.Trimesh, name: str, report: Cleaning) -> trimesh.Trimesh:
+    """Merge vertices by position, drop degenerate and duplicate faces, drop unused vertices.
+
+    ``mesh``: scaled, in metres. Vertices closer than trimesh's merge tolerance (1e-8 m) are one.
+    """
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ObjectError(f"{name}: vertices contain NaN or inf")
+    faces = np.asarray(mesh.faces)
+    if faces.min() < 0 or faces.max() >= len(mesh.vertices):
+        raise ObjectError(f"{name}: faces index missing vertices")
+    report.faces_read = len(faces)
+    n_vertices = len(np.unique(faces))
+    out = trimesh.Trimesh(np.asarray(mesh.vertices, dtype=np.float64), faces, process=False)
+    out.merge_vertices(merge_tex=True, merge_norm=True)
+    report.vertices_merged = n_vertices - len(out.vertices)
+    keep = out.nondegenerate_faces(height=1e-12)
+    report.degenerate_faces = int((~keep).sum())
+    out.update_faces(keep)
+    unique = trimesh.grouping.unique_rows(np.sort(out.faces, axis=1))[0]
+    report.duplicate_faces = len(out.faces) - len(unique)
+    out.update_faces(np.sort(unique))
+    out.remove_unreferenced_vertices()
+    return out
+
+
+def fill_holes(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
+    """``mesh`` with its boundary loops filled by MeshFix (no refinement), and how many were filled.
+
+    Returns the input unchanged (0) when MeshFix cannot make it a consistently wound closed
+    surface, e.g. edges shared by three faces.
+    """
+    import pymeshfix
+
+    tin = pymeshfix.PyTMesh()
+    tin.set_quiet(True)
+    tin.load_array(
+        np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+        np.ascontiguousarray(mesh.faces, dtype=np.int32),
+    )
+    filled = int(tin.fill_small_boundaries(nbe=0, refine=False))
+    v, f = tin.return_arrays()
+    out = trimesh.Trimesh(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64), process=False)
+    if filled == 0 or not (out.is_watertight and out.is_winding_consistent):
+        return mesh, 0
+    return out, filled
+
+
+def simplify(mesh: trimesh.Trimesh, max_faces: int, name: str, report: Cleaning) -> trimesh.Trimesh:
+    """Quadric decimation to ``max_faces`` (fast-simplification) when ``mesh`` has more faces."""
+    if len(mesh.faces) <= max_faces:
+        return mesh
+    import fast_simplification
+
+    before = len(mesh.faces)
+    v, f = fast_simplification.simplify(
+        np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+        np.ascontiguousarray(mesh.faces, dtype=np.int32),
+        target_count=max_faces,
+    )
+    out = trimesh.Trimesh(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64), process=False)
+    report.simplified_to = len(out.faces)
+    log.warning(
+        "%s: %d faces above the budget of %d; simplified to %d", name, before, max_faces, len(out.faces)
+    )
+    return out
