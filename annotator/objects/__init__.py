@@ -14,7 +14,7 @@ from annotator.objects.decomposition import add_progress_hook, default_cache_dir
 from annotator.objects.discovery import MESH_SUFFIXES, URDF_SUFFIX, ObjectSource, discover_objects
 from annotator.objects.errors import ObjectDiscoveryError, ObjectError
 from annotator.objects.fidelity import CollisionError
-from annotator.objects.model import ObjectModel, contact_substeps, load_object, source_digest
+from annotator.objects.model import ObjectModel, contact_substeps, load_object, physics_for, source_digest
 from annotator.objects.properties import ObjectProperties
 
 __all__ = [
@@ -33,6 +33,7 @@ __all__ = [
     "discover_objects",
     "get_object_pose",
     "load_object",
+    "physics_for",
     "quiet_c_output",
     "reset_object_pose",
     "source_digest",

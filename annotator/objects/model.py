@@ -7,6 +7,7 @@ geometry record says which file(s) and scale that is, so a pose can be tied to i
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -117,6 +118,12 @@ def contact_substeps(mass: float, physics: PhysicsConfig) -> int:
     if not mass > 0 or mass >= physics.light_object_mass:
         return 1
     return int(np.ceil(np.sqrt(physics.light_object_mass / mass) - 1e-9))
+
+
+def physics_for(model: ObjectModel, physics: PhysicsConfig) -> PhysicsConfig:
+    """The physics settings to simulate ``model`` with: ``time_step`` / its contact substeps."""
+    n = model.substeps(physics)
+    return physics if n == 1 else dataclasses.replace(physics, time_step=physics.time_step / n)
 
 
 def _source_files(source: ObjectSource) -> list[Path]:

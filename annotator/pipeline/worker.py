@@ -25,7 +25,15 @@ import pandas as pd
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform
-from annotator.objects import ObjectError, ObjectModel, ObjectSource, create_body, load_object
+from annotator.objects import (
+    ObjectError,
+    ObjectModel,
+    ObjectSource,
+    add_progress_hook,
+    create_body,
+    load_object,
+    physics_for,
+)
 from annotator.pipeline import status
 from annotator.pipeline.store import bound_versions
 from annotator.sampler import Candidates, object_rng, sample_candidates
@@ -157,7 +165,10 @@ def object_info(model: ObjectModel) -> dict[str, Any]:
         "watertight": bool(model.watertight),
         "convex": bool(model.convex),
         "parts": len(model.parts),
-        "lateral_friction": float(model.config.lateral_friction),
+        "lateral_friction": float(model.friction),
+        "collision_error_mean": float(model.collision_error.mean),
+        "collision_error_max": float(model.collision_error.max),
+        "geometry": model.geometry_record(),  # a row of _objects.parquet
     }
 
 
@@ -218,12 +229,20 @@ class WorkerState:
             world.remove_body(self.obj.uid)
             self.obj = None
         status.write(task.status_dir, f"loading {span.object_id}")
+        status_dir = task.status_dir
+        remove_hook = add_progress_hook(lambda oid, message: status.write(status_dir, f"{oid}: {message}"))
         try:
             cache = Path(task.cache_dir) if task.cache_dir is not None else None
             model = load_object(span.source, config.objects, scale=span.scale, cache_dir=cache)
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
+        finally:
+            remove_hook()
+        physics = physics_for(model, config.physics)  # a light object needs a finer time step
+        if world.physics != physics:
+            world.physics = physics
+            world.configure()
         hand.teleport(PARKED, hand.rg2.max_width)
         uid = create_body(world.client, model)
         world.set_gravity(False)
@@ -367,6 +386,9 @@ def simulate(
                 **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
                 **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
                 "cmd_width": width_expected,
+                # distance between the simulated collision shape and the mesh surface (m)
+                "collision_error": model.collision_error.max,
+                "collision_error_mean": model.collision_error.mean,
             }
         )
     return pd.DataFrame(rows)
