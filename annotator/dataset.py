@@ -322,3 +322,63 @@ def drop_near_duplicates(
         keep[kept] = True
     out = df[keep]
     return out.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
+
+
+def load_geometry(labels_dir: str | Path) -> pd.DataFrame:
+    """The geometry record of every labelled object, indexed by object_id.
+
+    The run manifest (``_manifest.json``) keeps one record per object as the worker simulated it
+    (``objects_info.<id>.geometry``, from ``annotator.objects.ObjectModel.geometry_record``).
+
+    Columns: objects_dir, source_files (JSON list, relative to objects_dir), source_node, scale,
+    pose_frame, pose_units, mass, mass_model, friction, volume, watertight, faces, cleaning,
+    collision_method, collision_parts, collision_threshold, collision_error_mean,
+    collision_error_max (m), collision_approximate, properties (JSON), digest.
+    """
+    import json
+
+    path = Path(labels_dir) / "_manifest.json"
+    try:
+        info = json.loads(path.read_text()).get("objects_info", {})
+    except (OSError, ValueError, AttributeError) as exc:
+        raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
+    rows = [v["geometry"] for v in info.values() if isinstance(v, dict) and "geometry" in v]
+    if not rows:
+        raise FileNotFoundError(f"no geometry record in {path}")
+    return pd.DataFrame(rows).set_index("object_id").sort_index()
+
+
+def load_object_mesh(labels_dir: str | Path, object_id: str):
+    """The mesh of ``object_id`` exactly as its poses see it: read from the source the labels name,
+    scaled and cleaned the same way, in the pose frame (metres). Returns a ``trimesh.Trimesh``.
+
+    Raises ``FileNotFoundError`` when the record or the source is gone and ``ValueError`` when
+    the source changed since it was labelled (its digest differs). Imports pybullet (through
+    ``annotator.objects``) only when called.
+    """
+    import json
+
+    from annotator.objects import ObjectProperties, ObjectSource, read_object_mesh, source_digest
+
+    record = load_geometry(labels_dir)
+    if object_id not in record.index:
+        raise KeyError(f"{object_id!r} is not in the geometry record of {labels_dir}")
+    row = record.loc[object_id]
+    root = Path(row["objects_dir"])
+    path = root / json.loads(row["source_files"])[0]
+    if not path.is_file():
+        raise FileNotFoundError(f"{object_id}: its source {path} is gone")
+    node = int(row["source_node"])
+    props = ObjectProperties(**json.loads(row["properties"]))
+    source = ObjectSource(object_id, path, root, None if node < 0 else node, props)
+    if source_digest(source) != row["digest"]:
+        raise ValueError(f"{object_id}: {path} changed since it was labelled (digest differs)")
+    from annotator.config import AnnotatorConfig, ObjectConfig
+
+    config = ObjectConfig()
+    manifest = Path(labels_dir) / "_manifest.json"
+    try:  # the run's own object settings (face budget) when its manifest says them
+        config = AnnotatorConfig.from_dict(json.loads(manifest.read_text())["config"]).objects
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return read_object_mesh(source, config, float(row["scale"]))

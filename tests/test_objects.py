@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import shutil
 import sys
@@ -14,7 +15,7 @@ import pybullet
 import pytest
 import trimesh
 
-from annotator.config import ObjectConfig
+from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.geometry import Transform
 from annotator.objects import (
     ObjectDiscoveryError,
@@ -603,3 +604,52 @@ def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_mo
         within = mean <= CONFIG.collision_mean_limit and worst <= CONFIG.collision_max_limit
         assert record["collision_approximate"] == (not within), oid
         assert within, f"{oid}: collision error mean {mean * 1e3:.2f} mm, max {worst * 1e3:.2f} mm"
+
+
+# ---------------------------------------------------------------------------------------------- record
+
+
+def test_geometry_record_ties_each_object_to_the_mesh_its_poses_refer_to(tmp_path, monkeypatch):
+    """A URDF with centimetre meshes and a millimetre mesh scaled by the sidecar: the record says
+    what was simulated and load_object_mesh gives the mesh in the poses' frame (metres)."""
+    from annotator.dataset import load_geometry, load_labels, load_object_mesh, poses_as_matrices
+    from annotator.pipeline.run import RunOptions, run
+
+    monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
+    objects = tmp_path / "objects"
+    shutil.copytree(REPO_OBJECTS / "urdf", objects / "urdf")
+    _write_cube(objects / "block_mm.obj", 40.0)
+    (objects / "objects.toml").write_text('["block_mm"]\nscale = 0.001\nfriction = 0.8\n')
+    out = tmp_path / "labels"
+    run(RunOptions(objects, 10, out, workers=1, quiet=True), AnnotatorConfig())
+
+    record = load_geometry(out)
+    assert sorted(record.index) == ["block_mm", "urdf/shampoo/shampoo"]
+    block, shampoo = record.loc["block_mm"], record.loc["urdf/shampoo/shampoo"]
+    assert block["scale"] == 0.001 and block["friction"] == 0.8 and block["pose_units"] == "m"
+    assert block["mass"] == pytest.approx(0.04**3 * CONFIG.density)
+    assert shampoo["mass"] == pytest.approx(0.3) and shampoo["mass_model"] == "urdf"
+    assert shampoo["pose_frame"] == "urdf base link"
+    assert json.loads(shampoo["source_files"])[:2] == [
+        "urdf/shampoo/shampoo.urdf",
+        "urdf/shampoo/shampoo_collision.obj",
+    ]
+    for oid in record.index:
+        assert record.loc[oid, "digest"] == source_digest(
+            next(s for s in discover_objects(objects) if s.object_id == oid)
+        )
+        assert record.loc[oid, "collision_error_max"] <= CONFIG.collision_max_limit
+
+    labels = load_labels(out)
+    assert (labels["collision_error"] >= 0).all() and (labels["collision_error"] <= 0.002).all()
+    mesh = load_object_mesh(out, "block_mm")
+    np.testing.assert_allclose(mesh.extents, [0.04, 0.04, 0.04], atol=1e-9)
+    shampoo_mesh = load_object_mesh(out, "urdf/shampoo/shampoo")
+    np.testing.assert_allclose(shampoo_mesh.extents, [0.06, 0.036, 0.18], atol=1e-3)
+    # the poses are in that frame: every TCP lies within the stroke of the mesh's surface
+    rows = labels[labels.object_id == "urdf/shampoo/shampoo"]
+    tcp = poses_as_matrices(rows)[:, :3, 3]
+    assert np.abs(trimesh.proximity.signed_distance(shampoo_mesh, tcp)).max() < 0.06
+    (objects / "block_mm.obj").write_text((objects / "block_mm.obj").read_text() + "# edited\n")
+    with pytest.raises(ValueError, match="changed since it was labelled"):
+        load_object_mesh(out, "block_mm")

@@ -14,7 +14,14 @@ from annotator.objects.decomposition import add_progress_hook, default_cache_dir
 from annotator.objects.discovery import MESH_SUFFIXES, URDF_SUFFIX, ObjectSource, discover_objects
 from annotator.objects.errors import ObjectDiscoveryError, ObjectError
 from annotator.objects.fidelity import CollisionError
-from annotator.objects.model import ObjectModel, contact_substeps, load_object, physics_for, source_digest
+from annotator.objects.model import (
+    ObjectModel,
+    contact_substeps,
+    load_object,
+    physics_for,
+    read_object_mesh,
+    source_digest,
+)
 from annotator.objects.properties import ObjectProperties
 
 __all__ = [
@@ -35,6 +42,7 @@ __all__ = [
     "load_object",
     "physics_for",
     "quiet_c_output",
+    "read_object_mesh",
     "reset_object_pose",
     "source_digest",
 ]

@@ -65,11 +65,14 @@ class ObjectModel:
     mass_model: str = "solid"
     collision_error: CollisionError | None = None
     collision_method: str = "hull"
+    collision_threshold: float = 0.0  # CoACD threshold of the kept parts (0 for a hull)
     approximate: bool = False
     cleaning: reading.Cleaning = field(default_factory=reading.Cleaning)
     source_files: tuple[str, ...] = ()
     digest: str = ""
     properties: dict[str, Any] = field(default_factory=dict)
+    objects_dir: str = ""  # the folder source_files are relative to
+    node: int | None = None  # the .glb node of a part
 
     @property
     def T_obj_com(self) -> Transform:
@@ -87,7 +90,9 @@ class ObjectModel:
         err = self.collision_error
         return {
             "object_id": self.object_id,
+            "objects_dir": self.objects_dir,
             "source_files": json.dumps(list(self.source_files)),
+            "source_node": -1 if self.node is None else int(self.node),
             "scale": float(self.scale),
             "pose_frame": "urdf base link" if self.path.suffix.lower() == ".urdf" else "mesh file frame",
             "pose_units": "m",
@@ -100,6 +105,7 @@ class ObjectModel:
             "cleaning": self.cleaning.summary(),
             "collision_method": self.collision_method,
             "collision_parts": int(len(self.parts)),
+            "collision_threshold": float(self.collision_threshold),
             "collision_error_mean": float(err.mean) if err else float("nan"),
             "collision_error_max": float(err.max) if err else float("nan"),
             "collision_approximate": bool(self.approximate),
@@ -210,6 +216,65 @@ def _check_size(mesh: trimesh.Trimesh, name: str, config: ObjectConfig) -> trime
     return hull
 
 
+@dataclass
+class _Read:
+    """What reading and cleaning give: the mesh in the pose frame and what load_object needs next."""
+
+    mesh: trimesh.Trimesh
+    hull: trimesh.Trimesh
+    watertight: bool
+    scale: float
+    mesh_sha256: str
+    inertial: urdf.UrdfInertial | None
+    cleaning: reading.Cleaning
+
+
+def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _Read:
+    props = source.properties
+    user_scale = props.scale if props.scale is not None else (1.0 if scale is None else float(scale))
+    if not np.isfinite(user_scale) or user_scale <= 0:
+        raise ObjectError(f"scale must be a positive number, got {scale}")
+    name = source.object_id
+    if source.is_urdf:
+        raw, blob = _read_urdf(source)
+        inertial = urdf.base_inertial(source.path)
+    else:
+        raw = reading.read_triangles(source.path, source.node)
+        blob, inertial = source.path.read_bytes(), None
+    if not np.all(np.isfinite(raw.vertices)):
+        raise ObjectError(f"{name}: vertices contain NaN or inf")
+    raw = trimesh.Trimesh(raw.vertices * user_scale, raw.faces, process=False)
+
+    report = reading.Cleaning()
+    mesh = reading.clean(raw, name, report)
+    mesh = reading.simplify(mesh, config.max_faces, name, report)
+    hull = _check_size(mesh, name, config)
+    watertight = bool(mesh.is_watertight and mesh.is_winding_consistent)
+    if not watertight:
+        mesh, report.holes_filled = reading.fill_holes(mesh)
+        watertight = report.holes_filled > 0
+        if watertight:
+            log.warning("%s: mesh was open; filled %d hole(s)", name, report.holes_filled)
+    if watertight:
+        if mesh.volume < 0:
+            mesh.invert()
+        if not mesh.volume > config.min_volume:
+            raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
+    else:
+        log.warning("%s: mesh is not watertight; its convex hull is its collision shape", name)
+    if report.vertices_merged or report.degenerate_faces or report.duplicate_faces:
+        log.info("%s: cleaned: %s", name, report.summary())
+    return _Read(mesh, hull, watertight, user_scale, hashlib.sha256(blob).hexdigest(), inertial, report)
+
+
+def read_object_mesh(
+    source: ObjectSource | Path, config: ObjectConfig | None = None, scale: float | None = None
+) -> trimesh.Trimesh:
+    """The object's mesh exactly as its poses see it (scaled, cleaned, in the pose frame), without
+    weighing or decomposing it. Raises ObjectError like :func:`load_object`."""
+    return _read(_as_source(source), config or ObjectConfig(), scale).mesh
+
+
 def load_object(
     source: ObjectSource | Path,
     config: ObjectConfig,
@@ -228,42 +293,16 @@ def load_object(
     """
     source = _as_source(source)
     props = source.properties
-    user_scale = props.scale if props.scale is not None else (1.0 if scale is None else float(scale))
-    if not np.isfinite(user_scale) or user_scale <= 0:
-        raise ObjectError(f"scale must be a positive number, got {scale}")
     name = source.object_id
-
-    if source.is_urdf:
-        raw, blob = _read_urdf(source)
-        inertial = urdf.base_inertial(source.path)
-    else:
-        raw = reading.read_triangles(source.path, source.node)
-        blob, inertial = source.path.read_bytes(), None
-    mesh_sha = hashlib.sha256(blob).hexdigest()
-    if not np.all(np.isfinite(raw.vertices)):
-        raise ObjectError(f"{name}: vertices contain NaN or inf")
-    raw = trimesh.Trimesh(raw.vertices * user_scale, raw.faces, process=False)
-
-    report = reading.Cleaning()
-    mesh = reading.clean(raw, name, report)
-    mesh = reading.simplify(mesh, config.max_faces, name, report)
-    hull = _check_size(mesh, name, config)
-
-    watertight = bool(mesh.is_watertight and mesh.is_winding_consistent)
-    if not watertight:
-        mesh, report.holes_filled = reading.fill_holes(mesh)
-        watertight = report.holes_filled > 0
-        if watertight:
-            log.warning("%s: mesh was open; filled %d hole(s)", name, report.holes_filled)
-    if watertight:
-        if mesh.volume < 0:
-            mesh.invert()
-        if not mesh.volume > config.min_volume:
-            raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
-    else:
-        log.warning("%s: mesh is not watertight; its convex hull is its collision shape", name)
-    if report.vertices_merged or report.degenerate_faces or report.duplicate_faces:
-        log.info("%s: cleaned: %s", name, report.summary())
+    read = _read(source, config, scale)
+    mesh, hull, watertight, user_scale, inertial = (
+        read.mesh,
+        read.hull,
+        read.watertight,
+        read.scale,
+        read.inertial,
+    )
+    mesh_sha, report = read.mesh_sha256, read.cleaning
 
     props_mass = mass_model.weigh(
         mesh, hull, watertight, config, props.mass_model or "auto", props.density, props.shell_thickness
@@ -310,11 +349,14 @@ def load_object(
         mass_model=props_mass.model,
         collision_error=geometry.error,
         collision_method=geometry.method,
+        collision_threshold=geometry.threshold,
         approximate=approximate,
         cleaning=report,
         source_files=tuple(files),
         digest=source_digest(source),
         properties=props.as_dict(),
+        objects_dir=str(source.folder.resolve()),
+        node=source.node,
     )
 
 
