@@ -653,3 +653,18 @@ def test_geometry_record_ties_each_object_to_the_mesh_its_poses_refer_to(tmp_pat
     (objects / "block_mm.obj").write_text((objects / "block_mm.obj").read_text() + "# edited\n")
     with pytest.raises(ValueError, match="changed since it was labelled"):
         load_object_mesh(out, "block_mm")
+
+
+def test_a_crashing_decomposition_fails_only_its_object_in_a_run(tmp_path, monkeypatch):
+    from annotator.runner import RunOptions, run
+
+    monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
+    crash = [sys.executable, "-c", "import os; os.abort()"]
+    monkeypatch.setattr(decomposition, "child_command", lambda job: crash)
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    _write_l(objects / "corner.obj")
+    _write_cube(objects / "cube.obj", 0.04)
+    summary = run(RunOptions(objects, 10, tmp_path / "labels", workers=1, quiet=True), AnnotatorConfig())
+    assert list(summary.done) == ["cube"]
+    assert "killed by SIGABRT" in summary.failed["corner"]
