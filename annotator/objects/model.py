@@ -155,11 +155,8 @@ def source_digest(source: ObjectSource | Path) -> str:
     h = hashlib.sha256(b"rg2-annotator object v1\0")
     try:
         for path in _source_files(source):
-            rel = (
-                path.relative_to(source.path.parent)
-                if source.is_urdf and path != source.path
-                else Path(path.name)
-            )
+            inside = source.is_urdf and path != source.path
+            rel = _relative(path, source.path.parent) if inside else Path(path.name)
             data = path.read_bytes()
             h.update(f"{rel.as_posix()}\0{len(data)}\0".encode())
             h.update(data)
@@ -168,6 +165,13 @@ def source_digest(source: ObjectSource | Path) -> str:
     h.update(f"node\0{source.node}\0".encode())
     h.update(json.dumps(source.properties.as_dict(), sort_keys=True).encode())
     return h.hexdigest()
+
+
+def _relative(path: Path, folder: Path) -> Path:
+    try:
+        return Path(path).resolve().relative_to(Path(folder).resolve())
+    except ValueError:
+        return Path(Path(path).name)
 
 
 def _as_source(source: ObjectSource | Path | str) -> ObjectSource:
