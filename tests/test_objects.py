@@ -655,8 +655,10 @@ def test_geometry_record_ties_each_object_to_the_mesh_its_poses_refer_to(tmp_pat
         load_object_mesh(out, "block_mm")
 
 
-def test_a_crashing_decomposition_fails_only_its_object_in_a_run(tmp_path, monkeypatch):
-    from annotator.runner import RunOptions, run
+def test_a_crashing_decomposition_fails_only_its_object_in_a_worker(tmp_path, monkeypatch):
+    """The worker's own code path (in this process, so the seam applies): the object whose
+    decomposition aborts gets its one-line error, the next object's span is labelled."""
+    from annotator.pipeline.worker import Span, SpanTask, WorkerState
 
     monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
     crash = [sys.executable, "-c", "import os; os.abort()"]
@@ -665,6 +667,13 @@ def test_a_crashing_decomposition_fails_only_its_object_in_a_run(tmp_path, monke
     objects.mkdir()
     _write_l(objects / "corner.obj")
     _write_cube(objects / "cube.obj", 0.04)
-    summary = run(RunOptions(objects, 10, tmp_path / "labels", workers=1, quiet=True), AnnotatorConfig())
-    assert list(summary.done) == ["cube"]
-    assert "killed by SIGABRT" in summary.failed["corner"]
+    state = WorkerState()
+    try:
+        results = {
+            s.object_id: state.label(SpanTask(Span(s.object_id, s, None, 0, 5), AnnotatorConfig(), 0, 5))
+            for s in discover_objects(objects)
+        }
+    finally:
+        state.close()
+    assert "convex decomposition failed (killed by SIGABRT)" in results["corner"].error
+    assert results["cube"].error is None and len(results["cube"].rows) == 5

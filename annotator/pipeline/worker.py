@@ -168,7 +168,7 @@ def object_info(model: ObjectModel) -> dict[str, Any]:
         "lateral_friction": float(model.friction),
         "collision_error_mean": float(model.collision_error.mean),
         "collision_error_max": float(model.collision_error.max),
-        "geometry": model.geometry_record(),  # a row of _objects.parquet
+        "geometry": model.geometry_record(),  # dataset.load_geometry reads these back
     }
 
 
