@@ -27,6 +27,7 @@ from annotator.objects import (
     get_object_pose,
     load_object,
     mass,
+    read_object_mesh,
     reset_object_pose,
     source_digest,
 )
@@ -48,18 +49,39 @@ def cache_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("decomposition-cache")
 
 
-@pytest.fixture(scope="module")
-def shipped_models(cache_dir):
-    """Every shipped object, loaded once per module (the concave ones decomposed into cache_dir)."""
-    return {s.object_id: load_object(s, CONFIG, cache_dir=cache_dir) for s in discover_objects(REPO_OBJECTS)}
+# The mug starts at the CoACD threshold its refinement ends on (0.03; from 0.05 it costs twice the
+# time): the refinement itself is checked on the banana (0.05 misses the limits, 0.03 meets them).
+# The bowl (another ~25 s of CoACD) is left to bench/collision_error.py.
+MUG_CONFIG = dataclasses.replace(CONFIG, decomposition_threshold=0.03)
+SHIPPED_IN_TEST = (
+    "banana",
+    "big_ball",
+    "bottle",
+    "box",
+    "can",
+    "mug",
+    "plate",
+    "ring",
+    "urdf/shampoo/shampoo",
+)
 
 
 @pytest.fixture(scope="module")
 def mug_models(cache_dir):
     """The sample mug loaded twice with one cache: (first, second)."""
-    first = load_object(REPO_OBJECTS / "mug.obj", CONFIG, cache_dir=cache_dir)
-    second = load_object(REPO_OBJECTS / "mug.obj", CONFIG, cache_dir=cache_dir)
+    first = load_object(REPO_OBJECTS / "mug.obj", MUG_CONFIG, cache_dir=cache_dir)
+    second = load_object(REPO_OBJECTS / "mug.obj", MUG_CONFIG, cache_dir=cache_dir)
     return first, second
+
+
+@pytest.fixture(scope="module")
+def shipped_models(cache_dir, mug_models):
+    """The shipped objects but the bowl, loaded once per module (concave ones decomposed once)."""
+    models = {"mug": mug_models[1]}
+    for s in discover_objects(REPO_OBJECTS):
+        if s.object_id in SHIPPED_IN_TEST and s.object_id != "mug":
+            models[s.object_id] = load_object(s, CONFIG, cache_dir=cache_dir)
+    return models
 
 
 def _write_cube(path: Path, size: float) -> Path:
@@ -495,10 +517,11 @@ def test_thin_walled_pot_is_weighed_as_a_shell_and_a_brick_as_a_solid(tmp_path):
 
 
 def test_shipped_mug_and_bowl_are_shells(shipped_models):
-    for oid in ("mug", "bowl"):
-        model = shipped_models[oid]
-        assert model.mass_model == "shell", oid
-        assert model.mass == pytest.approx(model.mesh.volume * CONFIG.shell_density, rel=1e-9), oid
+    model = shipped_models["mug"]
+    assert model.mass_model == "shell"
+    assert model.mass == pytest.approx(model.mesh.volume * CONFIG.shell_density, rel=1e-9)
+    bowl = read_object_mesh(REPO_OBJECTS / "bowl.obj", CONFIG)
+    assert mass.weigh(bowl, bowl.convex_hull, True, CONFIG).model == "shell"
     for oid in ("plate", "banana", "ring", "box", "can"):
         assert shipped_models[oid].mass_model == "solid", oid
 
@@ -597,6 +620,7 @@ def test_two_workers_decompose_a_new_object_once_and_agree_bit_for_bit(tmp_path)
 
 
 def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_models):
+    assert shipped_models["banana"].collision_threshold == 0.03  # refined: 0.05 misses the limits
     for oid, model in shipped_models.items():
         record = model.geometry_record()
         mean, worst = record["collision_error_mean"], record["collision_error_max"]

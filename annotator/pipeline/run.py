@@ -289,7 +289,7 @@ def run(
         raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
     _check_workers(options)
     try:
-        sources = discover_objects(options.objects_dir)
+        sources = discover_objects(options.objects_dir, config.objects)
     except ObjectDiscoveryError as exc:
         raise UsageError(str(exc)) from exc
     sources, missing = candidates.select(sources)

@@ -219,7 +219,7 @@ class WorkerState:
             except OSError as exc:
                 raise ObjectError(f"cannot read {span.source.path}: {exc.strerror or exc}") from exc
             version = f"{stat.st_mtime_ns}-{stat.st_size}"
-        key = (span.object_id, str(span.source.path), version, span.scale)
+        key = (span.object_id, str(span.source.path), version, span.scale, span.source.properties)
         if key in self.failed:
             raise ObjectError(self.failed[key])
         if self.obj is not None and self.obj.key == key:
