@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -701,3 +702,16 @@ def test_a_crashing_decomposition_fails_only_its_object_in_a_worker(tmp_path, mo
         state.close()
     assert "convex decomposition failed (killed by SIGABRT)" in results["corner"].error
     assert results["cube"].error is None and len(results["cube"].rows) == 5
+
+
+def test_c_level_output_while_creating_shapes_never_reaches_the_terminal(capfd, caplog):
+    """What C code writes to fd 1/2 inside quiet_c_output (as createCollisionShape's warnings do)
+    is kept off the terminal and logged at DEBUG instead."""
+    from annotator.objects import quiet_c_output
+
+    with caplog.at_level(logging.DEBUG, logger="annotator.objects"), quiet_c_output("thing"):
+        os.write(1, b"b3Printf: warning from C on stdout\n")
+        os.write(2, b"b3Warning: warning from C on stderr\n")
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    assert "warning from C on stdout" in caplog.text and "warning from C on stderr" in caplog.text
