@@ -715,3 +715,19 @@ def test_c_level_output_while_creating_shapes_never_reaches_the_terminal(capfd, 
     out, err = capfd.readouterr()
     assert out == "" and err == ""
     assert "warning from C on stdout" in caplog.text and "warning from C on stderr" in caplog.text
+
+
+def test_a_urdf_inertia_that_cannot_fit_its_shape_keeps_only_its_mass(tmp_path, caplog):
+    """pybullet_data-style placeholders (1 kg m^2 on a 5 cm cube): the mass is honoured, the
+    inertia comes from the mesh."""
+    _write_cube(tmp_path / "cube.obj", 0.05)
+    (tmp_path / "cube.urdf").write_text(
+        '<robot name="c"><link name="base"><inertial><mass value="0.1"/>'
+        '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>'
+        '<collision><geometry><mesh filename="cube.obj"/></geometry></collision></link></robot>'
+    )
+    with caplog.at_level(logging.WARNING, logger="annotator.objects"):
+        model = load_object(tmp_path / "cube.urdf", CONFIG, cache_dir=tmp_path / "c")
+    assert model.mass == pytest.approx(0.1) and model.mass_model == "urdf"
+    np.testing.assert_allclose(model.inertia, np.eye(3) * 0.1 * 2 * 0.05**2 / 12, rtol=1e-9)
+    assert "inertia cannot belong to this shape" in caplog.text

@@ -197,6 +197,36 @@ def _read_urdf(source: ObjectSource) -> tuple[trimesh.Trimesh, bytes]:
     return mesh, b"".join(blobs)
 
 
+def _urdf_mass(
+    inertial: urdf.UrdfInertial,
+    geometric: mass_model.MassProperties,
+    mesh: trimesh.Trimesh,
+    scale: float,
+    name: str,
+) -> mass_model.MassProperties:
+    """A URDF's ``<inertial>`` (scaled with the mesh), unless its inertia cannot belong to this
+    shape: then its mass with the geometry's distribution. pybullet_data's cube_small.urdf, a 5 cm
+    cube, says 1 kg m^2 (a radius of gyration of 3.2 m): placeholders like that are common."""
+    inertia = inertial.inertia * scale * scale
+    moments = np.linalg.eigvalsh(0.5 * (inertia + inertia.T))
+    gyration = float(np.sqrt(max(moments.max(), 0.0) / inertial.mass))
+    size = float(np.linalg.norm(mesh.extents))
+    plausible = moments.min() >= 0 and moments[0] + moments[1] >= moments[2] * (1 - 1e-6) and gyration <= size
+    if plausible:
+        return mass_model.MassProperties(
+            inertial.mass, geometric.volume, inertial.center_mass * scale, inertia, "urdf"
+        )
+    log.warning(
+        "%s: the URDF's inertia cannot belong to this shape (radius of gyration %.3g m, object %.3g m); "
+        "using its mass %.3g kg with the mesh's inertia",
+        name,
+        gyration,
+        size,
+        inertial.mass,
+    )
+    return geometric.with_mass(inertial.mass, "urdf")
+
+
 def _check_size(mesh: trimesh.Trimesh, name: str, config: ObjectConfig) -> trimesh.Trimesh:
     """Extent within limits and a hull with volume; returns the hull."""
     if len(mesh.faces) < config.min_faces:
@@ -314,10 +344,7 @@ def load_object(
     if props.mass is not None:
         props_mass = props_mass.with_mass(props.mass, "given")
     elif inertial is not None:
-        s = user_scale
-        props_mass = mass_model.MassProperties(
-            inertial.mass, props_mass.volume, inertial.center_mass * s, inertial.inertia * s * s, "urdf"
-        )
+        props_mass = _urdf_mass(inertial, props_mass, mesh, user_scale, name)
 
     convex = watertight and float(mesh.volume) >= (1.0 - config.convex_volume_tolerance) * float(hull.volume)
     geometry = collision_geometry(mesh, convex or not watertight, config, cache_dir, name)
