@@ -1,0 +1,85 @@
+"""Face-to-face grasps on a light, thin plate: how many hold and how deep the pads end, per object
+mass and simulation time step (the measurement behind PhysicsConfig.light_object_mass).
+
+    python bench/light_objects.py                         # 4 g and 40 g, 1/240 s and as simulated
+    python bench/light_objects.py --grams 4 14 27 --hz 240 480 760 1000
+
+The plate is 48 x 24 x 6.35 mm (a domino); its candidates come from the sampler (seed 0) and only
+those closing across the 6.35 mm faces that pass the collision check are simulated. "as
+simulated" is the step the annotator uses for that mass (time_step / contact_substeps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform
+from annotator.objects import ObjectProperties, ObjectSource, contact_substeps, create_body, load_object
+from annotator.pipeline.worker import PARKED
+from annotator.sampler import object_rng, sample_candidates
+from annotator.sim.hand import FloatingRG2
+from annotator.sim.world import World
+from annotator.trial import GraspTrial
+
+EXTENTS = (0.048, 0.024, 0.00635)
+
+
+def measure(grams: float, hz: float, n: int, folder: Path) -> str:
+    config = AnnotatorConfig()
+    config = dataclasses.replace(config, physics=dataclasses.replace(config.physics, time_step=1.0 / hz))
+    path = folder / "domino.obj"
+    trimesh.creation.box(EXTENTS).export(path)
+    source = ObjectSource("domino", path, properties=ObjectProperties(mass=grams / 1000.0))
+    model = load_object(source, config.objects, cache_dir=folder / "cache")
+    cands = sample_candidates(model.mesh, n, object_rng(0, "domino"), config.sampler, 0.110)
+    outcomes, depths = [], []
+    with World(config.physics) as world:
+        hand = FloatingRG2(world, config.gripper)
+        hand.teleport(PARKED, hand.rg2.max_width)
+        uid = create_body(world.client, model)
+        world.set_gravity(False)
+        trial = GraspTrial(world, hand, uid, config)
+        for k in range(n):
+            T = Transform.from_matrix(cands.T_obj_tcp[k])
+            if abs(T.rotation[2, 0]) < 0.95:  # closing across the thin faces only
+                continue
+            r = trial.run(T, float(cands.width_expected[k]))
+            if r.outcome == Outcome.COLLISION:
+                continue
+            outcomes.append(r.outcome)
+            if r.outcome == Outcome.SUCCESS:
+                depths.append(EXTENTS[2] - r.width)
+    held = sum(o == Outcome.SUCCESS for o in outcomes)
+    d = np.array(depths) * 1e3
+    deep = f"pads {d.mean():.2f} mm deep on average, {d.max():.2f} max" if len(d) else "no success"
+    return f"{grams:5.1f} g at 1/{hz:.0f} s: {held:2d} of {len(outcomes)} face-to-face grasps held, {deep}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--grams", type=float, nargs="+", default=[4.0, 40.0])
+    ap.add_argument(
+        "--hz", type=float, nargs="+", default=None, help="steps per second (default 240 and as simulated)"
+    )
+    ap.add_argument("--candidates", type=int, default=90)
+    args = ap.parse_args()
+    physics = AnnotatorConfig().physics
+    with tempfile.TemporaryDirectory() as tmp:
+        for grams in args.grams:
+            rates = args.hz or sorted(
+                {1.0 / physics.time_step, contact_substeps(grams / 1000.0, physics) / physics.time_step}
+            )
+            for hz in rates:
+                print(measure(grams, hz, args.candidates, Path(tmp)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
