@@ -80,7 +80,11 @@ def test_report_loads_cleanly_in_chromium(labelled, tmp_path: Path) -> None:
     assert page.count("data:image/png;base64,") == 2  # overview and sheet of one object
     for oid in ("box", "can"):
         assert f">{oid}</td>" in page
-    assert "n/a" in page  # no collision-error record yet: shown as n/a, not an error
+    # the collision error comes from each object's geometry record: convex meshes collide as their
+    # hulls, 0.00 mm from the surface
+    for oid in ("box", "can"):
+        row = re.search(rf">{oid}</td>.*?</tr>", page, re.S)
+        assert row is not None and row.group(0).endswith("<td>0.00</td></tr>"), oid
     assert '"seed": 0' not in page and "<th class='l'>seed</th><td class='l'>0</td>" in page
 
     console = _browse(out, tmp_path / "shot.png", tmp_path / "profile")
