@@ -173,6 +173,9 @@ def test_labels_have_the_contract_schema_and_values(two_objects, reference_run):
     # the summary names each object and the totals
     assert "box" in output and "cylinder" in output
     assert "2 objects labelled, 0 done earlier, 0 failed" in output
+    header = next(line for line in output.splitlines() if line.startswith("object"))
+    for column in ("rate", "score", *OUTCOMES):  # whole names, not cut to nine characters
+        assert f" {column} " in f"{header} ", (column, header)
 
 
 # --- 2., 3. the same labels whatever runs them ---------------------------------------------------
