@@ -80,6 +80,21 @@ def test_rendered_depth_of_a_box_matches_its_geometry(distance):
         np.testing.assert_allclose(measured, t[on_face], atol=0.001 + 0.001 * distance)
 
 
+def test_look_at_keeps_the_world_up_at_the_image_top():
+    """A camera looking down at 45 deg: a point above the target is higher in the image (smaller v),
+    one to the camera's right (its right hand, facing the view) has a larger u."""
+    eye, target = np.array([1.0, 0.0, 1.0]), np.zeros(3)
+    T = kinect.look_at(eye, target)
+    K = kinect.depth_intrinsics(KinectConfig())
+    np.testing.assert_allclose(T.rotation[:, 2], -eye / np.linalg.norm(eye), atol=1e-12)
+    assert np.linalg.det(T.rotation) == pytest.approx(1.0)
+    (u0, v0), (_, v_up), (u_right, _) = kinect.project(
+        T.inverse().apply(np.array([[0, 0, 0], [0, 0, 0.1], [0, 0.1, 0]])), K
+    )
+    assert v_up < v0 - 10  # above the target: nearer the image top
+    assert u_right > u0 + 10  # facing -x, the right hand points to +y
+
+
 def test_out_of_range_depth_is_zero_and_background_is_minus_one():
     with World() as world:
         box = add_box(world, [0, 0, 0])

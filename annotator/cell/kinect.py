@@ -121,7 +121,7 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
     up = np.asarray(up, dtype=float)
     if abs(float(np.dot(z, up / np.linalg.norm(up)))) > 1 - 1e-9:
         up = np.array([1.0, 0.0, 0.0])
-    x = np.cross(z, -up)  # image right: -y_optical is up, so x = y cross z with y = -up
+    x = np.cross(-up, z)  # image right: x = y cross z with y (image down) along -up
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return Transform.from_rotation(np.column_stack([x, y, z]), eye)
