@@ -352,9 +352,27 @@ class CellConfig(_Section):
     # placement (a cylinder's hull gives one pose per side facet, 7.5 deg apart): probabilities add.
     placement_merge_angle: float = _field(20.0, ge=0.0, le=180.0)  # deg
     placement_min_probability: float = _field(0.02, ge=0.0, le=1.0)  # rarer poses are not used
+    # annotate --cell: each placement settles under gravity on the table before its trials (the
+    # settled pose is the label's obj_x..obj_qw). trimesh's stable poses come from the mesh's hull
+    # about the mesh's centre of mass; the simulated body (convex parts) can still tip or roll: of
+    # the sample objects, the bowl's third pose moved 31 mm in 1 s, every other pose < 0.1 mm. A
+    # pose that moves more than placement_max_drift while settling is skipped for the next one.
+    placement_settle_time: float = _field(0.5, ge=0.0)  # s
+    placement_max_drift: float = _field(0.005, gt=0.0)  # m, of any point of the object's bounding box
     # Reachability (annotator/cell/reach.py): any arm or gripper link closer than this to the
     # table, or arm link (not gripper) to the object, along the approach is a collision.
     arm_collision_margin: float = _field(0.0, ge=0.0)  # m; 0: touching counts
+    # annotate --cell --views K: view 0 is the seed's Kinect; views 1..K-1 look at the object's
+    # centre of mass from view_distance away and view_elevation above the horizontal, at azimuths
+    # (about world z, from +x) spread evenly over view_azimuth_span centred on view_azimuth
+    # (one extra view: at view_azimuth). 0 deg is the table's far side, facing the arm; a camera
+    # behind the arm (180 deg) sees mostly the arm, within the sensor's 0.5 m minimum range, so
+    # the default span covers the far side and the two ends of the table. 1 m is twice that
+    # minimum range; a 10 cm object then spans ~ 36 depth pixels.
+    view_distance: float = _field(1.0, gt=0.0)  # m
+    view_elevation: float = _field(45.0, gt=0.0, le=90.0)  # deg
+    view_azimuth: float = _field(0.0)  # deg
+    view_azimuth_span: float = _field(180.0, ge=0.0, le=360.0)  # deg
 
 
 @dataclass(frozen=True)
@@ -390,6 +408,11 @@ class KinectConfig(_Section):
     # surface's angle: 1.5 mm at 1 m is that order of magnitude, not a calibration of a sensor.
     noise_sigma_1m: float = _field(0.0015, ge=0.0)  # m at z = 1 m
     noise_quantum: float = _field(0.001, ge=0.0)  # m; 0 keeps floats
+    # annotate --views: depth images with the noise model above (a Generator keyed on seed, object,
+    # placement and view) instead of the exact render; colour rendered at color_scale times
+    # 1920 x 1080 (one full-size TinyRenderer colour image costs ~ 0.8 s of a worker).
+    views_depth_noise: bool = False
+    views_color_scale: float = _field(1.0, gt=0.0, le=1.0)
 
 
 @dataclass(frozen=True)

@@ -3,9 +3,10 @@
 The protocol (DESIGN.md), with an early exit at each stage:
 
 1. ``collision``: the open gripper intersects the object at the grasp pose or anywhere along the
-   approach, or, closed on the expected chord, touches it with anything but the pads (kinematic
-   checks, no simulation).
-2. close with the RG2's force, gravity off (GraspDataGen), until the fingers stall.
+   approach, or, closed on the expected chord, touches it with anything but the pads, or touches
+   an obstacle (the cell's table) anywhere (kinematic checks, no simulation).
+2. close with the RG2's force, gravity off (GraspDataGen) for a floating object, on for one
+   resting on a support (``annotate --cell``), until the fingers stall.
 3. ``no_contact``: not both pads touch the object.
 4. ``slipped_lift``: gravity on, lift; the object lost a pad or moved in the hand.
 5. ``slipped_shake``: translations and rotations; the object lost a pad or moved in the hand.
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,15 +76,28 @@ class TrialResult:
 class GraspTrial:
     """Runs trials for one object in a world that holds the floating RG2 and that object.
 
-    The object's mesh frame sits at the world origin; the initial state (gripper parked, object
-    at rest) is saved once and restored before every trial.
+    The initial state (gripper parked, object at rest wherever it is: at the world origin for a
+    floating object, on the table for the cell) is saved once and restored before every trial.
+    ``obstacles``: bodies the gripper must not touch at all in the kinematic checks (the table);
+    ``resting``: the object rests on one of them, so gravity stays on while the gripper closes.
     """
 
-    def __init__(self, world: World, hand: FloatingRG2, object_uid: int, config: AnnotatorConfig) -> None:
+    def __init__(
+        self,
+        world: World,
+        hand: FloatingRG2,
+        object_uid: int,
+        config: AnnotatorConfig,
+        *,
+        obstacles: Sequence[int] = (),
+        resting: bool = False,
+    ) -> None:
         self.world = world
         self.hand = hand
         self.obj = object_uid
         self.config = config
+        self.obstacles = tuple(obstacles)
+        self.resting = resting
         self.client = world.client
         info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
         self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
@@ -105,6 +120,15 @@ class GraspTrial:
         pads = self.hand.rg2.pads if skip_pads else ()
         return any(p[8] < margin and p[3] not in pads for p in pts)
 
+    def _touches_obstacle(self) -> bool:
+        """Does any link of the gripper (pads included) touch an obstacle?"""
+        margin = self.config.protocol.collision_margin
+        for body in self.obstacles:
+            pts = pb.getClosestPoints(self.hand.uid, body, margin, physicsClientId=self.client)
+            if any(p[8] < margin for p in pts):
+                return True
+        return False
+
     def _both_pads_touch(self) -> bool:
         a, b = self.hand.rg2.pad_contacts(self.obj)
         return bool(a) and bool(b)
@@ -113,7 +137,8 @@ class GraspTrial:
 
     def collides(self, T_obj_tcp: Transform, width: float) -> tuple[bool, float]:
         """Kinematic checks: the open gripper at the grasp pose and back along the approach; the
-        gripper closed on the expected chord touching the object with its pads only."""
+        gripper closed on the expected chord touching the object with its pads only; no obstacle
+        touched anywhere."""
         p = self.config.protocol
         open_width = min(self.hand.rg2.max_width, width + 2 * p.pregrasp_clearance)
         T_world_tcp = self._T_world_obj() * T_obj_tcp
@@ -124,13 +149,13 @@ class GraspTrial:
         for k in range(n_checks + 1):  # from the grasp pose backwards
             back = Transform(T_world_base.pos - approach * k * p.approach_step, T_world_base.quat)
             self.hand.body.reset_base_pose(back)
-            if self._intersects():
+            if self._intersects() or self._touches_obstacle():
                 return True, open_width
         # closed on the expected chord, only the pads may touch: a finger link that reaches the
         # object first (e.g. a can's rim under a tilted grasp) would stop the close on it
         self.hand.body.reset_base_pose(T_world_base)
         self.hand.rg2.reset_width(width)
-        if self._intersects(skip_pads=True):
+        if self._intersects(skip_pads=True) or self._touches_obstacle():
             return True, open_width
         return False, open_width
 
@@ -164,16 +189,17 @@ class GraspTrial:
         if collided:
             return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"))
 
-        # 2. close, gravity off, on the free object. The fingers' travel through free space has no
-        # effect but time, so they start preclose_gap outside the expected chord, unless the
-        # gripper intersects the object there (a feature inside the chord): then fully open.
+        # 2. close (gravity off on a free object, on for a resting one). The fingers' travel
+        # through free space has no effect but time, so they start preclose_gap outside the
+        # expected chord, unless the gripper intersects the object there (a feature inside the
+        # chord): then fully open.
         T_world_tcp = self._T_world_obj() * T_obj_tcp
         T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
         start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
         self.hand.teleport(T_world_base, start_width)
         if start_width < open_width and self._intersects():
             self.hand.teleport(T_world_base, open_width)
-        self.world.set_gravity(False)
+        self.world.set_gravity(self.resting)
         self.hand.close(g.grip_force, max_steps=round(cfg.close_timeout / self.world.dt))
         width = self.hand.rg2.measured_width()
         T_obj_tcp_closed = (

@@ -37,6 +37,10 @@ REASONS = (NO_IK, LIMITS, ARM_TABLE, ARM_OBJECT, SELF)
 # from singularities).
 MAX_JOINT_STEP = 0.5  # rad
 GRIPPER_LINKS = frozenset({GRIPPER_BASE_LINK, "tcp", *FINGER_CHAINS[0], *FINGER_CHAINS[1]})
+# The arm's home: upper arm up, forearm forward, the gripper pointing down over the table. IK
+# solutions nearest to it are tried first (the batch job and replay), so the chosen branch is the
+# one a UR3 reaches from its usual start (elbow up, wrist down), whatever the arm did before.
+READY = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 
 
 @dataclass(frozen=True)

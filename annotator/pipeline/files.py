@@ -64,6 +64,34 @@ def object_filename(object_id: str) -> str:
     return f"{readable}-{digest}.parquet"
 
 
+# Per-object artifacts (today the Kinect views of ``annotate --cell --views``) live in
+# ``ARTIFACTS_DIR/<object stem>/<name>``: a name starting with ``_``, so pyarrow's discovery of
+# the label folder skips it and ``pandas.read_parquet(OUT)`` still returns only labels.
+ARTIFACTS_DIR = "_views"
+_ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+_OBJECT_STEM_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}$")
+
+
+def object_stem(object_id: str) -> str:
+    """``object_filename`` without ``.parquet``: the object's chunk prefix and artifact folder."""
+    return object_filename(object_id)[: -len(".parquet")]
+
+
+def is_object_stem(name: str) -> bool:
+    """A folder name the tool gives an object's artifacts."""
+    return _OBJECT_STEM_RE.match(name) is not None
+
+
+def artifact_relpath(object_id: str, name: str) -> str:
+    """Where artifact ``name`` of ``object_id`` lives, relative to the output folder (``/``-separated).
+
+    ``name``: a plain file name (letters, digits, ``.``, ``_``, ``-``; not hidden); ValueError else.
+    """
+    if not _ARTIFACT_NAME_RE.match(name):
+        raise ValueError(f"artifact name {name!r}: use letters, digits, '.', '_' and '-' only")
+    return f"{ARTIFACTS_DIR}/{object_stem(object_id)}/{name}"
+
+
 def chunk_filename(object_id: str, start: int, stop: int) -> str:
     """File name of candidates ``start..stop-1`` of an object: ``<object stem>.SSSSSS-EEEEEE.parquet``."""
     return f"{object_filename(object_id)[: -len('.parquet')]}.{start:06d}-{stop:06d}.parquet"

@@ -6,6 +6,11 @@ samples its N candidates (the same on every worker: the Generator is keyed on se
 and creates its body. Each candidate starts from a restored snapshot with no contact memory
 (:meth:`annotator.sim.world.World.restore_state`), so a label depends only on (object, seed,
 candidate), never on which worker ran it or what it ran before.
+
+With ``--cell`` (:class:`CellOptions`) the world also holds the seed's table, the object rests on
+it in its placements and each row gains the cell's columns (annotator.cell.batch); with
+``--views K`` the span holding grasp ``p`` also renders placement ``p``'s K Kinect views, returned
+as files for the main process to write.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -38,6 +43,9 @@ from annotator.pipeline import status
 from annotator.pipeline.store import bound_versions
 from annotator.sampler import Candidates, object_rng, sample_candidates
 from annotator.trial import GraspTrial, Perturbation, trial_rng
+
+if TYPE_CHECKING:
+    from annotator.cell.batch import CellObject, CellWorlds
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +91,17 @@ class Span:
 
 
 @dataclass(frozen=True)
+class CellOptions:
+    """``annotate --cell``: objects rest on the seed's table; ``views`` Kinect views per placement."""
+
+    views: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """What the manifest binds (RunSpec.inputs['cell'])."""
+        return {"views": int(self.views)}
+
+
+@dataclass(frozen=True)
 class SpanTask:
     """What a worker is asked to do, with what it needs to check that it may.
 
@@ -91,7 +110,7 @@ class SpanTask:
     others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
     exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
     doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
-    default, as on a cluster).
+    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper).
     """
 
     span: Span
@@ -104,6 +123,7 @@ class SpanTask:
     parent_pid: int | None = None
     status_dir: str | None = None
     cache_dir: str | None = None
+    cell: CellOptions | None = None
 
 
 @dataclass(frozen=True)
@@ -120,24 +140,39 @@ class WorkerStats:
 @dataclass(frozen=True)
 class SpanResult:
     """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
-    as simulated (mass, scale, ...) for the manifest."""
+    as simulated (mass, scale, ...) for the manifest; ``artifacts``: files that belong with the
+    span's labels (file name -> bytes: the Kinect views it rendered), written by the main process."""
 
     span: Span
     rows: pd.DataFrame | None
     error: str | None
     stats: WorkerStats
     info: dict[str, Any] | None = None
+    artifacts: dict[str, bytes] | None = None
 
 
 @dataclass
 class LoadedObject:
-    """The object a worker has in its world: model, body, trial runner, sampled candidates."""
+    """The object a worker has in its world: model, body, trial runner, sampled candidates;
+    ``cell``: its placements on the table (``--cell``), whose trials replace ``trial``."""
 
     key: tuple
     model: ObjectModel
     uid: int
     trial: GraspTrial
     candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)  # (seed, n) -> ...
+    cell: CellObject | None = None
+
+    def trial_for(self, T_obj_tcp: Transform) -> GraspTrial:
+        """The trial runner of a commanded grasp (in the cell: of the placement it rests in)."""
+        return self.trial if self.cell is None else self.cell.trial_for(T_obj_tcp)
+
+    def release(self) -> None:
+        """Free its snapshots (and the cell's copy of it); the trial world's body is the caller's."""
+        if self.cell is not None:
+            self.cell.close()
+        else:
+            self.trial.close()
 
 
 def _peak_rss_mb() -> float:
@@ -177,8 +212,10 @@ class WorkerState:
 
     def __init__(self) -> None:
         self.config: AnnotatorConfig | None = None
+        self.cell_mode = False
         self.world = None  # annotator.sim.world.World
         self.hand = None  # annotator.sim.hand.FloatingRG2
+        self.cell: CellWorlds | None = None  # the table and the arm world, --cell only
         self.obj: LoadedObject | None = None
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
         self._watched_parent: int | None = None
@@ -186,30 +223,38 @@ class WorkerState:
 
     # --- the world ------------------------------------------------------------------------------
 
-    def world_for(self, config: AnnotatorConfig):
-        """The world and floating gripper for ``config`` (rebuilt only when the config changes)."""
+    def world_for(self, config: AnnotatorConfig, cell: bool = False):
+        """The world and floating gripper for ``config`` (rebuilt only when the config or the mode
+        changes: a floating world never holds the table)."""
         from annotator.sim.hand import FloatingRG2
         from annotator.sim.world import World
 
-        if self.config != config or self.world is None:
+        if self.config != config or self.cell_mode != cell or self.world is None:
             self.close()
             self.world = World(config.physics)
             self.hand = FloatingRG2(self.world, config.gripper)
+            if cell:
+                from annotator.cell.batch import CellWorlds
+
+                self.cell = CellWorlds(self.world, self.hand, config)
             self.config = config
+            self.cell_mode = cell
             self.failed = {}
         return self.world, self.hand
 
     def close(self) -> None:
+        if self.cell is not None:
+            self.cell.close()
         if self.world is not None:
             self.world.close()
-        self.world = self.hand = self.obj = None
+        self.world = self.hand = self.obj = self.cell = None
 
     # --- objects ---------------------------------------------------------------------------------
 
     def object_for(self, task: SpanTask) -> LoadedObject:
         """The span's object in this world (its body is created once per object); ObjectError."""
         span, config = task.span, task.config
-        world, hand = self.world_for(config)
+        world, hand = self.world_for(config, cell=task.cell is not None)
         # Worker processes outlive a run (they are reused), so the key is the object's source as it
         # is now: its digest (a mesh behind an unchanged URDF included), else the file's stat.
         version = task.source_sha256
@@ -225,7 +270,7 @@ class WorkerState:
         if self.obj is not None and self.obj.key == key:
             return self.obj
         if self.obj is not None:
-            self.obj.trial.close()
+            self.obj.release()
             world.remove_body(self.obj.uid)
             self.obj = None
         status.write(task.status_dir, f"loading {span.object_id}")
@@ -245,8 +290,20 @@ class WorkerState:
             world.configure()
         hand.teleport(PARKED, hand.rg2.max_width)
         uid = create_body(world.client, model)
-        world.set_gravity(False)
-        self.obj = LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config))
+        if self.cell is None:
+            world.set_gravity(False)
+            self.obj = LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config))
+            return self.obj
+        try:
+            placed = self.cell.load(model, uid)
+        except ObjectError as exc:
+            world.remove_body(uid)
+            self.failed[key] = str(exc)
+            raise
+        except BaseException:
+            world.remove_body(uid)
+            raise
+        self.obj = LoadedObject(key, model, uid, placed.trials[0], cell=placed)
         return self.obj
 
     def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
@@ -284,9 +341,29 @@ class WorkerState:
         rows = simulate(
             loaded, poses, widths, span.start, task.config, task.seed, task.trials, span.object_id, quats
         )
+        artifacts = None
+        if task.cell is not None and task.cell.views > 0 and loaded.cell is not None:
+            # placement p's views come with the span holding grasp min(p, N - 1): exactly one span
+            # renders each placement, whatever the spans are (the first, unless P > chunk size)
+            artifacts = {}
+            for p in range(len(loaded.cell.placements)):
+                if span.start <= min(p, task.n - 1) < span.stop:
+                    status.write(task.status_dir, f"rendering {span.object_id}")
+                    artifacts.update(loaded.cell.render_views(p, task.cell.views, task.seed))
         stats = self._stats(t0, loaded.trial.world.step_seconds - steps0)
         status.write(task.status_dir, None)
-        return SpanResult(span, rows, None, stats, object_info(loaded.model))
+        info = object_info(loaded.model)
+        if loaded.cell is not None:
+            info["placements"] = [
+                {
+                    "placement_id": p.placement_id,
+                    "stable_pose": p.pose_index,
+                    "probability": float(p.probability),
+                    "settle_drift": float(p.drift),
+                }
+                for p in loaded.cell.placements
+            ]
+        return SpanResult(span, rows, None, stats, info, artifacts)
 
     def _stats(self, t0: float, step_seconds: float) -> WorkerStats:
         seconds = time.perf_counter() - t0
@@ -341,7 +418,7 @@ def simulate(
     collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
     cannot be executed).
     """
-    trial, model = loaded.trial, loaded.model
+    model = loaded.model
     rows = []
     for k in range(len(widths)):
         grasp_id = first_id + k
@@ -350,6 +427,7 @@ def simulate(
         else:  # a recorded commanded pose: the very transform of the trial that recorded it
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
+        trial = loaded.trial_for(T)
         try:
             r = trial.run(T, width_expected)
             outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
@@ -391,6 +469,8 @@ def simulate(
                 "collision_error_mean": model.collision_error.mean,
             }
         )
+        if loaded.cell is not None:  # placement, object pose on the table, reachability
+            rows[-1].update(loaded.cell.columns(grasp_id, T, width_expected))
     return pd.DataFrame(rows)
 
 

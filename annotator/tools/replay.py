@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.cell.placement import place, stable_poses
-from annotator.cell.reach import Reach, check_reach
+from annotator.cell.reach import READY, Reach, check_reach
 from annotator.cell.world import Cell
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome, poses_as_matrices
@@ -51,7 +51,6 @@ YAW_STEP = math.radians(15.0)  # turns tried about the vertical for a floating l
 MAX_PLACEMENT_TRIES = 60  # reachability checks at most (~0.1 s each) before giving up
 # A ready configuration (elbow up, flange pointing down) whose IK branch is preferred: the
 # posture a UR is usually taught to grasp from above in.
-READY = np.array([0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0])
 APPROACH_SPEED = 0.05  # m/s along the approach: a cautious taught-grasp speed for a UR3
 LIFT_DURATION = 1.0  # s for the lift (0.1 m/s), well inside the UR3's joint speed limits
 SETTLE_TIME = 0.25  # s: the arm settles at the pregrasp and at the grasp before the next phase
