@@ -108,6 +108,21 @@ def _setup_logging(quiet: bool, verbose: bool) -> None:
     help="Rebuild a lost or unreadable _manifest.json from the label files in --out that verify.",
 )
 @click.option(
+    "--cell",
+    is_flag=True,
+    help="Objects rest on the seed's table in their stable poses (the table takes part in every "
+    "collision check); extra columns: placement, object pose, UR3 reachability (q_grasp_0..5).",
+)
+@click.option(
+    "--views",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    metavar="K",
+    help="With --cell: K Kinect v2 views per placement (the seed's mount, then K-1 around the "
+    "object): depth/colour/segmentation PNGs and camera tables in OUT/_views/.",
+)
+@click.option(
     "--config",
     "config_file",
     type=click.Path(path_type=Path, dir_okay=False, exists=True),
@@ -128,6 +143,8 @@ def annotate_command(
     scale: float | None,
     overwrite: bool,
     repair: bool,
+    cell: bool,
+    views: int,
     config_file: Path | None,
     quiet: bool,
     verbose: bool,
@@ -139,6 +156,7 @@ def annotate_command(
     Example:
       annotate --objects objects/ --n 500
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
+      annotate --objects objects/ --n 500 --cell --views 3 --out cell_labels/
 
     \b
     Labels are written every 10 candidates; re-running the same command resumes (finished
@@ -163,6 +181,8 @@ def annotate_command(
         raise click.UsageError(f"--config {config_file}: {exc}") from exc
     if overwrite and repair:
         raise click.UsageError("--overwrite and --repair exclude each other")
+    if views and not cell:
+        raise click.UsageError("--views renders the robot cell's Kinect: it needs --cell")
     run_pipeline(
         "annotate",
         objects_dir=objects_dir,
@@ -176,6 +196,8 @@ def annotate_command(
         overwrite=overwrite,
         repair=repair,
         quiet=quiet,
+        cell=cell,
+        views=views,
         config=config,
     )
 

@@ -373,3 +373,110 @@ def test_a_read_only_folder_reads_a_finished_run_and_refuses_writes(tmp_path: Pa
         time.sleep(0.1)
         subprocess.run(["umount", "-l", str(mount)], check=False)
     assert os.path.isdir(mount)
+
+
+# --- artifacts (per-object files bound to the labels they came with) -----------------------------------
+
+
+def _with_artifacts(folder: Path, oids=("a", "b"), finish: bool = True) -> dict[str, dict[str, str]]:
+    """Objects written in two chunks, the first with two artifacts; returns every artifact record."""
+    store = _open(folder)
+    records: dict[str, dict[str, str]] = {}
+    for oid in oids:
+        whole = _labels(oid)
+        made = {
+            name: store.write_artifact(oid, name, f"{oid} {name}".encode()) for name in ("v.png", "c.parquet")
+        }
+        records.update({f"{oid}/{n}": r for n, r in made.items()})
+        store.write_chunk(oid, whole.iloc[:5], 0, SRC, made)
+        store.write_chunk(oid, whole.iloc[5:], 5, SRC)
+        if finish:
+            store.finish_object(oid, SRC)
+    store.close()
+    return records
+
+
+def test_artifacts_are_written_atomically_recorded_with_their_labels_and_ignored_by_read_parquet(tmp_path):
+    records = _with_artifacts(tmp_path)
+    rec = records["a/v.png"]
+    assert rec["file"] == f"{files.ARTIFACTS_DIR}/{files.object_stem('a')}/v.png"
+    assert (tmp_path / rec["file"]).read_bytes() == b"a v.png"
+    manifest = json.loads((tmp_path / MANIFEST_NAME).read_text())
+    assert manifest["objects_done"]["a"]["artifacts"]["v.png"] == rec  # merged with the object's file
+    mark = files.read_mark(tmp_path / files.object_filename("a"))
+    assert mark["artifacts"]["c.parquet"] == records["a/c.parquet"]  # the file vouches for them too
+    assert len(pd.read_parquet(tmp_path)) == 2 * N  # labels only: _views/ is skipped
+    with pytest.raises(ValueError, match="artifact name"):
+        _open(tmp_path).write_artifact("a", "../escape.png", b"x")
+
+
+@pytest.mark.parametrize("finish", [True, False])
+def test_a_corrupt_or_missing_artifact_redoes_the_labels_it_came_with(tmp_path: Path, finish: bool) -> None:
+    records = _with_artifacts(tmp_path, finish=finish)
+    (tmp_path / records["a/v.png"]["file"]).write_bytes(b"rotten")
+    (tmp_path / records["b/c.parquet"]["file"]).unlink()
+    store = _open(tmp_path)
+    resume = store.reconcile({"a": SRC, "b": SRC})
+    store.close()
+    if finish:  # a finished object is redone whole, its other artifacts removed with it
+        assert resume.done == set() and resume.chunks == {}
+    else:  # only the chunk the artifacts came with
+        assert resume.chunks == {"a": {(5, 10)}, "b": {(5, 10)}}
+    assert not (tmp_path / records["a/c.parquet"]["file"]).exists()
+    assert any("v.png corrupt" in n for n in store.notes) and any(
+        "c.parquet missing" in n for n in store.notes
+    )
+
+
+def test_unbound_artifacts_go_on_resume_and_foreign_files_stay(tmp_path: Path) -> None:
+    _with_artifacts(tmp_path, oids=("a",))
+    store = _open(tmp_path)
+    stray = store.write_artifact("a", "written-before-a-kill.png", b"x")  # never bound to labels
+    store.close()
+    views = tmp_path / files.ARTIFACTS_DIR
+    (views / "mine").mkdir()
+    (views / "mine" / "notes.txt").write_text("keep")
+    _open(tmp_path).close()
+    assert not (tmp_path / stray["file"]).exists()
+    assert (views / files.object_stem("a") / "v.png").exists()
+    assert (views / "mine" / "notes.txt").exists()
+
+
+def test_overwrite_removes_artifacts_and_stale_objects_take_theirs_along(tmp_path: Path) -> None:
+    records = _with_artifacts(tmp_path, oids=("a", "b"))
+    store = _open(tmp_path)
+    assert store.reconcile({"a": SRC}).stale == ["b"]
+    store.close()
+    moved = tmp_path / STALE_DIR / records["b/v.png"]["file"]
+    assert moved.read_bytes() == b"b v.png" and not (tmp_path / records["b/v.png"]["file"]).exists()
+    (tmp_path / files.ARTIFACTS_DIR / "mine").mkdir()
+    (tmp_path / files.ARTIFACTS_DIR / "mine" / "notes.txt").write_text("keep")
+    _open(tmp_path, overwrite=True).close()
+    left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file())
+    assert left == [LOCK_NAME, MANIFEST_NAME, f"{files.ARTIFACTS_DIR}/mine/notes.txt"]
+
+
+def test_repair_rebuilds_artifact_records_from_the_marks_and_drops_what_does_not_verify(tmp_path: Path):
+    records = _with_artifacts(tmp_path)
+    before = json.loads((tmp_path / MANIFEST_NAME).read_text())["objects_done"]["a"]["artifacts"]
+    (tmp_path / MANIFEST_NAME).unlink()
+    (tmp_path / records["b/v.png"]["file"]).write_bytes(b"rotten")
+    store = _open(tmp_path, repair=True)
+    assert store.reconcile({"a": SRC, "b": SRC}).done == {"a"}
+    store.close()
+    assert json.loads((tmp_path / MANIFEST_NAME).read_text())["objects_done"]["a"]["artifacts"] == before
+    assert not (tmp_path / files.object_filename("b")).exists()
+
+
+def test_a_manifest_cannot_point_the_tool_at_other_files(tmp_path: Path) -> None:
+    """An artifact record outside _views/<object>/ (a tampered manifest) is a malformed manifest,
+    never a file the tool checks or deletes."""
+    _with_artifacts(tmp_path, oids=("a",))
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep")
+    data = json.loads((tmp_path / MANIFEST_NAME).read_text())
+    data["objects_done"]["a"]["artifacts"]["v.png"]["file"] = "precious.txt"
+    (tmp_path / MANIFEST_NAME).write_text(json.dumps(data))
+    with pytest.raises(ManifestUnreadableError, match="objects_done\\['a'\\] is malformed"):
+        _open(tmp_path)
+    assert victim.exists()

@@ -82,6 +82,20 @@ def is_object_stem(name: str) -> bool:
     return _OBJECT_STEM_RE.match(name) is not None
 
 
+def is_artifact_relpath(path: object) -> bool:
+    """``path`` names a file the tool would write as an artifact (``_views/<object stem>/<name>``),
+    so a manifest or a mark can never point the tool at another file to check or delete."""
+    if not isinstance(path, str):
+        return False
+    parts = path.split("/")
+    return (
+        len(parts) == 3
+        and parts[0] == ARTIFACTS_DIR
+        and is_object_stem(parts[1])
+        and _ARTIFACT_NAME_RE.match(parts[2]) is not None
+    )
+
+
 def artifact_relpath(object_id: str, name: str) -> str:
     """Where artifact ``name`` of ``object_id`` lives, relative to the output folder (``/``-separated).
 
@@ -199,11 +213,19 @@ def arrow_table(df: pd.DataFrame, mark: dict[str, Any] | None = None) -> pa.Tabl
 
 
 def write_labels(
-    out_dir: Path, df: pd.DataFrame, start: int, stop: int, name: str, run_key: str, source_sha256: str
+    out_dir: Path,
+    df: pd.DataFrame,
+    start: int,
+    stop: int,
+    name: str,
+    run_key: str,
+    source_sha256: str,
+    artifacts: dict[str, dict[str, str]] | None = None,
 ) -> FileRecord:
     """Validate rows of ONE object with ``grasp_id`` exactly ``start..stop-1``; write them atomically
-    as ``out_dir / name``, marked as the tool's (``run_key`` and the object's ``source_sha256``, so
-    a lost manifest can be rebuilt from the files); return the file's record."""
+    as ``out_dir / name``, marked as the tool's (``run_key``, the object's ``source_sha256`` and the
+    records of the ``artifacts`` that came with these labels, so a lost manifest can be rebuilt
+    from the files); return the file's record."""
     out = validate_labels(df)
     ids = out["object_id"].unique()
     if len(ids) != 1:
@@ -219,6 +241,8 @@ def write_labels(
         "stop": int(stop),
         "source_sha256": source_sha256,
     }
+    if artifacts:
+        mark["artifacts"] = artifacts
     buffer = io.BytesIO()
     pq.write_table(arrow_table(out, mark), buffer)
     data = buffer.getvalue()

@@ -46,7 +46,7 @@ from annotator.pipeline.plan import (
 from annotator.pipeline.source import GivenCandidates, SampledCandidates
 from annotator.pipeline.store import RunSpec, Store, StoreError
 from annotator.pipeline.summary import ObjectStats, Summary, format_summary
-from annotator.pipeline.worker import Span, SpanResult, SpanTask, WorkerStats, label_span
+from annotator.pipeline.worker import CellOptions, Span, SpanResult, SpanTask, WorkerStats, label_span
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +85,11 @@ class RunOptions:
     overwrite: bool = False
     repair: bool = False
     quiet: bool = False
+    cell: bool = False  # objects rest on the seed's table; UR3 reachability columns
+    views: int = 0  # Kinect views per placement (--cell only)
+
+    def cell_options(self) -> CellOptions | None:
+        return CellOptions(self.views) if self.cell else None
 
 
 # --- where spans run --------------------------------------------------------------------------------
@@ -287,6 +292,12 @@ def run(
     candidates = candidates or SampledCandidates(options.n)
     if not 1 <= options.n <= MAX_N:
         raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
+    if options.views and not options.cell:
+        raise UsageError("--views renders the robot cell's Kinect: it needs --cell")
+    if options.views < 0:
+        raise UsageError(f"--views must be 0 or more, got {options.views}")
+    if options.cell and not isinstance(candidates, SampledCandidates):
+        raise UsageError("--cell labels sampled candidates only")
     _check_workers(options)
     try:
         sources = discover_objects(options.objects_dir, config.objects)
@@ -309,7 +320,7 @@ def run(
         options.scale,
         chunk,
         config.to_dict(),
-        inputs=candidates.inputs(),
+        inputs=_inputs(options, candidates),
     )
     store = Store(options.out_dir, spec)
     try:
@@ -335,6 +346,17 @@ def run(
         summary.seconds = time.perf_counter() - summary.started
         _print_summary(summary)
     return summary
+
+
+def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates) -> dict:
+    """RunSpec.inputs: the candidate source's, and the cell mode when on (a floating run records
+    nothing new, so folders made before the cell existed still resume; a floating folder never
+    resumes as a cell run or the other way round)."""
+    inputs = dict(candidates.inputs())
+    cell = options.cell_options()
+    if cell is not None:
+        inputs["cell"] = cell.to_json()
+    return inputs
 
 
 def _raise_terminated(signum, frame) -> None:
@@ -386,6 +408,7 @@ def _run(
     bar = tqdm(total=total, unit="grasp", disable=options.quiet, smoothing=0.1, dynamic_ncols=True)
     object_seconds: dict[str, float] = {}
     versions = store.spec.versions
+    cell = options.cell_options()
     cache_dir = default_cache_dir()  # read here, not in reused workers started under another env
 
     def make_task(span: Span) -> SpanTask:
@@ -400,6 +423,7 @@ def _run(
             parent_pid=workers.parent_pid,
             status_dir=status_dir if workers.client is None else None,
             cache_dir=str(cache_dir) if workers.client is None else None,
+            cell=cell,
         )
 
     def on_result(result: SpanResult) -> None:
@@ -422,7 +446,11 @@ def _run(
         summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
         if result.info is not None and oid not in store.manifest.objects_info:
             store.record_info(oid, result.info)
-        store.write_chunk(oid, df, span.start, digests[oid])
+        # the span's artifacts first, then its labels, which vouch for them
+        artifacts = {
+            name: store.write_artifact(oid, name, data) for name, data in (result.artifacts or {}).items()
+        }
+        store.write_chunk(oid, df, span.start, digests[oid], artifacts)
         if summary.first_label_seconds is None:
             summary.first_label_seconds = time.perf_counter() - summary.started
         remaining[oid] -= 1

@@ -8,12 +8,20 @@ Layout::
       .rg2-annotator.lock                     held (flock) by the run writing here
       mug-3f2a9c01d4.parquet                  one file per finished object, exactly N rows
       can-8c1e0b77aa.000050-000060.parquet    a finished chunk of an object still running
-      _stale/                                 labels of objects no longer in --objects
+      _views/mug-3f2a9c01d4/p00_v00_depth.png per-object artifacts (--views), bound to the labels
+                                              they came with
+      _stale/                                 labels (and _views/) of objects no longer in --objects
 
 Promises (README "Reliability"): one run per folder at a time; the manifest binds the run's
 settings (seed, N, trials, scale, chunk size, the whole configuration, the versions that shape
 labels) and each object's source digest, so a resume never mixes; every file is checked against
 its checksum before it is trusted; only files the tool wrote are ever deleted.
+
+Artifacts (:meth:`Store.write_artifact`): files that belong with an object's labels, e.g. the
+Kinect views rendered with them. Each is written atomically and recorded, with its checksum, in
+the record of the label file it came with (the manifest's and the file's own mark), so it is
+verified with it (a missing or corrupt artifact redoes those labels), removed with it (--overwrite,
+a failed or changed object) and set aside with it (an object no longer present).
 """
 
 from __future__ import annotations
@@ -44,14 +52,19 @@ import pandas as pd
 
 from annotator import __version__
 from annotator.pipeline.files import (
+    ARTIFACTS_DIR,
     FileRecord,
     OutputError,
+    artifact_relpath,
     atomic_write,
     chunk_filename,
     file_sha256,
+    is_artifact_relpath,
+    is_object_stem,
     is_own_file,
     is_temp_file,
     object_filename,
+    object_stem,
     output_error,
     read_labels,
     read_mark,
@@ -191,6 +204,8 @@ class Manifest:
     objects_failed : object_id -> one-line error (retried on resume)
     chunks_done : object_id -> {"source_sha256", "files": {"start-stop": {"file", "sha256", "n"}}}
         for objects not finished yet; an object's entry goes when its chunks are merged
+    A label file's record may hold ``"artifacts": {name: {"file", "sha256"}}``: the files that
+    came with those labels (``file`` relative to the folder).
     objects_info : object_id -> what the object was simulated as (geometry, mass, friction)
     """
 
@@ -272,6 +287,7 @@ class Manifest:
                 isinstance(entry, dict)
                 and all(isinstance(entry.get(k), str) for k in ("file", "sha256", "source_sha256"))
                 and isinstance(entry.get("n"), int)
+                and _artifacts_ok(entry)
             ):
                 raise bad(f"objects_done[{oid!r}] is malformed")
         for oid, entry in data["chunks_done"].items():
@@ -286,6 +302,7 @@ class Manifest:
                     and isinstance(rec, dict)
                     and isinstance(rec.get("file"), str)
                     and isinstance(rec.get("sha256"), str)
+                    and _artifacts_ok(rec)
                 ):
                     raise bad(f"chunks_done[{oid!r}] entry {key!r} is malformed")
         if not all(isinstance(v, str) for v in data["objects_failed"].values()):
@@ -293,12 +310,29 @@ class Manifest:
         known = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: v for k, v in data.items() if k in known})
 
+    def label_records(self) -> list[dict[str, Any]]:
+        """Every label file record (finished objects and chunks)."""
+        records = list(self.objects_done.values())
+        for entry in self.chunks_done.values():
+            records += list(entry["files"].values())
+        return records
+
     def referenced_files(self) -> set[str]:
         """Every label file name the manifest vouches for."""
-        names = {e["file"] for e in self.objects_done.values()}
-        for entry in self.chunks_done.values():
-            names |= {rec["file"] for rec in entry["files"].values()}
-        return names
+        return {rec["file"] for rec in self.label_records()}
+
+    def referenced_artifacts(self) -> set[str]:
+        """Every artifact (path relative to the folder) the manifest vouches for."""
+        return {a["file"] for rec in self.label_records() for a in rec.get("artifacts", {}).values()}
+
+
+def _artifacts_ok(record: dict[str, Any]) -> bool:
+    """A record's optional ``artifacts``: name -> {"file" (a path the tool writes), "sha256"}."""
+    artifacts = record.get("artifacts", {})
+    return isinstance(artifacts, dict) and all(
+        isinstance(a, dict) and is_artifact_relpath(a.get("file")) and isinstance(a.get("sha256"), str)
+        for a in artifacts.values()
+    )
 
 
 # ------------------------------------------------------------------------------------ the lock
@@ -495,12 +529,14 @@ class Store:
         for p in self.out_dir.iterdir():
             if p.is_file() and is_temp_file(p):
                 p.unlink()
+        removed += _remove_artifacts(self.out_dir / ARTIFACTS_DIR, keep=set())
         stale = self.out_dir / STALE_DIR
         if stale.is_dir():
             for p in stale.iterdir():
                 if p.suffix == ".parquet" and read_mark(p) is not None:
                     p.unlink()
                     removed += 1
+            removed += _remove_artifacts(stale / ARTIFACTS_DIR, keep=set())
             with contextlib.suppress(OSError):
                 stale.rmdir()
         Manifest.path(self.out_dir).unlink(missing_ok=True)
@@ -518,6 +554,11 @@ class Store:
             mark = read_mark(p) or {}
             oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
             why = verify_labels(p, self.spec.key, oid, start, stop) if isinstance(oid, str) else "no id"
+            artifacts = mark.get("artifacts", {})
+            if why is None and not _artifacts_ok(mark):
+                why = "its mark lists artifacts the tool does not write"
+            if why is None:
+                why = self._check_artifacts(artifacts)
             is_object = (
                 why is None and p.name == object_filename(oid) and start == 0 and stop == self.spec.count(oid)
             )
@@ -528,7 +569,9 @@ class Store:
                 p.unlink()
                 dropped += 1
                 continue
-            record = {"file": p.name, "sha256": file_sha256(p), "n": stop - start}
+            record: dict[str, Any] = {"file": p.name, "sha256": file_sha256(p), "n": stop - start}
+            if artifacts:
+                record["artifacts"] = artifacts
             source = str(mark.get("source_sha256", ""))
             if is_object:
                 stats = object_stats(read_labels(self.out_dir, [p.name]))
@@ -550,31 +593,42 @@ class Store:
         for oid, entry in list(m.objects_done.items()):
             why = self._check_file(entry)
             if why:
-                self._distrust(entry["file"], why, oid)
+                self._distrust(entry, why, oid)
                 del m.objects_done[oid]
         for oid, entry in list(m.chunks_done.items()):
             for key, rec in list(entry["files"].items()):
                 why = self._check_file(rec)
                 if why:
-                    self._distrust(rec["file"], why, oid)
+                    self._distrust(rec, why, oid)
                     del entry["files"][key]
 
     def _check_file(self, record: dict[str, Any]) -> str | None:
-        path = self.out_dir / record["file"]
-        try:
-            digest = file_sha256(path)
-        except FileNotFoundError:
-            return "missing"
-        except OSError as exc:
-            return f"unreadable ({exc.strerror or exc})"
-        return None if digest == record["sha256"] else "corrupt: checksum mismatch"
+        """Why a label file (and the artifacts that came with it) cannot be trusted, or None."""
+        why = _check_sha256(self.out_dir / record["file"], record["sha256"])
+        return why or self._check_artifacts(record.get("artifacts", {}))
 
-    def _distrust(self, name: str, why: str, oid: str) -> None:
-        line = f"{name} {why}: redoing those labels of {oid}"
+    def _check_artifacts(self, artifacts: dict[str, dict[str, str]]) -> str | None:
+        for a in artifacts.values():
+            why = _check_sha256(self.out_dir / a["file"], a["sha256"])
+            if why:
+                return f"(its {a['file']} {why})"
+        return None
+
+    def _distrust(self, record: dict[str, Any], why: str, oid: str) -> None:
+        line = f"{record['file']} {why}: redoing those labels of {oid}"
         log.warning("%s", line)
         self.notes.append(line)
         if not self.read_only:
-            (self.out_dir / name).unlink(missing_ok=True)
+            self._delete(record)
+
+    def _delete(self, record: dict[str, Any]) -> None:
+        """Remove a label file and the artifacts that came with it."""
+        (self.out_dir / record["file"]).unlink(missing_ok=True)
+        for a in record.get("artifacts", {}).values():
+            path = self.out_dir / a["file"]
+            path.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                path.parent.rmdir()  # once empty
 
     def _clean_unvouched(self) -> None:
         """The tool's files the manifest does not vouch for (a chunk written just before a kill,
@@ -593,6 +647,9 @@ class Store:
         for p in self.out_dir.iterdir():
             if p.is_file() and is_temp_file(p):
                 p.unlink(missing_ok=True)
+        removed = _remove_artifacts(self.out_dir / ARTIFACTS_DIR, keep=self.manifest.referenced_artifacts())
+        if removed:
+            log.info("removed %d artifact files that were written but never recorded (redone)", removed)
 
     # --- resuming ------------------------------------------------------------------------------
 
@@ -630,8 +687,8 @@ class Store:
     def _forget(self, oid: str) -> None:
         self._require_writable()
         m = self.manifest
-        for name in self._files_of(oid):
-            (self.out_dir / name).unlink(missing_ok=True)
+        for record in self._records_of(oid):
+            self._delete(record)
         m.objects_done.pop(oid, None)
         m.chunks_done.pop(oid, None)
         m.objects_info.pop(oid, None)
@@ -641,9 +698,17 @@ class Store:
         stale = self.out_dir / STALE_DIR
         try:
             stale.mkdir(exist_ok=True)
-            for name in self._files_of(oid):
+            for record in self._records_of(oid):
+                name = record["file"]
                 if (self.out_dir / name).exists():
                     shutil.move(self.out_dir / name, stale / name)
+            views = self.out_dir / ARTIFACTS_DIR / object_stem(oid)
+            if views.is_dir():  # the object's artifacts go with its labels
+                target = stale / ARTIFACTS_DIR / views.name
+                target.parent.mkdir(parents=True, exist_ok=True)
+                if target.exists():
+                    shutil.rmtree(target)
+                shutil.move(views, target)
         except OSError as exc:
             raise output_error(stale, exc) from exc
         m = self.manifest
@@ -651,24 +716,52 @@ class Store:
         m.chunks_done.pop(oid, None)
         m.objects_info.pop(oid, None)
 
-    def _files_of(self, oid: str) -> list[str]:
+    def _records_of(self, oid: str) -> list[dict[str, Any]]:
+        """The label file records of ``oid`` (its merged file, or its chunks)."""
         m = self.manifest
-        names = [m.objects_done[oid]["file"]] if oid in m.objects_done else []
+        records = [m.objects_done[oid]] if oid in m.objects_done else []
         if oid in m.chunks_done:
-            names += [rec["file"] for rec in m.chunks_done[oid]["files"].values()]
-        return names
+            records += list(m.chunks_done[oid]["files"].values())
+        return records
 
     # --- writing -------------------------------------------------------------------------------
 
-    def write_chunk(self, oid: str, df: pd.DataFrame, start: int, source_sha256: str) -> None:
-        """Write and record one chunk (candidates ``start..start+len(df)-1``)."""
+    def write_artifact(self, oid: str, name: str, data: bytes) -> dict[str, str]:
+        """Write ``data`` atomically as artifact ``name`` of ``oid`` (``_views/<object stem>/<name>``)
+        and return its record for :meth:`write_chunk`, which binds it to the labels it came with.
+
+        An artifact written but never bound (the run stopped in between) is removed on resume.
+        ``name``: a plain file name (ValueError otherwise).
+        """
+        self._require_writable()
+        relpath = artifact_relpath(oid, name)
+        path = self.out_dir / relpath
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise output_error(path.parent, exc) from exc
+        atomic_write(path, lambda fh: fh.write(data))
+        return {"file": relpath, "sha256": hashlib.sha256(data).hexdigest()}
+
+    def write_chunk(
+        self,
+        oid: str,
+        df: pd.DataFrame,
+        start: int,
+        source_sha256: str,
+        artifacts: dict[str, dict[str, str]] | None = None,
+    ) -> None:
+        """Write and record one chunk (candidates ``start..start+len(df)-1``) with the records of
+        the ``artifacts`` (name -> :meth:`write_artifact`'s record) written for it."""
         self._require_writable()
         stop = start + len(df)
-        rec = write_labels(
-            self.out_dir, df, start, stop, chunk_filename(oid, start, stop), self.spec.key, source_sha256
-        )
+        name = chunk_filename(oid, start, stop)
+        rec = write_labels(self.out_dir, df, start, stop, name, self.spec.key, source_sha256, artifacts)
         entry = self.manifest.chunks_done.setdefault(oid, {"source_sha256": source_sha256, "files": {}})
-        entry["files"][f"{start}-{stop}"] = rec.to_json()
+        record: dict[str, Any] = rec.to_json()
+        if artifacts:
+            record["artifacts"] = dict(artifacts)
+        entry["files"][f"{start}-{stop}"] = record
         self.save()
 
     def finish_object(self, oid: str, source_sha256: str) -> dict[str, Any]:
@@ -679,17 +772,19 @@ class Store:
         self._require_writable()
         chunks = sorted(self.manifest.chunks_done[oid]["files"].items(), key=_start)
         files = [rec["file"] for _, rec in chunks]
+        artifacts = {name: a for _, rec in chunks for name, a in rec.get("artifacts", {}).items()}
         df = read_labels(self.out_dir, files)
         stats = object_stats(df)
         with sigint_deferred():
             rec: FileRecord = write_labels(
-                self.out_dir, df, 0, len(df), object_filename(oid), self.spec.key, source_sha256
+                self.out_dir, df, 0, len(df), object_filename(oid), self.spec.key, source_sha256, artifacts
             )
             self.manifest.objects_done[oid] = {
                 **rec.to_json(),
                 "source_sha256": source_sha256,
                 "stats": stats,
                 "time": _now(),
+                **({"artifacts": artifacts} if artifacts else {}),
             }
             self.manifest.chunks_done.pop(oid, None)
             self.save(force=True)
@@ -701,7 +796,7 @@ class Store:
         """Record the failure (one line) and remove the object's chunk files: no partial labels stay."""
         m = self.manifest
         for rec in m.chunks_done.pop(oid, {"files": {}})["files"].values():
-            (self.out_dir / rec["file"]).unlink(missing_ok=True)
+            self._delete(rec)
         m.objects_failed[oid] = " ".join(str(error).split())[:500]
         m.objects_done.pop(oid, None)
         if not self.read_only:
@@ -745,3 +840,36 @@ def object_stats(df: pd.DataFrame) -> dict[str, Any]:
 def iter_ranges(n: int, chunk_size: int) -> Iterable[tuple[int, int]]:
     """The chunks of N candidates: (0, c), (c, 2c), ..., the last one shorter."""
     return ((a, min(n, a + chunk_size)) for a in range(0, n, chunk_size))
+
+
+def _check_sha256(path: Path, sha256: str) -> str | None:
+    """Why ``path`` does not hold bytes with this checksum ("missing", "corrupt: ..."), or None."""
+    try:
+        digest = file_sha256(path)
+    except FileNotFoundError:
+        return "missing"
+    except OSError as exc:
+        return f"unreadable ({exc.strerror or exc})"
+    return None if digest == sha256 else "corrupt: checksum mismatch"
+
+
+def _remove_artifacts(root: Path, keep: set[str]) -> int:
+    """Remove the tool's artifact files under ``root`` (``<root>/<object stem>/<file>``) whose path
+    relative to the output folder is not in ``keep``, with emptied folders; returns how many.
+    Folders not named as the tool names an object's, and anything in them deeper down, stay."""
+    if not root.is_dir():
+        return 0
+    removed = 0
+    for folder in root.iterdir():
+        if not (folder.is_dir() and is_object_stem(folder.name)):
+            continue
+        for p in folder.iterdir():
+            relpath = f"{ARTIFACTS_DIR}/{folder.name}/{p.name}"
+            if p.is_file() and relpath not in keep and (is_artifact_relpath(relpath) or is_temp_file(p)):
+                p.unlink(missing_ok=True)
+                removed += 1
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+    with contextlib.suppress(OSError):
+        root.rmdir()
+    return removed
