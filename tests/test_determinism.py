@@ -95,3 +95,67 @@ def test_labels_are_identical_cold_or_warm_on_any_worker_layout(concave, tmp_pat
     ) as c:
         dask = _annotate(concave, tmp_path / "dask", "--scheduler", c.scheduler_address)
     pd.testing.assert_frame_equal(dask, cold, check_exact=True)
+
+
+# --- the cell (annotate --cell --views) ------------------------------------------------------------
+
+CELL_N = 20
+QUICK_VIEWS = AnnotatorConfig.from_dict({"kinect": {"views_color_scale": 0.25}})
+
+
+def _run_cell(spans, config, cell) -> tuple[pd.DataFrame, dict[str, bytes]]:
+    frames, artifacts = [], {}
+    for span in spans:
+        result = worker.label_span(worker.SpanTask(span, config, 0, CELL_N, cell=cell))
+        assert result.error is None, result.error
+        frames.append(result.rows)
+        for name, data in (result.artifacts or {}).items():
+            artifacts[f"{span.object_id}/{name}"] = data
+    rows = pd.concat(frames).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
+    return rows, artifacts
+
+
+def test_cell_rows_and_views_do_not_depend_on_the_worker_history(cache):
+    """Objects resting on the table (settled placements, reach checks in the arm world, rendered
+    views): spans dealt shuffled, interleaved and twice to one worker give the rows and the image
+    bytes of a fresh worker; and a floating span after cell spans is the floating span of a fresh
+    worker (the modes leave nothing behind)."""
+    sources = [s for s in discover_objects(SAMPLES) if s.object_id in ("box", "banana")]
+    spans = [worker.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, CELL_N, 10)]
+    cell = worker.CellOptions(views=1)
+    _fresh_worker()
+    reference, ref_views = _run_cell(spans, QUICK_VIEWS, cell)
+    assert reference["reachable"].any() and (reference["outcome"] != "collision").sum() >= 3
+    assert len(ref_views) == 4 * len(set(reference[["object_id", "placement_id"]].itertuples(index=False)))
+    _fresh_worker()
+    floating_fresh = _run(spans[:1], QUICK_VIEWS)
+    order = np.random.default_rng(3).permutation(len(spans)).tolist()
+    _fresh_worker()
+    shuffled, views = _run_cell(
+        [spans[i] for i in order] + [spans[i] for i in order[::-1]], QUICK_VIEWS, cell
+    )
+    shuffled = shuffled.drop_duplicates(["object_id", "grasp_id"], keep="last").reset_index(drop=True)
+    pd.testing.assert_frame_equal(shuffled, reference, check_exact=True)
+    assert views == ref_views
+    pd.testing.assert_frame_equal(_run(spans[:1], QUICK_VIEWS), floating_fresh, check_exact=True)
+    _fresh_worker()
+
+
+def test_cell_labels_and_views_are_identical_on_any_worker_count(concave, tmp_path, monkeypatch):
+    import hashlib
+
+    monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
+    config = tmp_path / "views.toml"
+    config.write_text("[kinect]\nviews_color_scale = 0.25\n")
+    outs = []
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        outs.append(_annotate(concave, out, "--cell", "--views", 1, "--workers", workers, "--config", config))
+        digests = {
+            str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted((out / "_views").rglob("*"))
+            if p.is_file()
+        }
+        outs.append(digests)
+    pd.testing.assert_frame_equal(outs[2], outs[0], check_exact=True)
+    assert outs[1] and outs[3] == outs[1]

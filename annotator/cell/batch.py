@@ -41,6 +41,7 @@ import pandas as pd
 from annotator.cell.kinect import depth_to_png_array, look_at
 from annotator.cell.placement import place, stable_poses
 from annotator.cell.reach import READY, Reach, check_reach
+from annotator.cell.views import OBJECT_POSE_COLUMNS, SEG_NOTHING, SEG_OBJECT, SEG_ROBOT, SEG_TABLE
 from annotator.cell.world import Cell, build_cell
 from annotator.config import AnnotatorConfig
 from annotator.dataset import keyed_rng
@@ -60,11 +61,8 @@ PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 # The lowering search: the object's collision shape is brought to touch the table when it is
 # within this distance of it (a placement from the mesh's hull is off by far less).
 TOUCH_SEARCH = 0.05  # m
-# Segmentation classes of the view images (uint8 PNG): what a learner needs, not body ids.
-SEG_BACKGROUND, SEG_TABLE, SEG_OBJECT, SEG_ROBOT = 0, 1, 2, 3
 JOINT_COLUMNS = tuple(f"q_grasp_{i}" for i in range(6))  # ur3.JOINT_NAMES order, rad
 REACH_ERROR = "error"  # unreachable_reason when the check itself failed (logged)
-OBJECT_POSE_COLUMNS = ("obj_x", "obj_y", "obj_z", "obj_qx", "obj_qy", "obj_qz", "obj_qw")
 
 
 @dataclass(frozen=True)
@@ -308,7 +306,7 @@ class CellObject:
             view = arm.render_kinect(
                 T_world_camera, color=True, color_scale=kinect_config.views_color_scale, rng=noise
             )
-            seg = np.full(view.segmentation.shape, SEG_BACKGROUND, dtype=np.uint8)
+            seg = np.full(view.segmentation.shape, SEG_NOTHING, dtype=np.uint8)
             for body, label in classes.items():
                 seg[view.segmentation == body] = label
             stem = f"p{placement_id:02d}_v{v:02d}"
