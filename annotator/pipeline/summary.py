@@ -18,11 +18,14 @@ class ObjectStats:
     mean_score: float
     outcomes: dict[str, int]
     seconds: float | None = None  # None: labelled by an earlier run
+    reachable_successes: int | None = None  # --cell: successes the UR3 can execute
 
     @classmethod
     def from_json(cls, stats: dict[str, Any], seconds: float | None) -> ObjectStats:
         n, successes, score = int(stats["n"]), int(stats["successes"]), float(stats["mean_score"])
-        return cls(n, successes, score, dict(stats["outcomes"]), seconds)
+        reach = stats.get("reachable_successes")
+        reachable = None if reach is None else int(reach)
+        return cls(n, successes, score, dict(stats["outcomes"]), seconds, reachable)
 
 
 @dataclass
@@ -55,19 +58,25 @@ def format_summary(summary: Summary) -> str:
     widths = [max(len(c), 5) for c in cols]
     name_w = max([28, *(len(o) for o in [*summary.done, *summary.resumed, *summary.failed])])
     name_w = min(name_w, 48)
+    rows = sorted([(o, s) for o, s in summary.done.items()] + [(o, s) for o, s in summary.resumed.items()])
+    cell = any(st.reachable_successes is not None for _, st in rows)
     head = (
         f"{'object':<{name_w}} {'n':>6} {'rate':>6} {'score':>6} "
         + " ".join(f"{c:>{w}}" for c, w in zip(cols, widths, strict=True))
+        + (f" {'reachable':>9}" if cell else "")
         + f" {'time':>7}"
     )
     lines = [head, "-" * len(head)]
-    rows = sorted([(o, s) for o, s in summary.done.items()] + [(o, s) for o, s in summary.resumed.items()])
     for oid, st in rows:
         rate = st.successes / st.n if st.n else 0.0
         counts = " ".join(f"{st.outcomes.get(c, 0):>{w}}" for c, w in zip(cols, widths, strict=True))
+        if cell:
+            counts += f" {'' if st.reachable_successes is None else st.reachable_successes:>9}"
         when = f"{st.seconds:>6.1f}s" if st.seconds is not None else "earlier"
         figures = f"{st.n:>6} {rate:>6.1%} {st.mean_score:>6.3f} {counts} {when:>7}"
         lines.append(f"{_cut(oid, name_w):<{name_w}} {figures}")
+    if cell:
+        lines.append("reachable: successes the UR3 can execute (IK along the approach, no arm collision)")
     for oid, err in sorted(summary.failed.items()):
         lines.append(f"{_cut(oid, name_w):<{name_w}} FAILED: {err}")
     lines += [f"note: {note}" for note in summary.notes]
