@@ -3,6 +3,10 @@
     python bench/throughput.py            # --n 200 on all cores, the 1- vs 2-worker scaling,
                                           # then the README's main command as a user runs it
     python bench/throughput.py --n 50 --main-n 0    # quicker, without the main command
+    python bench/throughput.py --modes-only         # floating vs --cell vs --cell --views 1
+
+The modes are run alternately, --repeat times each, with the load average printed before each run:
+the machine may be shared, and a figure is only comparable with one taken under the same load.
 
 Convex decompositions are cached (RG2_CACHE_DIR or ~/.cache/rg2-annotator); the first run on a
 fresh machine pays for them, so run it twice and read the second.
@@ -51,12 +55,38 @@ def raw_step_cost(objects: Path, config: AnnotatorConfig, steps: int = 480) -> f
         return (time.perf_counter() - t0) / steps
 
 
-def timed_run(objects: Path, n: int, workers: int, config: AnnotatorConfig):
+def timed_run(
+    objects: Path, n: int, workers: int, config: AnnotatorConfig, cell: bool = False, views: int = 0
+):
     with tempfile.TemporaryDirectory() as out:
-        options = RunOptions(objects_dir=objects, n=n, out_dir=Path(out), workers=workers, quiet=True)
+        options = RunOptions(
+            objects_dir=objects, n=n, out_dir=Path(out), workers=workers, quiet=True, cell=cell, views=views
+        )
         t0 = time.perf_counter()
         summary = run(options, config)
         return summary, time.perf_counter() - t0
+
+
+MODES = {"floating": {}, "--cell": {"cell": True}, "--cell --views 1": {"cell": True, "views": 1}}
+
+
+def compare_modes(objects: Path, n: int, workers: int, config: AnnotatorConfig, repeat: int) -> None:
+    """Wall time of the same job floating, in the cell, and in the cell with one view per placement."""
+    print(f"\n== modes: --n {n}, {workers} workers, each run {repeat} times, alternating ==")
+    walls: dict[str, list[float]] = {m: [] for m in MODES}
+    for k in range(repeat):
+        for mode, extra in MODES.items():
+            load = os.getloadavg()
+            summary, wall = timed_run(objects, n, workers, config, **extra)
+            walls[mode].append(wall)
+            print(
+                f"run {k + 1} {mode:<17} {wall:7.1f} s  {summary.candidates / wall:6.2f} candidates/s  "
+                f"{summary.physics_trials:5d} physics trials  load {load[0]:.1f} {load[1]:.1f} {load[2]:.1f}"
+            )
+    base = float(np.median(walls["floating"]))
+    for mode, times in walls.items():
+        wall = float(np.median(times))
+        print(f"median {mode:<17} {wall:7.1f} s  x{wall / base:4.2f} of floating")
 
 
 def main_command(objects: Path, n: int) -> tuple[float, float]:
@@ -96,9 +126,15 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--scaling-n", type=int, default=80, help="candidates per object for 1 vs 2 workers")
     ap.add_argument("--main-n", type=int, default=500, help="N of the README main command (0: skip)")
+    ap.add_argument("--modes-n", type=int, default=100, help="candidates per object for the modes (0: skip)")
+    ap.add_argument("--repeat", type=int, default=2, help="runs of each mode")
+    ap.add_argument("--modes-only", action="store_true", help="only compare floating, --cell, --views 1")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     config = AnnotatorConfig()
+    if args.modes_only:
+        compare_modes(args.objects, args.modes_n, args.workers, config, args.repeat)
+        return
 
     n_objects = len(discover_objects(args.objects))
     summary, wall = timed_run(args.objects, args.n, args.workers, config)
@@ -127,6 +163,9 @@ def main() -> None:
     print(
         f"1 worker {w1:6.1f} s, 2 workers {w2:6.1f} s: speed-up {w1 / w2:.2f}, efficiency {w1 / (2 * w2):.1%}"
     )
+
+    if args.modes_n:
+        compare_modes(args.objects, args.modes_n, args.workers, config, args.repeat)
 
     if args.main_n:
         print(f"\n== README main command: annotate --objects objects/ --n {args.main_n} (all cores) ==")

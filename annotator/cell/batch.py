@@ -217,19 +217,15 @@ class CellObject:
 
     # --- labels --------------------------------------------------------------------------------
 
-    def placement_of(self, T_obj_tcp: Transform) -> int:
+    def placement_for(self, T_obj_tcp: Transform) -> int:
         """The placement a candidate rests in: the one where its approach points most downwards
         (ties: the more probable placement)."""
         approach = T_obj_tcp.rotation[:, 2]
-        down = [-float(p.T_world_obj.rotation[2] @ approach) for p in self.placements]
-        return int(np.argmax(np.round(down, 9)))
+        down = np.round([-float(p.T_world_obj.rotation[2] @ approach) for p in self.placements], 9)
+        return int(np.argmax(down))
 
-    def trial_for(self, T_obj_tcp: Transform) -> GraspTrial:
-        return self.trials[self.placement_of(T_obj_tcp)]
-
-    def reach(self, T_obj_tcp: Transform, width: float) -> Reach:
-        """Can the arm execute the commanded grasp ``T_obj_tcp`` (pads ``width`` apart)?"""
-        p = self.placement_of(T_obj_tcp)
+    def reach(self, p: int, T_obj_tcp: Transform, width: float) -> Reach:
+        """Can the arm execute the commanded grasp ``T_obj_tcp`` (pads ``width`` apart) in placement ``p``?"""
         worlds, protocol = self.worlds, self.worlds.config.protocol
         rg2 = worlds.arm.rg2
         assert rg2 is not None
@@ -245,12 +241,12 @@ class CellObject:
             q_seed=READY,
         )
 
-    def columns(self, grasp_id: int, T_obj_tcp: Transform, width: float) -> dict[str, object]:
-        """The cell's label columns of a commanded grasp: placement, object pose, reachability."""
-        p = self.placement_of(T_obj_tcp)
+    def columns(self, p: int, T_obj_tcp: Transform, width: float, grasp_id: int) -> dict[str, object]:
+        """The cell's label columns of a commanded grasp in placement ``p``: placement, object
+        pose, reachability."""
         placement = self.placements[p]
         try:
-            reach = self.reach(T_obj_tcp, width)
+            reach = self.reach(p, T_obj_tcp, width)
         except Exception as exc:  # one candidate's failure must not lose the others
             oid, kind = self.model.object_id, type(exc).__name__
             log.warning("%s grasp %d: reachability check failed: %s: %s", oid, grasp_id, kind, exc)

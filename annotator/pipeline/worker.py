@@ -163,10 +163,6 @@ class LoadedObject:
     candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)  # (seed, n) -> ...
     cell: CellObject | None = None
 
-    def trial_for(self, T_obj_tcp: Transform) -> GraspTrial:
-        """The trial runner of a commanded grasp (in the cell: of the placement it rests in)."""
-        return self.trial if self.cell is None else self.cell.trial_for(T_obj_tcp)
-
     def release(self) -> None:
         """Free its snapshots (and the cell's copy of it); the trial world's body is the caller's."""
         if self.cell is not None:
@@ -427,7 +423,11 @@ def simulate(
         else:  # a recorded commanded pose: the very transform of the trial that recorded it
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
-        trial = loaded.trial_for(T)
+        if loaded.cell is None:
+            trial = loaded.trial
+        else:  # the placement the candidate rests in
+            placement = loaded.cell.placement_for(T)
+            trial = loaded.cell.trials[placement]
         try:
             r = trial.run(T, width_expected)
             outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
@@ -470,7 +470,7 @@ def simulate(
             }
         )
         if loaded.cell is not None:  # placement, object pose on the table, reachability
-            rows[-1].update(loaded.cell.columns(grasp_id, T, width_expected))
+            rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))
     return pd.DataFrame(rows)
 
 
