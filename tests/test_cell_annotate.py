@@ -242,3 +242,22 @@ def test_a_cell_run_resumes_and_refuses_other_cell_settings(cell_run, tmp_path):
         .exit_code
         == 2
     )
+
+
+def test_a_cell_success_replays_on_the_arm_at_its_placement_with_its_q_grasp(cell_run):
+    """The arm reaches a cell label's commanded grasp with the label's own joints, and lifts."""
+    from annotator.tools.replay import plan_replay, replay
+
+    _, out = cell_run
+    labels = load_labels(out)
+    row = labels[(labels.object_id == "box") & labels.success & labels.reachable].iloc[0]
+    config = AnnotatorConfig()
+    model = load_object(SAMPLES / "box.obj", config.objects)
+    with World(config.physics) as world:
+        cell = build_cell(world, config.cell, gripper=config.gripper, kinect=False)
+        obj = create_body(world.client, model)
+        plan = plan_replay(cell, model, obj, row, config)
+        assert plan.note == "placement: the label's own"
+        np.testing.assert_allclose(plan.reach.q_grasp, row[list(JOINT_COLUMNS)].to_numpy(float), atol=1e-9)
+        result = replay(cell, obj, plan, config, camera=None)
+    assert result.held(config.protocol.lift_height, config.protocol.max_slip)

@@ -2,14 +2,15 @@
 
 1. **Placement.** A label from ``annotate --cell`` carries the object's pose on the table
    (``obj_x obj_y obj_z obj_qx obj_qy obj_qz obj_qw``, the mesh frame in the world): it is used as
-   is. A floating label has none, so one is chosen: among the object's stable poses on the table
-   (trimesh, merged as the cell's placements) turned in 15 deg steps about the vertical, with the
-   grasp point over the cell's placement point, the candidates are tried in order of how much the
-   grasp approaches *from above* (then by the pose's probability); the first whose grasp the arm
-   reaches (closed-form IK along the whole approach, no arm-table or arm-object collision) wins.
-   A floating label may approach from any side; on a table only the grasps that come from above
-   or the side can be executed, so the placement that turns the grasp most downwards is the one a
-   user would set up.
+   is, with the grasp the label commanded (``cmd_*`` at ``cmd_width``), whose arm joints are the
+   label's ``q_grasp``. A floating label has none, so one is chosen: among the object's stable
+   poses on the table (trimesh, merged as the cell's placements) turned in 15 deg steps about the
+   vertical, with the grasp point over the cell's placement point, the candidates are tried in
+   order of how much the grasp approaches *from above* (then by the pose's probability); the first
+   whose grasp the arm reaches (closed-form IK along the whole approach, no arm-table or
+   arm-object collision) wins. A floating label may approach from any side; on a table only the
+   grasps that come from above or the side can be executed, so the placement that turns the grasp
+   most downwards is the one a user would set up.
 2. **Motion.** The arm starts at the pregrasp (``approach_distance`` behind the grasp, gripper
    open to the label's width + 2 x the protocol's clearance) and follows the joint-space
    trajectory through the IK solutions of the straight approach (1 cm apart) to the grasp.
@@ -43,6 +44,7 @@ from annotator.objects import ObjectModel, get_object_pose, reset_object_pose
 from annotator.render import Camera, orbit_camera, render_rgb
 from annotator.sim import pb
 from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
+from annotator.tools.given import CMD_COLUMNS
 
 log = logging.getLogger(__name__)
 
@@ -143,6 +145,11 @@ def plan_replay(cell: Cell, model: ObjectModel, obj: int, row: pd.Series, config
     if all(c in row.index and pd.notna(row[c]) for c in PLACEMENT_COLUMNS):
         values = [float(row[c]) for c in PLACEMENT_COLUMNS]
         T_world_obj = Transform(values[:3], values[3:])
+        if all(c in row.index and pd.notna(row[c]) for c in CMD_COLUMNS):  # as the cell labelled it
+            cmd = [float(row[c]) for c in CMD_COLUMNS]
+            T_obj_tcp = Transform.exact(cmd[:3], cmd[3:7])
+            width = cmd[7]
+            open_width = min(cell.rg2.max_width, width + 2 * config.protocol.pregrasp_clearance)
         reset_object_pose(cell.client, obj, T_world_obj)
         T_world_tcp = T_world_obj * T_obj_tcp
         reach = _reach(cell, obj, T_world_tcp, width, open_width, config)
