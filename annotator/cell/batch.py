@@ -124,6 +124,8 @@ def settle_placements(world: World, uid: int, cell: Cell, model: ObjectModel) ->
     poses = stable_poses(model.mesh, config.placement_merge_angle, config.placement_min_probability)
     if not poses:  # every pose rarer than the threshold (a ball): the most probable one
         poses = stable_poses(model.mesh, config.placement_merge_angle)[:1]
+    if not poses:
+        raise ObjectError("no stable pose on a table (trimesh's compute_stable_poses found none)")
     xy = np.array([config.placement_x, config.placement_y])
     corners = np.array(np.meshgrid(*model.mesh.bounds.T, indexing="ij")).reshape(3, -1).T
     kept: list[SettledPlacement] = []
