@@ -22,8 +22,7 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.objects import create_body, discover_objects, load_object
 from annotator.pipeline.run import RunOptions, run
-from annotator.sim.world import World
-from annotator.tools.replay import plan_replay, replay
+from annotator.tools.replay import plan_replay, replay, replay_world
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -50,7 +49,7 @@ def main() -> None:
         model = load_object(sources[object_id], config.objects, scale=float(rows.iloc[0]["object_scale"]))
         counts = collections.Counter()
         for _, row in rows.iterrows():
-            with World(config.physics) as world:
+            with replay_world(model, config) as world:
                 cell = build_cell(world, config.cell, gripper=config.gripper, kinect=False)
                 obj = create_body(world.client, model)
                 plan = plan_replay(cell, model, obj, row, config)

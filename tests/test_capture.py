@@ -97,6 +97,37 @@ def test_capture_on_a_chosen_object(tmp_path):
         capturer.close()
 
 
+def test_a_light_objects_capture_is_the_batch_jobs_label(tmp_path):
+    """A 10 g block is simulated at a third of the time step in the batch job
+    (``[physics] light_object_mass``); a capture of the same commanded grasp runs at the same step
+    and gives the same row: outcome, width and simulated steps bit for bit (at 1/240 s, 2 of these
+    6 simulated grasps got another outcome and every width differed)."""
+    import trimesh
+
+    from annotator.objects import discover_objects
+    from annotator.pipeline import worker
+    from annotator.scene.capture import Candidate
+
+    config = AnnotatorConfig()
+    trimesh.creation.box((0.03, 0.03, 0.022)).export(tmp_path / "block.obj")
+    (source,) = discover_objects(tmp_path)
+    n = 8
+    batch = worker.label_span(worker.SpanTask(worker.Span("block", source, None, 0, n), config, 0, n)).rows
+    assert (batch["outcome"] != "collision").sum() >= 4
+    model = load_capture_object(tmp_path / "block.obj", config)
+    assert model.substeps(config.physics) == 3
+    capturer = Capturer(model, config, tmp_path / "captures.parquet")
+    try:
+        for _, row in batch.iterrows():
+            pos = row[["cmd_x", "cmd_y", "cmd_z"]].to_numpy(float)
+            quat = row[["cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"]].to_numpy(float)
+            result = capturer.run(Candidate(Transform.exact(pos, quat), float(row["cmd_width"]), True))
+            assert result.outcome.label == row["outcome"]
+            assert (result.width, result.steps) == (row["width"], row["sim_steps"])
+    finally:
+        capturer.close()
+
+
 def test_enter_key_captures_in_the_gui(tmp_path):
     """`annotator scene` under Xvfb; xdotool presses Enter in the window; a row appears."""
     if shutil.which("xvfb-run") is None or shutil.which("xdotool") is None:

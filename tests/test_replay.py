@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from click.testing import CliRunner
-from PIL import Image
+from PIL import Image, ImageSequence
 
 from annotator.cell import build_cell
 from annotator.config import AnnotatorConfig
@@ -118,3 +119,30 @@ def test_replay_command_prints_the_verdict_and_writes_a_gif(box_labels, tmp_path
         replay_command, [str(out), "--object", "nope", "--grasp", "0", "--objects", str(objects)]
     )
     assert missing.exit_code == 2 and "no labels for object 'nope'" in missing.output
+
+
+def test_a_light_blocks_cell_labels_replay_as_labelled(tmp_path):
+    """A 10 g block (under ``[physics] light_object_mass``) is labelled at a third of the time step;
+    ``annotator replay`` simulates it at the same step, so every reachable success is held on the
+    arm too (at 1/240 s, 3 of these 6 fell out of the hand or were dropped on the lift). The GIF
+    keeps 20 frames per simulated second."""
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    trimesh.creation.box((0.03, 0.03, 0.022)).export(objects / "block.obj")
+    model = load_object(objects / "block.obj", CONFIG.objects)
+    assert model.mass < 0.011 and model.substeps(CONFIG.physics) == 3
+    out = tmp_path / "labels"
+    run(RunOptions(objects_dir=objects, n=10, out_dir=out, workers=1, quiet=True, cell=True), CONFIG)
+    labels = load_labels(out)
+    successes = labels[labels.success & labels.reachable]
+    assert len(successes) >= 5
+    for k, grasp in enumerate(successes["grasp_id"]):
+        args = [str(out), "--object", "block", "--grasp", str(grasp), "--objects", str(objects)]
+        gif = tmp_path / "block.gif"
+        result = CliRunner().invoke(replay_command, args + (["--gif", str(gif)] if k == 0 else []))
+        assert result.exit_code == 0, result.output
+        assert "verdict: held (the label says success)" in result.output, (grasp, result.output)
+        if k == 0:  # one frame per 50 ms simulated (identical frames merged): ~4.5 s of replay
+            with Image.open(gif) as im:
+                durations = [frame.info["duration"] for frame in ImageSequence.Iterator(im)]
+            assert all(d % 50 == 0 for d in durations) and 3000 < sum(durations) < 7000, durations

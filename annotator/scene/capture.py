@@ -25,7 +25,7 @@ import trimesh
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome, pose_columns, validate_labels
 from annotator.geometry import Transform
-from annotator.objects import ObjectModel, create_body, get_object_pose, load_object
+from annotator.objects import ObjectModel, create_body, get_object_pose, load_object, physics_for
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
 from annotator.sim.world import World
@@ -102,7 +102,7 @@ class Capturer:
     def _ensure_trial(self) -> GraspTrial:
         """The floating RG2 and the object in their own DIRECT world, set up as a batch worker does."""
         if self._trial is None:
-            world = World(self.config.physics)
+            world = World(physics_for(self.model, self.config.physics))  # a light object: finer step
             hand = FloatingRG2(world, self.config.gripper)
             hand.teleport(PARKED, hand.rg2.max_width)
             uid = create_body(world.client, self.model)

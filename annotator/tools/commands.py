@@ -91,8 +91,14 @@ def replay_command(
         load_object,
     )
     from annotator.render import write_gif
-    from annotator.sim.world import World
-    from annotator.tools.replay import FRAME_EVERY, default_camera, label_row, plan_replay, replay
+    from annotator.tools.replay import (
+        default_camera,
+        frames_every,
+        label_row,
+        plan_replay,
+        replay,
+        replay_world,
+    )
 
     try:
         config = AnnotatorConfig.from_toml(config_file) if config_file else AnnotatorConfig()
@@ -119,7 +125,7 @@ def replay_command(
 
     width_mm = float(row["width"]) * 1000
     click.echo(f"label: {object_id} #{grasp_id}: {row['outcome']}, width {width_mm:.1f} mm")
-    with World(config.physics, gui=gui) as world:
+    with replay_world(model, config, gui=gui) as world:  # a light object at its finer time step
         cell = build_cell(world, config.cell, gripper=config.gripper, kinect_config=config.kinect)
         obj = create_body(world.client, model)
         plan = plan_replay(cell, model, obj, row, config)
@@ -129,7 +135,8 @@ def replay_command(
             return
         click.echo(f"arm: pregrasp {_fmt_q(plan.reach.q_pregrasp)} -> grasp {_fmt_q(plan.reach.q_grasp)}")
         camera = default_camera(plan.T_world_obj, size) if gif_path else None
-        result = replay(cell, obj, plan, config, camera=camera, frame_every=FRAME_EVERY, realtime=gui)
+        every = frames_every(world.dt)
+        result = replay(cell, obj, plan, config, camera=camera, frame_every=every, realtime=gui)
         if result.approach_contacts:
             click.echo("contact during the approach: " + "; ".join(result.approach_contacts))
         else:
@@ -145,7 +152,7 @@ def replay_command(
         held = result.held(config.protocol.lift_height, config.protocol.max_slip)
         click.echo(f"verdict: {'held' if held else 'not held'} (the label says {row['outcome']})")
         if gif_path:
-            write_gif(result.frames, gif_path, fps=1.0 / (FRAME_EVERY * world.dt))
+            write_gif(result.frames, gif_path, fps=1.0 / (every * world.dt))
             click.echo(f"gif: {len(result.frames)} frames {size[0]}x{size[1]} -> {gif_path}")
         if gui:
             _hold_window(world, hold)

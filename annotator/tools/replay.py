@@ -40,10 +40,11 @@ from annotator.cell.world import Cell
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome, poses_as_matrices
 from annotator.geometry import Transform
-from annotator.objects import ObjectModel, get_object_pose, reset_object_pose
+from annotator.objects import ObjectModel, get_object_pose, physics_for, reset_object_pose
 from annotator.render import Camera, orbit_camera, render_rgb
 from annotator.sim import pb
 from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
+from annotator.sim.world import World
 from annotator.tools.given import CMD_COLUMNS
 
 log = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ LIFT_DURATION = 1.0  # s for the lift (0.1 m/s), well inside the UR3's joint spe
 SETTLE_TIME = 0.25  # s: the arm settles at the pregrasp and at the grasp before the next phase
 HOLD_TIME = 0.5  # s held in the air before the verdict
 LIFTED_SHARE = 0.8  # the object came up if it rose at least this share of the lift
-FRAME_EVERY = 12  # GIF: one frame per 12 steps of 1/240 s, 20 frames per simulated second
+FRAME_SECONDS = 0.05  # GIF: one frame per 0.05 s simulated (20 frames per simulated second)
 
 
 @dataclass(frozen=True)
@@ -93,6 +94,19 @@ class ReplayResult:
     def held(self, lift_height: float, max_slip: float) -> bool:
         """Came up, both pads still on it, moved less than ``max_slip`` in the hand (as a trial judges)."""
         return self.lifted(lift_height) and self.pads_at_end == 2 and self.slip < max_slip
+
+
+def replay_world(model: ObjectModel, config: AnnotatorConfig, *, gui: bool = False) -> World:
+    """The world a label of ``model`` is replayed in, with the physics the batch job gave it: an
+    object under ``[physics] light_object_mass`` at its finer time step
+    (:func:`annotator.objects.physics_for`); at 1/240 s a light object's contacts can disagree with
+    its label."""
+    return World(physics_for(model, config.physics), gui=gui)
+
+
+def frames_every(dt: float) -> int:
+    """Simulation steps of ``dt`` s per GIF frame (one frame per FRAME_SECONDS simulated)."""
+    return max(1, round(FRAME_SECONDS / dt))
 
 
 def label_row(labels: pd.DataFrame, object_id: str, grasp_id: int) -> pd.Series:
@@ -232,16 +246,19 @@ def replay(
     config: AnnotatorConfig,
     *,
     camera: Camera | None = None,
-    frame_every: int = 12,
+    frame_every: int | None = None,
     realtime: bool = False,
 ) -> ReplayResult:
-    """Execute ``plan`` in simulation (gravity on throughout) and measure; see the module docstring."""
+    """Execute ``plan`` in simulation (gravity on throughout) and measure; see the module docstring.
+
+    ``frame_every``: steps per GIF frame (default: one frame per FRAME_SECONDS simulated)."""
     robot, rg2 = cell.robot, cell.rg2
     assert robot is not None and rg2 is not None
     if not plan.reach.reachable:
         raise ValueError(f"the grasp is not reachable: {plan.reach.reason} ({plan.reach.detail})")
     g, p = config.gripper, config.protocol
-    rec = _Recorder(cell, camera, frame_every, realtime)
+    every = frame_every if frame_every is not None else frames_every(cell.world.dt)
+    rec = _Recorder(cell, camera, every, realtime)
     result = ReplayResult(plan)
     names = {index: name for name, index in robot.links.items()}
     open_angle = rg2.table.angle_of(plan.open_width)
