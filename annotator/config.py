@@ -359,6 +359,33 @@ class CellConfig(_Section):
     # pose that moves more than placement_max_drift while settling is skipped for the next one.
     placement_settle_time: float = _field(0.5, ge=0.0)  # s
     placement_max_drift: float = _field(0.005, gt=0.0)  # m, of any point of the object's bounding box
+    # annotate --cell candidates (annotator/cell/candidates.py), sampled per placement knowing the
+    # table. How the N rows of an object are shared among its placements: "probability" in
+    # proportion to their stable-pose probabilities (renormalised over the placements kept), so
+    # the labels meet each placement as often as an object dropped on the table lands in it;
+    # "even": the same share each.
+    candidates_per_placement: str = _field("probability", choices=("probability", "even"))
+    # Approach directions within this angle of straight down. With the floating sampler's
+    # directions, every cell success approached less than 75 deg from vertical and 168 of the 220
+    # floating successes that hit the table came in lower than 60 deg or with the TCP < 15 mm up
+    # (sample objects, --n 100); 65 deg keeps side grasps of tall objects (a can, a bottle).
+    approach_cone: float = _field(65.0, gt=0.0, le=90.0)  # deg from vertical
+    # An antipodal pair's closing axis is the first contact's inward normal turned towards the
+    # horizontal by a uniform angle up to this (never past level); the usual antipodal test then
+    # runs on it. A level axis admits a grasp from straight above; the sample ring's tube (16 faces,
+    # none vertical: normals 11.2 deg off horizontal at best) had no pair within 10 deg of level
+    # without it. Below the sampler's friction cone (atan 0.5 = 26.6 deg), so the first contact
+    # stays inside it with margin.
+    level_angle: float = _field(15.0, ge=0.0, le=45.0)  # deg
+    # The open and the closed fingers' lowest point (their collision boxes, read from the RG2
+    # model) stays this far above the table top; the kinematic check with the table still decides
+    # ``collision``. A few mm: the height a taught grasp keeps off a table (the UR3 repeats to
+    # 0.1 mm, a table top is flat to ~1 mm).
+    finger_clearance: float = _field(0.003, ge=0.0)  # m
+    # A grasp on a low object may sit back along its approach (the TCP above the midpoint of the
+    # two contacts) by up to this much so the fingertips clear the table: the contacts then lie
+    # between the pad centre and its tip, still 4.9 mm inside the 29.8 mm pad at the maximum.
+    max_standoff: float = _field(0.010, ge=0.0)  # m
     # Reachability (annotator/cell/reach.py): any arm or gripper link closer than this to the
     # table, or arm link (not gripper) to the object, along the approach is a collision.
     arm_collision_margin: float = _field(0.0, ge=0.0)  # m; 0: touching counts

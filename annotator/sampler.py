@@ -53,12 +53,16 @@ class Candidates:
         normals inside the friction cone); computed for every row, including the less selective.
     contacts : (n, 2, 3) float64
         Contact points of finger 1 and finger 2 in the mesh frame.
+    placement : (n,) int64 or None
+        ``annotate --cell``: the placement on the table each candidate was sampled for
+        (:mod:`annotator.cell.candidates`); None for a floating object.
     """
 
     T_obj_tcp: np.ndarray
     width_expected: np.ndarray
     antipodal: np.ndarray
     contacts: np.ndarray
+    placement: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.T_obj_tcp.shape[0])
@@ -130,7 +134,8 @@ def _first_hits(
     return t_best, face_best
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit(v: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` (..., 3) scaled to unit length."""
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
@@ -139,7 +144,7 @@ def _perpendicular(x: np.ndarray) -> np.ndarray:
     axis = np.argmin(np.abs(x), axis=1)
     a = np.zeros_like(x)
     a[np.arange(x.shape[0]), axis] = 1.0
-    return _unit(a - np.sum(a * x, axis=1, keepdims=True) * x)
+    return unit(a - np.sum(a * x, axis=1, keepdims=True) * x)
 
 
 def _frames(p1: np.ndarray, p2: np.ndarray, x: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -147,7 +152,7 @@ def _frames(p1: np.ndarray, p2: np.ndarray, x: np.ndarray, angles: np.ndarray) -
     rotated by ``angles`` (n,) rad about ``x`` from a fixed perpendicular."""
     z0 = _perpendicular(x)
     z = np.cos(angles)[:, None] * z0 + np.sin(angles)[:, None] * np.cross(x, z0)
-    z = _unit(z - np.sum(z * x, axis=1, keepdims=True) * x)
+    z = unit(z - np.sum(z * x, axis=1, keepdims=True) * x)
     y = np.cross(z, x)
     T = np.zeros((x.shape[0], 4, 4))
     T[:, :3, 0] = x
@@ -159,7 +164,7 @@ def _frames(p1: np.ndarray, p2: np.ndarray, x: np.ndarray, angles: np.ndarray) -
 
 
 @dataclass(frozen=True)
-class _Pairs:
+class ContactPairs:
     """Contact pairs from rays: p1, p2, x : (m, 3); width : (m,); antipodal : (m,) bool."""
 
     p1: np.ndarray
@@ -168,18 +173,18 @@ class _Pairs:
     width: np.ndarray
     antipodal: np.ndarray
 
-    def take(self, idx: np.ndarray) -> _Pairs:
-        return _Pairs(self.p1[idx], self.p2[idx], self.x[idx], self.width[idx], self.antipodal[idx])
+    def take(self, idx: np.ndarray) -> ContactPairs:
+        return ContactPairs(self.p1[idx], self.p2[idx], self.x[idx], self.width[idx], self.antipodal[idx])
 
 
-def _cast_pairs(
+def cast_pairs(
     mesh: trimesh.Trimesh,
     count: int,
     rng: np.random.Generator,
     config: SamplerConfig,
     max_width: float,
     random_direction: bool,
-) -> _Pairs:
+) -> ContactPairs:
     """Draw ``count`` surface points and cast one ray each into the object.
 
     The ray goes along the inward face normal, or (``random_direction``) in a uniformly random
@@ -188,11 +193,25 @@ def _cast_pairs(
     points, face_idx = trimesh.sample.sample_surface(mesh, count, seed=rng)
     normals = mesh.face_normals[face_idx]
     if random_direction:
-        d = _unit(rng.normal(size=(count, 3)))
+        d = unit(rng.normal(size=(count, 3)))
         flip = np.sum(d * normals, axis=1) > 0.0
         d[flip] *= -1.0
     else:
         d = -normals
+    return chords(mesh, points, face_idx, d, config, max_width)
+
+
+def chords(
+    mesh: trimesh.Trimesh,
+    points: np.ndarray,
+    face_idx: np.ndarray,
+    d: np.ndarray,
+    config: SamplerConfig,
+    max_width: float,
+) -> ContactPairs:
+    """The contact pairs of rays from surface ``points`` (m, 3) on faces ``face_idx`` (m,) into
+    the object along unit directions ``d`` (m, 3), with the antipodal test of each (no draws)."""
+    normals = mesh.face_normals[face_idx]
     t, hit_face = _first_hits(mesh.triangles, points + config.ray_offset * d, d)
     hit = hit_face >= 0
     width = np.where(hit, t + config.ray_offset, 0.0)
@@ -207,25 +226,25 @@ def _cast_pairs(
         & (-np.sum(normals * d, axis=1) >= cos_cone)
         & (np.sum(n2 * d, axis=1) >= cos_cone)
     )
-    return _Pairs(points, p2, d, width, antipodal)
+    return ContactPairs(points, p2, d, width, antipodal)
 
 
 def _antipodal_pool(
     mesh: trimesh.Trimesh, wanted: int, rng: np.random.Generator, config: SamplerConfig, max_width: float
-) -> _Pairs:
+) -> ContactPairs:
     """Accepted antipodal pairs, at least ``wanted`` if they can be found in ``max_rounds`` rounds."""
-    found: list[_Pairs] = []
+    found: list[ContactPairs] = []
     total = 0
     for round_ in range(config.max_rounds):
         count = max(16, config.oversample * wanted * 2**round_)
-        pairs = _cast_pairs(mesh, count, rng, config, max_width, random_direction=False)
+        pairs = cast_pairs(mesh, count, rng, config, max_width, random_direction=False)
         accepted = pairs.take(np.flatnonzero(pairs.antipodal))
         found.append(accepted)
         total += len(accepted.width)
         log.debug("sampler round %d: %d of %d pairs antipodal", round_, len(accepted.width), count)
         if total >= wanted:
             break
-    return _Pairs(
+    return ContactPairs(
         *(np.concatenate([getattr(f, k) for f in found]) for k in ("p1", "p2", "x", "width", "antipodal"))
     )
 
@@ -256,7 +275,7 @@ def sample_candidates(
     step = 2.0 * np.pi / config.n_rotations
 
     parts_T: list[np.ndarray] = []
-    parts: list[_Pairs] = []
+    parts: list[ContactPairs] = []
     n_anti = 0
     if n_anti_wanted > 0:
         pool = _antipodal_pool(mesh, n_anti_wanted, rng, config, max_width)
@@ -282,7 +301,7 @@ def sample_candidates(
         parts_T.append(_frames(sel.p1, sel.p2, sel.x, rot * step))
     n_random = n - n_anti
     if n_random > 0:
-        rnd = _cast_pairs(mesh, n_random, rng, config, max_width, random_direction=True)
+        rnd = cast_pairs(mesh, n_random, rng, config, max_width, random_direction=True)
         parts.append(rnd)
         parts_T.append(_frames(rnd.p1, rnd.p2, rnd.x, rng.uniform(0.0, 2.0 * np.pi, size=n_random)))
 

@@ -126,6 +126,51 @@ def test_cell_labels_have_the_columns_and_a_placement_each(cell_run):
         assert lowest == pytest.approx(top.z, abs=0.002)
 
 
+def test_candidates_come_from_above_shared_by_placement_probability_and_mostly_hold(cell_run):
+    """Each object's N rows are shared among its placements by their stable-pose probabilities (as
+    the manifest lists them), every commanded grasp approaches within the cone of straight down,
+    and on the box and the can at least a third hold (with the floating sampler's candidates, a
+    fifth of the box's and a tenth of the can's held in the cell)."""
+    from annotator.cell.candidates import allocate
+
+    _, out = cell_run
+    df = load_labels(out)
+    config = AnnotatorConfig()
+    info = json.loads((out / MANIFEST_NAME).read_text())["objects_info"]
+    cos_cone = np.cos(np.radians(config.cell.approach_cone))
+    for oid, rows in df.groupby("object_id"):
+        probabilities = [p["probability"] for p in info[oid]["placements"]]
+        counts = rows["placement_id"].value_counts().reindex(range(len(probabilities)), fill_value=0)
+        assert counts.tolist() == allocate(N, probabilities, "probability").tolist()
+        for _, row in rows.iterrows():
+            assert -_T_world_cmd(row).rotation[2, 2] >= cos_cone - 1e-9
+        assert rows["success"].sum() >= N / 3, oid
+
+
+def test_a_puck_lower_than_the_pads_is_held_from_above(tmp_path):
+    """A 16 mm puck lying flat (its one placement here): its contacts are lower than the pads'
+    centres are above the fingertips (14.9 mm), so a grasp centred on them puts the fingers into
+    the table (the floating sampler's candidates: 0 of 40 held; the sample ring, an 18 mm tube, 0 of
+    100). Standing off along the approach, grasps from above hold it (32 of 40), the pad centres
+    more than 15 mm above the table top."""
+    from annotator.objects import discover_objects
+    from annotator.pipeline import worker
+
+    trimesh.creation.cylinder(radius=0.03, height=0.016, sections=32).export(tmp_path / "puck.obj")
+    (source,) = discover_objects(tmp_path)
+    n = 8
+    config = AnnotatorConfig.from_dict({"cell": {"placements_per_object": 1}})  # flat, not on its rim
+    task = worker.SpanTask(worker.Span("puck", source, None, 0, n), config, 0, n, cell=worker.CellOptions())
+    result = worker.label_span(task)
+    assert result.error is None, result.error
+    rows = result.rows
+    assert rows["success"].sum() >= 3
+    with World() as world:
+        top_z = build_cell(world, config.cell, robot=False, kinect=False).top.z
+    for _, row in rows[rows["success"]].iterrows():
+        assert _T_world_cmd(row).pos[2] - top_z > 0.015
+
+
 def test_nothing_held_approaches_from_below_the_table_top(cell_run):
     """The whole open gripper along the approach stays above the table: the TCP of a success, and
     every point 10 cm back along its approach, is above the table top."""

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from annotator.cell.candidates import TableSide, sample_cell_candidates
 from annotator.cell.kinect import depth_to_png_array, look_at
 from annotator.cell.placement import place, stable_poses
 from annotator.cell.reach import READY, Reach, check_reach
@@ -48,6 +49,7 @@ from annotator.dataset import keyed_rng
 from annotator.geometry import Transform
 from annotator.objects import ObjectError, ObjectModel, create_body, get_object_pose, reset_object_pose
 from annotator.pipeline.files import artifact_relpath
+from annotator.sampler import Candidates
 from annotator.sim import pb
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
@@ -164,6 +166,7 @@ class CellWorlds:
         self.hand = hand
         self.config = config
         self.table_cell = build_cell(world, config.cell, robot=False, kinect=False)
+        self.envelope = hand.rg2.finger_envelope()  # the fingers, for the table-aware sampler
         self.arm_world = World(config.physics)
         self.arm = build_cell(
             self.arm_world,
@@ -219,9 +222,29 @@ class CellObject:
 
     # --- labels --------------------------------------------------------------------------------
 
+    def candidates(self, n: int, seed: int) -> Candidates:
+        """The object's N candidates, sampled per placement knowing the table
+        (:func:`annotator.cell.candidates.sample_cell_candidates`); ``placement`` says where each rests."""
+        worlds = self.worlds
+        config = worlds.config
+        sides = [
+            TableSide(
+                placement.T_world_obj,
+                worlds.table_cell.top.z,
+                worlds.envelope,
+                config.protocol.pregrasp_clearance,
+                worlds.hand.rg2.max_width,
+            )
+            for placement in self.placements
+        ]
+        probabilities = [placement.probability for placement in self.placements]
+        return sample_cell_candidates(
+            self.model.mesh, n, seed, self.model.object_id, sides, probabilities, config
+        )
+
     def placement_for(self, T_obj_tcp: Transform) -> int:
-        """The placement a candidate rests in: the one where its approach points most downwards
-        (ties: the more probable placement)."""
+        """The placement a given grasp (not one of :meth:`candidates`: ``evaluate``'s, a bench's)
+        rests in: the one where its approach points most downwards (ties: the more probable)."""
         approach = T_obj_tcp.rotation[:, 2]
         down = np.round([-float(p.T_world_obj.rotation[2] @ approach) for p in self.placements], 9)
         return int(np.argmax(down))

@@ -306,7 +306,10 @@ class WorkerState:
         """The object's N candidates, sampled once per (seed, N) and kept."""
         cands = loaded.candidates.get((seed, n))
         if cands is None:
-            cands = object_candidates(loaded.model, n, seed, config, self.hand.rg2.max_width)
+            if loaded.cell is not None:  # per placement, knowing the table
+                cands = loaded.cell.candidates(n, seed)
+            else:
+                cands = object_candidates(loaded.model, n, seed, config, self.hand.rg2.max_width)
             loaded.candidates[(seed, n)] = cands
         return cands
 
@@ -325,8 +328,10 @@ class WorkerState:
                 poses = cands.T_obj_tcp[span.start : span.stop]
                 widths = cands.width_expected[span.start : span.stop]
                 quats = None
+                placements = None if cands.placement is None else cands.placement[span.start : span.stop]
             else:
                 poses, widths, quats = span.given.T_obj_tcp, span.given.width, span.given.quat
+                placements = None
         except ObjectError as exc:
             return SpanResult(span, None, str(exc), self._stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
@@ -335,7 +340,16 @@ class WorkerState:
         status.write(task.status_dir, f"simulating {span.object_id}")
         steps0 = loaded.trial.world.step_seconds
         rows = simulate(
-            loaded, poses, widths, span.start, task.config, task.seed, task.trials, span.object_id, quats
+            loaded,
+            poses,
+            widths,
+            span.start,
+            task.config,
+            task.seed,
+            task.trials,
+            span.object_id,
+            quats,
+            placements=placements,
         )
         artifacts = None
         if task.cell is not None and task.cell.views > 0 and loaded.cell is not None:
@@ -404,9 +418,13 @@ def simulate(
     trials: int,
     object_id: str,
     quats: np.ndarray | None = None,
+    *,
+    placements: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
-    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`).
+    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
+    ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
+    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`).
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -425,7 +443,10 @@ def simulate(
         width_expected = float(widths[k])
         if loaded.cell is None:
             trial = loaded.trial
-        else:  # the placement the candidate rests in
+        elif placements is not None:  # the placement the candidate was sampled for
+            placement = int(placements[k])
+            trial = loaded.cell.trials[placement]
+        else:  # a given grasp: where it comes most from above
             placement = loaded.cell.placement_for(T)
             trial = loaded.cell.trials[placement]
         try:

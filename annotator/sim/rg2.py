@@ -132,6 +132,48 @@ class WidthTable:
         return float(self.width[0])
 
 
+@dataclass(frozen=True)
+class FingerEnvelope:
+    """The RG2's two fingers (the collision boxes of finger plate and pad) in the TCP frame.
+
+    The parallelogram linkage keeps each finger parallel to the gripper base, so at any opening the
+    fingers are the same two rigid shapes: seen from the TCP at that opening (the pad-centre
+    midpoint), finger ``k`` is ``corners[k]`` shifted by ``side[k] * (w - width) / 2`` along x.
+    Placed for opening ``b`` (the base fixed) and opened to ``w``, the TCP itself moves by
+    ``tcp(w) - tcp(b)`` (the fingertips travel on arcs). Every collision shape of a finger is a
+    box, so the lowest of these corners is the lowest point of the fingers, exactly; the knuckle
+    links and the housing behind them are not included (they turn with the opening).
+
+    corners : (2, c, 3) float, box corners of finger 1 and finger 2 at opening ``width``, m;
+    side : (2,) float, -1 for finger 1 (at -x), +1 for finger 2; table_width (k,), table_tcp
+    (k, 3): the width table (the TCP in the base frame per opening, m).
+    """
+
+    corners: np.ndarray
+    side: np.ndarray
+    width: float
+    table_width: np.ndarray
+    table_tcp: np.ndarray
+
+    def corners_at(self, width: np.ndarray, base_width: np.ndarray) -> np.ndarray:
+        """Finger corners (n, 2c, 3) in the frame of the TCP placed for opening ``base_width`` (n,)
+        with the fingers opened to ``width`` (n,), m."""
+        width = np.asarray(width, dtype=float)
+        base_width = np.asarray(base_width, dtype=float)
+        shift = np.stack(
+            [
+                np.interp(width, self.table_width, self.table_tcp[:, i])
+                - np.interp(base_width, self.table_width, self.table_tcp[:, i])
+                for i in range(3)
+            ],
+            axis=-1,
+        )  # (n, 3)
+        spread = (width - self.width)[:, None, None] / 2.0 * self.side[None, :, None]  # (n, 2, 1)
+        out = self.corners[None] + shift[:, None, None, :]  # (n, 2, c, 3)
+        out[..., 0] += spread
+        return out.reshape(width.shape[0], 2 * self.corners.shape[1], 3)
+
+
 @functools.lru_cache(maxsize=8)
 def fk_table(urdf: str, lower: float, upper: float, samples: int) -> WidthTable:
     """Tabulate pad separation and pad-centre midpoint at ``samples`` angles over ``lower..upper``.
@@ -284,6 +326,42 @@ class RG2:
     def T_base_tcp(self, width: float) -> Transform:
         """Pad-centre midpoint frame in the gripper base frame for opening ``width`` (m)."""
         return self.table.T_base_tcp(width)
+
+    def finger_envelope(self) -> FingerEnvelope:
+        """The fingers' collision boxes in the TCP frame (:class:`FingerEnvelope`), read from the
+        model at half the stroke; the linkage is put back where it was."""
+        angle = self.driven_angle()
+        width = 0.5 * self.max_width
+        self.reset_width(width)
+        try:
+            T_tcp_world = (self.body.base_pose() * self.T_base_tcp(width)).inverse()
+            corners, sides = [], []
+            for chain in FINGER_CHAINS:
+                points = [T_tcp_world.apply(p) for name in chain[2:] for p in self._box_corners(name)]
+                finger = np.concatenate(points)
+                corners.append(finger)
+                sides.append(float(np.sign(finger[:, 0].mean())))
+        finally:
+            self.reset_angle(angle)
+        return FingerEnvelope(
+            np.stack(corners), np.array(sides), width, self.table.width.copy(), self.table.tcp.copy()
+        )
+
+    def _box_corners(self, link: str) -> list[np.ndarray]:
+        """World corners (8, 3) of each collision box of ``link`` (its shapes' frames are given in
+        the link's inertial frame, the pose getLinkState reports first)."""
+        index = self.body.links[link]
+        state = pb.getLinkState(self.body.uid, index, computeForwardKinematics=1, physicsClientId=self.client)
+        T_world_com = Transform(state[0], state[1])
+        out = []
+        for shape in pb.getCollisionShapeData(self.body.uid, index, physicsClientId=self.client):
+            if shape[2] != pb.GEOM_BOX:
+                raise ValueError(f"{link}: the finger envelope expects box collision shapes")
+            half = 0.5 * np.asarray(shape[3])
+            signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
+            T_world_box = T_world_com * Transform(shape[5], shape[6])
+            out.append(T_world_box.apply(signs * half))
+        return out
 
     def driven_angle(self) -> float:
         return self.body.joint_position(self.driven)
