@@ -16,14 +16,13 @@ each put on the table with its centre of mass over the cell's placement point, l
 until its collision shape touches the table, then settled under gravity; a pose that moves more
 than ``placement_max_drift`` while settling is skipped for the next one.
 
-The candidates are the floating run's (same sampler, same Generator keyed on seed and object), so
-grasp ``g`` of a cell run is commanded at the same pose in the object's frame as grasp ``g`` of a
-floating run: the two label sets compare row by row. Each rests in the placement where its approach
-points most downwards (ties: the more probable placement): a table admits grasps from above or
-the side, and a candidate that comes from below in one placement comes from above in another (on
-the sample objects, 60 candidates each: 46 of 600 held in the cell this way, 17 when assigned
-round robin, grasp ``g`` to placement ``g mod P``). The assignment depends on the candidate's pose
-alone, never on spans or workers; placements get unequal shares (the ``placement_id`` column).
+The candidates are sampled per placement, knowing the table (:mod:`annotator.cell.candidates`):
+the object's N rows shared among its placements by stable-pose probability, approaches from above,
+the fingers clear of the table top; each row's ``placement_id`` is the placement it was sampled
+for. On the sample objects (``--n 100``) 360 of 1,000 held this way, 306 of them reachable; with
+the floating run's candidates, each resting in the placement where it approached most from above,
+68 held (58 reachable). Grasps given from outside (``evaluate``, benches) still rest where they
+approach most from above (:meth:`CellObject.placement_for`).
 
 Every trial and every reach check starts from its placement's saved state with no contact memory
 (:meth:`annotator.sim.world.World.restore_state`), so a row depends on (object, seed, grasp) only.
