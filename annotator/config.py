@@ -348,8 +348,9 @@ class CellConfig(_Section):
     placement_x: float = _field(0.35)  # m, world
     placement_y: float = _field(0.0)  # m, world
     placements_per_object: int = _field(3, ge=1)  # the most probable few stable poses
-    # Stable poses whose "up" direction in the object frame differs by less than this are one
-    # placement (a cylinder's hull gives one pose per side facet, 7.5 deg apart): probabilities add.
+    # Stable poses whose "up" directions in the object frame are linked by a chain of neighbours
+    # each within this angle are one placement (a cylinder's hull gives one pose per side facet,
+    # 7.5 deg apart on the can: the whole ring is one placement, lying): probabilities add.
     placement_merge_angle: float = _field(20.0, ge=0.0, le=180.0)  # deg
     placement_min_probability: float = _field(0.02, ge=0.0, le=1.0)  # rarer poses are not used
     # annotate --cell: each placement settles under gravity on the table before its trials (the

@@ -63,7 +63,13 @@ def optical_camera(
 
 def render_rgb(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER) -> np.ndarray:
     """Render one frame; returns (height, width, 3) uint8 RGB."""
-    _, _, rgba, _, _ = pb.getCameraImage(
+    rgba, _, _ = _camera_image(client, camera, renderer)
+    return _rgb(rgba, camera)
+
+
+def _camera_image(client: int, camera: Camera, renderer: int) -> tuple:
+    """PyBullet's raw ``(rgba, zbuffer, segmentation)`` buffers for ``camera``."""
+    _, _, rgba, zbuffer, seg = pb.getCameraImage(
         camera.width,
         camera.height,
         viewMatrix=list(camera.view),
@@ -71,6 +77,11 @@ def render_rgb(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER)
         renderer=renderer,
         physicsClientId=client,
     )
+    return rgba, zbuffer, seg
+
+
+def _rgb(rgba, camera: Camera) -> np.ndarray:
+    """(height, width, 3) uint8 RGB from PyBullet's flat RGBA buffer."""
     rgba = np.asarray(rgba, dtype=np.uint8).reshape(camera.height, camera.width, 4)
     return np.ascontiguousarray(rgba[:, :, :3])
 
@@ -123,16 +134,9 @@ def _near_far(camera: Camera) -> tuple[float, float]:
 
 def render_frame(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER) -> Frame:
     """Render RGB, metric depth and body segmentation in one call (see :class:`Frame`)."""
-    _, _, rgba, zbuffer, seg = pb.getCameraImage(
-        camera.width,
-        camera.height,
-        viewMatrix=list(camera.view),
-        projectionMatrix=list(camera.projection),
-        renderer=renderer,
-        physicsClientId=client,
-    )
+    rgba, zbuffer, seg = _camera_image(client, camera, renderer)
     shape = (camera.height, camera.width)
-    rgb = np.ascontiguousarray(np.asarray(rgba, dtype=np.uint8).reshape(*shape, 4)[:, :, :3])
+    rgb = _rgb(rgba, camera)
     near, far = _near_far(camera)
     z = np.asarray(zbuffer, dtype=np.float64).reshape(shape)
     depth = far * near / (far - (far - near) * z)

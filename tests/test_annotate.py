@@ -23,6 +23,7 @@ import pandas as pd
 import pytest
 import trimesh
 from click.testing import CliRunner
+from helpers import run_annotate
 
 from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
@@ -79,14 +80,6 @@ def _primitives(folder: Path, which: tuple[str, ...] = ("box", "cylinder")) -> P
     return folder
 
 
-def _annotate(*args, check: int | None = 0):
-    """Run ``annotate`` in process; assert the exit code when ``check`` is not None."""
-    result = CliRunner().invoke(annotate_command, [str(a) for a in args], catch_exceptions=False)
-    if check is not None:
-        assert result.exit_code == check, f"exit {result.exit_code}, output:\n{result.output}"
-    return result
-
-
 def _sorted(df: pd.DataFrame) -> pd.DataFrame:
     return df.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
 
@@ -111,7 +104,7 @@ N_SMALL = 14  # two spans per object (CHUNK_SIZE 10): chunk files, their merge, 
 def reference_run(two_objects, tmp_path_factory) -> tuple[Path, str]:
     """The local single-worker run every other run is compared against: (out dir, output)."""
     out = tmp_path_factory.mktemp("ref") / "labels"
-    result = _annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")
+    result = run_annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")
     return out, result.output
 
 
@@ -183,7 +176,7 @@ def test_labels_have_the_contract_schema_and_values(two_objects, reference_run):
 
 def test_labels_do_not_depend_on_workers(two_objects, reference_run, tmp_path):
     out2 = tmp_path / "w2"
-    _annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 2, "--out", out2, "--quiet")
+    run_annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 2, "--out", out2, "--quiet")
     pd.testing.assert_frame_equal(_labels(out2), _labels(reference_run[0]), check_exact=True)
 
 
@@ -193,7 +186,7 @@ def test_dask_cluster_gives_the_same_labels(two_objects, reference_run, tmp_path
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster:
-        _annotate(
+        run_annotate(
             "--objects",
             two_objects,
             "--n",
@@ -211,7 +204,7 @@ def test_unreachable_scheduler_is_a_usage_error(two_objects, tmp_path):
     dask = pytest.importorskip("dask")
     pytest.importorskip("dask.distributed")
     with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
-        result = _annotate(
+        result = run_annotate(
             "--objects",
             two_objects,
             "--n",
@@ -235,7 +228,7 @@ def test_trials_add_a_score_and_keep_the_nominal_labels(two_objects, reference_r
     objs.mkdir()
     shutil.copy(two_objects / "box.obj", objs)
     out = tmp_path / "out"
-    _annotate("--objects", objs, "--n", N_SMALL, "--workers", 1, "--trials", 2, "--out", out, "--quiet")
+    run_annotate("--objects", objs, "--n", N_SMALL, "--workers", 1, "--trials", 2, "--out", out, "--quiet")
     robust = _labels(out)
     nominal = _labels(reference_run[0])
     nominal = nominal[nominal["object_id"] == "box"].reset_index(drop=True)
@@ -245,7 +238,7 @@ def test_trials_add_a_score_and_keep_the_nominal_labels(two_objects, reference_r
     pd.testing.assert_frame_equal(robust[same], nominal[same], check_exact=True)
     assert _manifest(out)["run"]["trials"] == 2
     # a different K is another run: resuming it into the same folder needs --overwrite
-    result = _annotate("--objects", objs, "--n", N_SMALL, "--trials", 3, "--out", out, check=2)
+    result = run_annotate("--objects", objs, "--n", N_SMALL, "--trials", 3, "--out", out, check=2)
     assert "--overwrite" in result.output
 
 
@@ -257,7 +250,7 @@ def test_too_wide_object_never_succeeds(tmp_path):
     objs.mkdir()
     shutil.copy(SAMPLES / "big_ball.obj", objs)
     out = tmp_path / "out"
-    _annotate("--objects", objs, "--n", 6, "--workers", 1, "--out", out, "--quiet")
+    run_annotate("--objects", objs, "--n", 6, "--workers", 1, "--out", out, "--quiet")
     df = _labels(out)
     assert len(df) == 6 and set(df["object_id"]) == {"big_ball"}
     assert not df["success"].any(), df["outcome"].value_counts()
@@ -269,14 +262,14 @@ def test_too_wide_object_never_succeeds(tmp_path):
 
 def test_missing_objects_folder_is_a_usage_error(tmp_path):
     missing = tmp_path / "no_such_folder"
-    result = _annotate("--objects", missing, "--n", 2, "--out", tmp_path / "out", check=2)
+    result = run_annotate("--objects", missing, "--n", 2, "--out", tmp_path / "out", check=2)
     assert "no_such_folder" in result.output
 
 
 def test_empty_objects_folder_is_a_usage_error(tmp_path):
     empty = tmp_path / "empty_folder"
     empty.mkdir()
-    result = _annotate("--objects", empty, "--n", 2, "--out", tmp_path / "out", check=2)
+    result = run_annotate("--objects", empty, "--n", 2, "--out", tmp_path / "out", check=2)
     assert "no objects" in result.output and "empty_folder" in result.output
 
 
@@ -313,7 +306,7 @@ def test_bad_objects_fail_alone_with_a_reason(tmp_path):
     expected = _write_bad_objects(objs)
     out = tmp_path / "out"
     # 12 candidates: two spans per object, so each bad object fails in two workers' tasks
-    result = _annotate("--objects", objs, "--n", 12, "--workers", 2, "--out", out, "--quiet", check=1)
+    result = run_annotate("--objects", objs, "--n", 12, "--workers", 2, "--out", out, "--quiet", check=1)
 
     df = _labels(out)
     assert set(df["object_id"]) == {"box"} and len(df) == 12
@@ -338,7 +331,7 @@ def test_millimetre_mesh_is_accepted_with_scale(tmp_path):
     objs.mkdir()
     trimesh.creation.box((50.0, 40.0, 100.0)).export(objs / "mm_box.obj")
     out = tmp_path / "out"
-    _annotate("--objects", objs, "--n", 4, "--workers", 1, "--scale", 0.001, "--out", out, "--quiet")
+    run_annotate("--objects", objs, "--n", 4, "--workers", 1, "--scale", 0.001, "--out", out, "--quiet")
     df = _labels(out)
     assert len(df) == 4 and (df["object_scale"] == 0.001).all()
 
@@ -350,22 +343,22 @@ def test_resume_skips_done_objects_and_overwrite_starts_over(tmp_path):
     objs = _primitives(tmp_path / "objs", ("box",))
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", 4, "--workers", 1, "--out", out, "--quiet"]
-    _annotate(*args)
+    run_annotate(*args)
     files = sorted(out.glob("*.parquet"))
     assert len(files) == 1
     stamps = {p: p.stat().st_mtime_ns for p in files}
     first = _labels(out)
 
-    again = _annotate(*args)
+    again = run_annotate(*args)
     assert "earlier" in again.output and "0 objects labelled, 1 done earlier" in again.output
     assert {p: p.stat().st_mtime_ns for p in sorted(out.glob("*.parquet"))} == stamps
     pd.testing.assert_frame_equal(_labels(out), first)
 
-    other_seed = _annotate(*args, "--seed", 1, check=2)
+    other_seed = run_annotate(*args, "--seed", 1, check=2)
     assert "--overwrite" in other_seed.output and "seed" in other_seed.output
     assert {p: p.stat().st_mtime_ns for p in sorted(out.glob("*.parquet"))} == stamps  # untouched
 
-    _annotate(*args, "--seed", 1, "--overwrite")
+    run_annotate(*args, "--seed", 1, "--overwrite")
     rerun = _labels(out)
     assert len(rerun) == 4 and (rerun["seed"] == 1).all()
     assert _manifest(out)["run"]["seed"] == 1
@@ -390,7 +383,7 @@ def test_resume_redoes_chunks_the_manifest_does_not_vouch_for(two_objects, refer
     write_labels(out, fake.iloc[10:13], 10, 13, stale[1].name, key, source)
     assert all(p.exists() for p in stale)
 
-    result = _annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")
+    result = run_annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")
     assert "1 objects labelled, 1 done earlier" in result.output
     assert f"{N_SMALL} candidates simulated in" in result.output  # box redone whole, cylinder kept
     assert not any(p.exists() for p in stale)
@@ -482,7 +475,7 @@ def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
     resumed = _labels(out)
 
     fresh = tmp_path / "fresh"
-    _annotate("--objects", objs, "--n", N_LONG, "--workers", 2, "--out", fresh, "--quiet")
+    run_annotate("--objects", objs, "--n", N_LONG, "--workers", 2, "--out", fresh, "--quiet")
     expected = _labels(fresh)
     assert not resumed.duplicated(["object_id", "grasp_id"]).any()
     assert resumed.groupby("object_id").size().to_dict() == dict.fromkeys(LONG_OBJECTS, N_LONG)

@@ -7,34 +7,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-import trimesh
+from helpers import synthetic_labels
 
 import annotator.dataset as ds
 import annotator.pipeline.files as files
-from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
-from annotator.sampler import object_rng, sample_candidates
-
-
-def _labels(object_id: str, n: int = 10, seed: int = 0) -> pd.DataFrame:
-    """A realistic label table: poses from the real sampler on a 40 mm box, mixed outcomes."""
-    rng = object_rng(seed, object_id)
-    cand = sample_candidates(
-        trimesh.creation.box(extents=(0.04, 0.04, 0.04)), n, rng, AnnotatorConfig().sampler, 0.11
-    )
-    outcomes = np.array(ds.OUTCOMES)[rng.integers(len(ds.OUTCOMES), size=n)]
-    df = ds.pose_columns(cand.T_obj_tcp)
-    df.insert(0, "object_id", object_id)
-    df.insert(1, "grasp_id", np.arange(n, dtype=np.int64))
-    df["width"] = cand.width_expected
-    df["success"] = outcomes == "success"
-    df["outcome"] = outcomes
-    df["score"] = df["success"].astype(np.float64)
-    df["object_scale"] = 1.0
-    df["mesh_sha256"] = "ab" * 32
-    df["seed"] = np.int64(seed)
-    df["antipodal"] = cand.antipodal  # an extra column is kept
-    return df
 
 
 def test_outcomes_and_enum() -> None:
@@ -55,7 +32,7 @@ def _write(folder: Path, df: pd.DataFrame) -> Path:
 
 
 def test_round_trip_read_parquet_directory(tmp_path: Path) -> None:
-    frames = {oid: _labels(oid, n=12) for oid in ["ycb/mug", "ycb/bowl", "cube"]}
+    frames = {oid: synthetic_labels(oid, n=12) for oid in ["ycb/mug", "ycb/bowl", "cube"]}
     for df in frames.values():
         _write(tmp_path, df)
     (tmp_path / "_manifest.json").write_text("{}")
@@ -98,9 +75,9 @@ def test_round_trip_read_parquet_directory(tmp_path: Path) -> None:
 )
 def test_schema_errors_are_clear(tmp_path: Path, mutate, message: str) -> None:
     with pytest.raises(ds.SchemaError, match=message):
-        ds.validate_labels(mutate(_labels("o", 6)))
+        ds.validate_labels(mutate(synthetic_labels("o", 6)))
     with pytest.raises(ds.SchemaError, match=message):  # and nothing invalid reaches the disk
-        _write(tmp_path, mutate(_labels("o", 6)))
+        _write(tmp_path, mutate(synthetic_labels("o", 6)))
     assert list(tmp_path.iterdir()) == []
 
 
@@ -109,14 +86,14 @@ def test_load_labels_errors(tmp_path: Path) -> None:
         ds.load_labels(tmp_path / "nope")
     with pytest.raises(FileNotFoundError, match="no label files"):
         ds.load_labels(tmp_path)
-    bad = _labels("x", 3).drop(columns=["mesh_sha256"])
+    bad = synthetic_labels("x", 3).drop(columns=["mesh_sha256"])
     bad.to_parquet(tmp_path / "foreign.parquet", index=False)
     with pytest.raises(ds.SchemaError, match="mesh_sha256"):
         ds.load_labels(tmp_path)
 
 
 def test_poses_round_trip_through_transform() -> None:
-    df = _labels("p", 25)
+    df = synthetic_labels("p", 25)
     T = ds.poses_as_matrices(df)
     assert T.shape == (25, 4, 4)
     for row, Ti in zip(df.itertuples(), T, strict=True):
@@ -128,7 +105,7 @@ def test_poses_round_trip_through_transform() -> None:
 
 
 def test_split_by_object_has_no_leakage() -> None:
-    df = pd.concat([_labels(f"obj{i}", 4) for i in range(10)], ignore_index=True)
+    df = pd.concat([synthetic_labels(f"obj{i}", 4) for i in range(10)], ignore_index=True)
     train, val = ds.split_by_object(df, val_fraction=0.2, seed=3)
     assert set(train["object_id"]).isdisjoint(val["object_id"])
     assert len(train) + len(val) == len(df)

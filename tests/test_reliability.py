@@ -19,9 +19,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import trimesh
-from click.testing import CliRunner
+from helpers import run_annotate
 
-from annotator.cli import annotate_command
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
 from annotator.pipeline.files import object_filename
@@ -52,13 +51,6 @@ def _objects(folder: Path, names=("box", "cylinder", "slab")) -> Path:
     for name in names:
         makers[name]().export(folder / f"{name}.obj")
     return folder
-
-
-def _annotate(*args, check: int | None = 0):
-    result = CliRunner().invoke(annotate_command, [str(a) for a in args], catch_exceptions=False)
-    if check is not None:
-        assert result.exit_code == check, f"exit {result.exit_code}, output:\n{result.output}"
-    return result
 
 
 def _labels(out: Path) -> pd.DataFrame:
@@ -103,7 +95,7 @@ def objs(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def reference(objs, tmp_path_factory) -> pd.DataFrame:
     out = tmp_path_factory.mktemp("ref") / "labels"
-    _annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet")
+    run_annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet")
     return _labels(out)
 
 
@@ -115,7 +107,7 @@ def test_a_second_run_on_the_same_out_is_a_usage_error_naming_the_first(objs, re
     first = _spawn(objs, out, "--n", N, "--workers", 1)
     try:
         _wait_for_labels(first, out)
-        second = _annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--seed", 1, check=2)
+        second = run_annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--seed", 1, check=2)
         assert f"pid {first.pid}" in second.output and "in use by another run" in second.output
         _, stderr = first.communicate(timeout=180)
     finally:
@@ -132,17 +124,17 @@ def test_changed_inputs_are_refused_or_redone(objs, reference, tmp_path):
     local = shutil.copytree(objs, tmp_path / "objs")
     out = tmp_path / "out"
     args = ["--objects", local, "--n", N, "--workers", 1, "--out", out, "--quiet"]
-    _annotate(*args)
-    r = _annotate(*args, "--scale", 1.5, check=2)
+    run_annotate(*args)
+    r = run_annotate(*args, "--scale", 1.5, check=2)
     assert "scale None in the folder, 1.5 now" in r.output
     cfg = tmp_path / "c.toml"
     cfg.write_text("[gripper]\nstall_steps = 20\n")
-    r = _annotate(*args, "--config", cfg, check=2)
+    r = run_annotate(*args, "--config", cfg, check=2)
     assert "[gripper] stall_steps 12 in the folder, 20 now" in r.output
     # one object's file changes: it alone is redone; another is removed: its labels are set aside
     trimesh.creation.box((0.05, 0.045, 0.10)).export(local / "box.obj")
     (local / "slab.obj").unlink()
-    r = _annotate(*args)
+    r = run_annotate(*args)
     assert "box: its source changed" in r.output and "slab: no longer among the objects" in r.output
     assert "1 objects labelled, 1 done earlier" in r.output
     df = _labels(out)
@@ -163,10 +155,10 @@ def test_a_mesh_changed_behind_an_unchanged_urdf_is_redone(tmp_path):
     )
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
-    _annotate(*args)
+    run_annotate(*args)
     before = _labels(out)
     trimesh.creation.box((0.05, 0.05, 0.08)).export(objs / "thing" / "thing.obj")
-    r = _annotate(*args)
+    r = run_annotate(*args)
     assert "thing/thing: its source changed" in r.output
     after = _labels(out)
     assert len(after) == 10 and set(after["mesh_sha256"]).isdisjoint(before["mesh_sha256"])
@@ -178,10 +170,10 @@ def test_a_mesh_changed_behind_an_unchanged_urdf_is_redone(tmp_path):
 def test_a_truncated_label_file_is_named_and_redone(objs, reference, tmp_path):
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet"]
-    _annotate(*args)
+    run_annotate(*args)
     victim = out / object_filename("cylinder")
     victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
-    r = _annotate(*args)
+    r = run_annotate(*args)
     assert victim.name in r.output and "checksum" in r.output
     assert "1 objects labelled, 2 done earlier" in r.output
     pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
@@ -191,11 +183,11 @@ def test_a_truncated_label_file_is_named_and_redone(objs, reference, tmp_path):
 def test_a_broken_manifest_is_one_line_and_repair_recovers(objs, reference, tmp_path, content):
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet"]
-    _annotate(*args)
+    run_annotate(*args)
     (out / MANIFEST_NAME).write_bytes(content)
-    r = _annotate(*args, check=2)
+    r = run_annotate(*args, check=2)
     assert "--repair" in r.output and "Traceback" not in r.output
-    r = _annotate(*args, "--repair")
+    r = run_annotate(*args, "--repair")
     assert (
         "manifest rebuilt from 3 label files" in r.output and "0 objects labelled, 3 done earlier" in r.output
     )
@@ -205,10 +197,10 @@ def test_a_broken_manifest_is_one_line_and_repair_recovers(objs, reference, tmp_
 def test_overwrite_keeps_a_users_own_files(objs, tmp_path):
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
-    _annotate(*args)
+    run_annotate(*args)
     out.joinpath("notes.txt").write_text("mine")
     pd.DataFrame({"mine": [1.0]}).to_parquet(out / "my_table.parquet")
-    _annotate(*args, "--seed", 3, "--overwrite")
+    run_annotate(*args, "--seed", 3, "--overwrite")
     assert (out / "notes.txt").read_text() == "mine"
     assert pd.read_parquet(out / "my_table.parquet")["mine"].tolist() == [1.0]
     assert json.loads((out / MANIFEST_NAME).read_text())["run"]["seed"] == 3
@@ -286,11 +278,11 @@ def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, ref
     try:
         out = disk / "labels"
         args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out]
-        r = _annotate(*args, "--quiet", check=3)
+        r = run_annotate(*args, "--quiet", check=3)
         assert "No space left on device" in r.output and "Traceback" not in r.output
         assert "STOPPED" in r.output and "candidates simulated" in r.output  # the summary is printed
         subprocess.run(["mount", "-o", "remount,size=16m", str(disk)], check=True)
-        _annotate(*args, "--quiet")
+        run_annotate(*args, "--quiet")
         pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
     finally:
         _umount(disk)
@@ -302,11 +294,11 @@ def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_pat
     try:
         out = disk / "labels"
         args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
-        _annotate(*args)
+        run_annotate(*args)
         subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
-        r = _annotate(*args)  # finished: nothing to write, exit 0 with the statistics
+        r = run_annotate(*args)  # finished: nothing to write, exit 0 with the statistics
         assert "0 objects labelled, 3 done earlier" in r.output
-        r = _annotate(*[a if a != 10 else 12 for a in args], "--overwrite", check=3)
+        r = run_annotate(*[a if a != 10 else 12 for a in args], "--overwrite", check=3)
         assert "Read-only file system" in r.output or "read-only" in r.output
         assert "Traceback" not in r.output
     finally:
@@ -343,7 +335,7 @@ def test_sigterm_stops_like_ctrl_c_and_the_run_resumes(objs, reference, tmp_path
         proc.wait()
     assert proc.returncode == 143, stderr
     assert "terminated" in stderr and "Traceback" not in stderr
-    _annotate("--objects", objs, "--n", N, "--workers", 2, "--out", out, "--quiet")
+    run_annotate("--objects", objs, "--n", N, "--workers", 2, "--out", out, "--quiet")
     pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
 
 
@@ -390,9 +382,9 @@ def test_a_lost_scheduler_is_one_line_and_exit_4(objs, tmp_path):
 
 
 def test_absurd_workers_and_n_are_usage_errors(objs, tmp_path):
-    r = _annotate("--objects", objs, "--n", 4, "--workers", 100000, "--out", tmp_path / "o", check=2)
+    r = run_annotate("--objects", objs, "--n", 4, "--workers", 100000, "--out", tmp_path / "o", check=2)
     assert "--workers 100000" in r.output and "GB available" in r.output
-    r = _annotate("--objects", objs, "--n", 10_000_000, "--out", tmp_path / "o", check=2)
+    r = run_annotate("--objects", objs, "--n", 10_000_000, "--out", tmp_path / "o", check=2)
     assert "--n" in r.output
     assert not (tmp_path / "o").exists()
 

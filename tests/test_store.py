@@ -15,11 +15,10 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-import trimesh
+from helpers import synthetic_labels
 
 import annotator.dataset as ds
 from annotator.config import AnnotatorConfig
@@ -34,31 +33,9 @@ from annotator.pipeline.store import (
     RunSpec,
     Store,
 )
-from annotator.sampler import object_rng, sample_candidates
 
 N = 10
 SRC = "ab" * 32
-
-
-def _labels(object_id: str, n: int = N, start: int = 0, seed: int = 0) -> pd.DataFrame:
-    """A realistic label table: poses from the real sampler on a 40 mm box, mixed outcomes."""
-    rng = object_rng(seed, object_id)
-    cand = sample_candidates(
-        trimesh.creation.box(extents=(0.04, 0.04, 0.04)), n, rng, AnnotatorConfig().sampler, 0.11
-    )
-    outcomes = np.array(ds.OUTCOMES)[rng.integers(len(ds.OUTCOMES), size=n)]
-    df = ds.pose_columns(cand.T_obj_tcp)
-    df.insert(0, "object_id", object_id)
-    df.insert(1, "grasp_id", np.arange(start, start + n, dtype=np.int64))
-    df["width"] = cand.width_expected
-    df["success"] = outcomes == "success"
-    df["outcome"] = outcomes
-    df["score"] = df["success"].astype(np.float64)
-    df["object_scale"] = 1.0
-    df["mesh_sha256"] = "ab" * 32
-    df["seed"] = np.int64(seed)
-    df["antipodal"] = cand.antipodal  # an extra column is kept
-    return df
 
 
 def _spec(**changes) -> RunSpec:
@@ -78,7 +55,7 @@ def _finished(folder: Path, oids=("a", "b"), spec: RunSpec | None = None) -> Sto
     store = Store(folder, spec or _spec())
     store.open()
     for oid in oids:
-        whole = _labels(oid)
+        whole = synthetic_labels(oid)
         store.write_chunk(oid, whole.iloc[:5], 0, SRC)
         store.write_chunk(oid, whole.iloc[5:], 5, SRC)
         store.finish_object(oid, SRC)
@@ -128,7 +105,7 @@ def test_write_is_atomic_and_names_the_path_on_os_errors(tmp_path: Path) -> None
 
 
 def test_label_files_have_fixed_types_a_mark_and_the_recorded_checksum(tmp_path: Path) -> None:
-    rec = files.write_labels(tmp_path, _labels("typed", 4), 0, 4, "t.parquet", "key", SRC)
+    rec = files.write_labels(tmp_path, synthetic_labels("typed", 4), 0, 4, "t.parquet", "key", SRC)
     path = tmp_path / "t.parquet"
     schema = pq.read_schema(path)
     assert str(schema.field("object_id").type) == "string" and str(schema.field("grasp_id").type) == "int64"
@@ -148,11 +125,11 @@ def test_label_files_have_fixed_types_a_mark_and_the_recorded_checksum(tmp_path:
 
 
 def test_write_rejects_several_objects_and_gappy_ids(tmp_path: Path) -> None:
-    both = pd.concat([_labels("a", 3), _labels("b", 3)])
+    both = pd.concat([synthetic_labels("a", 3), synthetic_labels("b", 3)])
     with pytest.raises(ds.SchemaError, match="one object"):
         files.write_labels(tmp_path, both, 0, 6, "x.parquet", "k", SRC)
     with pytest.raises(ds.SchemaError, match=r"exactly 4\.\.7"):  # rows must be the span they claim
-        files.write_labels(tmp_path, _labels("a", 4), 4, 8, "x.parquet", "k", SRC)
+        files.write_labels(tmp_path, synthetic_labels("a", 4), 4, 8, "x.parquet", "k", SRC)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -161,7 +138,7 @@ def test_write_rejects_several_objects_and_gappy_ids(tmp_path: Path) -> None:
 
 def test_chunks_are_readable_at_once_merged_and_resumed(tmp_path: Path) -> None:
     store = _open(tmp_path)
-    whole = _labels("ycb/mug")
+    whole = synthetic_labels("ycb/mug")
     store.write_chunk("ycb/mug", whole.iloc[:5], 0, SRC)
     got = pd.read_parquet(tmp_path)  # the user's one-liner reads chunks of an unfinished object
     assert sorted(got["grasp_id"]) == [0, 1, 2, 3, 4]
@@ -239,7 +216,7 @@ def test_a_truncated_object_file_is_named_removed_and_redone(tmp_path: Path) -> 
 
 def test_a_truncated_chunk_the_manifest_lists_is_redone(tmp_path: Path) -> None:
     store = _open(tmp_path)
-    whole = _labels("a")
+    whole = synthetic_labels("a")
     store.write_chunk("a", whole.iloc[:5], 0, SRC)
     store.write_chunk("a", whole.iloc[5:], 5, SRC)
     store.close()
@@ -255,7 +232,9 @@ def test_unvouched_files_of_the_tool_go_and_a_users_stay(tmp_path: Path) -> None
     store = _open(tmp_path)
     store.close()
     # a chunk written just before a kill (never recorded), a temp file, a user's own file
-    files.write_labels(tmp_path, _labels("a", 5), 0, 5, files.chunk_filename("a", 0, 5), _spec().key, SRC)
+    files.write_labels(
+        tmp_path, synthetic_labels("a", 5), 0, 5, files.chunk_filename("a", 0, 5), _spec().key, SRC
+    )
     (tmp_path / ".x.parquet.abc123.tmp").write_bytes(b"half")
     pd.DataFrame({"mine": [1]}).to_parquet(tmp_path / "mine.parquet")
     _open(tmp_path).close()
@@ -367,7 +346,7 @@ def test_a_read_only_folder_reads_a_finished_run_and_refuses_writes(tmp_path: Pa
         store = _open(mount)
         assert store.read_only and store.reconcile({"a": SRC}).done == {"a"}
         with pytest.raises(files.OutputError, match="read-only"):
-            store.write_chunk("b", _labels("b", 5), 0, SRC)
+            store.write_chunk("b", synthetic_labels("b", 5), 0, SRC)
         store.close()
     finally:
         time.sleep(0.1)
@@ -383,7 +362,7 @@ def _with_artifacts(folder: Path, oids=("a", "b"), finish: bool = True) -> dict[
     store = _open(folder)
     records: dict[str, dict[str, str]] = {}
     for oid in oids:
-        whole = _labels(oid)
+        whole = synthetic_labels(oid)
         made = {
             name: store.write_artifact(oid, name, f"{oid} {name}".encode()) for name in ("v.png", "c.parquet")
         }

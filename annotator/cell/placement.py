@@ -3,9 +3,10 @@
 ``stable_poses(mesh)`` runs trimesh's ``compute_stable_poses`` (the quasi-static topple analysis
 of the convex hull about the centre of mass; deterministic with its defaults) and merges poses that
 are one placement in practice (a cylinder's hull yields one pose per side facet): poses whose
-world-up direction, seen in the object frame, lies within ``placement_merge_angle`` of a more
-probable one add their probability to it. ``placements(...)`` keeps the most probable few and puts
-each on the table top with the centre of mass over the cell's placement point.
+world-up directions, seen in the object frame, are linked by a chain of neighbours each within
+``placement_merge_angle`` form one placement with their probabilities added. ``placements(...)``
+keeps the most probable few and puts each on the table top with the centre of mass over the
+cell's placement point.
 """
 
 from __future__ import annotations
@@ -27,10 +28,18 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class StablePose:
     """A resting pose: ``T_rest_obj`` (4, 4) puts the mesh on the plane z = 0 (rest frame z up),
-    with the (merged) ``probability`` of landing in it."""
+    with the (merged) ``probability`` of landing in it. ``members`` are the ``T_rest_obj`` of every
+    trimesh pose merged into it, most probable first (``T_rest_obj`` is the first): a can lying on
+    any of its side facets."""
 
     T_rest_obj: np.ndarray
     probability: float
+    members: tuple[np.ndarray, ...] = ()
+
+    def each_member(self) -> list[StablePose]:
+        """One pose per merged member (this pose alone when it has none), each with the whole
+        placement's probability."""
+        return [StablePose(T, self.probability) for T in self.members] or [self]
 
     @property
     def up_in_object(self) -> np.ndarray:
@@ -44,20 +53,41 @@ def stable_poses(mesh: trimesh.Trimesh, merge_angle: float, min_probability: flo
     ``merge_angle`` degrees; poses below ``min_probability`` after merging are dropped.
     """
     transforms, probabilities = trimesh.poses.compute_stable_poses(mesh)
-    order = np.argsort(-np.asarray(probabilities), kind="stable")
-    kept: list[list] = []  # [T, probability, up]
+    T_all = [np.asarray(T) for T in transforms]
+    p_all = np.asarray(probabilities, dtype=float)
+    if not T_all:
+        return []
+    up = np.array([T[2, :3] for T in T_all])  # (k, 3): world up in the object frame, per pose
+    # Single linkage: poses whose up directions lie within merge_angle are joined, and so are
+    # their neighbours' neighbours. A cylinder's side facets (7.5 deg apart on the can) are one
+    # chain all round, however many there are; a greedy cluster of one radius cut that ring into
+    # pieces of ~5 facets, each less probable than standing upright, so the can and the bottle
+    # were never placed standing. Faces of a box (90 deg apart) stay apart.
+    parent = list(range(len(T_all)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
     cos_merge = math.cos(math.radians(merge_angle))
-    for k in order:
-        T, prob = np.asarray(transforms[k]), float(probabilities[k])
-        up = T[2, :3]
-        for entry in kept:
-            if float(np.dot(entry[2], up)) >= cos_merge:
-                entry[1] += prob
-                break
-        else:
-            kept.append([T, prob, up])
-    kept.sort(key=lambda e: -e[1])
-    return [StablePose(T, p) for T, p, _ in kept if p >= min_probability]
+    close = up @ up.T >= cos_merge
+    for i in range(len(T_all)):
+        for j in np.flatnonzero(close[i, i + 1 :]) + i + 1:
+            ri, rj = root(i), root(int(j))
+            if ri != rj:
+                parent[max(ri, rj)] = min(ri, rj)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(T_all)):
+        groups.setdefault(root(i), []).append(i)
+    # Each placement is represented by its most probable member (ties: trimesh's order).
+    kept = []
+    for members in groups.values():
+        members = sorted(members, key=lambda i: (-p_all[i], i))
+        kept.append((float(p_all[members].sum()), members[0], tuple(T_all[i] for i in members)))
+    kept.sort(key=lambda e: (-e[0], e[1]))
+    return [StablePose(Ts[0], p, Ts) for p, _, Ts in kept if p >= min_probability]
 
 
 @dataclass(frozen=True)

@@ -175,14 +175,17 @@ def plan_replay(cell: Cell, model: ObjectModel, obj: int, row: pd.Series, config
     xy = np.array([cell.config.placement_x, cell.config.placement_y])
     candidates = []
     for i, pose in enumerate(poses):
-        for k in range(round(2 * math.pi / YAW_STEP)):
-            T_world_obj = place(pose, cell.top, xy, k * YAW_STEP, T_obj_tcp.pos)
-            approach = (T_world_obj * T_obj_tcp).rotation[:, 2]
-            downward = -float(approach[2])
-            candidates.append((-round(downward, 2), -pose.probability, i, k, T_world_obj, downward))
-    candidates.sort(key=lambda c: c[:4])
+        # every member of a merged placement (a can on any of its side facets) may serve: the
+        # grasp's side of the object can face up in one and down in another
+        for m, member in enumerate(pose.each_member()):
+            for k in range(round(2 * math.pi / YAW_STEP)):
+                T_world_obj = place(member, cell.top, xy, k * YAW_STEP, T_obj_tcp.pos)
+                approach = (T_world_obj * T_obj_tcp).rotation[:, 2]
+                downward = -float(approach[2])
+                candidates.append((-round(downward, 2), -pose.probability, i, m, k, T_world_obj, downward))
+    candidates.sort(key=lambda c: c[:5])
     first_failure: tuple | None = None
-    for tries, (_, _, i, k, T_world_obj, downward) in enumerate(candidates[:MAX_PLACEMENT_TRIES], start=1):
+    for tries, (_, _, i, _, k, T_world_obj, downward) in enumerate(candidates[:MAX_PLACEMENT_TRIES], start=1):
         reset_object_pose(cell.client, obj, T_world_obj)
         T_world_tcp = T_world_obj * T_obj_tcp
         reach = _reach(cell, obj, T_world_tcp, width, open_width, config)

@@ -1,0 +1,44 @@
+"""Helpers shared by several test modules (pytest puts tests/ on sys.path: ``from helpers import``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import trimesh
+from click.testing import CliRunner, Result
+
+import annotator.dataset as ds
+from annotator.cli import annotate_command
+from annotator.config import AnnotatorConfig
+from annotator.sampler import object_rng, sample_candidates
+
+
+def run_annotate(*args, check: int | None = 0) -> Result:
+    """Run ``annotate`` in process with ``args`` (anything str() turns into an argument); assert
+    the exit code when ``check`` is not None, showing the output when it differs."""
+    result = CliRunner().invoke(annotate_command, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, f"exit {result.exit_code}, output:\n{result.output}"
+    return result
+
+
+def synthetic_labels(object_id: str, n: int = 10, start: int = 0, seed: int = 0) -> pd.DataFrame:
+    """A realistic label table of ``n`` rows (grasp ids ``start``..): poses from the real sampler
+    on a 40 mm box, outcomes drawn at random (no simulation), plus an extra column to be kept."""
+    rng = object_rng(seed, object_id)
+    cand = sample_candidates(
+        trimesh.creation.box(extents=(0.04, 0.04, 0.04)), n, rng, AnnotatorConfig().sampler, 0.11
+    )
+    outcomes = np.array(ds.OUTCOMES)[rng.integers(len(ds.OUTCOMES), size=n)]
+    df = ds.pose_columns(cand.T_obj_tcp)
+    df.insert(0, "object_id", object_id)
+    df.insert(1, "grasp_id", np.arange(start, start + n, dtype=np.int64))
+    df["width"] = cand.width_expected
+    df["success"] = outcomes == "success"
+    df["outcome"] = outcomes
+    df["score"] = df["success"].astype(np.float64)
+    df["object_scale"] = 1.0
+    df["mesh_sha256"] = "ab" * 32
+    df["seed"] = np.int64(seed)
+    df["antipodal"] = cand.antipodal  # an extra column is kept
+    return df
