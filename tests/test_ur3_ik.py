@@ -130,6 +130,35 @@ def test_wrist_singularity_keeps_the_reference_q6():
     assert angle_gap(result.solutions, q).min() < 1e-8
 
 
+def test_nearest_ik_along_a_batched_path_equals_solving_each_waypoint_alone():
+    """check_reach solves an approach's waypoints in one batch: the branch it then picks at each
+    waypoint, from the previous one, must be nearest_ik's own answer, bit for bit, on random
+    approaches and on one through the wrist singularity (where q6 comes from the seed)."""
+    rng = np.random.default_rng(7)
+    paths_checked = 0
+    singular_q = np.array([0.2, -1.0, 1.2, -0.5, 0.0, 0.7])
+    configurations = [*random_configurations(rng, 60), singular_q]
+    for q in configurations:
+        T_grasp = ur3.dh_forward_kinematics(q)
+        back = T_grasp[:3, 2]  # approach along the flange's z
+        flange = np.stack([T_grasp.copy() for _ in range(11)])
+        flange[:, :3, 3] -= np.outer(np.linspace(0.0, 0.1, 11), back)
+        along = ur3.ik_branches(flange)
+        if q is singular_q:
+            assert along.wrist_singular[0].any()
+        seed = q
+        for i in range(1, 11):
+            want = ur3.nearest_ik(flange[i], seed)
+            got = ur3.nearest_ik_along(along, i, flange[i], seed)
+            if want is None:
+                assert got is None
+                break
+            assert got is not None and np.array_equal(got, want)
+            seed = want
+        paths_checked += 1
+    assert paths_checked == len(configurations)
+
+
 def test_stretched_elbow_branches_coincide_once():
     q = np.array([0.4, -0.8, 0.0, -0.6, 1.0, 0.2])  # q3 = 0: the two elbow branches meet
     sols = ur3.ik_solutions(ur3.dh_forward_kinematics(q))

@@ -333,13 +333,26 @@ def solve_ik(
     singularity.
     """
     reference = np.zeros(6) if reference is None else np.asarray(reference, dtype=np.float64)
-    limits = np.asarray(limits, dtype=np.float64)
     br = ik_branches(T_base_tool0, q6_singular=reference[5])
-    ok = br.stage[0] == 0
+    return solutions_of(br, 0, limits=limits, reference=reference)
+
+
+def solutions_of(
+    br: Branches, i: int, *, limits: np.ndarray = JOINT_LIMITS, reference: np.ndarray | None = None
+) -> IKResult:
+    """:func:`solve_ik`'s answer for pose ``i`` of branches computed for many poses at once.
+
+    Equal to ``solve_ik`` of that pose with ``reference`` when ``br`` was computed with
+    ``q6_singular = reference[5]`` or when no branch of the pose is wrist-singular
+    (``br.wrist_singular[i].any()`` is False): the hint is only used there.
+    """
+    reference = np.zeros(6) if reference is None else np.asarray(reference, dtype=np.float64)
+    limits = np.asarray(limits, dtype=np.float64)
+    ok = br.stage[i] == 0
     if not ok.any():
-        worst = int(br.stage[0].max())  # the stage where the furthest-getting branch failed
+        worst = int(br.stage[i].max())  # the stage where the furthest-getting branch failed
         return IKResult(np.empty((0, 6)), Branches.REASONS[worst], np.empty(0, dtype=bool))
-    q, singular = br.q[0][ok], br.wrist_singular[0][ok]
+    q, singular = br.q[i][ok], br.wrist_singular[i][ok]
     keep = []
     for k in range(len(q)):  # drop branches that coincide with an earlier one (boundaries)
         if all(np.abs(_wrap(q[k] - q[j])).max() > SAME_SOLUTION for j in keep):
@@ -361,11 +374,26 @@ def nearest_ik(
 ) -> np.ndarray | None:
     """The solution (6,) nearest to ``q_seed`` (6,) (Euclidean in joint space, each joint unwrapped
     towards the seed within its limits), or None. Ties go to the earlier branch."""
-    result = solve_ik(T_base_tool0, limits=limits, reference=q_seed)
+    return _nearest(solve_ik(T_base_tool0, limits=limits, reference=q_seed), q_seed)
+
+
+def _nearest(result: IKResult, q_seed: np.ndarray) -> np.ndarray | None:
+    """The solution of ``result`` nearest to ``q_seed`` (ties: the earlier branch), or None."""
     if not result:
         return None
     d = np.linalg.norm(result.solutions - np.asarray(q_seed, dtype=np.float64), axis=1)
     return result.solutions[int(np.argmin(d))]
+
+
+def nearest_ik_along(
+    br: Branches, i: int, T_base_tool0: np.ndarray, q_seed: np.ndarray, limits: np.ndarray = JOINT_LIMITS
+) -> np.ndarray | None:
+    """:func:`nearest_ik` for pose ``i`` (flange ``T_base_tool0`` (4, 4)) of branches ``br``
+    computed for a whole path at once: the same answer, solved again alone only where a branch of
+    that pose is wrist-singular (where q6 is chosen from ``q_seed``)."""
+    if br.wrist_singular[i].any():
+        return nearest_ik(T_base_tool0, q_seed, limits)
+    return _nearest(solutions_of(br, i, limits=limits, reference=q_seed), q_seed)
 
 
 # --- the model's fixed frames ----------------------------------------------------------------------
