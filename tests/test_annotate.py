@@ -407,6 +407,10 @@ def _cli_subprocess(objs: Path, out: Path) -> subprocess.Popen:
         text=True,
         env=dict(os.environ),
         cwd=objs.parent,
+        # Ctrl-C as a terminal delivers it: a shell starts background jobs (`pytest &`, nohup)
+        # with SIGINT ignored, children inherit that and Python then never raises
+        # KeyboardInterrupt, so the run would (rightly) ignore the signal
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
 
 
