@@ -321,3 +321,32 @@ def sample_candidates(
         antipodal=antipodal.astype(bool),
         contacts=contacts[order].astype(np.float64),
     )
+
+
+def pad_opening(
+    triangles: np.ndarray,
+    T_obj_tcp: np.ndarray,
+    width: float,
+    pad_face: tuple[float, float],
+    reach: float = 0.01,
+    grid: tuple[int, int] = (11, 15),
+) -> float:
+    """The pad separation (m) at which two flat, parallel pads first touch ``triangles``.
+
+    triangles : (F, 3, 3) float, the object's surface in its mesh frame; T_obj_tcp : (4, 4) float;
+    pad_face : (across, along the approach) extents of a pad's face, m. The pads are centred on the
+    TCP's closing axis (x) and close along it from ``width / 2 + reach`` on either side. This is the
+    width the mesh implies for a grasp: on a concave surface (a mug's inner wall, a banana's inner
+    curve) a flat pad rests on its edges, so it stops short of the chord through the TCP. Returns
+    inf when a pad meets no surface.
+    """
+    x, y, z, origin = T_obj_tcp[:3, 0], T_obj_tcp[:3, 1], T_obj_tcp[:3, 2], T_obj_tcp[:3, 3]
+    gy, gz = np.meshgrid(
+        np.linspace(-pad_face[0] / 2, pad_face[0] / 2, grid[0]),
+        np.linspace(-pad_face[1] / 2, pad_face[1] / 2, grid[1]),
+    )
+    face = origin + gy.reshape(-1, 1) * y + gz.reshape(-1, 1) * z  # (k, 3) on the pads' mid-plane
+    start = width / 2 + reach
+    directions = np.repeat([x, -x], len(face), axis=0)
+    t, _ = _first_hits(triangles, np.concatenate([face - start * x, face + start * x]), directions)
+    return float(2 * start - t[: len(face)].min() - t[len(face) :].min())

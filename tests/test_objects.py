@@ -17,6 +17,7 @@ import pytest
 import trimesh
 
 from annotator.config import AnnotatorConfig, ObjectConfig
+from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import (
     ObjectDiscoveryError,
@@ -33,6 +34,8 @@ from annotator.objects import (
     source_digest,
 )
 from annotator.objects.fidelity import closest_distance
+from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span, object_candidates
+from annotator.sampler import pad_opening
 
 REPO_OBJECTS = Path(__file__).resolve().parents[1] / "objects"
 CONFIG = ObjectConfig()
@@ -630,6 +633,49 @@ def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_mo
         within = mean <= CONFIG.collision_mean_limit and worst <= CONFIG.collision_max_limit
         assert record["collision_approximate"] == (not within), oid
         assert within, f"{oid}: collision error mean {mean * 1e3:.2f} mm, max {worst * 1e3:.2f} mm"
+
+
+def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cache_dir, hand):
+    """On the mug's 4 mm wall and the banana's inner curve, a success's width is the opening the
+    mesh gives the RG2's flat pads within ObjectConfig.collision_max_limit (2 mm).
+
+    On a concave surface a flat pad rests on its edges, so the chord through the TCP is no yardstick
+    there (up to 4 mm below the width on the mug's wall, 12 mm on the banana: bench/widths.py); the
+    pads' opening on the mesh is. With CoACD once at 0.05 (before issue 9) 9 of 127 banana
+    successes were 2.1-2.9 mm wider than that; now the worst is 1.2 mm (bench/widths.py).
+    """
+    config = AnnotatorConfig()
+    stroke = hand.rg2.max_width
+    checked = {}
+    walls = [  # the mug's wall, gripped from above (rim grasps); any of the banana's candidates
+        ("mug", MUG_CONFIG, lambda c: (c.width_expected < 0.006) & (c.T_obj_tcp[:, 2, 2] < -0.8)),
+        ("banana", CONFIG, lambda c: c.width_expected > 0),
+    ]
+    for oid, objects, pick in walls:
+        model = shipped_models[oid]
+        cfg = dataclasses.replace(config, objects=objects)
+        cands = object_candidates(model, 400, 0, cfg, stroke)
+        chosen = np.flatnonzero(pick(cands))[:40]
+        source = ObjectSource(oid, model.path, REPO_OBJECTS)
+        span = Span(
+            oid,
+            source,
+            None,
+            0,
+            len(chosen),
+            GivenGrasps(cands.T_obj_tcp[chosen], cands.width_expected[chosen]),
+        )
+        rows = label_span(SpanTask(span, cfg, 0, len(chosen), cache_dir=str(cache_dir))).rows
+        wins = rows[rows["success"]]
+        triangles = np.asarray(model.mesh.triangles)
+        gap = [
+            row.width - pad_opening(triangles, T, row.width, hand.rg2.pad_face)
+            for T, row in zip(poses_as_matrices(wins), wins.itertuples(), strict=True)
+        ]
+        checked[oid] = np.round(np.asarray(gap) * 1e3, 2)
+    assert len(checked["mug"]) >= 8 and len(checked["banana"]) >= 15, {k: len(v) for k, v in checked.items()}
+    for oid, gap_mm in checked.items():
+        assert np.abs(gap_mm).max() <= CONFIG.collision_max_limit * 1e3, (oid, sorted(gap_mm.tolist()))
 
 
 # ---------------------------------------------------------------------------------------------- record

@@ -222,7 +222,9 @@ class RG2:
             raise ValueError(f"expected one driven joint in the mimic table, found {sorted(drivers)}")
         self.driven = drivers.pop()
         self.pads = tuple(body.links[name] for name in PAD_LINKS)
-        self.pad_thickness = self._pad_thickness()
+        extents = self._pad_extents()
+        self.pad_thickness = float(extents[0])  # along the closing axis
+        self.pad_face = (float(extents[1]), float(extents[2]))  # across (TCP y) and along the approach (z)
         for name in self.mimic:
             body.disable_motor(name)  # followers are moved by the coupling only (pitfall 3)
         self._constraints: list[int] = []
@@ -237,9 +239,10 @@ class RG2:
 
     # --- set-up -----------------------------------------------------------------------------
 
-    def _pad_thickness(self) -> float:
+    def _pad_extents(self) -> np.ndarray:
+        """The pad box's extents (3,), m, in the TCP's axes: x closing, y across, z approach."""
         data = pb.getCollisionShapeData(self.body.uid, self.pads[0], physicsClientId=self.client)
-        return float(data[0][3][0])  # box extents (x, y, z); x is the closing axis
+        return np.asarray(data[0][3], dtype=np.float64)
 
     def _add_gear_constraints(self) -> None:
         driven = self.body.joints[self.driven].index
