@@ -244,6 +244,71 @@ def test_millimetre_mesh_loads_with_explicit_scale(tmp_path):
     assert model.mass == pytest.approx(0.06 * 0.04 * 0.12 * CONFIG.density)
 
 
+def _multi_body_obj(bodies: list[tuple[str, trimesh.Trimesh]], statement: str, relative: bool = False) -> str:
+    """An .obj with one ``statement`` (o or g) per body, each body's vertices before its faces;
+    ``relative``: faces use negative (relative) vertex indices."""
+    lines, offset = ["# written by the test", "mtllib none.mtl"], 1
+    for name, mesh in bodies:
+        lines.append(f"{statement} {name}")
+        lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in mesh.vertices.tolist()]
+        n = len(mesh.vertices)
+        for face in mesh.faces.tolist():
+            idx = [i - n for i in face] if relative else [i + offset for i in face]
+            lines.append("f " + " ".join(f"{i}/{i}" if not relative else str(i) for i in idx))
+        offset += n
+    return "\n".join(lines) + "\n"
+
+
+def test_multi_object_obj_is_one_object_per_o_or_disjoint_g_unless_merged(tmp_path):
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    cup = trimesh.creation.box(extents=(0.05, 0.05, 0.04))
+    lid = trimesh.creation.box(extents=(0.06, 0.06, 0.02))
+    lid.apply_translation((0.1, 0.0, 0.01))
+    # a hollow ball: two nested shells in one object stay one body (never split by connectivity)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=0.025)
+    inner.invert()
+    ball = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=2, radius=0.03), inner])
+    ball.apply_translation((0.0, 0.1, 0.03))
+    (objects / "scene.obj").write_text(
+        _multi_body_obj([("Cup", cup), ("Lid", lid), ("Hollow ball", ball)], "o", True)
+    )
+    (objects / "groups.obj").write_text(_multi_body_obj([("cup", cup), ("lid", lid)], "g"))
+    # one box whose faces are split into two groups sharing its vertices (materials): one body
+    box = "\n".join(f"v {x!r} {y!r} {z!r}" for x, y, z in cup.vertices.tolist())
+    faces = [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in cup.faces.tolist()]
+    (objects / "painted.obj").write_text("\n".join([box, "g red", *faces[:5], "g blue", *faces[5:]]) + "\n")
+
+    sources = discover_objects(objects)
+    assert [s.object_id for s in sources] == [
+        "groups/cup",
+        "groups/lid",
+        "painted",
+        "scene/Cup",
+        "scene/Hollow_ball",
+        "scene/Lid",
+    ]
+    meshes = {s.object_id: read_object_mesh(s, CONFIG) for s in sources}  # (the hollow ball: no CoACD)
+    for oid, truth in [("scene/Cup", cup), ("scene/Lid", lid), ("groups/cup", cup), ("groups/lid", lid)]:
+        np.testing.assert_allclose(meshes[oid].bounds, truth.bounds, atol=1e-9)  # in the file's frame
+        assert len(meshes[oid].faces) == 12
+    for source in sources[:2]:  # the groups: each its own convex body
+        assert load_object(source, CONFIG, cache_dir=tmp_path / "cache").convex
+    assert meshes["painted"].is_watertight and meshes["painted"].volume == pytest.approx(cup.volume)
+    hollow = meshes["scene/Hollow_ball"]
+    assert len(hollow.faces) == len(ball.faces) and hollow.is_watertight
+    assert hollow.volume == pytest.approx(ball.volume, rel=1e-6)  # the cavity is kept
+    assert len({source_digest(s) for s in sources}) == len(sources)
+
+    (objects / "objects.toml").write_text('["scene"]\nmerge_parts = true\n')
+    merged = [s for s in discover_objects(objects) if s.object_id.startswith("scene")]
+    assert [s.object_id for s in merged] == ["scene"]
+    whole = read_object_mesh(merged[0], CONFIG)
+    assert len(whole.faces) == 24 + len(ball.faces)
+    every = np.vstack([cup.vertices, lid.vertices, ball.vertices])
+    np.testing.assert_allclose(whole.bounds, [every.min(axis=0), every.max(axis=0)], atol=1e-9)
+
+
 # ---------------------------------------------------------------------------------------------- mass
 
 

@@ -1,9 +1,11 @@
 """Find the objects under a folder without reading their geometry.
 
 An object is a mesh file (``MESH_SUFFIXES``), an object ``.urdf`` (the meshes it references are
-part of it, not objects of their own), or one mesh node of a multi-node ``.glb`` (id
-``file/part``) unless ``merge_parts`` keeps the file whole. Cost: a directory walk, each URDF's
-XML and each ``.glb``'s JSON chunk; no mesh is read, so folders of thousands of files list fast.
+part of it, not objects of their own), or one body of a multi-body file (id ``file/part``): a mesh
+node of a ``.glb``, an ``o`` object (or a ``g`` group that is a body) of an ``.obj``
+(:mod:`~annotator.objects.wavefront`), unless ``merge_parts`` keeps the file whole. Cost: a
+directory walk, each URDF's XML, each ``.glb``'s JSON chunk and a regex scan of each ``.obj`` for
+its statements; no vertex is parsed, so folders of thousands of files list fast.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from annotator.config import ObjectConfig
-from annotator.objects import gltf, urdf
+from annotator.objects import gltf, urdf, wavefront
 from annotator.objects.errors import ObjectDiscoveryError, ObjectError
 from annotator.objects.properties import ObjectProperties, Sidecar
 
@@ -26,9 +28,10 @@ class ObjectSource:
     """An object found on disk.
 
     ``object_id``: its path relative to the search root without suffix (``file/part`` for one
-    node of a multi-node .glb). ``root``: the objects folder (URDF meshes must lie inside it;
-    ``None``: the file's own folder). ``node``: the .glb node index of a part (``None``: the whole
-    file). ``properties``: what the sidecar ``objects.toml`` sets for it.
+    body of a multi-body .glb or .obj). ``root``: the objects folder (URDF meshes must lie inside
+    it; ``None``: the file's own folder). ``node``: the body's index (a .glb node index, or the
+    .obj part index of :func:`annotator.objects.wavefront.parts`; ``None``: the whole file).
+    ``properties``: what the sidecar ``objects.toml`` sets for it.
     """
 
     object_id: str
@@ -75,18 +78,11 @@ def discover_objects(root: Path, config: ObjectConfig | None = None) -> list[Obj
         file_id = path.relative_to(root).with_suffix("").as_posix()
         props = sidecar.for_object(file_id)
         merge = props.merge_parts if props.merge_parts is not None else config.merge_parts
-        nodes: list[gltf.GlbNode] = []
-        if suffix == ".glb" and not merge:
-            try:
-                nodes = gltf.mesh_nodes(path)
-            except (ObjectError, OSError):
-                nodes = []  # listed whole; loading names the problem
-        if len(nodes) > 1:
-            for node in nodes:
-                part_id = f"{file_id}/{node.name}"
-                sources.append(
-                    ObjectSource(part_id, path, root, node.index, sidecar.for_object(file_id, part_id))
-                )
+        parts = [] if merge else _parts(path)
+        if len(parts) > 1:
+            for index, name in parts:
+                part_id = f"{file_id}/{name}"
+                sources.append(ObjectSource(part_id, path, root, index, sidecar.for_object(file_id, part_id)))
         else:
             sources.append(ObjectSource(file_id, path, root, None, props))
     if not sources:
@@ -98,3 +94,18 @@ def discover_objects(root: Path, config: ObjectConfig | None = None) -> list[Obj
     if dupes:
         raise ObjectDiscoveryError(f"two files give the same object id(s) {dupes}; rename one")
     return sorted(sources, key=lambda s: s.object_id)
+
+
+def _parts(path: Path) -> list[tuple[int, str]]:
+    """(index, name) of each body of a multi-body file (.glb mesh nodes, .obj objects or groups);
+    empty for a single body or a file that cannot be parsed (it is listed whole; loading names
+    the problem)."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".glb":
+            return [(node.index, node.name) for node in gltf.mesh_nodes(path)]
+        if suffix == ".obj":
+            return [(part.index, part.name) for part in wavefront.parts(path)]
+    except (ObjectError, OSError, ValueError):
+        pass
+    return []

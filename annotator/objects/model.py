@@ -72,7 +72,7 @@ class ObjectModel:
     digest: str = ""
     properties: dict[str, Any] = field(default_factory=dict)
     objects_dir: str = ""  # the folder source_files are relative to
-    node: int | None = None  # the .glb node of a part
+    node: int | None = None  # the body of a multi-body file (.glb node, .obj part)
 
     @property
     def T_obj_com(self) -> Transform:
@@ -148,7 +148,7 @@ def source_digest(source: ObjectSource | Path) -> str:
     """SHA-256 over everything the object is made of, for the run manifest.
 
     The file's bytes (for a URDF: the URDF, then every mesh it references in document order, each
-    with its path relative to the URDF), the .glb node of a part, and the sidecar properties that
+    with its path relative to the URDF), the body of a multi-body file, and the sidecar properties that
     apply to it. Raises ObjectError when a file cannot be read or a URDF path is not allowed.
     """
     source = _as_source(source)

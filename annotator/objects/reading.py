@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from annotator.objects import gltf
+from annotator.objects import gltf, wavefront
 from annotator.objects.errors import ObjectError
 
 log = logging.getLogger(__name__)
@@ -91,14 +91,20 @@ def sniff(path: Path) -> None:
 def read_triangles(path: Path, node: int | None = None) -> trimesh.Trimesh:
     """The file's triangles (vertices as written, no visuals, nothing merged), or ObjectError.
 
-    ``node``: one mesh node of a .glb (None: all of them, in the file's frame).
+    ``node``: one body of a multi-body file, a .glb node or an .obj part (None: the whole file,
+    in its frame).
     """
     sniff(path)
     if path.suffix.lower() == ".glb":
         mesh = gltf.read_nodes(path, None if node is None else [node])
     else:
         try:
-            loaded = trimesh.load(path, force="mesh", process=False)
+            if path.suffix.lower() == ".obj":
+                loaded = wavefront.read(path, node)
+            else:
+                loaded = trimesh.load(path, force="mesh", process=False)
+        except ObjectError:
+            raise
         except ImportError as exc:  # a format reader's dependency is missing: the install's fault
             raise ObjectError(
                 f"cannot read {path.name}: the install lacks the package {exc.name!r}"
