@@ -1,8 +1,8 @@
 """Generate the sample household objects in this folder (metres, deterministic, no randomness).
 
-Run from anywhere: ``python objects/make_objects.py``. Needs trimesh + numpy, and manifold3d for the
-one boolean union (the mug's handle); the generated files are committed, so the annotator itself
-never needs manifold3d. Every object stands on z = 0 with its axis of symmetry (if any) along +z.
+Run from anywhere: ``python objects/make_objects.py``. Needs trimesh + numpy, and manifold3d (a
+dependency of the annotator) for the one boolean union (the mug's handle). Every object stands on
+z = 0 with its axis of symmetry (if any) along +z.
 """
 
 from __future__ import annotations

@@ -506,6 +506,34 @@ def test_duplicate_and_degenerate_faces_are_dropped_before_judging(tmp_path):
     assert model.mass == pytest.approx(0.05 * 0.04 * 0.03 * CONFIG.density, rel=1e-9)
 
 
+def test_convex_parts_written_as_one_file_become_one_solid_colliding_as_those_parts(tmp_path):
+    """A URDF whose collision mesh is convex parts (as V-HACD writes them): parts that share a face
+    fuse (the shared face is inside), overlapping parts are joined into their union, and the
+    parts themselves are the collision shape. CoACD on such a soup of shells hung past 900 s or
+    segfaulted on pybullet_data's random_urdfs 150 and 200 (bench/collision_error.py)."""
+    lower = trimesh.creation.box(extents=(0.04, 0.04, 0.03))
+    upper = lower.copy()  # the mirror image across lower's top face: the same face, wound the other way
+    upper.apply_transform(trimesh.transformations.reflection_matrix((0, 0, 0.015), (0, 0, 1)))
+    arm = trimesh.creation.box(extents=(0.08, 0.02, 0.02))
+    arm.apply_translation((0.03, 0.0, 0.0))  # overlaps lower: an L shape
+    (tmp_path / "parts.obj").write_text(_multi_body_obj([("p0", lower), ("p1", upper), ("p2", arm)], "o"))
+    (tmp_path / "thing.urdf").write_text(
+        '<robot name="thing"><link name="base"><collision><geometry>'
+        '<mesh filename="parts.obj"/></geometry></collision></link></robot>'
+    )
+    sources = discover_objects(tmp_path)
+    assert [s.object_id for s in sources] == ["thing"]  # a URDF's mesh is never split into objects
+    model = load_object(sources[0], CONFIG, cache_dir=tmp_path / "cache")
+    assert model.cleaning.internal_faces == 4 and model.cleaning.shells_joined == 2
+    column, bar, overlap = 0.04 * 0.04 * 0.06, 0.08 * 0.02 * 0.02, 0.03 * 0.02 * 0.02
+    assert model.watertight and model.mesh.body_count == 1
+    assert model.mesh.volume == pytest.approx(column + bar - overlap, rel=1e-9)  # not the sum
+    assert model.mass == pytest.approx(CONFIG.density * (column + bar - overlap), rel=1e-9)
+    assert model.collision_method == "shells" and len(model.parts) == 2  # no CoACD
+    assert sorted(p.volume for p in model.parts) == pytest.approx([bar, column], rel=1e-9)
+    assert model.collision_error.max < 1e-4 and not model.approximate
+
+
 def test_meshes_above_the_face_budget_are_simplified_and_reported(tmp_path, caplog):
     sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.04)  # 20,480 faces
     path = tmp_path / "dense.stl"

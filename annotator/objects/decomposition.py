@@ -82,7 +82,7 @@ class CollisionGeometry:
 
     parts: list[trimesh.Trimesh]
     error: CollisionError
-    method: str  # "hull" or "coacd"
+    method: str  # "hull", "shells" or "coacd"
     threshold: float
     file: Path
     from_cache: bool
@@ -96,11 +96,15 @@ class CollisionGeometry:
         return self.error.within(config.collision_mean_limit, config.collision_max_limit)
 
 
-def geometry_key(mesh: trimesh.Trimesh, method: str, config: ObjectConfig) -> str:
-    """Hash of the exact vertices, faces and every parameter that shapes the result."""
+def geometry_key(
+    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: list[trimesh.Trimesh] = ()
+) -> str:
+    """Hash of the exact vertices, faces (of the mesh and of the ``shells`` that give the parts)
+    and every parameter that shapes the result."""
     h = hashlib.sha256(f"v{CACHE_VERSION}\0{method}\0".encode())
-    h.update(np.ascontiguousarray(mesh.vertices, dtype="<f8").tobytes())
-    h.update(np.ascontiguousarray(mesh.faces, dtype="<i8").tobytes())
+    for m in [mesh, *shells]:
+        h.update(np.ascontiguousarray(m.vertices, dtype="<f8").tobytes())
+        h.update(np.ascontiguousarray(m.faces, dtype="<i8").tobytes())
     params = (
         thresholds(config),
         config.collision_mean_limit,
@@ -218,14 +222,6 @@ def _locked(path: Path) -> Iterator[None]:
 # computing
 
 
-def hull_geometry(
-    mesh: trimesh.Trimesh, config: ObjectConfig
-) -> tuple[list[trimesh.Trimesh], CollisionError]:
-    """The convex hull as the one part, and its error."""
-    hull = mesh.convex_hull
-    return [hull], collision_error(mesh, [hull], config.collision_error_samples)
-
-
 def thresholds(config: ObjectConfig) -> tuple[float, ...]:
     """CoACD thresholds to try, coarse to fine: the first, x 0.6 each, down to the last."""
     out, t = [], config.decomposition_threshold
@@ -337,15 +333,24 @@ def _run_isolated(mesh: trimesh.Trimesh, config: ObjectConfig, object_id: str) -
 
 
 def collision_geometry(
-    mesh: trimesh.Trimesh, convex: bool, config: ObjectConfig, cache_dir: Path | None, object_id: str = ""
+    mesh: trimesh.Trimesh,
+    method: str,
+    config: ObjectConfig,
+    cache_dir: Path | None,
+    object_id: str = "",
+    shells: list[trimesh.Trimesh] = (),
 ) -> CollisionGeometry:
-    """The object's collision geometry: the hull if ``convex``, else CoACD parts; cached.
+    """The object's collision geometry by ``method``, cached: ``hull`` (the convex hull),
+    ``shells`` (the hulls of the mesh's own convex ``shells``: a file written as convex parts,
+    e.g. a V-HACD collision mesh, collides as those parts, as PyBullet itself would) or ``coacd``.
 
     Raises ObjectError when the decomposition crashes, hangs past its time limit or gives nothing.
     """
-    method = "hull" if convex else METHOD
+    if method not in ("hull", "shells", METHOD):
+        raise ValueError(f"unknown collision method {method!r}")
+    convex = method != METHOD
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    path = root / f"{geometry_key(mesh, method, config)}.npz"
+    path = root / f"{geometry_key(mesh, method, config, shells if method == 'shells' else ())}.npz"
     label = object_id or path.stem[:12]
     with _locked(path.with_suffix(".lock")):
         if path.is_file():
@@ -357,7 +362,8 @@ def collision_geometry(
                 log.warning("%s: unreadable collision cache %s (%s); recomputing", label, path.name, exc)
         start = time.perf_counter()
         if convex:
-            parts, error = hull_geometry(mesh, config)
+            parts = [mesh.convex_hull] if method == "hull" else [shell.convex_hull for shell in shells]
+            error = collision_error(mesh, parts, config.collision_error_samples)
             _save(path, parts, error, method, 0.0, time.perf_counter() - start)
         else:
             _report(label, f"decomposing ({len(mesh.faces)} faces) into convex parts")

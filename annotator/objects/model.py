@@ -227,6 +227,11 @@ def _urdf_mass(
     return geometric.with_mass(inertial.mass, "urdf")
 
 
+def _convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, config: ObjectConfig) -> bool:
+    """A closed mesh whose volume is within ``convex_volume_tolerance`` of its hull's."""
+    return float(mesh.volume) >= (1.0 - config.convex_volume_tolerance) * float(hull.volume)
+
+
 def _check_size(mesh: trimesh.Trimesh, name: str, config: ObjectConfig) -> trimesh.Trimesh:
     """Extent within limits and a hull with volume; returns the hull."""
     if len(mesh.faces) < config.min_faces:
@@ -261,6 +266,7 @@ class _Read:
     mesh_sha256: str
     inertial: urdf.UrdfInertial | None
     cleaning: reading.Cleaning
+    shells: list[trimesh.Trimesh] = field(default_factory=list)  # separate closed solids, if several
 
 
 def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _Read:
@@ -289,16 +295,22 @@ def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _R
         watertight = report.holes_filled > 0
         if watertight:
             log.warning("%s: mesh was open; filled %d hole(s)", name, report.holes_filled)
+    shells: list[trimesh.Trimesh] = []
     if watertight:
         if mesh.volume < 0:
             mesh.invert()
         if not mesh.volume > config.min_volume:
             raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
+        shells = reading.closed_shells(mesh)
+        if shells and reading.overlapping(shells):  # parts written as one file: their union
+            mesh = reading.join(shells, name)
+            report.shells_joined = len(shells)
     else:
         log.warning("%s: mesh is not watertight; its convex hull is its collision shape", name)
-    if report.vertices_merged or report.degenerate_faces or report.duplicate_faces:
+    if report.summary() != "clean":
         log.info("%s: cleaned: %s", name, report.summary())
-    return _Read(mesh, hull, watertight, user_scale, hashlib.sha256(blob).hexdigest(), inertial, report)
+    sha = hashlib.sha256(blob).hexdigest()
+    return _Read(mesh, hull, watertight, user_scale, sha, inertial, report, shells)
 
 
 def read_object_mesh(
@@ -320,9 +332,11 @@ def load_object(
     ``scale`` multiplies the file's coordinates (after a URDF's own mesh scale); ``None`` is 1; a
     sidecar ``scale`` overrides it. Steps: read (reasons name the file's problem), clean (merge
     seam vertices, drop degenerate and duplicate faces), simplify above ``config.max_faces``,
-    check size, close real holes (MeshFix), weigh (:mod:`annotator.objects.mass`; a sidecar mass,
+    check size, close real holes (MeshFix), join closed shells that touch or overlap into their
+    union (manifold3d), weigh (:mod:`annotator.objects.mass`; a sidecar mass,
     else a URDF's ``<inertial>``, else the mass model), collision geometry (hull for convex or
-    open meshes, CoACD parts otherwise) with its error against the mesh.
+    open meshes; the shells themselves when the file is made of convex solids, as V-HACD collision
+    meshes are; CoACD parts otherwise) with its error against the mesh.
     Raises :class:`ObjectError` with a one-line reason for unusable input.
     """
     source = _as_source(source)
@@ -346,8 +360,14 @@ def load_object(
     elif inertial is not None:
         props_mass = _urdf_mass(inertial, props_mass, mesh, user_scale, name)
 
-    convex = watertight and float(mesh.volume) >= (1.0 - config.convex_volume_tolerance) * float(hull.volume)
-    geometry = collision_geometry(mesh, convex or not watertight, config, cache_dir, name)
+    convex = _convex(mesh, hull, config) if watertight else False
+    if convex or not watertight:
+        method = "hull"
+    elif read.shells and all(_convex(shell, shell.convex_hull, config) for shell in read.shells):
+        method = "shells"  # separate convex solids (a V-HACD collision mesh): collide as themselves
+    else:
+        method = "coacd"
+    geometry = collision_geometry(mesh, method, config, cache_dir, name, read.shells)
     approximate = not geometry.within(config)
     if approximate:
         log.warning(

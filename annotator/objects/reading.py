@@ -32,6 +32,8 @@ class Cleaning:
     vertices_merged: int = 0
     degenerate_faces: int = 0
     duplicate_faces: int = 0
+    internal_faces: int = 0  # coincident opposite faces of abutting solids, both dropped
+    shells_joined: int = 0  # closed shells that touched or overlapped, joined into their union
     holes_filled: int = 0
     simplified_to: int = 0  # faces after simplification; 0: not simplified
 
@@ -40,6 +42,8 @@ class Cleaning:
             f"{self.vertices_merged} seam vertices merged" if self.vertices_merged else "",
             f"{self.degenerate_faces} degenerate faces dropped" if self.degenerate_faces else "",
             f"{self.duplicate_faces} duplicate faces dropped" if self.duplicate_faces else "",
+            f"{self.internal_faces} faces between abutting parts dropped" if self.internal_faces else "",
+            f"{self.shells_joined} overlapping shells joined" if self.shells_joined else "",
             f"{self.holes_filled} holes filled" if self.holes_filled else "",
             f"simplified {self.faces_read} -> {self.simplified_to} faces" if self.simplified_to else "",
         ]
@@ -137,11 +141,100 @@ def clean(mesh: trimesh.Trimesh, name: str, report: Cleaning) -> trimesh.Trimesh
     keep = out.nondegenerate_faces(height=1e-12)
     report.degenerate_faces = int((~keep).sum())
     out.update_faces(keep)
-    unique = trimesh.grouping.unique_rows(np.sort(out.faces, axis=1))[0]
-    report.duplicate_faces = len(out.faces) - len(unique)
-    out.update_faces(np.sort(unique))
+    out.update_faces(_drop_coincident(out, report))
     out.remove_unreferenced_vertices()
     return out
+
+
+def _drop_coincident(mesh: trimesh.Trimesh, report: Cleaning) -> np.ndarray:
+    """Indices of the faces to keep when faces coincide (the same three vertices).
+
+    Wound the same way they are duplicates: one is kept. Wound opposite ways with every edge
+    shared by four faces, they are the common face of two closed solids that abut (convex parts
+    written as one file, e.g. a V-HACD collision mesh): their union has no face there, so both go
+    (keeping one left a membrane and an open surface). A flipped copy on a single surface (edges
+    shared by three faces) is a duplicate too.
+    """
+    faces = np.asarray(mesh.faces)
+    _, first, inverse, counts = np.unique(
+        np.sort(faces, axis=1), axis=0, return_index=True, return_inverse=True, return_counts=True
+    )
+    inverse = inverse.reshape(-1)
+    keep = np.zeros(len(faces), dtype=bool)
+    keep[first] = True
+    pairs = np.flatnonzero(counts == 2)
+    if len(pairs):
+        order = np.argsort(inverse, kind="stable")
+        starts = np.cumsum(counts) - counts
+        a, b = order[starts[pairs]], order[starts[pairs] + 1]
+        opposite = _odd(faces[a], faces[b])
+        edges = np.sort(faces[:, [[0, 1], [1, 2], [2, 0]]], axis=2).reshape(-1, 2)  # (3 n, 2)
+        _, edge_id, edge_uses = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+        uses = edge_uses[edge_id.reshape(-1)].reshape(-1, 3)  # faces on each edge of each face
+        internal = opposite & np.all(uses[a] >= 4, axis=1)
+        keep[a[internal]] = False
+        keep[b[internal]] = False
+        report.internal_faces = int(2 * internal.sum())
+    report.duplicate_faces = int(len(faces) - keep.sum() - report.internal_faces)
+    return np.flatnonzero(keep)
+
+
+def _odd(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether face ``b`` (n, 3) lists the vertices of face ``a`` (n, 3) in the opposite cyclic order."""
+    same = np.zeros(len(a), dtype=bool)
+    for shift in range(3):
+        same |= np.all(np.roll(a, shift, axis=1) == b, axis=1)
+    return ~same
+
+
+def closed_shells(mesh: trimesh.Trimesh) -> list[trimesh.Trimesh]:
+    """The closed components of a watertight ``mesh`` (face adjacency), each outward wound with
+    positive volume; empty when there is only one or when any encloses no volume (a cavity's
+    inverted shell: the components are not separate solids then)."""
+    groups = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)))
+    if len(groups) < 2:
+        return []
+    shells = []
+    for faces in groups:
+        shell = trimesh.Trimesh(mesh.vertices, mesh.faces[np.sort(faces)], process=False)
+        shell.remove_unreferenced_vertices()
+        if not (shell.is_watertight and shell.volume > 0):
+            return []
+        shells.append(shell)
+    return sorted(shells, key=lambda s: tuple(np.round(s.bounds[0], 12)))
+
+
+def overlapping(shells: list[trimesh.Trimesh], tolerance: float = 1e-9) -> bool:
+    """Whether any two shells' bounding boxes meet (touch or overlap, within ``tolerance`` m)."""
+    lo = np.array([s.bounds[0] for s in shells]) - tolerance
+    hi = np.array([s.bounds[1] for s in shells]) + tolerance
+    meet = np.all((lo[:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[:, None, :]), axis=2)
+    return bool(np.triu(meet, k=1).any())
+
+
+def join(shells: list[trimesh.Trimesh], name: str) -> trimesh.Trimesh:
+    """The union of closed shells that touch or overlap (manifold3d, a maintained boolean library):
+    the surface of the solid they make, without the faces inside it."""
+    import manifold3d
+
+    solids = []
+    for shell in shells:
+        mesh = manifold3d.Mesh64(
+            vert_properties=np.ascontiguousarray(shell.vertices, dtype=np.float64),
+            tri_verts=np.ascontiguousarray(shell.faces, dtype=np.uint64),
+        )
+        mesh.merge()
+        solids.append(manifold3d.Manifold(mesh))
+    union = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add)
+    out = union.to_mesh64()
+    joined = trimesh.Trimesh(
+        np.asarray(out.vert_properties, dtype=np.float64)[:, :3],
+        np.asarray(out.tri_verts, dtype=np.int64),
+        process=False,
+    )
+    if not (len(joined.faces) and joined.is_watertight and joined.volume > 0):
+        raise ObjectError(f"{name}: its overlapping closed shells could not be joined into one solid")
+    return joined
 
 
 def fill_holes(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
