@@ -270,8 +270,10 @@ def test_multi_object_obj_is_one_object_per_o_or_disjoint_g_unless_merged(tmp_pa
     inner.invert()
     ball = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=2, radius=0.03), inner])
     ball.apply_translation((0.0, 0.1, 0.03))
+    handle = trimesh.creation.box(extents=(0.02, 0.01, 0.03))
+    handle.apply_translation((0.03, 0.0, 0.0))  # overlaps the cup: written as its own object, one body
     (objects / "scene.obj").write_text(
-        _multi_body_obj([("Cup", cup), ("Lid", lid), ("Hollow ball", ball)], "o", True)
+        _multi_body_obj([("Cup", cup), ("Lid", lid), ("Hollow ball", ball), ("Handle", handle)], "o", True)
     )
     (objects / "groups.obj").write_text(_multi_body_obj([("cup", cup), ("lid", lid)], "g"))
     # one box whose faces are split into two groups sharing its vertices (materials): one body
@@ -289,7 +291,10 @@ def test_multi_object_obj_is_one_object_per_o_or_disjoint_g_unless_merged(tmp_pa
         "scene/Lid",
     ]
     meshes = {s.object_id: read_object_mesh(s, CONFIG) for s in sources}  # (the hollow ball: no CoACD)
-    for oid, truth in [("scene/Cup", cup), ("scene/Lid", lid), ("groups/cup", cup), ("groups/lid", lid)]:
+    with_handle = meshes.pop("scene/Cup")
+    np.testing.assert_allclose(with_handle.bounds, [[-0.025, -0.025, -0.02], [0.04, 0.025, 0.02]], atol=1e-9)
+    assert with_handle.volume == pytest.approx(cup.volume + 0.015 * 0.01 * 0.03, rel=1e-9)  # joined
+    for oid, truth in [("scene/Lid", lid), ("groups/cup", cup), ("groups/lid", lid)]:
         np.testing.assert_allclose(meshes[oid].bounds, truth.bounds, atol=1e-9)  # in the file's frame
         assert len(meshes[oid].faces) == 12
     for source in sources[:2]:  # the groups: each its own convex body
@@ -304,8 +309,7 @@ def test_multi_object_obj_is_one_object_per_o_or_disjoint_g_unless_merged(tmp_pa
     merged = [s for s in discover_objects(objects) if s.object_id.startswith("scene")]
     assert [s.object_id for s in merged] == ["scene"]
     whole = read_object_mesh(merged[0], CONFIG)
-    assert len(whole.faces) == 24 + len(ball.faces)
-    every = np.vstack([cup.vertices, lid.vertices, ball.vertices])
+    every = np.vstack([cup.vertices, lid.vertices, ball.vertices, handle.vertices])
     np.testing.assert_allclose(whole.bounds, [every.min(axis=0), every.max(axis=0)], atol=1e-9)
 
 
@@ -581,6 +585,15 @@ def test_multi_node_glb_is_one_object_per_node_unless_merged(tmp_path):
         np.testing.assert_allclose(model.mesh.bounds.mean(axis=0), truth[f"{name}@"], atol=1e-6)
         assert model.convex
     assert len({source_digest(s) for s in sources}) == 3
+    # nodes that touch are one body (a handle modelled as its own node): one object, not split
+    mug = trimesh.Scene()
+    mug.add_geometry(trimesh.creation.box(extents=(0.06, 0.06, 0.08)), node_name="body", geom_name="body")
+    handle = trimesh.transformations.translation_matrix((0.035, 0.0, 0.0))
+    mug.add_geometry(trimesh.creation.box(extents=(0.02, 0.01, 0.05)), "handle", "handle", transform=handle)
+    (objects / "mug.glb").write_bytes(mug.export(file_type="glb"))
+    assert [s.object_id for s in discover_objects(objects)][-1] == "mug"
+    (objects / "mug.glb").unlink()
+
     (objects / "objects.toml").write_text('["kitchen"]\nmerge_parts = true\n')
     merged = discover_objects(objects)
     assert [s.object_id for s in merged] == ["kitchen"]

@@ -29,8 +29,9 @@ class ObjectSource:
 
     ``object_id``: its path relative to the search root without suffix (``file/part`` for one
     body of a multi-body .glb or .obj). ``root``: the objects folder (URDF meshes must lie inside
-    it; ``None``: the file's own folder). ``node``: the body's index (a .glb node index, or the
-    .obj part index of :func:`annotator.objects.wavefront.parts`; ``None``: the whole file).
+    it; ``None``: the file's own folder). ``node``: the body's index (the .glb index of its first
+    mesh node, :func:`annotator.objects.gltf.mesh_nodes`, or the .obj part index of
+    :func:`annotator.objects.wavefront.parts`; ``None``: the whole file).
     ``properties``: what the sidecar ``objects.toml`` sets for it.
     """
 

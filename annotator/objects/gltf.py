@@ -1,7 +1,7 @@
-"""A small reader for binary glTF (.glb): the scene's mesh nodes, read one by one.
+"""A small reader for binary glTF (.glb): the scene's bodies (mesh nodes), read one by one.
 
-Discovery needs each node's name without reading geometry (cheap on folders of thousands of
-files: only the JSON chunk is parsed); loading needs one node's triangles in the file's frame.
+Discovery needs each body's name without reading geometry (cheap on folders of thousands of
+files: only the JSON chunk is parsed); loading needs one body's triangles in the file's frame.
 Supported: triangle primitives (mode 4) with float POSITION and optional unsigned indices, in the
 binary chunk; other features (Draco, sparse accessors, external buffers) are a one-line error.
 """
@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 
 from annotator.objects.errors import ObjectError
+from annotator.objects.parts import touching_groups
 
 GLB_MAGIC = b"glTF"
 _COMPONENTS = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
@@ -26,10 +27,12 @@ _WIDTH = {"SCALAR": 1, "VEC3": 3}
 
 @dataclass(frozen=True)
 class GlbNode:
-    """A scene node that carries a mesh: its index in ``nodes`` and its part name."""
+    """A body of the scene: its first mesh node's ``index`` in ``nodes``, its part ``name``, and
+    the mesh nodes it is made of (``members``: nodes whose bounding boxes meet are one body)."""
 
     index: int
     name: str
+    members: tuple[int, ...] = ()
 
 
 def _chunks(path: Path, with_binary: bool) -> tuple[dict, bytes]:
@@ -95,18 +98,55 @@ def _safe(name: str) -> str:
 
 
 def mesh_nodes(path: Path) -> list[GlbNode]:
-    """The scene's nodes that carry a mesh, in scene order, named for use in object ids.
+    """The scene's bodies, in scene order, named for use in object ids: its mesh nodes, those
+    whose bounding boxes meet (the accessors' min/max, in the file's frame) joined into one body
+    (:mod:`annotator.objects.parts`).
 
-    A node's name (made file-name safe) when every mesh node has a distinct non-empty one,
+    A node's name (made file-name safe) when every body's first node has a distinct non-empty one,
     otherwise ``node<index>`` for all of them.
     """
     doc, _ = _chunks(path, with_binary=False)
     nodes = doc.get("nodes", [])
-    found = [i for i, _ in _scene_nodes(doc) if "mesh" in nodes[i]]
-    names = [_safe(str(nodes[i].get("name", ""))) for i in found]
+    found = [(i, T) for i, T in _scene_nodes(doc) if "mesh" in nodes[i]]
+    boxes = [_node_bounds(doc, nodes[i], T) for i, T in found]
+    if len(found) > 1 and all(b is not None for b in boxes):
+        groups = touching_groups(boxes)
+    else:
+        groups = [[k] for k in range(len(found))]
+    firsts = [found[g[0]][0] for g in groups]
+    names = [_safe(str(nodes[i].get("name", ""))) for i in firsts]
     if any(not n for n in names) or len(set(names)) != len(names):
-        names = [f"node{i}" for i in found]
-    return [GlbNode(i, n) for i, n in zip(found, names, strict=True)]
+        names = [f"node{i}" for i in firsts]
+    return [
+        GlbNode(first, name, tuple(found[k][0] for k in g))
+        for first, name, g in zip(firsts, names, groups, strict=True)
+    ]
+
+
+def _node_bounds(doc: dict, node: dict, T: np.ndarray) -> np.ndarray | None:
+    """Bounding box (2, 3) in the file's frame of a mesh node, from its POSITION accessors' min and
+    max (required by glTF); None when they are missing or malformed."""
+    corners = []
+    try:
+        for prim in doc["meshes"][node["mesh"]].get("primitives", []):
+            acc = doc["accessors"][prim["attributes"]["POSITION"]]
+            lo, hi = np.asarray(acc["min"], dtype=np.float64), np.asarray(acc["max"], dtype=np.float64)
+            box = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)] for k in range(8)])
+            corners.append(box @ T[:3, :3].T + T[:3, 3])
+    except (KeyError, IndexError, TypeError, ValueError):
+        return None
+    if not corners:
+        return None
+    pts = np.vstack(corners)
+    return np.array([pts.min(axis=0), pts.max(axis=0)])
+
+
+def body_members(path: Path, index: int) -> list[int]:
+    """The mesh nodes of the body whose first node is ``index`` (as :func:`mesh_nodes` lists it)."""
+    for body in mesh_nodes(path):
+        if body.index == index:
+            return list(body.members)
+    raise ObjectError(f"{path.name}: the file no longer holds body {index} (it was listed with more)")
 
 
 def _accessor(doc: dict, binary: bytes, index: int, path: Path) -> np.ndarray:

@@ -100,7 +100,7 @@ def read_triangles(path: Path, node: int | None = None) -> trimesh.Trimesh:
     """
     sniff(path)
     if path.suffix.lower() == ".glb":
-        mesh = gltf.read_nodes(path, None if node is None else [node])
+        mesh = gltf.read_nodes(path, None if node is None else gltf.body_members(path, node))
     else:
         try:
             if path.suffix.lower() == ".obj":

@@ -6,11 +6,15 @@ shells are one body):
 
 - two or more ``o`` objects with faces: one body each (a name that recurs continues its object);
 - otherwise two or more ``g`` groups with faces that share no vertex: one body each. Groups that
-  share vertices split one surface (by material or smoothing) and stay one body.
+  share vertices split one surface (by material or smoothing) and stay one body;
+- objects whose bounding boxes meet are one body: bodies of a scene lie apart, while the convex
+  parts of one object (a V-HACD file, pybullet_data's teddy) or a handle written as its own
+  object touch or overlap.
 
-Discovery needs only the names: the statements are found with a compiled regex over the mapped
-file (C speed, no parsing of numbers), and face indices are parsed only for a file with several
-``g`` groups and no ``o``. Loading a part hands trimesh the file without the other parts' faces.
+Discovery stays cheap: the statements are found with a compiled regex over the mapped file (C
+speed); vertex coordinates are parsed only for a file with several objects, and face indices only
+for one with several ``g`` groups and no ``o``. Loading a part hands trimesh the file without the
+other parts' faces.
 """
 
 from __future__ import annotations
@@ -25,11 +29,12 @@ import numpy as np
 import trimesh
 
 from annotator.objects.errors import ObjectError
+from annotator.objects.parts import touching_groups
 
 _STATEMENT = re.compile(rb"^[ \t]*([og])(?:[ \t]+([^\r\n]*))?[ \t]*\r?$", re.MULTILINE)
 _FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
 _FACE_LINE = re.compile(rb"^[ \t]*f[ \t][^\n]*\n?", re.MULTILINE)
-_VERTEX = re.compile(rb"^[ \t]*v[ \t]", re.MULTILINE)
+_VERTEX_COORDS = re.compile(rb"^[ \t]*v[ \t]+([^\r\n]*)", re.MULTILINE)
 _INDEX = re.compile(rb"(?:^|[ \t])(-?\d+)")  # the position index of a face corner (before any '/')
 _RELATIVE = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?:^|[ \t/])-\d", re.MULTILINE)
 _LINE_KIND = re.compile(rb"^[ \t]*(v|vt|vn|f)[ \t]")
@@ -50,16 +55,15 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._")
 
 
-def _segments(data: bytes | mmap.mmap) -> list[tuple[str, str | None, str | None, int, int]]:
-    """(kind, current o name, current g name, start, end) of each stretch between statements that
-    holds faces. Faces before any statement belong to no object and no group (names None)."""
+def _segments(data: bytes | mmap.mmap) -> list[tuple[str, str | None, str | None, int, int, bool]]:
+    """(kind, current o name, current g name, start, end, holds faces) of each stretch between
+    statements. Lines before any statement belong to no object and no group (names None)."""
     out = []
     obj = grp = None
     kind = ""
     start = 0
     for m in _STATEMENT.finditer(data):
-        if _FACE.search(data, start, m.start()):
-            out.append((kind, obj, grp, start, m.start()))
+        out.append((kind, obj, grp, start, m.start(), bool(_FACE.search(data, start, m.start()))))
         name = (m.group(2) or b"").decode("utf-8", "replace").strip()
         kind = m.group(1).decode()
         if kind == "o":
@@ -67,24 +71,40 @@ def _segments(data: bytes | mmap.mmap) -> list[tuple[str, str | None, str | None
         else:
             grp = name
         start = m.end()
-    if _FACE.search(data, start, len(data)):
-        out.append((kind, obj, grp, start, len(data)))
+    out.append((kind, obj, grp, start, len(data), bool(_FACE.search(data, start, len(data)))))
     return out
 
 
-def _group_by(segments, key: int, kind: str) -> list[tuple[str, list[tuple[int, int]]]]:
-    """Segments gathered by their o (key 1) or g (key 2) name, in order of first appearance."""
-    order: dict[str | None, list[tuple[int, int]]] = {}
+def _group_by(segments, key: int) -> list[tuple[str, list[tuple[int, int]], list[tuple[int, int]]]]:
+    """(name, stretches holding its faces, all its stretches) per o (key 1) or g (key 2) name
+    that has faces, in order of first appearance."""
+    faces: dict[str | None, list[tuple[int, int]]] = {}
+    every: dict[str | None, list[tuple[int, int]]] = {}
     for seg in segments:
-        order.setdefault(seg[key], []).append((seg[3], seg[4]))
-    return [("" if name is None else name, spans) for name, spans in order.items()]
+        every.setdefault(seg[key], []).append((seg[3], seg[4]))
+        if seg[5]:
+            faces.setdefault(seg[key], []).append((seg[3], seg[4]))
+    return [("" if name is None else name, spans, every[name]) for name, spans in faces.items()]
+
+
+def _bounds(data: bytes | mmap.mmap, stretches: list[tuple[int, int]]) -> np.ndarray | None:
+    """The bounding box (2, 3) of the vertex lines written in ``stretches``; None if there are none
+    (vertices written elsewhere)."""
+    rows = [line.split()[:3] for start, end in stretches for line in _VERTEX_COORDS.findall(data, start, end)]
+    if not rows:
+        return None
+    try:
+        xyz = np.asarray(rows, dtype=np.float64)
+    except ValueError:
+        return None
+    return np.array([xyz.min(axis=0), xyz.max(axis=0)])
 
 
 def _vertex_sets(data: bytes | mmap.mmap, groups) -> list[np.ndarray] | None:
     """The vertex indices (0-based) each group's faces use; None when a face uses a relative
     (negative) index, which would need every vertex line's position."""
     out = []
-    for _, spans in groups:
+    for _, spans, _ in groups:
         idx = []
         for start, end in spans:
             for line in _FACE_LINE.findall(data, start, end):
@@ -102,28 +122,39 @@ def _disjoint(sets: list[np.ndarray]) -> bool:
 
 
 def parts(path: Path) -> list[ObjPart]:
-    """The file's bodies when it holds several (empty: one body). Reads no vertex coordinates."""
+    """The file's bodies when it holds several (empty: one body).
+
+    Explicit objects (``o``, or vertex-disjoint ``g`` groups) whose bounding boxes meet are one
+    body: separate bodies in a file do not interpenetrate, the convex parts of one body (a V-HACD
+    file, a mug's handle written as its own object) do. Reads the coordinates of the vertex lines
+    only for a file with several objects.
+    """
     with path.open("rb") as fh:
         if path.stat().st_size == 0:
             return []
         with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
             segments = _segments(data)
-            by_object = _group_by([s for s in segments if s[1] is not None], 1, "o")
+            by_object = _group_by([s for s in segments if s[1] is not None], 1)
             if len(by_object) > 1:
-                chosen, kind = _group_by(segments, 1, "o"), "o"
+                chosen, kind = _group_by(segments, 1), "o"
             else:
-                by_group = _group_by(segments, 2, "g")
+                by_group = _group_by(segments, 2)
                 if len(by_object) == 1 or len(by_group) < 2:  # one object, or no groups to split
                     return []
                 sets = _vertex_sets(data, by_group)
                 if sets is None or not _disjoint(sets):
                     return []
                 chosen, kind = by_group, "g"
-    names = [_safe(name) for name, _ in chosen]
+            boxes = [_bounds(data, every) for _, _, every in chosen]
+    groups = [[i] for i in range(len(chosen))] if any(b is None for b in boxes) else touching_groups(boxes)
+    if len(groups) < 2:
+        return []
+    names = [_safe(chosen[g[0]][0]) for g in groups]
     if any(not n for n in names) or len(set(names)) != len(names):
-        names = [f"{kind}{i}" for i in range(len(chosen))]
+        names = [f"{kind}{g[0]}" for g in groups]
     return [
-        ObjPart(i, n, kind, tuple(spans)) for i, (n, (_, spans)) in enumerate(zip(names, chosen, strict=True))
+        ObjPart(i, name, kind, tuple(sorted(span for k in group for span in chosen[k][1])))
+        for i, (name, group) in enumerate(zip(names, groups, strict=True))
     ]
 
 

@@ -1,0 +1,33 @@
+"""Which explicit parts of a multi-body file (.obj objects, .glb nodes) are one body.
+
+Bodies of a scene lie apart; the convex parts of one object (a V-HACD file) or a handle written as
+its own object touch or overlap. So parts whose bounding boxes meet are one body: this merges
+explicit parts only, it never splits a part (a bowl's nested shells stay one body).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def touching_groups(boxes: list[np.ndarray]) -> list[list[int]]:
+    """Indices of the bodies grouped so that bodies whose bounding boxes meet share a group
+    (union-find), each group sorted, groups in order of their first body."""
+    lo = np.array([b[0] for b in boxes])
+    hi = np.array([b[1] for b in boxes])
+    tol = 1e-6 * float(np.max(hi.max(axis=0) - lo.min(axis=0)))
+    meet = np.all((lo[:, None] <= hi[None] + tol) & (lo[None] <= hi[:, None] + tol), axis=2)
+    root = list(range(len(boxes)))
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            root[i] = root[root[i]]
+            i = root[i]
+        return i
+
+    for i, j in zip(*np.nonzero(np.triu(meet, k=1)), strict=True):
+        root[find(int(i))] = find(int(j))
+    groups: dict[int, list[int]] = {}
+    for i in range(len(boxes)):
+        groups.setdefault(find(i), []).append(i)
+    return sorted(groups.values(), key=lambda g: g[0])
