@@ -1,18 +1,27 @@
-"""Collision error of each object before and after refinement: the distance between the simulated
-collision shape and the mesh surface (annotator/objects/fidelity.py), mean and max in mm.
+"""Per object of any folder: how it loads (cleaning, mass model, load time) and the error of its
+collision shape, the distance between the simulated shape and the mesh surface (mean and max, mm,
+annotator/objects/fidelity.py).
 
-    python bench/collision_error.py                 # the sample objects
-    python bench/collision_error.py --objects DIR
+    python bench/collision_error.py                          # the sample objects, before and after
+    python bench/collision_error.py --objects DIR --no-before
+    python bench/collision_error.py --objects DIR --only 'ycb/*' --cache /tmp/cache
 
-"before": what the annotator simulated until issue 9, CoACD once at threshold 0.05 with its
-default preprocessing ("auto"), or the hull of a convex object; "after": what load_object gives
-now (cleaned mesh, thresholds refined until within the limits). Decompositions are cached in
-$RG2_CACHE_DIR (the "after" ones) or recomputed (the "before" ones, a few seconds to a minute each).
+Columns: faces as loaded (after cleaning and the face budget), what cleaning changed, the mass
+model and mass, the collision method, parts and final CoACD threshold, the error mean and max
+(mm) against the limits, and the load time (s; with an empty cache it is mostly the
+decomposition: each run uses a fresh cache unless --cache is given).
+
+"before" (with --before, the default for the sample objects): what the annotator simulated until
+issue 9, CoACD once at threshold 0.05 with its default preprocessing ("auto"), or the hull of a
+convex object, measured on the same cleaned mesh.
 """
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,47 +35,72 @@ from annotator.objects.fidelity import collision_error
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def before(model, config: ObjectConfig):
+def before(model) -> list[trimesh.Trimesh]:
     """The old collision geometry: hull, or CoACD at 0.05 with preprocess "auto", seed 0."""
     if len(model.parts) == 1:
-        return model.parts, 0.0
+        return model.parts
     import coacd
 
     coacd.set_log_level("error")
-    t0 = time.perf_counter()
     result = coacd.run_coacd(
         coacd.Mesh(np.asarray(model.mesh.vertices), np.asarray(model.mesh.faces)), threshold=0.05, seed=0
     )
     parts = [trimesh.Trimesh(v, f).convex_hull for v, f in result]
-    return [p for p in parts if p.volume > 0], time.perf_counter() - t0
+    return [p for p in parts if p.volume > 0]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+    ap.add_argument("--only", nargs="*", default=[], help="object id globs")
+    ap.add_argument("--cache", type=Path, default=None, help="decomposition cache (default: a fresh one)")
+    ap.add_argument("--before", action=argparse.BooleanOptionalAction, default=None)
+    ap.add_argument("--scale", type=float, default=None)
     args = ap.parse_args()
+    with_before = args.before if args.before is not None else args.objects.resolve() == ROOT / "objects"
     config = ObjectConfig()
+    cache = args.cache or Path(tempfile.mkdtemp(prefix="rg2-bench-cache-"))
     print(
         f"limits: mean <= {config.collision_mean_limit * 1e3:g} mm, "
-        f"max <= {config.collision_max_limit * 1e3:g} mm"
+        f"max <= {config.collision_max_limit * 1e3:g} mm; cache {cache}"
     )
-    head = f"{'object':<24} {'before: parts mean max':>24} {'after: parts thr mean max':>30}  within"
+    head = (
+        f"{'object':<34} {'faces':>7} {'mass model':>10} {'g':>7} {'method':>6} {'parts':>5} {'thr':>5}"
+        f" {'mean':>6} {'max':>6} {'within':>6} {'load s':>7}"
+        + ("  before: parts mean max" if with_before else "")
+    )
     print(head + "\n" + "-" * len(head))
-    for source in discover_objects(args.objects, config):
+    sources = [
+        s
+        for s in discover_objects(args.objects, config)
+        if not args.only or any(fnmatch.fnmatch(s.object_id, g) for g in args.only)
+    ]
+    within = 0
+    for source in sources:
+        t0 = time.perf_counter()
         try:
-            model = load_object(source, config)
+            model = load_object(source, config, scale=args.scale, cache_dir=cache)
         except ObjectError as exc:
-            print(f"{source.object_id:<24} failed: {exc}")
+            print(f"{source.object_id:<34} failed: {exc}", flush=True)
             continue
-        old_parts, _ = before(model, config)
-        old = collision_error(model.mesh, old_parts, config.collision_error_samples)
-        new = model.collision_error
-        threshold = "hull" if model.collision_method == "hull" else f"{model.collision_threshold:g}"
-        print(
-            f"{source.object_id:<24} {len(old_parts):>9} {old.mean * 1e3:6.2f} {old.max * 1e3:6.2f}"
-            f" {len(model.parts):>11} {threshold:>5} {new.mean * 1e3:6.2f} {new.max * 1e3:6.2f}"
-            f"  {'yes' if not model.approximate else 'APPROXIMATE'}"
+        seconds = time.perf_counter() - t0
+        err = model.collision_error
+        threshold = f"{model.collision_threshold:g}" if model.collision_method == "coacd" else "-"
+        within += not model.approximate
+        line = (
+            f"{source.object_id:<34} {len(model.mesh.faces):>7} {model.mass_model:>10}"
+            f" {model.mass * 1e3:7.1f} {model.collision_method:>6} {len(model.parts):>5} {threshold:>5}"
+            f" {err.mean * 1e3:6.2f} {err.max * 1e3:6.2f}"
+            f" {'yes' if not model.approximate else 'NO':>6} {seconds:7.1f}"
         )
+        if with_before:
+            old_parts = before(model)
+            old = collision_error(model.mesh, old_parts, config.collision_error_samples)
+            line += f"  {len(old_parts):>5} {old.mean * 1e3:6.2f} {old.max * 1e3:6.2f}"
+        print(line, flush=True)
+        if model.cleaning.summary() != "clean":
+            print(f"{'':<34}   cleaning: {model.cleaning.summary()}", flush=True)
+    print(f"\n{within} of {len(sources)} objects within the limits", file=sys.stderr)
 
 
 if __name__ == "__main__":

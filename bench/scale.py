@@ -1,0 +1,197 @@
+"""Scale: a folder with thousands of objects, and a mesh with millions of faces.
+
+    python bench/scale.py folder                  # 2,000 objects: discovery, digests, peak memory
+    python bench/scale.py folder --run 200        # ... and `annotate --n 1` on the first 200 ids
+    python bench/scale.py big-mesh                # a 2,000,000-face ring, end to end
+
+``folder`` writes, in a temporary folder, pybullet_data's 1,000 random_urdfs (a URDF and its mesh
+each) and copies of the sample objects (every format, the URDF with its two meshes) until there
+are ``--objects`` objects, then times what the main process of a run does before any work starts:
+discovering the objects and hashing every source (the manifest's digests), with its peak memory.
+
+``big-mesh`` writes a torus of 2000 x 500 x 2 = 2,000,000 faces (a concave ring, 90 mm across),
+reads and simplifies it to the face budget (ObjectConfig.max_faces), decomposes it and runs
+``annotate --n 20`` on it in a fresh process, printing each step's time and peak memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _children_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+
+
+def make_folder(dest: Path, count: int) -> int:
+    """``count`` objects in ``dest``: random_urdfs first, then copies of the sample objects."""
+    import pybullet_data
+
+    random = Path(pybullet_data.getDataPath()) / "random_urdfs"
+    made = 0
+    for folder in sorted(random.iterdir()):
+        if made >= count:
+            return made
+        if folder.is_dir() and (folder / f"{folder.name}.urdf").is_file():
+            shutil.copytree(folder, dest / "random" / folder.name)
+            made += 1
+    samples = [p for p in (ROOT / "objects").iterdir() if p.suffix in (".obj", ".stl", ".ply", ".off")]
+    copy = 0
+    while made < count:
+        target = dest / "samples" / f"{copy:04d}"
+        target.mkdir(parents=True)
+        for path in samples:
+            if made >= count:
+                break
+            shutil.copy(path, target / path.name)
+            made += 1
+        if made < count:
+            shutil.copytree(ROOT / "objects" / "urdf" / "shampoo", target / "shampoo")
+            made += 1
+        copy += 1
+    return made
+
+
+def folder(args) -> None:
+    from annotator.objects import discover_objects, source_digest
+
+    with tempfile.TemporaryDirectory(prefix="rg2-scale-") as tmp:
+        root = Path(tmp) / "objects"
+        t0 = time.perf_counter()
+        made = make_folder(root, args.objects)
+        files = sum(1 for p in root.rglob("*") if p.is_file())
+        print(f"wrote {made} objects ({files} files) in {time.perf_counter() - t0:.1f} s")
+        tracemalloc.start()
+        t0 = time.perf_counter()
+        sources = discover_objects(root)
+        t1 = time.perf_counter()
+        digests = {s.object_id: source_digest(s) for s in sources}
+        t2 = time.perf_counter()
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        print(
+            f"discovery: {len(sources)} objects in {t1 - t0:.2f} s; digests: {len(digests)} in "
+            f"{t2 - t1:.2f} s; Python peak {peak / 2**20:.1f} MB, process peak RSS {_rss_mb():.0f} MB"
+        )
+        if args.run:
+            keep = {s.object_id for s in sources[: args.run]}
+            for s in sources[args.run :]:  # the run's folder: the first --run objects only
+                for f in [s.path, *((s.path.parent).glob("*") if s.is_urdf else [])]:
+                    f.unlink(missing_ok=True)
+            out = Path(tmp) / "labels"
+            cmd = ["annotate", "--objects", str(root), "--n", "1", "--out", str(out), "--quiet"]
+            env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache")}
+            t0 = time.perf_counter()
+            done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+            print(
+                f"annotate --n 1 on {len(keep)} objects: exit {done.returncode} in "
+                f"{time.perf_counter() - t0:.0f} s, peak RSS of a process {_children_rss_mb():.0f} MB"
+            )
+            print("\n".join(done.stdout.strip().splitlines()[-6:]))
+
+
+def torus(major: float, minor: float, n_major: int, n_minor: int) -> trimesh.Trimesh:
+    """A closed torus of n_major x n_minor x 2 faces, outward wound (trimesh.creation.torus drops
+    every face of a 2000 x 500 one: their area is below its degeneracy tolerance)."""
+    u = np.linspace(0, 2 * np.pi, n_major, endpoint=False)[:, None]
+    v = np.linspace(0, 2 * np.pi, n_minor, endpoint=False)[None, :]
+    r = major + minor * np.cos(v)
+    vertices = np.stack([r * np.cos(u), r * np.sin(u), minor * np.sin(v) + 0 * u], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
+    a, b = i * n_minor + j, ((i + 1) % n_major) * n_minor + j
+    c, d = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor, i * n_minor + (j + 1) % n_minor
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
+
+
+def big_mesh(args) -> None:
+    from annotator.config import ObjectConfig
+    from annotator.objects import load_object, read_object_mesh
+
+    with tempfile.TemporaryDirectory(prefix="rg2-big-") as tmp:
+        objects = Path(tmp) / "objects"
+        objects.mkdir()
+        t0 = time.perf_counter()
+        ring = torus(0.036, 0.009, args.major, args.minor)
+        path = objects / "ring.ply"
+        ring.export(path)
+        print(
+            f"wrote {len(ring.faces):,} faces ({path.stat().st_size / 2**20:.0f} MB .ply) in "
+            f"{time.perf_counter() - t0:.1f} s"
+        )
+        del ring
+        config = ObjectConfig()
+        before = _rss_mb()
+        t0 = time.perf_counter()
+        mesh = read_object_mesh(path, config)
+        print(
+            f"read + clean + simplify to {len(mesh.faces):,} faces (budget {config.max_faces:,}): "
+            f"{time.perf_counter() - t0:.1f} s, peak RSS {_rss_mb():.0f} MB (from {before:.0f})"
+        )
+        t0 = time.perf_counter()
+        model = load_object(path, config, cache_dir=Path(tmp) / "cache")
+        err = model.collision_error
+        print(
+            f"load_object (again: read, weigh, {model.collision_method} {len(model.parts)} parts, error "
+            f"{err.mean * 1e3:.2f}/{err.max * 1e3:.2f} mm): {time.perf_counter() - t0:.1f} s, "
+            f"peak RSS {_rss_mb():.0f} MB"
+        )
+        out = Path(tmp) / "labels"
+        cmd = [
+            "annotate",
+            "--objects",
+            str(objects),
+            "--n",
+            "20",
+            "--out",
+            str(out),
+            "--quiet",
+            "--workers",
+            "2",
+        ]
+        env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache2")}
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+        print(
+            f"annotate --n 20 (fresh cache): exit {done.returncode} in {time.perf_counter() - t0:.0f} s, "
+            f"peak RSS of a process {_children_rss_mb():.0f} MB"
+        )
+        print("\n".join((done.stdout + done.stderr).strip().splitlines()[-8:]))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="what", required=True)
+    f = sub.add_parser("folder")
+    f.add_argument("--objects", type=int, default=2000)
+    f.add_argument("--run", type=int, default=0, help="then annotate --n 1 on this many of them")
+    b = sub.add_parser("big-mesh")
+    b.add_argument("--major", type=int, default=2000)
+    b.add_argument("--minor", type=int, default=500)
+    args = ap.parse_args()
+    {"folder": folder, "big-mesh": big_mesh}[args.what](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
