@@ -10,8 +10,9 @@ are ``--objects`` objects, then times what the main process of a run does before
 discovering the objects and hashing every source (the manifest's digests), with its peak memory.
 
 ``big-mesh`` writes a torus of 2000 x 500 x 2 = 2,000,000 faces (a concave ring, 90 mm across),
-reads and simplifies it to the face budget (ObjectConfig.max_faces), decomposes it and runs
-``annotate --n 20`` on it in a fresh process, printing each step's time and peak memory.
+reads and simplifies it to the face budget (ObjectConfig.max_faces), decomposes it (CoACD on a
+copy of at most ObjectConfig.decomposition_max_faces) and runs ``annotate --n 20`` on it in a fresh
+process with that decomposition cached, printing each step's time and peak memory.
 """
 
 from __future__ import annotations
@@ -39,6 +40,17 @@ def _rss_mb() -> float:
 
 def _children_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+
+
+def _run_measured(cmd: list[str], env: dict) -> tuple[int, float, str]:
+    """Run ``cmd``; its exit code, the largest peak RSS (MB) of it and the children it waited for
+    (os.wait4: that process tree only), and its output."""
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        return proc.returncode, usage.ru_maxrss / 1024.0, out.read()
 
 
 def make_folder(dest: Path, count: int) -> int:
@@ -100,12 +112,15 @@ def folder(args) -> None:
             cmd = ["annotate", "--objects", str(root), "--n", "1", "--out", str(out), "--quiet"]
             env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache")}
             t0 = time.perf_counter()
-            done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+            code, rss, text = _run_measured(cmd, env)
             print(
-                f"annotate --n 1 on {len(keep)} objects: exit {done.returncode} in "
-                f"{time.perf_counter() - t0:.0f} s, peak RSS of a process {_children_rss_mb():.0f} MB"
+                f"annotate --n 1 on {len(keep)} objects: exit {code} in "
+                f"{time.perf_counter() - t0:.0f} s, peak RSS of its processes {rss:.0f} MB"
             )
-            print("\n".join(done.stdout.strip().splitlines()[-6:]))
+            if args.log:
+                args.log.write_text(text)
+            lines = [ln for ln in text.splitlines() if "failed" in ln or "labelled" in ln]
+            print("\n".join(lines[-12:]))
 
 
 def torus(major: float, minor: float, n_major: int, n_minor: int) -> trimesh.Trimesh:
@@ -125,6 +140,10 @@ def torus(major: float, minor: float, n_major: int, n_minor: int) -> trimesh.Tri
     return mesh
 
 
+def write_torus(args) -> None:
+    torus(0.036, 0.009, args.major, args.minor).export(args.path)
+
+
 def big_mesh(args) -> None:
     from annotator.config import ObjectConfig
     from annotator.objects import load_object, read_object_mesh
@@ -133,14 +152,16 @@ def big_mesh(args) -> None:
         objects = Path(tmp) / "objects"
         objects.mkdir()
         t0 = time.perf_counter()
-        ring = torus(0.036, 0.009, args.major, args.minor)
         path = objects / "ring.ply"
-        ring.export(path)
+        # written by a child process, so this process's peak memory is the reading's
+        sizes = [f"--major={args.major}", f"--minor={args.minor}"]
+        subprocess.run([sys.executable, __file__, "write-torus", str(path), *sizes], check=True)
+        seconds = time.perf_counter() - t0
+        size = path.stat().st_size / 2**20
         print(
-            f"wrote {len(ring.faces):,} faces ({path.stat().st_size / 2**20:.0f} MB .ply) in "
-            f"{time.perf_counter() - t0:.1f} s"
+            f"wrote {2 * args.major * args.minor:,} faces ({size:.0f} MB .ply) in {seconds:.1f} s "
+            f"(writer's peak RSS {_children_rss_mb():.0f} MB)"
         )
-        del ring
         config = ObjectConfig()
         before = _rss_mb()
         t0 = time.perf_counter()
@@ -149,13 +170,17 @@ def big_mesh(args) -> None:
             f"read + clean + simplify to {len(mesh.faces):,} faces (budget {config.max_faces:,}): "
             f"{time.perf_counter() - t0:.1f} s, peak RSS {_rss_mb():.0f} MB (from {before:.0f})"
         )
+        del mesh
         t0 = time.perf_counter()
         model = load_object(path, config, cache_dir=Path(tmp) / "cache")
         err = model.collision_error
         print(
-            f"load_object (again: read, weigh, {model.collision_method} {len(model.parts)} parts, error "
-            f"{err.mean * 1e3:.2f}/{err.max * 1e3:.2f} mm): {time.perf_counter() - t0:.1f} s, "
-            f"peak RSS {_rss_mb():.0f} MB"
+            f"load_object (read again, weigh, decompose): {time.perf_counter() - t0:.1f} s, of which "
+            f"decomposition {model.decomposition_seconds:.1f} s (CoACD on at most "
+            f"{config.decomposition_max_faces:,} faces, in a child process): {model.collision_method} "
+            f"{len(model.parts)} parts, threshold "
+            f"{model.collision_threshold:g}, error {err.mean * 1e3:.2f} / {err.max * 1e3:.2f} mm "
+            f"({'approximate' if model.approximate else 'within the limits'}); peak RSS {_rss_mb():.0f} MB"
         )
         out = Path(tmp) / "labels"
         cmd = [
@@ -170,14 +195,14 @@ def big_mesh(args) -> None:
             "--workers",
             "2",
         ]
-        env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache2")}
+        env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache")}
         t0 = time.perf_counter()
-        done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+        code, rss, text = _run_measured(cmd, env)
         print(
-            f"annotate --n 20 (fresh cache): exit {done.returncode} in {time.perf_counter() - t0:.0f} s, "
-            f"peak RSS of a process {_children_rss_mb():.0f} MB"
+            f"annotate --n 20 --workers 2 (decomposition cached): exit {code} in "
+            f"{time.perf_counter() - t0:.0f} s, peak RSS of its processes {rss:.0f} MB"
         )
-        print("\n".join((done.stdout + done.stderr).strip().splitlines()[-8:]))
+        print("\n".join(text.strip().splitlines()[-8:]))
 
 
 def main() -> None:
@@ -186,11 +211,15 @@ def main() -> None:
     f = sub.add_parser("folder")
     f.add_argument("--objects", type=int, default=2000)
     f.add_argument("--run", type=int, default=0, help="then annotate --n 1 on this many of them")
+    f.add_argument("--log", type=Path, default=None, help="write annotate's whole output here")
     b = sub.add_parser("big-mesh")
-    b.add_argument("--major", type=int, default=2000)
-    b.add_argument("--minor", type=int, default=500)
+    w = sub.add_parser("write-torus")
+    w.add_argument("path")
+    for p in (b, w):
+        p.add_argument("--major", type=int, default=2000)
+        p.add_argument("--minor", type=int, default=500)
     args = ap.parse_args()
-    {"folder": folder, "big-mesh": big_mesh}[args.what](args)
+    {"folder": folder, "big-mesh": big_mesh, "write-torus": write_torus}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -105,12 +105,14 @@ def geometry_key(
     for m in [mesh, *shells]:
         h.update(np.ascontiguousarray(m.vertices, dtype="<f8").tobytes())
         h.update(np.ascontiguousarray(m.faces, dtype="<i8").tobytes())
-    params = (
+    params: tuple = (
         thresholds(config),
         config.collision_mean_limit,
         config.collision_max_limit,
         config.collision_error_samples,
     )
+    if method == METHOD and len(mesh.faces) > config.decomposition_max_faces:
+        params += (config.decomposition_max_faces,)  # shapes only what it simplifies
     h.update(repr(params).encode())
     return h.hexdigest()[:32]
 
@@ -232,6 +234,22 @@ def thresholds(config: ObjectConfig) -> tuple[float, ...]:
     return tuple(out)
 
 
+def decomposition_input(
+    vertices: np.ndarray, faces: np.ndarray, max_faces: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """What CoACD decomposes: the mesh itself, or a copy simplified to ``max_faces`` (quadric
+    decimation) when it has more. ``vertices : (n, 3) float``, ``faces : (m, 3) int``; returns
+    float64 vertices and int32 faces."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int32)
+    if len(faces) <= max_faces:
+        return vertices, faces
+    import fast_simplification
+
+    v, f = fast_simplification.simplify(vertices, faces, target_count=max_faces)
+    return np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int32)
+
+
 def refine_coacd(
     vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig
 ) -> tuple[list[trimesh.Trimesh], CollisionError, float]:
@@ -243,10 +261,11 @@ def refine_coacd(
 
     coacd.set_log_level("error")
     mesh = trimesh.Trimesh(vertices, faces, process=False)
+    coacd_vertices, coacd_faces = decomposition_input(vertices, faces, config.decomposition_max_faces)
     best: tuple[list[trimesh.Trimesh], CollisionError, float] | None = None
     for threshold in thresholds(config):
         result = coacd.run_coacd(
-            coacd.Mesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int32)),
+            coacd.Mesh(coacd_vertices, coacd_faces),
             threshold=float(threshold),
             # the mesh is cleaned and watertight: CoACD's manifold remeshing would only move its surface
             preprocess_mode="off",

@@ -436,7 +436,8 @@ def _run(
         if result.error is not None:
             summary.failed[oid] = result.error
             store.fail_object(oid, result.error)
-            log.error("%s: %s", oid, result.error)
+            named = result.error.startswith(f"{oid}:")  # an ObjectError names its object
+            log.error("%s", result.error if named else f"{oid}: {result.error}")
             return
         df = result.rows
         object_seconds[oid] = object_seconds.get(oid, 0.0) + result.stats.seconds
