@@ -29,6 +29,7 @@ from annotator.objects import (
     get_object_pose,
     load_object,
     mass,
+    parts,
     read_object_mesh,
     reset_object_pose,
     source_digest,
@@ -538,6 +539,40 @@ def test_convex_parts_written_as_one_file_become_one_solid_colliding_as_those_pa
     assert model.collision_error.max < 1e-4 and not model.approximate
 
 
+def test_closed_parts_that_share_an_edge_are_separated_not_collided_as_their_hull(tmp_path):
+    """Two closed boxes in one mesh that touch along an edge: once their vertices are merged that
+    edge has four faces, so the surface is not a manifold. They are two closed solids (as in
+    pybullet_data's random_urdfs 037 and 121, collided as their hull until now: 17 and 36 mm error)."""
+    a = trimesh.creation.box(extents=(0.04, 0.04, 0.04))
+    b = a.copy()
+    b.apply_translation((0.04, 0.0, 0.04))  # meets a along the edge x = z = 0.02
+    both = trimesh.util.concatenate([a, b])
+    path = tmp_path / "edge.obj"
+    path.write_text(_obj_text(both.vertices, both.faces))
+    model = load_object(path, CONFIG, cache_dir=tmp_path)
+    assert model.cleaning.vertices_merged == 2 and model.cleaning.shared_edges == 1
+    assert model.watertight and model.collision_method == "shells" and len(model.parts) == 2
+    assert model.mass == pytest.approx(2 * 0.04**3 * CONFIG.density, rel=1e-9)
+    assert model.collision_error.max < 1e-4 and not model.approximate
+
+
+def test_coacd_decomposes_a_copy_within_its_face_budget_and_only_that_changes_the_cache_key():
+    """CoACD's time grows with the faces (a 200,000-face ring did not finish one threshold in 4 min,
+    bench/scale.py big-mesh): it gets a copy simplified to decomposition_max_faces."""
+    dense = trimesh.creation.torus(0.036, 0.009, major_sections=128, minor_sections=64)  # 16,384
+    budget = dataclasses.replace(CONFIG, decomposition_max_faces=2000)
+    v, f = decomposition.decomposition_input(dense.vertices, dense.faces, budget.decomposition_max_faces)
+    assert 1000 < len(f) <= 2000 and f.dtype == np.int32
+    copy = trimesh.Trimesh(v, f)
+    assert copy.is_watertight and copy.volume == pytest.approx(dense.volume, rel=0.02)
+    v, f = decomposition.decomposition_input(dense.vertices, dense.faces, len(dense.faces))
+    np.testing.assert_array_equal(f, dense.faces)  # within the budget: the mesh itself
+    key = decomposition.geometry_key
+    assert key(dense, "coacd", budget) != key(dense, "coacd", CONFIG)  # the budget shapes this one
+    small = trimesh.creation.torus(0.036, 0.009, major_sections=32, minor_sections=16)
+    assert key(small, "coacd", budget) == key(small, "coacd", CONFIG)  # ... not this one
+
+
 def test_meshes_above_the_face_budget_are_simplified_and_reported(tmp_path, caplog):
     sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.04)  # 20,480 faces
     path = tmp_path / "dense.stl"
@@ -569,6 +604,15 @@ def _three_node_glb(path: Path) -> dict[str, np.ndarray]:
     return {name: np.asarray(sizes[name]) for name in centres} | {
         f"{n}@": np.asarray(c) for n, c in centres.items()
     }
+
+
+def test_parts_whose_boxes_meet_within_rounding_are_one_body_apart_ones_are_not():
+    """pybullet_data's lego_vhacd.obj writes its 83 convex parts with gaps up to 1e-5 (of 0.32):
+    they are one brick, not 27 objects; parts 1 % of the extent apart are separate bodies."""
+    box = np.array([[0.0, 0.0, 0.0], [0.1, 0.1, 0.1]])
+    for gap, groups in [(0.0, 1), (1e-5 * 0.32 / 0.2, 1), (0.002, 2)]:
+        other = box + [0.1 + gap, 0.0, 0.0]
+        assert len(parts.touching_groups([box, other])) == groups, gap
 
 
 def test_multi_node_glb_is_one_object_per_node_unless_merged(tmp_path):

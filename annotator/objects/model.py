@@ -291,6 +291,10 @@ def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _R
     hull = _check_size(mesh, name, config)
     watertight = bool(mesh.is_watertight and mesh.is_winding_consistent)
     if not watertight:
+        separated = reading.separate_at_shared_edges(mesh, report)
+        if separated is not None:
+            mesh, watertight = separated, True
+    if not watertight:
         mesh, report.holes_filled = reading.fill_holes(mesh)
         watertight = report.holes_filled > 0
         if watertight:

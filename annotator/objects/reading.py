@@ -24,6 +24,10 @@ log = logging.getLogger(__name__)
 _TEXT_SUFFIXES = (".obj", ".off")
 
 
+# m^3: a closed piece enclosing less is flat (a double-sided sheet; 121.obj's is exactly 0)
+FLAT_VOLUME = 1e-15
+
+
 @dataclass
 class Cleaning:
     """What cleaning changed: counts, for the log and the geometry record."""
@@ -34,6 +38,8 @@ class Cleaning:
     duplicate_faces: int = 0
     internal_faces: int = 0  # coincident opposite faces of abutting solids, both dropped
     shells_joined: int = 0  # closed shells that touched or overlapped, joined into their union
+    shared_edges: int = 0  # edges where closed shells meet (used by 4+ faces), the shells separated
+    flat_pieces: int = 0  # closed pieces that enclose no volume (double-sided sheets), dropped
     holes_filled: int = 0
     simplified_to: int = 0  # faces after simplification; 0: not simplified
 
@@ -43,6 +49,8 @@ class Cleaning:
             f"{self.degenerate_faces} degenerate faces dropped" if self.degenerate_faces else "",
             f"{self.duplicate_faces} duplicate faces dropped" if self.duplicate_faces else "",
             f"{self.internal_faces} faces between abutting parts dropped" if self.internal_faces else "",
+            f"{self.shared_edges} edges shared by two shells separated" if self.shared_edges else "",
+            f"{self.flat_pieces} flat closed pieces dropped" if self.flat_pieces else "",
             f"{self.shells_joined} overlapping shells joined" if self.shells_joined else "",
             f"{self.holes_filled} holes filled" if self.holes_filled else "",
             f"simplified {self.faces_read} -> {self.simplified_to} faces" if self.simplified_to else "",
@@ -202,6 +210,43 @@ def closed_shells(mesh: trimesh.Trimesh) -> list[trimesh.Trimesh]:
             return []
         shells.append(shell)
     return sorted(shells, key=lambda s: tuple(np.round(s.bounds[0], 12)))
+
+
+def separate_at_shared_edges(mesh: trimesh.Trimesh, report: Cleaning) -> trimesh.Trimesh | None:
+    """A closed surface that is not a manifold only because closed shells share an edge (convex
+    parts written as one file, touching along an edge once their vertices are merged: pybullet_data
+    random_urdfs 037 and 121) as those shells, each with its own vertices; None when ``mesh`` has
+    an open edge or its pieces are not closed.
+
+    Faces are connected across edges used by exactly two faces only, so the shells come apart at
+    the edges they share (used by four or more).
+    """
+    edges = np.asarray(mesh.edges_sorted)
+    _, edge_id, uses = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    if np.any(uses % 2) or not np.any(uses > 2):
+        return None
+    edge_id = edge_id.reshape(-1)
+    face_of_edge = np.repeat(np.arange(len(mesh.faces)), 3)
+    twice = np.flatnonzero(uses[edge_id] == 2)
+    order = twice[np.argsort(edge_id[twice], kind="stable")]
+    pairs = face_of_edge[order].reshape(-1, 2)
+    groups = trimesh.graph.connected_components(pairs, nodes=np.arange(len(mesh.faces)))
+    pieces = []
+    for faces in groups:
+        piece = trimesh.Trimesh(mesh.vertices, mesh.faces[np.sort(faces)], process=False)
+        piece.remove_unreferenced_vertices()
+        if not (piece.is_watertight and piece.is_winding_consistent):
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by a flat one's 0
+            volume = piece.volume
+        if abs(volume) <= FLAT_VOLUME:  # a closed but flat piece (a double-sided sheet): no solid
+            report.flat_pieces += 1
+            continue
+        pieces.append(piece)
+    if not pieces:
+        return None
+    report.shared_edges = int(np.sum(uses > 2))
+    return trimesh.util.concatenate(pieces)
 
 
 def overlapping(shells: list[trimesh.Trimesh], tolerance: float = 1e-9) -> bool:
