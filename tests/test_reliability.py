@@ -259,6 +259,45 @@ def test_a_span_that_kills_its_worker_twice_fails_its_object_only(tmp_path):
     assert all("a worker process died twice" in r.error for r in by_object["poison"])
 
 
+class _RefusesOnce(Workers):
+    """Local workers whose pool refuses one submission as loky does once a worker has died and
+    before any waiting future has reported it (the race a killed worker hit under load)."""
+
+    def __init__(self, options: RunOptions, refuse_at: int) -> None:
+        super().__init__(options)
+        self.calls, self.refuse_at = 0, refuse_at
+
+    def submit(self, task, fn=label_span):
+        from joblib.externals.loky.process_executor import TerminatedWorkerError
+
+        self.calls += 1
+        if self.calls == self.refuse_at:
+            raise TerminatedWorkerError(
+                "A worker process managed by the executor was unexpectedly terminated."
+            )
+        return super().submit(task, fn)
+
+
+def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_the_run(tmp_path):
+    objs = _objects(tmp_path / "objs", ("box", "slab"))
+    config = AnnotatorConfig()
+    planned = [PlannedObject(s) for s in discover_objects(objs)]
+    results: list[SpanResult] = []
+    workers = _RefusesOnce(RunOptions(objs, 20, workers=1), refuse_at=2)
+    try:
+        execute(
+            plan_spans(planned, 20, 10, None),
+            lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
+            workers,
+            results.append,
+        )
+    finally:
+        workers.close(kill=True)
+    keys = sorted((r.span.object_id, r.span.start) for r in results)
+    assert keys == [("box", 0), ("box", 10), ("slab", 0), ("slab", 10)]  # each span once
+    assert all(r.error is None and len(r.rows) == 10 for r in results)
+
+
 def _mount_tmpfs(where: Path, size: str) -> None:
     where.mkdir(parents=True, exist_ok=True)
     done = subprocess.run(

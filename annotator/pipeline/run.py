@@ -186,19 +186,26 @@ def execute(
     pending = iter(spans)
     exhausted = False
     while True:
+        crashed: list[Span] = []
         while not exhausted and len(out) < capacity:
             span = next(pending, None)
             if span is None:
                 exhausted = True
                 break
-            out[workers.submit(make_task(span), fn)] = span
-        if not out:
+            try:
+                out[workers.submit(make_task(span), fn)] = span
+            except died:  # a worker died since the last wait: the pool refuses work
+                crashed.append(span)
+                break
+        if not out and not crashed:
             return
-        done, _ = cf.wait(out, timeout=TICK_SECONDS, return_when=cf.FIRST_COMPLETED)
-        on_tick()
-        if not done and workers.lost():
+        if crashed:  # what finished before the pool broke is handed on as usual
+            done = {future for future in out if future.done()}
+        else:
+            done, _ = cf.wait(out, timeout=TICK_SECONDS, return_when=cf.FIRST_COMPLETED)
+            on_tick()
+        if not done and not crashed and workers.lost():
             raise SchedulerLost("lost the Dask scheduler")
-        crashed: list[Span] = []
         for future in done:
             span = out.pop(future)
             try:
