@@ -2,16 +2,27 @@
 
     python bench/fidelity.py                    # >= 1,000 candidates over the sample objects
     python bench/fidelity.py --per-object 20    # a quick look
+    python bench/fidelity.py --variant "it100:physics.solver_iterations=100"   # a changed model
 
 The thorough protocol (AnnotatorConfig.thorough): time step 1/1000 s, twice the solver
 iterations, a shake three times as long with 1.5x the amplitudes. Candidates rejected by the
 kinematic collision check are identical under both protocols (no physics), so agreement is printed
 over all candidates and over the physically simulated ones.
+
+``--variant`` (repeatable) labels the same candidates with a changed configuration (see
+``bench/_variants.py``) and prints its agreement with the default on ``success`` and ``outcome``,
+its widths against the default's where both succeed, and its agreement with the thorough reference
+(the reference is always the default's thorough protocol, so a variant cannot move it).
+The default's and the reference's labels are cached under ``--cache`` keyed by configuration, seed,
+candidates per object and the objects' files (a cache made by other simulation code is reported);
+``--fresh`` recomputes them.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import os
 import time
 from pathlib import Path
@@ -19,24 +30,86 @@ from pathlib import Path
 import joblib
 import numpy as np
 import pandas as pd
+from _variants import parse_variant
 
 from annotator.config import AnnotatorConfig
-from annotator.objects import ObjectError, discover_objects, load_object
+from annotator.objects import ObjectError, default_cache_dir, discover_objects, load_object
 from annotator.pipeline.plan import CHUNK_SIZE
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span, max_width, object_candidates
 
 ROOT = Path(__file__).resolve().parents[1]
+KEY = ["object_id", "grasp_id"]
 
 
 def label(chunks: list[Span], config: AnnotatorConfig, seed: int, workers: int) -> pd.DataFrame:
     tasks = (SpanTask(c, config, seed, c.size) for c in chunks)
     out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
-    return pd.concat([r.rows for r in out], ignore_index=True).sort_values(["object_id", "grasp_id"])
+    return pd.concat([r.rows for r in out], ignore_index=True).sort_values(KEY, ignore_index=True)
 
 
 def chunk(source, start: int, T_obj_tcp: np.ndarray, width: np.ndarray) -> Span:
     """Candidates ``start..`` of ``source`` given as poses (k, 4, 4) and chords (k,)."""
     return Span(source.object_id, source, None, start, start + len(width), GivenGrasps(T_obj_tcp, width))
+
+
+def code_digest() -> str:
+    """Digest of the simulation code and robot model: cached labels of other code are not reused."""
+    h = hashlib.sha256()
+    for path in sorted((ROOT / "annotator").rglob("*.py")) + [ROOT / "assets" / "rg2" / "rg2.urdf"]:
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cached(
+    cache: Path | None, name: str, config: AnnotatorConfig, key: dict, fresh: bool, compute
+) -> tuple[pd.DataFrame, bool]:
+    """``compute()`` or its cached result for (config, key); returns (labels, from_cache).
+
+    The key leaves the code out (the reference takes half an hour); a cached file made by other
+    simulation code is used with a warning, and ``--fresh`` recomputes it.
+    """
+    if cache is None:
+        return compute(), False
+    digest = hashlib.sha256(json.dumps([config.to_dict(), key], sort_keys=True).encode()).hexdigest()[:20]
+    path = cache / f"{name}-{digest}.parquet"
+    stamp = path.with_suffix(".code")
+    if path.is_file() and not fresh:
+        if not stamp.is_file() or stamp.read_text() != code_digest():
+            print(f"warning: cached {name} labels were made by other simulation code (--fresh recomputes)")
+        return pd.read_parquet(path), True
+    df = compute()
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    df.to_parquet(tmp)
+    os.replace(tmp, path)
+    stamp.write_text(code_digest())
+    return df, False
+
+
+def compare(name: str, a: pd.DataFrame, b: pd.DataFrame, a_name: str, b_name: str) -> dict[str, float]:
+    """Agreement of ``a`` with ``b`` (same rows, same order): success, outcome, widths."""
+    sim = ((a["outcome"] != "collision") | (b["outcome"] != "collision")).to_numpy()
+    same = a["success"].to_numpy() == b["success"].to_numpy()
+    both = (a["success"] & b["success"]).to_numpy()
+    dw = np.abs(a["width"].to_numpy() - b["width"].to_numpy())[both]
+    figures = {
+        "agree_all": float(same.mean()),
+        "agree_sim": float(same[sim].mean()) if sim.any() else float("nan"),
+        "n_sim": int(sim.sum()),
+        "flips": int((~same).sum()),
+        "outcome_agree": float((a["outcome"].to_numpy() == b["outcome"].to_numpy()).mean()),
+        "width_max_mm": float(dw.max() * 1000) if dw.size else float("nan"),
+        "width_p99_mm": float(np.percentile(dw, 99) * 1000) if dw.size else float("nan"),
+        "width_over_0p2": int((dw > 0.0002).sum()),
+    }
+    print(
+        f"{name}: {a_name} vs {b_name}: success agrees on {figures['agree_all']:.1%} of {len(a)} "
+        f"({figures['flips']} flips), {figures['agree_sim']:.1%} of the {figures['n_sim']} simulated; "
+        f"outcome {figures['outcome_agree']:.1%}; widths where both succeed: max "
+        f"{figures['width_max_mm']:.3f} mm, 99th pct {figures['width_p99_mm']:.3f} mm, "
+        f"{figures['width_over_0p2']} over 0.2 mm"
+    )
+    return figures
 
 
 def main() -> None:
@@ -45,48 +118,71 @@ def main() -> None:
     ap.add_argument("--per-object", type=int, default=110, help="candidates per object (10 objects)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--variant", action="append", default=[], help="NAME:FIELD=VALUE[,FIELD=VALUE]")
+    ap.add_argument("--cache", type=Path, default=default_cache_dir() / "fidelity")
+    ap.add_argument("--no-cache", action="store_true", help="neither read nor write cached labels")
+    ap.add_argument("--fresh", action="store_true", help="recompute the cached default and reference")
     args = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.2f} (1 min)")
 
     default = AnnotatorConfig()
     thorough = AnnotatorConfig.thorough(default)
+    variants = [parse_variant(spec, default) for spec in args.variant]
     stroke = max_width(default)
     chunks = []
+    files = []
     for source in discover_objects(args.objects):
         try:
             model = load_object(source, default.objects)
         except ObjectError as exc:
             print(f"skip {source.object_id}: {exc}")
             continue
+        files.append([source.object_id, model.mesh_sha256])
         cands = object_candidates(model, args.per_object, args.seed, default, stroke)
         for s in range(0, args.per_object, CHUNK_SIZE):
             e = min(args.per_object, s + CHUNK_SIZE)
             chunks.append(chunk(source, s, cands.T_obj_tcp[s:e], cands.width_expected[s:e]))
     n = sum(c.size for c in chunks)
     print(f"{n} candidates on {len({c.object_id for c in chunks})} objects, seed {args.seed}")
+    cache = None if args.no_cache else args.cache
+    key = {"seed": args.seed, "per_object": args.per_object, "objects": files}
 
     t0 = time.perf_counter()
-    a = label(chunks, default, args.seed, args.workers)
+    a, hit = cached(
+        cache, "default", default, key, args.fresh, lambda: label(chunks, default, args.seed, args.workers)
+    )
     t1 = time.perf_counter()
     simulated = a["outcome"] != "collision"
-    # collisions are decided kinematically, identically under both protocols: only simulate the rest
-    sim_chunks = []
-    for c in chunks:
-        rows = a[(a.object_id == c.object_id) & a.grasp_id.between(c.start, c.stop - 1)]
-        keep = (rows["outcome"] != "collision").to_numpy()
-        g = c.given
-        for k in np.flatnonzero(keep):
-            sim_chunks.append(chunk(c.source, c.start + k, g.T_obj_tcp[k : k + 1], g.width[k : k + 1]))
-    b_sim = label(sim_chunks, thorough, args.seed, args.workers)
-    t2 = time.perf_counter()
-    b = a.copy()
-    b = b.set_index(["object_id", "grasp_id"])
-    b.loc[b_sim.set_index(["object_id", "grasp_id"]).index, ["outcome", "success"]] = b_sim.set_index(
-        ["object_id", "grasp_id"]
-    )[["outcome", "success"]]
-    b = b.reset_index()
 
-    print(f"default protocol: {t1 - t0:.0f} s, mean {a.sim_steps.mean():.0f} steps/candidate")
-    print(f"thorough protocol: {t2 - t1:.0f} s on the {int(simulated.sum())} simulated candidates")
+    def reference() -> pd.DataFrame:
+        # collisions are decided kinematically, identically under both protocols: only simulate the rest
+        sim_chunks = []
+        for c in chunks:
+            rows = a[(a.object_id == c.object_id) & a.grasp_id.between(c.start, c.stop - 1)]
+            keep = (rows["outcome"] != "collision").to_numpy()
+            g = c.given
+            for k in np.flatnonzero(keep):
+                sim_chunks.append(chunk(c.source, c.start + k, g.T_obj_tcp[k : k + 1], g.width[k : k + 1]))
+        b_sim = label(sim_chunks, thorough, args.seed, args.workers)
+        b = a.copy().set_index(KEY)
+        b.loc[b_sim.set_index(KEY).index, ["outcome", "success"]] = b_sim.set_index(KEY)[
+            ["outcome", "success"]
+        ]
+        return b.reset_index()
+
+    b, hit_b = cached(
+        cache, "thorough", thorough, {**key, "default": default.to_dict()}, args.fresh, reference
+    )
+    t2 = time.perf_counter()
+
+    print(
+        f"default protocol: {t1 - t0:.0f} s{' (cached)' if hit else ''}, "
+        f"mean {a.sim_steps.mean():.0f} steps/candidate"
+    )
+    print(
+        f"thorough protocol: {t2 - t1:.0f} s{' (cached)' if hit_b else ''} "
+        f"on the {int(simulated.sum())} simulated candidates"
+    )
     cm = pd.crosstab(a["success"].rename("default"), b["success"].rename("thorough"), margins=True)
     print("\nsuccess confusion matrix (rows: default, columns: thorough)\n" + cm.to_string())
     agree_all = float((a["success"].to_numpy() == b["success"].to_numpy()).mean())
@@ -105,6 +201,36 @@ def main() -> None:
         }
     )
     print("\nsuccess rate per object\n" + per.to_string(float_format=lambda x: f"{x:.1%}"))
+
+    for name, config in variants:
+        print(f"\n== variant {name} == (load average {os.getloadavg()[0]:.2f})")
+        t3 = time.perf_counter()
+        v = label(chunks, config, args.seed, args.workers)
+        t4 = time.perf_counter()
+        sim_v = v["sim_steps"][v["outcome"] != "collision"]
+        print(
+            f"{name}: {t4 - t3:.0f} s, mean {v.sim_steps.mean():.0f} steps/candidate, "
+            f"{sim_v.mean():.0f} per simulated trial (default {a.sim_steps[simulated].mean():.0f})"
+        )
+        compare(name, v, a, "variant", "default")
+        # the reference is the default's thorough protocol; its agreement over the default's simulated set
+        same = v["success"].to_numpy() == b["success"].to_numpy()
+        print(
+            f"{name}: variant vs thorough reference: {same.mean():.1%} of all, "
+            f"{same[sim].mean():.1%} of the {int(sim.sum())} simulated (default {agree_sim:.1%})"
+        )
+        flips = v[v["success"].to_numpy() != a["success"].to_numpy()]
+        if len(flips):
+            moved = pd.DataFrame(
+                {
+                    "object_id": flips["object_id"],
+                    "grasp_id": flips["grasp_id"],
+                    "default": a.loc[flips.index, "outcome"],
+                    "variant": flips["outcome"],
+                    "thorough": b.loc[flips.index, "outcome"],
+                }
+            )
+            print("flips (outcomes)\n" + moved.to_string(index=False))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
     python bench/peers.py                          # 3 objects x 100 candidates, 2 rounds
     python bench/peers.py --per-object 40 --rounds 1
-    python bench/peers.py --variant solver_iterations=50   # also time a changed configuration of ours
+    python bench/peers.py --variant solver_iterations=100   # also time a changed configuration of ours
 
 Every tool runs in its own PyBullet DIRECT client in this one process, on the product's own object
 bodies (``annotator.objects.load_object`` + ``create_body``: same mass, inertia, friction, convex
@@ -63,7 +63,6 @@ written here from the numbers in their sources, as primitives):
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import math
 import os
@@ -77,12 +76,13 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 import trimesh
+from _variants import parse_variant
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object
-from annotator.runner import object_candidates
+from annotator.pipeline.worker import object_candidates
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 from annotator.trial import GraspTrial
@@ -139,7 +139,7 @@ def bench_objects(folder: Path) -> list[ObjectSource]:
 
 
 class Sim:
-    """A bare PyBullet DIRECT client with a step counter and the time spent in ``stepSimulation``."""
+    """A bare PyBullet DIRECT client with a step counter and the CPU time spent in ``stepSimulation``."""
 
     def __init__(self, time_step: float, solver_iterations: int) -> None:
         self.client = pb.connect(pb.DIRECT)
@@ -151,10 +151,10 @@ class Sim:
         self.step_seconds = 0.0
 
     def step(self, n: int = 1) -> None:
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for _ in range(n):
             pb.stepSimulation(physicsClientId=self.client)
-        self.step_seconds += time.perf_counter() - t0
+        self.step_seconds += time.process_time() - t0
         self.steps += n
 
     def gravity(self, on: bool) -> None:
@@ -216,20 +216,31 @@ class Tool:
 # --- ours ------------------------------------------------------------------------------------------
 
 
+class CpuWorld(World):
+    """The product's World, timing ``stepSimulation`` in CPU seconds like :class:`Sim`."""
+
+    def step(self, n: int = 1) -> None:
+        t0 = time.process_time()
+        for _ in range(n):
+            pb.stepSimulation(physicsClientId=self.client)
+        self.step_seconds += time.process_time() - t0
+        self.steps += n
+
+
 class Ours(Tool):
     """``annotator.trial.GraspTrial`` exactly as a worker runs it."""
 
     def __init__(self, config: AnnotatorConfig, name: str = "ours") -> None:
         self.name = name
         self.config = config
-        self.world = World(config.physics)
+        self.world = CpuWorld(config.physics)
         self.hand = FloatingRG2(self.world, config.gripper)
         self.trial: GraspTrial | None = None
         self.uid: int | None = None
 
     def load(self, model: ObjectModel) -> None:
         self.hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), self.hand.rg2.max_width)  # parked
-        self.uid = create_body(self.world.client, model)
+        self.uid = create_body(self.world.client, model, config=self.config.objects)
         self.world.set_gravity(False)
         self.trial = GraspTrial(self.world, self.hand, self.uid, self.config)
 
@@ -332,8 +343,16 @@ class VGN(Tool):
         self.body = pb.loadURDF(str(self.urdf), *T_world_body.to_pybullet(), physicsClientId=c)
         pos, quat = T_world_body.to_pybullet()
         self.constraint = pb.createConstraint(
-            self.body, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], parentFramePosition=[0, 0, 0],
-            childFramePosition=pos, childFrameOrientation=quat, physicsClientId=c,
+            self.body,
+            -1,
+            -1,
+            -1,
+            pb.JOINT_FIXED,
+            [0, 0, 0],
+            parentFramePosition=[0, 0, 0],
+            childFramePosition=pos,
+            childFrameOrientation=quat,
+            physicsClientId=c,
         )
         self._update_constraint(T_world_body)
         gear = pb.createConstraint(
@@ -347,14 +366,21 @@ class VGN(Tool):
     def _set_width(self, width: float) -> None:
         for j in (0, 1):
             pb.setJointMotorControl2(
-                self.body, j, pb.POSITION_CONTROL, targetPosition=0.5 * width, force=20.0,
+                self.body,
+                j,
+                pb.POSITION_CONTROL,
+                targetPosition=0.5 * width,
+                force=20.0,
                 physicsClientId=self.sim.client,
             )
 
     def _update_constraint(self, T_world_body: Transform) -> None:
         pos, quat = T_world_body.to_pybullet()
         pb.changeConstraint(
-            self.constraint, jointChildPivot=pos, jointChildFrameOrientation=quat, maxForce=300,
+            self.constraint,
+            jointChildPivot=pos,
+            jointChildFrameOrientation=quat,
+            maxForce=300,
             physicsClientId=self.sim.client,
         )
 
@@ -457,9 +483,7 @@ def adagrasp_rg2_urdf() -> str:
     parts.append(link("left_inner", bar(1.0)))
     parts.append(joint("palm_left_outer_joint", "palm", "left_outer", (-0.017, 0, 0.055), -0.43, 0, 0.86))
     parts.append(link("left_outer", bar(1.0)))
-    parts.append(
-        joint("left_finger_joint", "left_outer", "left_finger", tuple(RG2_LINK), 0.43, -0.86, 0)
-    )
+    parts.append(joint("left_finger_joint", "left_outer", "left_finger", tuple(RG2_LINK), 0.43, -0.86, 0))
     parts.append(link("left_finger", finger(-1.0)))
     parts.append(joint("palm_right_inner_joint", "palm", "right_inner", (0.0075, 0, 0.0715), 0.43, -0.86, 0))
     parts.append(link("right_inner", bar(-1.0)))
@@ -534,8 +558,13 @@ class AdaGrasp(Tool):
         c = self.sim.client
         pos = pb.getJointState(self.body, self.DRIVER, physicsClientId=c)[0]
         pb.setJointMotorControlArray(
-            self.body, self.FOLLOWERS, pb.POSITION_CONTROL, targetPositions=(pos * self.SIGNS).tolist(),
-            forces=[self.FORCE] * 5, positionGains=[self.GAIN] * 5, physicsClientId=c,
+            self.body,
+            self.FOLLOWERS,
+            pb.POSITION_CONTROL,
+            targetPositions=(pos * self.SIGNS).tolist(),
+            forces=[self.FORCE] * 5,
+            positionGains=[self.GAIN] * 5,
+            physicsClientId=c,
         )
 
     def _step(self, n: int, each: Callable[[int], None] | None = None) -> None:
@@ -562,16 +591,29 @@ class AdaGrasp(Tool):
         self.body = pb.loadURDF(str(self.urdf), pos, quat, physicsClientId=c)
         for j in range(6):
             pb.changeDynamics(
-                self.body, j, lateralFriction=1.0, spinningFriction=1.0, rollingFriction=0.0001,
-                frictionAnchor=True, physicsClientId=c,
+                self.body,
+                j,
+                lateralFriction=1.0,
+                spinningFriction=1.0,
+                rollingFriction=0.0001,
+                frictionAnchor=True,
+                physicsClientId=c,
             )
         pb.changeDynamics(self.body, -1, mass=0.4, physicsClientId=c)
         for j in range(6):
             pb.changeDynamics(self.body, j, mass=0.1 / 6, physicsClientId=c)
         self._reset_joints(self.body, 0.0)
         mount = pb.createConstraint(
-            self.body, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], parentFramePosition=[0, 0, 0],
-            childFramePosition=pos, childFrameOrientation=quat, physicsClientId=c,
+            self.body,
+            -1,
+            -1,
+            -1,
+            pb.JOINT_FIXED,
+            [0, 0, 0],
+            parentFramePosition=[0, 0, 0],
+            childFramePosition=pos,
+            childFrameOrientation=quat,
+            physicsClientId=c,
         )
         pb.changeConstraint(
             mount, jointChildPivot=pos, jointChildFrameOrientation=quat, maxForce=1000, physicsClientId=c
@@ -582,7 +624,11 @@ class AdaGrasp(Tool):
             simulated = False
         else:
             pb.setJointMotorControl2(
-                self.body, self.DRIVER, pb.VELOCITY_CONTROL, targetVelocity=self.SPEED, force=self.FORCE,
+                self.body,
+                self.DRIVER,
+                pb.VELOCITY_CONTROL,
+                targetVelocity=self.SPEED,
+                force=self.FORCE,
                 physicsClientId=c,
             )
             self._step(int(2.0 / self.sim.dt))
@@ -594,7 +640,10 @@ class AdaGrasp(Tool):
                 def lift(i: int) -> None:
                     p = start + np.array([0.0, 0.0, self.LIFT * (i + 1) / n])
                     pb.changeConstraint(
-                        mount, jointChildPivot=p.tolist(), jointChildFrameOrientation=quat, maxForce=1000,
+                        mount,
+                        jointChildPivot=p.tolist(),
+                        jointChildFrameOrientation=quat,
+                        maxForce=1000,
                         physicsClientId=c,
                     )
 
@@ -611,11 +660,13 @@ class AdaGrasp(Tool):
 class Tally:
     """One tool's figures over one round."""
 
-    seconds: list[float] = field(default_factory=list)  # wall time per candidate
+    seconds: list[float] = field(default_factory=list)  # CPU time per candidate
+    wall: list[float] = field(default_factory=list)  # wall time per candidate
     results: list[Result] = field(default_factory=list)
 
-    def add(self, seconds: float, result: Result) -> None:
+    def add(self, seconds: float, wall: float, result: Result) -> None:
         self.seconds.append(seconds)
+        self.wall.append(wall)
         self.results.append(result)
 
     def figures(self) -> dict[str, float]:
@@ -632,6 +683,8 @@ class Tally:
             "ms_trial": 1e3 * trial_seconds / n_sim,
             "steps_trial": trial_steps / n_sim,
             "ms_step": 1e3 * sum(r.step_seconds for r in self.results) / max(1, steps),
+            "outside_step": 1.0 - sum(r.step_seconds for r in self.results) / max(1e-12, sum(self.seconds)),
+            "wall_ms_candidate": 1e3 * sum(self.wall) / max(1, len(self.wall)),
         }
 
 
@@ -640,25 +693,17 @@ def load(label: str) -> str:
     return f"{label} load average {one:.2f} (1 min) {five:.2f} (5 min)"
 
 
-def parse_variant(text: str, base: AnnotatorConfig) -> AnnotatorConfig:
-    """``section.field=value`` or ``field=value`` (searched in every section) -> a changed config."""
-    key, value = text.split("=", 1)
-    section, name = key.split(".", 1) if "." in key else (None, key)
-    for f in dataclasses.fields(base):
-        part = getattr(base, f.name)
-        if (section is None or section == f.name) and name in {g.name for g in dataclasses.fields(part)}:
-            kind = type(getattr(part, name))
-            parsed = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
-            return dataclasses.replace(base, **{f.name: dataclasses.replace(part, **{name: parsed})})
-    raise SystemExit(f"--variant {text}: no such configuration field")
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--per-object", type=int, default=100, help="candidates per object (3 objects)")
     ap.add_argument("--rounds", type=int, default=2, help="repeat the whole set this many times")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--variant", action="append", default=[], help="also run ours with FIELD=VALUE")
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help="also run ours with FIELD=VALUE[,FIELD=VALUE] (repeatable)",
+    )
     ap.add_argument("--no-peers", action="store_true", help="only ours and its variants")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -667,8 +712,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         tools: list[Tool] = [Ours(config)]
-        for v in args.variant:
-            tools.append(Ours(parse_variant(v, config), name=f"ours[{v}]"))
+        for spec in args.variant:
+            label, variant = parse_variant(spec, config)
+            tools.append(Ours(variant, name=f"ours[{label}]"))
         if not args.no_peers:
             tools += [VGN(folder), AdaGrasp(folder)]
         max_width = tools[0].hand.rg2.max_width
@@ -692,9 +738,9 @@ def main() -> None:
                     w = float(cands.width_expected[k])
                     for i in range(len(tools)):
                         t = tools[(i + k) % len(tools)]
-                        t0 = time.perf_counter()
+                        t0, c0 = time.perf_counter(), time.process_time()
                         res = t.run(T, w)
-                        tallies[t.name].add(time.perf_counter() - t0, res)
+                        tallies[t.name].add(time.process_time() - c0, time.perf_counter() - t0, res)
                 for t in tools:
                     t.unload()
             print(load(f"round {r + 1}: end,"))
@@ -707,31 +753,38 @@ def main() -> None:
 
 
 def report(tallies: dict[str, Tally], reference: str) -> None:
+    """The table of one round: CPU milliseconds (``time.process_time``), agreement with ``reference``."""
     ref = tallies[reference]
     ref_fig = ref.figures()
     head = (
-        f"{'tool':<34} {'ms/cand':>8} {'ms/trial':>9} {'steps/trial':>11} {'ms/step':>8} "
+        f"{'tool':<34} {'ms/cand':>8} {'ms/trial':>9} {'steps/trial':>11} {'ms/step':>8} {'outside':>8} "
         f"{'simulated':>9} {'success':>7} {'agree all':>9} {'agree sim':>9}"
     )
+    print("CPU time per candidate / per simulated trial / per step inside stepSimulation;")
+    print("'outside': share of the candidate's CPU time spent outside stepSimulation")
     print(head + "\n" + "-" * len(head))
     for name, tally in tallies.items():
         f = tally.figures()
         a = np.array([x.success for x in tally.results])
         b = np.array([x.success for x in ref.results])
-        both = np.array([x.simulated and y.simulated for x, y in zip(tally.results, ref.results, strict=True)])
+        both = np.array(
+            [x.simulated and y.simulated for x, y in zip(tally.results, ref.results, strict=True)]
+        )
         agree_sim = (a[both] == b[both]).mean() if both.any() else float("nan")
         print(
             f"{name:<34} {f['ms_candidate']:8.1f} {f['ms_trial']:9.1f} {f['steps_trial']:11.0f} "
-            f"{f['ms_step']:8.3f} {f['simulated']:9d} {f['successes']:7d} {(a == b).mean():9.1%} "
-            f"{agree_sim:9.1%}"
+            f"{f['ms_step']:8.3f} {f['outside_step']:8.1%} {f['simulated']:9d} {f['successes']:7d} "
+            f"{(a == b).mean():9.1%} {agree_sim:9.1%}"
         )
     for name, tally in tallies.items():
         if name == reference:
             continue
         f = tally.figures()
         print(
-            f"{reference} / {name}: per candidate {ref_fig['ms_candidate'] / f['ms_candidate']:.2f}, "
-            f"per trial {ref_fig['ms_trial'] / f['ms_trial']:.2f}, per step {ref_fig['ms_step'] / f['ms_step']:.2f}"
+            f"{reference} / {name}: per candidate {ref_fig['ms_candidate'] / f['ms_candidate']:.2f} "
+            f"(wall {ref_fig['wall_ms_candidate'] / f['wall_ms_candidate']:.2f}), "
+            f"per trial {ref_fig['ms_trial'] / f['ms_trial']:.2f}, "
+            f"per step {ref_fig['ms_step'] / f['ms_step']:.2f}"
         )
 
 
