@@ -10,12 +10,14 @@ kinematic collision check are identical under both protocols (no physics), so ag
 over all candidates and over the physically simulated ones.
 
 ``--variant`` (repeatable) labels the same candidates with a changed configuration (see
-``bench/_variants.py``) and prints its agreement with the default on ``success`` and ``outcome``,
-its widths against the default's where both succeed, and its agreement with the thorough reference
-(the reference is always the default's thorough protocol, so a variant cannot move it).
+``bench/_variants.py``; changes are applied to the current default) and prints its agreement with
+the default on ``success`` and ``outcome``, its widths against the default's where both succeed,
+and its agreement with the thorough reference (always the default's thorough protocol, so a variant
+cannot move it). ``--baseline`` replaces the default in these comparisons, e.g. by the previous
+default after a change of the defaults.
 The default's and the reference's labels are cached under ``--cache`` keyed by configuration, seed,
 candidates per object and the objects' files (a cache made by other simulation code is reported);
-``--fresh`` recomputes them.
+``--fresh`` recomputes the default, and the reference only if the default's labels changed.
 """
 
 from __future__ import annotations
@@ -60,30 +62,43 @@ def code_digest() -> str:
     return h.hexdigest()[:16]
 
 
-def cached(
-    cache: Path | None, name: str, config: AnnotatorConfig, key: dict, fresh: bool, compute
-) -> tuple[pd.DataFrame, bool]:
-    """``compute()`` or its cached result for (config, key); returns (labels, from_cache).
+class LabelCache:
+    """Labels on disk keyed by (name, configuration, key); the key leaves the code out (the
+    reference takes half an hour), so each file records the simulation code it was made by."""
 
-    The key leaves the code out (the reference takes half an hour); a cached file made by other
-    simulation code is used with a warning, and ``--fresh`` recomputes it.
-    """
-    if cache is None:
-        return compute(), False
-    digest = hashlib.sha256(json.dumps([config.to_dict(), key], sort_keys=True).encode()).hexdigest()[:20]
-    path = cache / f"{name}-{digest}.parquet"
-    stamp = path.with_suffix(".code")
-    if path.is_file() and not fresh:
+    def __init__(self, folder: Path | None) -> None:
+        self.folder = folder
+
+    def _path(self, name: str, config: AnnotatorConfig, key: dict) -> Path | None:
+        if self.folder is None:
+            return None
+        digest = hashlib.sha256(json.dumps([config.to_dict(), key], sort_keys=True).encode()).hexdigest()
+        return self.folder / f"{name}-{digest[:20]}.parquet"
+
+    def get(self, name: str, config: AnnotatorConfig, key: dict) -> pd.DataFrame | None:
+        path = self._path(name, config, key)
+        if path is None or not path.is_file():
+            return None
+        stamp = path.with_suffix(".code")
         if not stamp.is_file() or stamp.read_text() != code_digest():
-            print(f"warning: cached {name} labels were made by other simulation code (--fresh recomputes)")
-        return pd.read_parquet(path), True
-    df = compute()
-    cache.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    df.to_parquet(tmp)
-    os.replace(tmp, path)
-    stamp.write_text(code_digest())
-    return df, False
+            print(f"note: the cached {name} labels were made by other simulation code")
+        return pd.read_parquet(path)
+
+    def put(self, name: str, config: AnnotatorConfig, key: dict, df: pd.DataFrame) -> None:
+        path = self._path(name, config, key)
+        if path is None:
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        df.to_parquet(tmp)
+        os.replace(tmp, path)
+        path.with_suffix(".code").write_text(code_digest())
+
+
+def identical(a: pd.DataFrame, b: pd.DataFrame) -> bool:
+    """The same rows with bit-identical outcomes, poses and widths."""
+    cols = [*KEY, "outcome", "success", "width", "x", "y", "z", "qx", "qy", "qz", "qw", "sim_steps"]
+    return len(a) == len(b) and a[cols].reset_index(drop=True).equals(b[cols].reset_index(drop=True))
 
 
 def compare(name: str, a: pd.DataFrame, b: pd.DataFrame, a_name: str, b_name: str) -> dict[str, float]:
@@ -119,15 +134,25 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--variant", action="append", default=[], help="NAME:FIELD=VALUE[,FIELD=VALUE]")
+    ap.add_argument(
+        "--baseline",
+        default="",
+        help="FIELD=VALUE[,...]: the model the variants are compared with, and whose thorough protocol is "
+        "the reference, when it is not the current default (e.g. the previous default after a change)",
+    )
     ap.add_argument("--cache", type=Path, default=default_cache_dir() / "fidelity")
     ap.add_argument("--no-cache", action="store_true", help="neither read nor write cached labels")
-    ap.add_argument("--fresh", action="store_true", help="recompute the cached default and reference")
+    ap.add_argument(
+        "--fresh",
+        action="store_true",
+        help="recompute the default (and the reference if the default changed)",
+    )
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} (1 min)")
 
-    default = AnnotatorConfig()
+    default = parse_variant(args.baseline)[1] if args.baseline else AnnotatorConfig()
     thorough = AnnotatorConfig.thorough(default)
-    variants = [parse_variant(spec, default) for spec in args.variant]
+    variants = [parse_variant(spec) for spec in args.variant]
     stroke = max_width(default)
     chunks = []
     files = []
@@ -144,14 +169,20 @@ def main() -> None:
             chunks.append(chunk(source, s, cands.T_obj_tcp[s:e], cands.width_expected[s:e]))
     n = sum(c.size for c in chunks)
     print(f"{n} candidates on {len({c.object_id for c in chunks})} objects, seed {args.seed}")
-    cache = None if args.no_cache else args.cache
+    cache = LabelCache(None if args.no_cache else args.cache)
     key = {"seed": args.seed, "per_object": args.per_object, "objects": files}
+    ref_key = {**key, "default": default.to_dict()}
 
     t0 = time.perf_counter()
-    a, hit = cached(
-        cache, "default", default, key, args.fresh, lambda: label(chunks, default, args.seed, args.workers)
-    )
+    cached_a = cache.get("default", default, key)
+    hit = cached_a is not None and not args.fresh
+    a = cached_a if hit else label(chunks, default, args.seed, args.workers)
     t1 = time.perf_counter()
+    if not hit:
+        if cached_a is not None:
+            same = identical(a, cached_a)
+            print(f"fresh default labels {'identical to' if same else 'DIFFER from'} the cached ones")
+        cache.put("default", default, key, a)
     simulated = a["outcome"] != "collision"
 
     def reference() -> pd.DataFrame:
@@ -170,9 +201,12 @@ def main() -> None:
         ]
         return b.reset_index()
 
-    b, hit_b = cached(
-        cache, "thorough", thorough, {**key, "default": default.to_dict()}, args.fresh, reference
-    )
+    # the reference is recomputed with --fresh only if the default's labels changed
+    b = cache.get("thorough", thorough, ref_key)
+    hit_b = b is not None and (hit or (cached_a is not None and identical(a, cached_a)))
+    if not hit_b:
+        b = reference()
+        cache.put("thorough", thorough, ref_key, b)
     t2 = time.perf_counter()
 
     print(
