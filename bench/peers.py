@@ -56,8 +56,9 @@ written here from the numbers in their sources, as primitives):
   lifts 30 cm); gravity off while closing, on for the lift; the pad centre at the candidate's
   width (from the model's own FK) is placed on our TCP (BURG's 163 mm grasp centre is the closed
   fingertips' end).
-* **ours** -- ``annotator.trial.GraspTrial`` as the annotator runs it (collision check, close, lift,
-  shake), the world built once and restored by snapshot.
+* **ours** -- ``annotator.trial.GraspTrial`` as the annotator's worker runs it (collision check,
+  close, lift, shake), the world built once and restored by snapshot, a light object's time step
+  divided as the worker divides it (``annotator.objects.physics_for``).
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ from _variants import parse_variant
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform
-from annotator.objects import ObjectModel, ObjectSource, create_body, load_object
+from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
 from annotator.pipeline.worker import object_candidates
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
@@ -239,6 +240,10 @@ class Ours(Tool):
         self.uid: int | None = None
 
     def load(self, model: ObjectModel) -> None:
+        physics = physics_for(model, self.config.physics)  # as the worker: light objects substep
+        if self.world.physics != physics:
+            self.world.physics = physics
+            self.world.configure()
         self.hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), self.hand.rg2.max_width)  # parked
         self.uid = create_body(self.world.client, model, config=self.config.objects)
         self.world.set_gravity(False)
