@@ -736,6 +736,7 @@ def main() -> None:
         for r in range(args.rounds):
             print(load(f"\nround {r + 1}: start,"))
             tallies = {t.name: Tally() for t in tools}
+            by_object: dict[tuple[str, str], Tally] = {}
             for model, cands in work:
                 for t in tools:
                     t.load(model)
@@ -746,11 +747,14 @@ def main() -> None:
                         t = tools[(i + k) % len(tools)]
                         t0, c0 = time.perf_counter(), time.process_time()
                         res = t.run(T, w)
-                        tallies[t.name].add(time.process_time() - c0, time.perf_counter() - t0, res)
+                        cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+                        tallies[t.name].add(cpu, wall, res)
+                        by_object.setdefault((model.object_id, t.name), Tally()).add(cpu, wall, res)
                 for t in tools:
                     t.unload()
             print(load(f"round {r + 1}: end,"))
             report(tallies, tools[0].name)
+            per_object(by_object, tools[0].name)
             rounds.append(tallies)
         if args.rounds > 1:
             spread(rounds)
@@ -798,6 +802,20 @@ def report(tallies: dict[str, Tally], reference: str) -> None:
         )
 
 
+def per_object(by_object: dict[tuple[str, str], Tally], reference: str) -> None:
+    """CPU ms per simulated trial and steps per trial of each tool on each object, and the ratio."""
+    print("per object: CPU ms per simulated trial (steps per trial); ratio of ours to each")
+    for obj in dict.fromkeys(o for o, _ in by_object):
+        ref = by_object[(obj, reference)].figures()
+        cells = []
+        for (o, name), tally in by_object.items():
+            if o == obj:
+                f = tally.figures()
+                ratio = "" if name == reference else f" x{ref['ms_trial'] / f['ms_trial']:.2f}"
+                cells.append(f"{name} {f['ms_trial']:.1f} ({f['steps_trial']:.0f}){ratio}")
+        print(f"  {obj:<16} " + ", ".join(cells))
+
+
 def spread(rounds: list[dict[str, Tally]]) -> None:
     print(f"\nspread over {len(rounds)} rounds (min / median / max)")
     for name in rounds[0]:
@@ -807,6 +825,13 @@ def spread(rounds: list[dict[str, Tally]]) -> None:
             v = [f[key] for f in figs]
             cells.append(f"{key} {min(v):{fmt}} / {statistics.median(v):{fmt}} / {max(v):{fmt}}")
         print(f"{name:<34} " + ", ".join(cells))
+    reference = next(iter(rounds[0]))
+    for name in list(rounds[0])[1:]:
+        cells = []
+        for key in ("ms_candidate", "ms_trial"):
+            v = [r[reference].figures()[key] / r[name].figures()[key] for r in rounds]
+            cells.append(f"per {key[3:]} {min(v):.2f} / {statistics.median(v):.2f} / {max(v):.2f}")
+        print(f"{reference} / {name:<26} " + ", ".join(cells))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,141 @@
+"""Where a worker's time goes: py-spy samples the README's command; prints figures, asserts nothing.
+
+    python bench/profile_worker.py                 # annotate --objects objects/ --n 100, 2 workers, twice
+    python bench/profile_worker.py --n 50 --repeat 1 --top 20
+
+``py-spy record --subprocesses --nonblocking`` samples every process of ``annotate`` (the main
+process and its loky workers) at ``--rate`` Hz without pausing them. A sample of a worker is "in
+stepSimulation" when its innermost Python frame is the line of ``World.step`` that calls
+``pb.stepSimulation`` (py-spy without ``--native`` shows a C call as the Python line calling it);
+everything else a worker does (starting up, sampling candidates, loading objects, the trial's Python, writing
+results back) is "outside". Idle threads are not sampled, so the share is of a worker's busy time.
+Printed per run: samples and the share outside per worker, over all workers, the load average
+before and after, and the functions outside stepSimulation with the most samples; with
+``--repeat`` the spread of the share. Decompositions are cached (RG2_CACHE_DIR): run it twice on a
+fresh machine and read the second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import inspect
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from annotator.sim.world import World
+
+ROOT = Path(__file__).resolve().parents[1]
+SPAN = "WorkerState.label (annotator/pipeline/worker.py"  # py-spy's frame of a span's work
+FRAME = re.compile(r"^(?P<func>.*) \((?P<file>[^()]*):(?P<line>\d+)\)$")
+
+
+def step_line() -> tuple[str, int]:
+    """(file suffix, line) of the ``pb.stepSimulation`` call inside ``World.step``."""
+    lines, first = inspect.getsourcelines(World.step)
+    for k, text in enumerate(lines):
+        if "stepSimulation" in text:
+            return "annotator/sim/world.py", first + k
+    raise SystemExit("World.step does not call stepSimulation: update this script")
+
+
+def load() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min) {five:.2f} (5 min)"
+
+
+def profile(n: int, workers: int, rate: int, objects: Path) -> dict[str, collections.Counter]:
+    """Collapsed stacks of one run: {process label: Counter(stack tuple -> samples)}."""
+    pyspy = shutil.which("py-spy", path=str(Path(sys.executable).parent)) or shutil.which("py-spy")
+    annotate = shutil.which("annotate", path=str(Path(sys.executable).parent)) or shutil.which("annotate")
+    if pyspy is None or annotate is None:
+        raise SystemExit("needs py-spy and the annotate command (pip install -e '.[test]' py-spy)")
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "stacks.txt"
+        cmd = [pyspy, "record", "--subprocesses", "--nonblocking", "--rate", str(rate), "--format", "raw"]
+        cmd += ["--output", str(raw), "--", annotate, "--objects", str(objects), "--n", str(n)]
+        cmd += ["--out", str(Path(tmp) / "labels"), "--workers", str(workers), "--quiet"]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise SystemExit(f"py-spy/annotate exited {proc.returncode}: {proc.stderr[-1500:]}")
+        stacks: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+        for row in raw.read_text().splitlines():
+            text, _, count = row.rpartition(" ")
+            frames = text.split(";")
+            # py-spy nests a child's stack under its parents' "process PID:cmdline" frames
+            k = max(i for i, f in enumerate(frames) if f.startswith("process "))
+            stacks[frames[k]][tuple(frames[k + 1 :])] += int(count)
+    return stacks
+
+
+def owner(stack: tuple[str, ...]) -> str:
+    """The innermost frame of the project's code in ``stack`` (else the innermost frame)."""
+    ours = [f for f in stack if "annotator/" in f or "bench/" in f] or [stack[-1]]
+    return FRAME.sub(r"\g<func> (\g<file>)", ours[-1])
+
+
+def is_worker(label: str) -> bool:
+    return "popen_loky" in label  # loky's worker processes (not its resource tracker)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+    ap.add_argument("--n", type=int, default=100)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--rate", type=int, default=250, help="samples per second per process")
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--top", type=int, default=12, help="functions outside stepSimulation to list")
+    args = ap.parse_args()
+    step_file, step_no = step_line()
+
+    def in_step(stack: tuple[str, ...]) -> bool:
+        m = FRAME.match(stack[-1]) if stack else None
+        return bool(m and m["file"].endswith(step_file) and int(m["line"]) == step_no)
+
+    shares = []
+    for r in range(args.repeat):
+        print(f"\n== run {r + 1}: annotate --objects objects/ --n {args.n} --workers {args.workers} ==")
+        print(f"before: {load()}")
+        stacks = profile(args.n, args.workers, args.rate, args.objects)
+        print(f"after:  {load()}")
+        total = inside = in_span = 0
+        outside: collections.Counter = collections.Counter()
+        for label, counter in sorted(stacks.items()):
+            n_all = sum(counter.values())
+            n_in = sum(c for s, c in counter.items() if in_step(s))
+            kind = "worker" if is_worker(label) else "other "
+            share = 1 - n_in / n_all
+            print(f"{kind} {label[:60]:<60} {n_all:7d} samples, outside stepSimulation {share:6.1%}")
+            if is_worker(label):
+                total, inside = total + n_all, inside + n_in
+                in_span += sum(c for s, c in counter.items() if any(f.startswith(SPAN) for f in s))
+                for s, c in counter.items():
+                    if not in_step(s) and s:
+                        outside[owner(s)] += c
+        if not total:
+            raise SystemExit("no worker process was sampled")
+        shares.append(1 - inside / total)
+        print(f"all workers: {total} samples, {inside} in stepSimulation; share outside {shares[-1]:.1%}")
+        print(
+            f"of which inside a span (WorkerState.label: loading, sampling, trials): {in_span} samples, "
+            f"share outside stepSimulation {1 - inside / max(1, in_span):.1%}"
+        )
+        print(f"outside stepSimulation by innermost project function (of worker samples), top {args.top}:")
+        for where, c in outside.most_common(args.top):
+            print(f"  {c / total:6.1%}  {where}")
+    if len(shares) > 1:
+        print(
+            f"\nshare outside stepSimulation over {len(shares)} runs: min {min(shares):.1%} / median "
+            f"{statistics.median(shares):.1%} / max {max(shares):.1%}"
+        )
+
+
+if __name__ == "__main__":
+    main()
