@@ -55,7 +55,7 @@ def profile(n: int, workers: int, rate: int, objects: Path) -> dict[str, collect
     pyspy = shutil.which("py-spy", path=str(Path(sys.executable).parent)) or shutil.which("py-spy")
     annotate = shutil.which("annotate", path=str(Path(sys.executable).parent)) or shutil.which("annotate")
     if pyspy is None or annotate is None:
-        raise SystemExit("needs py-spy and the annotate command (pip install -e '.[test]' py-spy)")
+        raise SystemExit("needs py-spy and the annotate command: pip install -e '.[bench]'")
     with tempfile.TemporaryDirectory() as tmp:
         raw = Path(tmp) / "stacks.txt"
         cmd = [pyspy, "record", "--subprocesses", "--nonblocking", "--rate", str(rate), "--format", "raw"]
