@@ -1,0 +1,89 @@
+"""The bench scripts' bookkeeping that their printed figures rest on (no timing is asserted)."""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import sys
+from pathlib import Path
+
+import pytest
+
+from annotator.config import AnnotatorConfig
+from annotator.sim.world import World
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(BENCH))
+    try:
+        import fidelity
+        import profile_worker
+
+        yield fidelity, profile_worker
+    finally:
+        sys.path.remove(str(BENCH))
+
+
+def test_profiler_finds_the_line_that_steps_the_world(bench):
+    """profile_worker counts a sample as physics when its innermost frame is World.step's call of
+    stepSimulation: if World.step changed, every sample would silently count as outside."""
+    _, profile_worker = bench
+    suffix, line = profile_worker.step_line()
+    source = Path(sys.modules[World.__module__].__file__).read_text().splitlines()
+    assert suffix == "annotator/sim/world.py"
+    assert "pb.stepSimulation(" in source[line - 1]
+
+
+def test_profiler_attributes_samples_to_the_innermost_process(bench, tmp_path, monkeypatch):
+    """py-spy nests a worker's stack under its parent's "process" frame; the worker's samples
+    must be the worker's, and a worker sample in stepSimulation counts as physics."""
+    _, profile_worker = bench
+    suffix, line = profile_worker.step_line()
+    parent = 'process 10:"python annotate --objects objects"'
+    worker = 'process 11:"python -m joblib.externals.loky.backend.popen_loky_posix --pipe 3"'
+    span = "WorkerState.label (annotator/pipeline/worker.py:330)"
+    raw = "\n".join(
+        [
+            f"{parent};<module> (annotate:8);run (annotator/pipeline/run.py:400) 5",
+            f"{parent};{worker};{span};step (/x/{suffix}:{line}) 7",
+            f"{parent};{worker};{span};_first_hits (annotator/sampler.py:90) 2",
+        ]
+    )
+
+    def fake_run(cmd, capture_output, text):
+        Path(cmd[cmd.index("--output") + 1]).write_text(raw)
+        return dataclasses.make_dataclass("P", ["returncode", "stderr"])(0, "")
+
+    monkeypatch.setattr(profile_worker.subprocess, "run", fake_run)
+    stacks = profile_worker.profile(1, 1, 100, tmp_path)
+    assert set(stacks) == {parent, worker}
+    assert sum(stacks[parent].values()) == 5
+    counter: collections.Counter = stacks[worker]
+    assert sum(counter.values()) == 9
+    (in_step,) = [s for s in counter if s[-1].startswith("step (")]
+    assert counter[in_step] == 7 and profile_worker.is_worker(worker) and not profile_worker.is_worker(parent)
+    assert profile_worker.owner(("a (lib.py:1)", "_first_hits (annotator/sampler.py:90)", "b (np.py:2)")) == (
+        "_first_hits (annotator/sampler.py)"
+    )
+
+
+def test_fidelity_cache_key_keeps_cell_settings_out_but_not_physics(bench):
+    """Cached floating labels survive a change to [cell] or [kinect] (which they never read), and
+    never survive a change to the gripper, the objects, the physics or the protocol."""
+    fidelity, _ = bench
+    cache = fidelity.LabelCache(Path("/nonexistent"))
+    base = AnnotatorConfig()
+    key = {"seed": 0}
+    path = cache._path("default", base, key)
+    cell = dataclasses.replace(base, cell=dataclasses.replace(base.cell, approach_cone=55.0))
+    assert cache._path("default", cell, key) == path
+    for changed in (
+        dataclasses.replace(base, gripper=dataclasses.replace(base.gripper, pad_rolling_friction=1e-4)),
+        dataclasses.replace(base, objects=dataclasses.replace(base.objects, rolling_friction=1e-4)),
+        dataclasses.replace(base, protocol=dataclasses.replace(base.protocol, settle_time=0.05)),
+        dataclasses.replace(base, physics=dataclasses.replace(base.physics, solver_iterations=200)),
+    ):
+        assert cache._path("default", changed, key) != path
