@@ -137,10 +137,11 @@ class GripperConfig(_Section):
     # solves rolling rows whenever either side has it). A pinched object cannot roll on one pad
     # without sliding on the other, which lateral and spinning friction resist; the 0.1 mm it had
     # held nothing measurable but cost two of the six solver rows of every contact point, a quarter
-    # of each step in contact (bench/peers.py). bench/fidelity.py, seeds 0 and 1 (2,200
-    # candidates): 5 success flips (3 towards the thorough reference), agreement with the reference
-    # 97.0 % of the simulated (was 96.9 %), widths of rows both succeed within 0.13 mm at the 99th
-    # percentile (4 of 709 beyond 0.2 mm, at most 0.47 mm).
+    # of each step in contact (bench/peers.py). bench/fidelity.py, seed 0 (1,100 candidates): no
+    # success flips, agreement with the thorough reference 96.6 % of the 386 simulated (unchanged),
+    # widths of rows both succeed within 0.12 mm at the 99th percentile (3 of 369 beyond 0.2 mm, at
+    # most 0.57 mm: objects that turn in the hand while closing; 200 solver iterations instead of
+    # 150 move 33 beyond, up to 3.2 mm).
     pad_rolling_friction: float = _field(0.0, ge=0.0)
     # How the mimic followers are coupled: "gear" (JOINT_GEAR constraints) or "position"
     # (per-step position control); chosen by the 40 N squeeze measurement in bench/rg2_coupling.py.
@@ -306,8 +307,8 @@ class ProtocolConfig(_Section):
     shake_cycles: int = _field(1, ge=1)  # sine periods per motion
     shake_paired: bool = True  # translate along and rotate about each axis at once (3 motions, not 6)
     # Seconds held still after the shake before judging. 0: judged as the last motion ends. A
-    # 0.05 s settle (12 steps, 5 % of a trial) changed 1 of 742 simulated outcomes on seeds 0 and 1
-    # (bench/fidelity.py; that one towards the thorough reference, which keeps its 0.05 s).
+    # 0.05 s settle (12 steps, 5 % of a trial) changed none of the 386 simulated outcomes of
+    # bench/fidelity.py seed 0 (the thorough reference keeps its 0.05 s).
     settle_time: float = _field(0.0, ge=0.0)
     # Held = both pads touch and the object moved less than this in the hand (m); ACRONYM and
     # GraspDataGen judge contact only, the slip bound catches an object hanging by one edge.
