@@ -13,6 +13,20 @@ import numpy as np
 _EPS = 1e-12
 
 
+def connected_groups(adjacent: np.ndarray) -> list[list[int]]:
+    """Indices grouped by connectivity: ``adjacent`` (n, n) bool, symmetric, True where two items
+    are linked; items linked through a chain share a group. Each group sorted, groups in order of
+    their first item."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, labels = connected_components(csr_matrix(np.asarray(adjacent, dtype=bool)), directed=False)
+    groups: dict[int, list[int]] = {}
+    for i, label in enumerate(labels.tolist()):
+        groups.setdefault(label, []).append(i)
+    return sorted(groups.values(), key=lambda g: g[0])
+
+
 def quat_normalize(q: np.ndarray) -> np.ndarray:
     """Unit quaternion(s). ``q`` : (4,) or (n, 4) float, xyzw."""
     q = np.asarray(q, dtype=np.float64)

@@ -20,7 +20,7 @@ import trimesh
 
 from annotator.cell.world import TableTop
 from annotator.config import CellConfig
-from annotator.geometry import Transform, axis_angle_to_matrix
+from annotator.geometry import Transform, axis_angle_to_matrix, connected_groups
 
 log = logging.getLogger(__name__)
 
@@ -63,27 +63,11 @@ def stable_poses(mesh: trimesh.Trimesh, merge_angle: float, min_probability: flo
     # chain all round, however many there are; a greedy cluster of one radius cut that ring into
     # pieces of ~5 facets, each less probable than standing upright, so the can and the bottle
     # were never placed standing. Faces of a box (90 deg apart) stay apart.
-    parent = list(range(len(T_all)))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
     cos_merge = math.cos(math.radians(merge_angle))
-    close = up @ up.T >= cos_merge
-    for i in range(len(T_all)):
-        for j in np.flatnonzero(close[i, i + 1 :]) + i + 1:
-            ri, rj = root(i), root(int(j))
-            if ri != rj:
-                parent[max(ri, rj)] = min(ri, rj)
-    groups: dict[int, list[int]] = {}
-    for i in range(len(T_all)):
-        groups.setdefault(root(i), []).append(i)
+    groups = connected_groups(up @ up.T >= cos_merge)
     # Each placement is represented by its most probable member (ties: trimesh's order).
     kept = []
-    for members in groups.values():
+    for members in groups:
         members = sorted(members, key=lambda i: (-p_all[i], i))
         kept.append((float(p_all[members].sum()), members[0], tuple(T_all[i] for i in members)))
     kept.sort(key=lambda e: (-e[0], e[1]))
