@@ -21,10 +21,16 @@ from annotator.sim.world import World
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def squeeze(coupling: str, size: float = 0.04, force: float = 40.0) -> tuple[float, np.ndarray, float]:
-    """Max follower error (deg) over 1 s of squeezing a 50 g box, pad forces (N), box drift (mm)."""
-    with World(PhysicsConfig()) as world:
-        hand = FloatingRG2(world, GripperConfig(coupling=coupling))
+def squeeze(
+    coupling: str, passive: str = "simulated", size: float = 0.04, force: float = 40.0
+) -> tuple[float, np.ndarray, float]:
+    """Max follower error (deg) over 1 s of squeezing a 50 g box, pad forces (N), box drift (mm).
+
+    ``passive``: the RG2's passive links simulated (the arm's, in a whole-linkage world) or
+    kinematic (the annotation gripper, in an annotation world)."""
+    physics = PhysicsConfig() if passive == "kinematic" else PhysicsConfig().whole_linkage()
+    with World(physics) as world:
+        hand = FloatingRG2(world, GripperConfig(coupling=coupling, passive_links=passive))
         col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[size / 2] * 3, physicsClientId=world.client)
         box = pb.createMultiBody(0.05, col, -1, [0, 0, 0.1], physicsClientId=world.client)
         pb.changeDynamics(box, -1, lateralFriction=1.0, physicsClientId=world.client)
@@ -44,7 +50,7 @@ def squeeze(coupling: str, size: float = 0.04, force: float = 40.0) -> tuple[flo
 
 def width_errors() -> np.ndarray:
     """|measured - commanded| pad separation (mm) for 23 widths over the stroke, in free air."""
-    with World(PhysicsConfig()) as world:
+    with World(PhysicsConfig().whole_linkage()) as world:
         world.set_gravity(False)
         body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
         rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
@@ -73,11 +79,15 @@ def ur3_fk_error(n: int = 200) -> float:
 
 
 def main() -> None:
-    for coupling in ("gear", "position"):
-        err, forces, drift = squeeze(coupling)
+    physics = PhysicsConfig()
+    for coupling, passive in (("gear", "simulated"), ("position", "simulated"), ("gear", "kinematic")):
+        err, forces, drift = squeeze(coupling, passive)
+        its = physics.solver_iterations if passive == "kinematic" else physics.linkage_solver_iterations
         print(
-            f"coupling={coupling:8s} 40 N squeeze on a 40 mm box: max follower error {err:6.3f} deg, "
-            f"pad forces {forces[0]:5.1f} / {forces[1]:5.1f} N, box drift {drift:5.1f} mm"
+            f"coupling={coupling:8s} passive links {passive:9s} ({its} iterations) 40 N squeeze on a "
+            f"40 mm box: max follower error {err:6.3f} deg, "
+            f"pad forces {forces[0]:5.1f} / {forces[1]:5.1f} N, "
+            f"box drift {drift:5.1f} mm"
         )
     errs = width_errors()
     print(

@@ -12,7 +12,7 @@ from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.sim.body import Body
 from annotator.sim.hand import FloatingRG2
-from annotator.sim.rg2 import RG2, read_mimic_table
+from annotator.sim.rg2 import PAD_LINKS, RG2, read_mimic_table
 from annotator.sim.world import World
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # TCP +z pointing down (-z world): a top grasp
@@ -225,3 +225,102 @@ def test_model_loads_cleanly_and_survives_random_targets(urdf, capfd):
             p = body.link_pose(name).pos
             assert np.all(np.isfinite(p)) and np.linalg.norm(p - base) < 2.0, name
         assert np.degrees(rg2.follower_errors().max()) < 1.0
+
+
+# --- the annotation gripper: passive links kinematic -----------------------------------------------
+
+INNER_KNUCKLES = ("gripper_finger1_inner_knuckle_joint", "gripper_finger2_inner_knuckle_joint")
+
+
+def world_for(passive: str) -> World:
+    """The world each model is simulated in: the annotation worlds' iterations for the kinematic
+    passive links, the whole-linkage iterations otherwise (the arm, the GUI)."""
+    physics = PhysicsConfig()
+    return World(physics if passive == "kinematic" else physics.whole_linkage())
+
+
+def test_annotation_gripper_couples_only_the_pad_chains():
+    with world_for("kinematic") as world:
+        rg2 = FloatingRG2(world, GripperConfig(passive_links="kinematic")).rg2
+        assert set(rg2.passive) == set(INNER_KNUCKLES)
+        assert len(rg2.coupled) == 3 and len(rg2._constraints) == 3
+    with world_for("simulated") as world:
+        rg2 = FloatingRG2(world, GripperConfig(passive_links="simulated")).rg2
+        assert rg2.passive == () and len(rg2._constraints) == 5
+
+
+@pytest.mark.parametrize("passive", ["kinematic", "simulated"])
+def test_pad_kinematics_follow_the_fk_table_at_every_width(passive):
+    """Driven through the stroke in free air (dynamic), each model's pads are where the model's FK
+    table puts them: separation, pad-centre midpoint in the base frame, pads parallel to the base."""
+    with world_for(passive) as world:
+        hand = FloatingRG2(world, GripperConfig(passive_links=passive))
+        hand.teleport(Transform([0.0, 0.0, 0.5], DOWN), 0.05)
+        world.set_gravity(False)
+        rg2 = hand.rg2
+        width_err, tcp_err, tilt = [], [], []
+        for width in np.linspace(0.0, rg2.max_width, 23):
+            for _ in range(120):
+                rg2.hold_position(rg2.table.angle_of(width), 40.0)
+                world.step()
+            T_base_world = hand.base_pose().inverse()
+            pads = [T_base_world * hand.body.link_pose(n) for n in PAD_LINKS]
+            width_err.append(abs(rg2.measured_width() - width))
+            midpoint = (pads[0].pos + pads[1].pos) / 2
+            tcp_err.append(np.linalg.norm(midpoint - rg2.T_base_tcp(width).pos))
+            tilt.extend(np.degrees(np.arccos(np.clip(p.rotation[0, 0], -1, 1))) for p in pads)
+        assert max(width_err) < 5e-4, np.round(np.array(width_err) * 1000, 2)
+        assert max(tcp_err) < 5e-4, np.round(np.array(tcp_err) * 1000, 2)
+        assert max(tilt) < 1.0, np.round(tilt, 2)
+
+
+@pytest.mark.parametrize("passive", ["kinematic", "simulated"])
+def test_followers_of_each_model_stay_coupled_under_40N_squeeze_and_shake(passive):
+    """A 40 N squeeze, then a lift and a shake: every coupled follower within 1 deg of its mimic
+    target throughout, the pads squeezing 40 N, the box held (moved in the hand less than the
+    protocol's 20 mm max_slip)."""
+    with world_for(passive) as world:
+        hand = FloatingRG2(world, GripperConfig(passive_links=passive))
+        box = make_box(world, 0.04, 0.2)
+        grasp_box(hand, box, 0.04)
+        errors = []
+        for _ in range(120):
+            hand.rg2.command(-hand.config.close_speed, 40.0)
+            world.step()
+            errors.append(hand.rg2.follower_errors().max())
+        forces = hand.rg2.pad_normal_forces(box)
+        world.set_gravity(True)
+        lifted = Transform(hand.target.pos + [0.0, 0.0, 0.1], hand.target.quat)
+
+        def watch(_: int) -> bool:
+            errors.append(hand.rg2.follower_errors().max())
+            return False
+
+        hand.move(lifted, 0.5, 40.0, on_step=watch)
+        hand.shake(0.03, 0.35, 0.6, 40.0, on_step=watch, paired=True)
+        assert np.all(np.abs(forces - 40.0) < 4.0), forces
+        assert np.degrees(max(errors)) < 1.0, np.degrees(max(errors))
+        in_hand = (hand.base_pose().inverse() * Transform(box_pos(world, box), [0, 0, 0, 1])).pos
+        assert np.linalg.norm(in_hand - hand.rg2.T_base_tcp(0.04).pos) < 0.02
+
+
+def test_kinematic_passive_links_are_checked_but_never_touch_while_stepping():
+    """A probe inside an inner knuckle's collision box: getClosestPoints (the kinematic checks)
+    reports the knuckle in both models; while the world steps it touches the probe only when the
+    passive links are simulated."""
+    touched = {}
+    for passive in ("kinematic", "simulated"):
+        with world_for(passive) as world:
+            hand = FloatingRG2(world, GripperConfig(passive_links=passive))
+            hand.teleport(Transform([0.0, 0.0, 0.5], DOWN), 0.08)
+            knuckle = hand.body.links["gripper_finger1_inner_knuckle_link"]
+            probe_pos = hand.body.link_pose("gripper_finger1_inner_knuckle_link").apply([0.0, 0.0, 0.015])
+            probe = make_box(world, 0.003, 0.001, pos=probe_pos)
+            closest = pb.getClosestPoints(hand.uid, probe, 0.0, physicsClientId=world.client)
+            assert knuckle in {p[3] for p in closest}, passive
+            world.set_gravity(False)
+            world.step(3)
+            touched[passive] = any(
+                p[3] == knuckle for p in pb.getContactPoints(hand.uid, probe, physicsClientId=world.client)
+            )
+    assert touched == {"kinematic": False, "simulated": True}

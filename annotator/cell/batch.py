@@ -166,7 +166,7 @@ class CellWorlds:
         self.config = config
         self.table_cell = build_cell(world, config.cell, robot=False, kinect=False)
         self.envelope = hand.rg2.finger_envelope()  # the fingers, for the table-aware sampler
-        self.arm_world = World(config.physics)
+        self.arm_world = World(config.physics.whole_linkage())  # the arm's RG2: whole linkage
         self.arm = build_cell(
             self.arm_world,
             config.cell,

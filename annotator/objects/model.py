@@ -127,7 +127,11 @@ def contact_substeps(mass: float, physics: PhysicsConfig) -> int:
 
 
 def physics_for(model: ObjectModel, physics: PhysicsConfig) -> PhysicsConfig:
-    """The physics settings to simulate ``model`` with: ``time_step`` / its contact substeps."""
+    """The physics settings to simulate ``model`` with: ``time_step`` / its contact substeps.
+
+    Each substep keeps all ``solver_iterations``: with half of them per substep (the work of one
+    step per time_step) a 10 g block in the cell slipped in 4 of 8 grasps that hold with all of
+    them (tests/test_replay.py's block, 120 iterations: 4 of 10 successes against 8)."""
     n = model.substeps(physics)
     return physics if n == 1 else dataclasses.replace(physics, time_step=physics.time_step / n)
 

@@ -145,7 +145,7 @@ class Scene:
 
 def open_world(config: SceneConfig, *, gui: bool) -> World:
     """A world with the seed's physics settings (gravity -9.8)."""
-    return World(config.physics, gui=gui)
+    return World(config.physics.whole_linkage(), gui=gui)
 
 
 def build_scene(world: World, config: SceneConfig | None = None, obj: ObjectModel | None = None) -> Scene:

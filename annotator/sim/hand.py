@@ -30,7 +30,7 @@ class FloatingRG2:
         self.config = config or GripperConfig()
         urdf = paths.rg2_urdf()
         self.body = Body.load(self.client, urdf, flags=RG2_LOAD_FLAGS)
-        self.rg2 = RG2(self.body, urdf, self.config)
+        self.rg2 = RG2(self.body, urdf, self.config, passive_links=self.config.passive_links)
         self._constraint = pb.createConstraint(
             self.body.uid,
             -1,

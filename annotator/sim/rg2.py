@@ -9,6 +9,13 @@ URDF's own mimic table, by one of two mechanisms chosen with ``coupling``:
 
 ``tests/test_rg2.py`` and ``bench/rg2_coupling.py`` measure both under a 40 N squeeze; the default
 is the one that holds (see GripperConfig.coupling).
+
+The parallelogram's passive links (the inner knuckles) carry no pad: the pads hang off the driven
+knuckle and the counter-rotating finger. With ``passive_links="kinematic"`` (the annotation
+gripper, GripperConfig.passive_links) they are not coupled and never touch anything while the world
+steps; they are still posed with the linkage by every kinematic reset and seen by
+``getClosestPoints`` (which ignores collision filters), so the kinematic collision checks include
+them. The linkage the solver sees is then 3 gear constraints instead of 5.
 """
 
 from __future__ import annotations
@@ -210,7 +217,16 @@ def fk_table(urdf: str, lower: float, upper: float, samples: int) -> WidthTable:
 class RG2:
     """An RG2 body (floating or on the arm) with its followers coupled and its FK tabulated."""
 
-    def __init__(self, body: Body, urdf: Path | str, config: GripperConfig | None = None) -> None:
+    def __init__(
+        self,
+        body: Body,
+        urdf: Path | str,
+        config: GripperConfig | None = None,
+        *,
+        passive_links: str = "simulated",
+    ) -> None:
+        """``passive_links``: ``"simulated"`` (the whole linkage coupled and colliding: the arm, the
+        GUI) or ``"kinematic"`` (the passive links only posed for kinematic checks; see above)."""
         self.body = body
         self.client = body.client
         self.config = config or GripperConfig()
@@ -225,8 +241,16 @@ class RG2:
         extents = self._pad_extents()
         self.pad_thickness = float(extents[0])  # along the closing axis
         self.pad_face = (float(extents[1]), float(extents[2]))  # across (TCP y) and along the approach (z)
+        if passive_links not in ("simulated", "kinematic"):
+            raise ValueError(f"unknown passive_links {passive_links!r}; use 'simulated' or 'kinematic'")
+        self.passive = self._passive_followers() if passive_links == "kinematic" else ()
+        # the followers the coupling moves (every follower unless the passive ones are kinematic)
+        self.coupled = tuple(name for name in self.mimic if name not in self.passive)
         for name in self.mimic:
             body.disable_motor(name)  # followers are moved by the coupling only (pitfall 3)
+        for name in self.passive:
+            link = self.body.joints[name].index
+            pb.setCollisionFilterGroupMask(body.uid, link, 0, 0, physicsClientId=self.client)
         self._constraints: list[int] = []
         if self.coupling == "gear":
             self._add_gear_constraints()
@@ -239,6 +263,15 @@ class RG2:
 
     # --- set-up -----------------------------------------------------------------------------
 
+    def _passive_followers(self) -> tuple[str, ...]:
+        """Followers whose link is not on a pad's chain to the base: the passive links."""
+        on_pad_chain: set[int] = set()
+        for link in self.pads:
+            while link >= 0:
+                on_pad_chain.add(link)
+                link = pb.getJointInfo(self.body.uid, link, physicsClientId=self.client)[16]
+        return tuple(name for name in self.mimic if self.body.joints[name].index not in on_pad_chain)
+
     def _pad_extents(self) -> np.ndarray:
         """The pad box's extents (3,), m, in the TCP's axes: x closing, y across, z approach."""
         data = pb.getCollisionShapeData(self.body.uid, self.pads[0], physicsClientId=self.client)
@@ -246,7 +279,8 @@ class RG2:
 
     def _add_gear_constraints(self) -> None:
         driven = self.body.joints[self.driven].index
-        for m in self.mimic.values():
+        for name in self.coupled:
+            m = self.mimic[name]
             follower = self.body.joints[m.follower].index
             c = pb.createConstraint(
                 self.body.uid,
@@ -376,9 +410,9 @@ class RG2:
         return float(np.dot(p2.pos - p1.pos, x_axis)) - self.pad_thickness
 
     def follower_errors(self) -> np.ndarray:
-        """|follower - multiplier x driven| for every follower, (n_followers,) rad."""
+        """|follower - multiplier x driven| for every coupled follower, (n_coupled,) rad."""
         q = self.driven_angle()
-        names = list(self.mimic)
+        names = list(self.coupled)
         actual = self.body.joint_positions(names)
         expected = np.array([self.mimic[n].multiplier * q + self.mimic[n].offset for n in names])
         return np.abs(actual - expected)
@@ -424,7 +458,7 @@ class RG2:
         )
         if self.coupling == "position":
             targets = self.follower_targets(self.driven_angle())
-            del targets[self.driven]
+            targets = {name: targets[name] for name in self.coupled}
             self.body.position_control(targets, {n: self.config.coupling_max_force for n in targets})
 
     # --- contacts --------------------------------------------------------------------------------

@@ -33,6 +33,7 @@ class World:
         pb.setPhysicsEngineParameter(
             fixedTimeStep=self.physics.time_step,
             numSolverIterations=self.physics.solver_iterations,
+            numNonContactInnerIterations=self.physics.non_contact_iterations,
             contactERP=self.physics.contact_erp,
             # Sorted broadphase pairs: without it a trial's result depended on which trials the
             # worker ran before (8 of 30 differed when run in reverse order), so labels would

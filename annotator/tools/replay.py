@@ -100,8 +100,9 @@ def replay_world(model: ObjectModel, config: AnnotatorConfig, *, gui: bool = Fal
     """The world a label of ``model`` is replayed in, with the physics the batch job gave it: an
     object under ``[physics] light_object_mass`` at its finer time step
     (:func:`annotator.objects.physics_for`); at 1/240 s a light object's contacts can disagree with
-    its label."""
-    return World(physics_for(model, config.physics), gui=gui)
+    its label. The arm's RG2 simulates its whole linkage, with the iterations that needs
+    (``PhysicsConfig.whole_linkage``)."""
+    return World(physics_for(model, config.physics.whole_linkage()), gui=gui)
 
 
 def frames_every(dt: float) -> int:
