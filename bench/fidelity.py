@@ -4,8 +4,8 @@
     python bench/fidelity.py --per-object 20    # a quick look
     python bench/fidelity.py --variant "it100:physics.solver_iterations=100"   # a changed model
 
-The thorough protocol (AnnotatorConfig.thorough): time step 1/1000 s, twice the solver
-iterations, a shake three times as long with 1.5x the amplitudes. Candidates rejected by the
+The thorough protocol (AnnotatorConfig.thorough): time step 1/1000 s, 300 solver iterations, the
+whole RG2 linkage simulated, a shake three times as long with 1.5x the amplitudes. Candidates rejected by the
 kinematic collision check are identical under both protocols (no physics), so agreement is printed
 over all candidates and over the physically simulated ones.
 
