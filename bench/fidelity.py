@@ -113,17 +113,16 @@ def compare(name: str, a: pd.DataFrame, b: pd.DataFrame, a_name: str, b_name: st
     """Agreement of ``a`` with ``b`` (same rows, same order): success, outcome, widths."""
     sim = ((a["outcome"] != "collision") | (b["outcome"] != "collision")).to_numpy()
     same = a["success"].to_numpy() == b["success"].to_numpy()
-    both = (a["success"] & b["success"]).to_numpy()
-    dw = np.abs(a["width"].to_numpy() - b["width"].to_numpy())[both]
+    dw = width_differences(a, b)  # mm
     figures = {
         "agree_all": float(same.mean()),
         "agree_sim": float(same[sim].mean()) if sim.any() else float("nan"),
         "n_sim": int(sim.sum()),
         "flips": int((~same).sum()),
         "outcome_agree": float((a["outcome"].to_numpy() == b["outcome"].to_numpy()).mean()),
-        "width_max_mm": float(dw.max() * 1000) if dw.size else float("nan"),
-        "width_p99_mm": float(np.percentile(dw, 99) * 1000) if dw.size else float("nan"),
-        "width_over_0p2": int((dw > 0.0002).sum()),
+        "width_max_mm": float(dw.max()) if dw.size else float("nan"),
+        "width_p99_mm": float(np.percentile(dw, 99)) if dw.size else float("nan"),
+        "width_over_0p2": int((dw > 0.2).sum()),
     }
     print(
         f"{name}: {a_name} vs {b_name}: success agrees on {figures['agree_all']:.1%} of {len(a)} "
@@ -138,12 +137,17 @@ def compare(name: str, a: pd.DataFrame, b: pd.DataFrame, a_name: str, b_name: st
     return figures
 
 
+def width_differences(a: pd.DataFrame, b: pd.DataFrame) -> np.ndarray:
+    """|width a - width b| (mm) over the rows both succeed, (k,)."""
+    both = (a["success"] & b["success"]).to_numpy()
+    return np.abs(a["width"].to_numpy() - b["width"].to_numpy())[both] * 1000
+
+
 def width_spread(a: pd.DataFrame, b: pd.DataFrame) -> str:
-    """|width a - width b| over the rows both succeed: median, 99th percentile, max (mm), count over
+    """Width differences over the rows both succeed: median, 99th percentile, max (mm), count over
     0.2 mm. Against the thorough reference it says how far a model's widths are from the
     reference's, so two models' width differences can be read against their own error."""
-    both = (a["success"] & b["success"]).to_numpy()
-    dw = np.abs(a["width"].to_numpy() - b["width"].to_numpy())[both] * 1000
+    dw = width_differences(a, b)
     if not dw.size:
         return "no row both succeed"
     return (

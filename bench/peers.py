@@ -181,6 +181,23 @@ class FloatingObject:
         pb.removeBody(self.uid, physicsClientId=self.client)
 
 
+def carrier(client: int, body: int, pos, quat) -> int:
+    """A fixed constraint holding ``body``'s base (its COM frame) at ``pos`` / ``quat`` in the world,
+    as both peers carry their grippers; moved with ``changeConstraint``."""
+    return pb.createConstraint(
+        body,
+        -1,
+        -1,
+        -1,
+        pb.JOINT_FIXED,
+        [0, 0, 0],
+        parentFramePosition=[0, 0, 0],
+        childFramePosition=pos,
+        childFrameOrientation=quat,
+        physicsClientId=client,
+    )
+
+
 # --- results ---------------------------------------------------------------------------------------
 
 
@@ -347,18 +364,7 @@ class VGN(Tool):
         c = self.sim.client
         self.body = pb.loadURDF(str(self.urdf), *T_world_body.to_pybullet(), physicsClientId=c)
         pos, quat = T_world_body.to_pybullet()
-        self.constraint = pb.createConstraint(
-            self.body,
-            -1,
-            -1,
-            -1,
-            pb.JOINT_FIXED,
-            [0, 0, 0],
-            parentFramePosition=[0, 0, 0],
-            childFramePosition=pos,
-            childFrameOrientation=quat,
-            physicsClientId=c,
-        )
+        self.constraint = carrier(c, self.body, pos, quat)
         self._update_constraint(T_world_body)
         gear = pb.createConstraint(
             self.body, 0, self.body, 1, pb.JOINT_GEAR, [1, 0, 0], [0, 0, 0], [0, 0, 0], physicsClientId=c
@@ -608,18 +614,7 @@ class AdaGrasp(Tool):
         for j in range(6):
             pb.changeDynamics(self.body, j, mass=0.1 / 6, physicsClientId=c)
         self._reset_joints(self.body, 0.0)
-        mount = pb.createConstraint(
-            self.body,
-            -1,
-            -1,
-            -1,
-            pb.JOINT_FIXED,
-            [0, 0, 0],
-            parentFramePosition=[0, 0, 0],
-            childFramePosition=pos,
-            childFrameOrientation=quat,
-            physicsClientId=c,
-        )
+        mount = carrier(c, self.body, pos, quat)
         pb.changeConstraint(
             mount, jointChildPivot=pos, jointChildFrameOrientation=quat, maxForce=1000, physicsClientId=c
         )

@@ -53,6 +53,16 @@ def _run_measured(cmd: list[str], env: dict) -> tuple[int, float, str]:
         return proc.returncode, usage.ru_maxrss / 1024.0, out.read()
 
 
+def _annotate_measured(cmd: list[str], tmp: Path, what: str) -> tuple[int, str]:
+    """Run an ``annotate`` command with its decomposition cache in ``tmp``; print ``what``, its exit
+    code, wall time and peak RSS; return the exit code and the output."""
+    env = {**os.environ, "RG2_CACHE_DIR": str(tmp / "cache")}
+    t0 = time.perf_counter()
+    code, rss, text = _run_measured(cmd, env)
+    print(f"{what}: exit {code} in {time.perf_counter() - t0:.0f} s, peak RSS of its processes {rss:.0f} MB")
+    return code, text
+
+
 def make_folder(dest: Path, count: int) -> int:
     """``count`` objects in ``dest``: random_urdfs first, then copies of the sample objects."""
     import pybullet_data
@@ -110,13 +120,7 @@ def folder(args) -> None:
                     f.unlink(missing_ok=True)
             out = Path(tmp) / "labels"
             cmd = ["annotate", "--objects", str(root), "--n", "1", "--out", str(out), "--quiet"]
-            env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache")}
-            t0 = time.perf_counter()
-            code, rss, text = _run_measured(cmd, env)
-            print(
-                f"annotate --n 1 on {len(keep)} objects: exit {code} in "
-                f"{time.perf_counter() - t0:.0f} s, peak RSS of its processes {rss:.0f} MB"
-            )
+            code, text = _annotate_measured(cmd, Path(tmp), f"annotate --n 1 on {len(keep)} objects")
             if args.log:
                 args.log.write_text(text)
             lines = [ln for ln in text.splitlines() if "failed" in ln or "labelled" in ln]
@@ -195,13 +199,7 @@ def big_mesh(args) -> None:
             "--workers",
             "2",
         ]
-        env = {**os.environ, "RG2_CACHE_DIR": str(Path(tmp) / "cache")}
-        t0 = time.perf_counter()
-        code, rss, text = _run_measured(cmd, env)
-        print(
-            f"annotate --n 20 --workers 2 (decomposition cached): exit {code} in "
-            f"{time.perf_counter() - t0:.0f} s, peak RSS of its processes {rss:.0f} MB"
-        )
+        code, text = _annotate_measured(cmd, Path(tmp), "annotate --n 20 --workers 2 (decomposition cached)")
         print("\n".join(text.strip().splitlines()[-8:]))
 
 

@@ -227,6 +227,25 @@ def test_a_killed_worker_costs_a_retry_and_the_labels_are_the_same(objs, referen
     pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
 
 
+def _execute_spans(objs: Path, workers: Workers, fn=label_span) -> list[SpanResult]:
+    """Every 10-candidate span of ``objs`` (N = 20) through ``execute`` on ``workers`` (closed
+    after), each run by ``fn`` in a worker. The results in the order they arrived."""
+    config = AnnotatorConfig()
+    planned = [PlannedObject(s) for s in discover_objects(objs)]
+    results: list[SpanResult] = []
+    try:
+        execute(
+            plan_spans(planned, 20, 10, None),
+            lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
+            workers,
+            results.append,
+            fn=fn,
+        )
+    finally:
+        workers.close(kill=True)
+    return results
+
+
 def crash_on_poison(task: SpanTask) -> SpanResult:
     """A worker function that dies (as a segfault would) on every span of the object 'poison'."""
     if task.span.object_id == "poison":
@@ -236,20 +255,7 @@ def crash_on_poison(task: SpanTask) -> SpanResult:
 
 def test_a_span_that_kills_its_worker_twice_fails_its_object_only(tmp_path):
     objs = _objects(tmp_path / "objs", ("box", "poison"))
-    config = AnnotatorConfig()
-    planned = [PlannedObject(s) for s in discover_objects(objs)]
-    results: list[SpanResult] = []
-    workers = Workers(RunOptions(objs, 20, workers=2))
-    try:
-        execute(
-            plan_spans(planned, 20, 10, None),
-            lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
-            workers,
-            results.append,
-            fn=crash_on_poison,
-        )
-    finally:
-        workers.close(kill=True)
+    results = _execute_spans(objs, Workers(RunOptions(objs, 20, workers=2)), fn=crash_on_poison)
     by_object: dict[str, list[SpanResult]] = {}
     for r in results:
         by_object.setdefault(r.span.object_id, []).append(r)
@@ -280,19 +286,7 @@ class _RefusesOnce(Workers):
 
 def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_the_run(tmp_path):
     objs = _objects(tmp_path / "objs", ("box", "slab"))
-    config = AnnotatorConfig()
-    planned = [PlannedObject(s) for s in discover_objects(objs)]
-    results: list[SpanResult] = []
-    workers = _RefusesOnce(RunOptions(objs, 20, workers=1), refuse_at=2)
-    try:
-        execute(
-            plan_spans(planned, 20, 10, None),
-            lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
-            workers,
-            results.append,
-        )
-    finally:
-        workers.close(kill=True)
+    results = _execute_spans(objs, _RefusesOnce(RunOptions(objs, 20, workers=1), refuse_at=2))
     keys = sorted((r.span.object_id, r.span.start) for r in results)
     assert keys == [("box", 0), ("box", 10), ("slab", 0), ("slab", 10)]  # each span once
     assert all(r.error is None and len(r.rows) == 10 for r in results)

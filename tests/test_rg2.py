@@ -46,19 +46,6 @@ def test_mimic_table_read_from_urdf_has_seed_multipliers(urdf):
     assert {m.driven for m in table.values()} == {"gripper_finger1_joint"}
 
 
-def test_followers_stay_coupled_under_40N_squeeze(world, hand):
-    box = make_box(world, 0.04, 0.05)
-    grasp_box(hand, box, 0.04)
-    errors = []
-    for _ in range(240):  # keep squeezing for one simulated second
-        hand.rg2.command(-hand.config.close_speed, 40.0)
-        world.step()
-        errors.append(hand.rg2.follower_errors())
-    forces = hand.rg2.pad_normal_forces(box)
-    assert np.all(forces > 30.0), f"not squeezing: {forces}"
-    assert np.degrees(np.max(errors)) < 1.0
-
-
 def test_width_mapping_matches_forward_kinematics(world):
     """Commanding a width 0..110 mm gives that pad separation within 1 mm (dynamic, free air)."""
     body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
