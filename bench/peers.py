@@ -231,6 +231,22 @@ class Tool:
         raise NotImplementedError
 
 
+class PeerTool(Tool):
+    """A peer's trial in its own ``Sim`` (``self.sim``) on a :class:`FloatingObject` of ours."""
+
+    sim: Sim
+    obj: FloatingObject | None = None
+
+    def load(self, model: ObjectModel) -> None:
+        self.obj = FloatingObject(self.sim.client, model)
+
+    def unload(self) -> None:
+        self.obj.remove()
+
+    def close(self) -> None:
+        self.sim.close()
+
+
 # --- ours ------------------------------------------------------------------------------------------
 
 
@@ -335,7 +351,7 @@ def panda_hand_urdf() -> str:
     )
 
 
-class VGN(Tool):
+class VGN(PeerTool):
     """VGN's ``ClutterRemovalSim.execute_grasp`` with its ``Gripper`` (corl2020), on our candidates."""
 
     name = "vgn"
@@ -349,15 +365,6 @@ class VGN(Tool):
         self.urdf = folder / "panda_hand_boxes.urdf"
         self.urdf.write_text(panda_hand_urdf())
         self.obj: FloatingObject | None = None
-
-    def load(self, model: ObjectModel) -> None:
-        self.obj = FloatingObject(self.sim.client, model)
-
-    def unload(self) -> None:
-        self.obj.remove()
-
-    def close(self) -> None:
-        self.sim.close()
 
     # the Gripper of simulation.py ---------------------------------------------------------------
     def _reset(self, T_world_body: Transform) -> None:
@@ -506,7 +513,7 @@ def adagrasp_rg2_urdf() -> str:
     return '<?xml version="1.0"?><robot name="adagrasp_rg2_boxes">' + "".join(parts) + "</robot>"
 
 
-class AdaGrasp(Tool):
+class AdaGrasp(PeerTool):
     """BURG's ``GraspSimulator.execute_grasp`` with AdaGrasp's RG2, on our candidates."""
 
     name = "adagrasp"
@@ -555,15 +562,6 @@ class AdaGrasp(Tool):
     def T_base_tcp(self, width: float) -> Transform:
         mid = [np.interp(width, self.w_table, self.mid_table[:, i]) for i in range(3)]
         return Transform(mid, [0, 0, 0, 1])
-
-    def load(self, model: ObjectModel) -> None:
-        self.obj = FloatingObject(self.sim.client, model)
-
-    def unload(self) -> None:
-        self.obj.remove()
-
-    def close(self) -> None:
-        self.sim.close()
 
     def _step_constraints(self) -> None:
         c = self.sim.client
