@@ -139,6 +139,14 @@ def bench_objects(folder: Path) -> list[ObjectSource]:
 # --- a stepping clock shared by the peers ---------------------------------------------------------------
 
 
+def cpu_timed_steps(client: int, n: int) -> float:
+    """Step ``client`` ``n`` times; the CPU seconds spent in ``stepSimulation``."""
+    t0 = time.process_time()
+    for _ in range(n):
+        pb.stepSimulation(physicsClientId=client)
+    return time.process_time() - t0
+
+
 class Sim:
     """A bare PyBullet DIRECT client with a step counter and the CPU time spent in ``stepSimulation``."""
 
@@ -152,10 +160,7 @@ class Sim:
         self.step_seconds = 0.0
 
     def step(self, n: int = 1) -> None:
-        t0 = time.process_time()
-        for _ in range(n):
-            pb.stepSimulation(physicsClientId=self.client)
-        self.step_seconds += time.process_time() - t0
+        self.step_seconds += cpu_timed_steps(self.client, n)
         self.steps += n
 
     def gravity(self, on: bool) -> None:
@@ -254,10 +259,7 @@ class CpuWorld(World):
     """The product's World, timing ``stepSimulation`` in CPU seconds like :class:`Sim`."""
 
     def step(self, n: int = 1) -> None:
-        t0 = time.process_time()
-        for _ in range(n):
-            pb.stepSimulation(physicsClientId=self.client)
-        self.step_seconds += time.process_time() - t0
+        self.step_seconds += cpu_timed_steps(self.client, n)
         self.steps += n
 
 
