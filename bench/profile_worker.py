@@ -10,7 +10,8 @@ stepSimulation" when its innermost Python frame is the line of ``World.step`` th
 everything else a worker does (starting up, sampling candidates, loading objects, the trial's Python, writing
 results back) is "outside". Idle threads are not sampled, so the share is of a worker's busy time.
 Printed per run: samples and the share outside per worker, over all workers, the load average
-before and after, and the functions outside stepSimulation with the most samples; with
+before and after, and where a span's time outside stepSimulation goes (by phase: loading, sampling,
+each step of a trial; and by innermost function, as shares of the spans' samples); with
 ``--repeat`` the spread of the share. Decompositions are cached (RG2_CACHE_DIR): run it twice on a
 fresh machine and read the second.
 """
@@ -80,8 +81,21 @@ def owner(stack: tuple[str, ...]) -> str:
     return FRAME.sub(r"\g<func> (\g<file>)", ours[-1])
 
 
-def is_worker(label: str) -> bool:
-    return "popen_loky" in label  # loky's worker processes (not its resource tracker)
+def phase(stack: tuple[str, ...]) -> str:
+    """What a span was doing: the call under ``WorkerState.label``, and under a trial's ``run``."""
+    names = [FRAME.sub(r"\g<func>", f) for f in stack]
+    k = next(i for i, f in enumerate(stack) if f.startswith(SPAN))
+    below = names[k + 1] if k + 1 < len(names) else "WorkerState.label"
+    if "GraspTrial.run" in names:
+        r = names.index("GraspTrial.run")
+        return f"trial: {names[r + 1] if r + 1 < len(names) else 'GraspTrial.run'}"
+    return below
+
+
+def is_worker(label: str, counter: collections.Counter) -> bool:
+    """loky's worker processes (not its resource tracker); py-spy sometimes reads no command line
+    for one, so a process that ran a span is one too."""
+    return "popen_loky" in label or any(f.startswith(SPAN) for s in counter for f in s)
 
 
 def main() -> None:
@@ -106,19 +120,30 @@ def main() -> None:
         stacks = profile(args.n, args.workers, args.rate, args.objects)
         print(f"after:  {load()}")
         total = inside = in_span = 0
-        outside: collections.Counter = collections.Counter()
+        per: dict[str, list[int]] = {"simulate": [0, 0], "GraspTrial.run": [0, 0]}  # [samples, outside]
+        outside: collections.Counter = collections.Counter()  # in a span, by innermost function
+        phases: collections.Counter = collections.Counter()  # in a span, by phase
         for label, counter in sorted(stacks.items()):
             n_all = sum(counter.values())
             n_in = sum(c for s, c in counter.items() if in_step(s))
-            kind = "worker" if is_worker(label) else "other "
+            worker = is_worker(label, counter)
+            kind = "worker" if worker else "other "
             share = 1 - n_in / n_all
             print(f"{kind} {label[:60]:<60} {n_all:7d} samples, outside stepSimulation {share:6.1%}")
-            if is_worker(label):
+            if worker:
                 total, inside = total + n_all, inside + n_in
-                in_span += sum(c for s, c in counter.items() if any(f.startswith(SPAN) for f in s))
                 for s, c in counter.items():
-                    if not in_step(s) and s:
+                    if not any(f.startswith(SPAN) for f in s):
+                        continue
+                    in_span += c
+                    names = {FRAME.sub(r"\g<func>", f) for f in s}
+                    for scope, counts in per.items():
+                        if scope in names:
+                            counts[0] += c
+                            counts[1] += 0 if in_step(s) else c
+                    if not in_step(s):
                         outside[owner(s)] += c
+                        phases[phase(s)] += c
         if not total:
             raise SystemExit("no worker process was sampled")
         shares.append(1 - inside / total)
@@ -127,9 +152,18 @@ def main() -> None:
             f"of which inside a span (WorkerState.label: loading, sampling, trials): {in_span} samples, "
             f"share outside stepSimulation {1 - inside / max(1, in_span):.1%}"
         )
-        print(f"outside stepSimulation by innermost project function (of worker samples), top {args.top}:")
+        for scope, what in (
+            ("simulate", "per candidate (simulate: trials and label rows)"),
+            ("GraspTrial.run", "per trial (GraspTrial.run)"),
+        ):
+            n_scope, n_out = per[scope]
+            print(f"{what}: {n_scope} samples, share outside stepSimulation {n_out / max(1, n_scope):.1%}")
+        print("outside stepSimulation inside spans, by phase (share of the spans' samples):")
+        for where, c in phases.most_common():
+            print(f"  {c / max(1, in_span):6.1%}  {where}")
+        print(f"outside stepSimulation inside spans, by innermost project function, top {args.top}:")
         for where, c in outside.most_common(args.top):
-            print(f"  {c / total:6.1%}  {where}")
+            print(f"  {c / max(1, in_span):6.1%}  {where}")
     if len(shares) > 1:
         print(
             f"\nshare outside stepSimulation over {len(shares)} runs: min {min(shares):.1%} / median "

@@ -68,6 +68,36 @@ def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
     _fresh_worker()
 
 
+@pytest.mark.parametrize("budget", [worker.RECENT_OBJECT_BYTES, 0])
+def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
+    concave, cache, monkeypatch, budget
+):
+    """Spans dealt as the plan deals them (each object's first span, then the rest): a worker that
+    comes back to an object reuses its model and candidates when they fit the budget, else loads
+    and samples it again; the labels are the same bit for bit either way."""
+    config = AnnotatorConfig()
+    sources = discover_objects(concave)
+    firsts = [worker.Span(s.object_id, s, None, 0, 10) for s in sources]
+    rest = [worker.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(10, N, 10)]
+    _fresh_worker()
+    reference = _run(firsts + rest, config)
+    loads, samplings = [], []
+    load_object, object_candidates = worker.load_object, worker.object_candidates
+    monkeypatch.setattr(
+        worker, "load_object", lambda source, *a, **k: loads.append(source) or load_object(source, *a, **k)
+    )
+    monkeypatch.setattr(
+        worker, "object_candidates", lambda model, *a: samplings.append(model) or object_candidates(model, *a)
+    )
+    monkeypatch.setattr(worker, "RECENT_OBJECT_BYTES", budget)
+    _fresh_worker()
+    again = _run(firsts + rest, config)
+    pd.testing.assert_frame_equal(again, reference, check_exact=True)
+    expected = len(sources) if budget else 2 * len(sources)  # once, or once per pass
+    assert len(loads) == expected and len(samplings) == expected
+    _fresh_worker()
+
+
 def _annotate(objs: Path, out: Path, *extra) -> pd.DataFrame:
     from click.testing import CliRunner
 

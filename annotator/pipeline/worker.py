@@ -20,6 +20,7 @@ import os
 import socket
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -29,7 +30,7 @@ import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
-from annotator.geometry import Transform
+from annotator.geometry import Transform, matrix_to_quat
 from annotator.objects import (
     ObjectError,
     ObjectModel,
@@ -52,6 +53,14 @@ log = logging.getLogger(__name__)
 # How often (s) a local worker checks that the process that started it is still alive: a worker
 # outlives a killed main process by at most this long (plus the span it is in).
 PARENT_CHECK_SECONDS = 1.0
+# Objects a worker keeps in memory (model and sampled candidates, not the body) after it moves to
+# another one, up to about this many bytes in all. The plan's first pass gives every object one
+# span before the rest of its spans, so a worker comes back to objects it had: without them it
+# loaded and sampled each object a second time (bench/profile_worker.py). An object larger than
+# the budget (a mesh with millions of faces, a million candidates) is not kept.
+RECENT_OBJECT_BYTES = 256 * 2**20
+# Memory of a mesh or collision-part face with its vertices and trimesh's cached normals, about.
+BYTES_PER_FACE = 200
 # Where the floating gripper waits while no trial runs: 2 m above the object's mesh frame.
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 
@@ -171,6 +180,13 @@ class LoadedObject:
             self.trial.close()
 
 
+def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]) -> int:
+    """About how many bytes a kept object holds: its mesh and collision parts, its candidates."""
+    faces = len(model.mesh.faces) + sum(len(part.faces) for part in model.parts)
+    arrays = (v for c in candidates.values() for v in vars(c).values() if isinstance(v, np.ndarray))
+    return BYTES_PER_FACE * faces + sum(a.nbytes for a in arrays)
+
+
 def _peak_rss_mb() -> float:
     """This process's peak resident memory (MB); 0 where the platform does not say."""
     try:
@@ -213,6 +229,8 @@ class WorkerState:
         self.hand = None  # annotator.sim.hand.FloatingRG2
         self.cell: CellWorlds | None = None  # the table and the arm world, --cell only
         self.obj: LoadedObject | None = None
+        # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
+        self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
         self._watched_parent: int | None = None
         self._versions_ok: dict[str, str] | None = None
@@ -236,6 +254,7 @@ class WorkerState:
             self.config = config
             self.cell_mode = cell
             self.failed = {}
+            self.recent.clear()  # the keys do not hold the configuration
         return self.world, self.hand
 
     def close(self) -> None:
@@ -250,7 +269,7 @@ class WorkerState:
     def object_for(self, task: SpanTask) -> LoadedObject:
         """The span's object in this world (its body is created once per object); ObjectError."""
         span, config = task.span, task.config
-        world, hand = self.world_for(config, cell=task.cell is not None)
+        world, _ = self.world_for(config, cell=task.cell is not None)
         # Worker processes outlive a run (they are reused), so the key is the object's source as it
         # is now: its digest (a mesh behind an unchanged URDF included), else the file's stat.
         version = task.source_sha256
@@ -266,20 +285,43 @@ class WorkerState:
         if self.obj is not None and self.obj.key == key:
             return self.obj
         if self.obj is not None:
+            self._keep(self.obj)
             self.obj.release()
             world.remove_body(self.obj.uid)
             self.obj = None
+        model, candidates = self.recent.pop(key, (None, {}))
+        if model is not None and model.collision_file is not None and not model.collision_file.exists():
+            model, candidates = None, {}  # its collision file left the cache: load it again
+        if model is None:
+            model = self._load(task, key)
+        self.obj = self._create(model, key, candidates)
+        return self.obj
+
+    def _load(self, task: SpanTask, key: tuple) -> ObjectModel:
+        span, config = task.span, task.config
         status.write(task.status_dir, f"loading {span.object_id}")
         status_dir = task.status_dir
         remove_hook = add_progress_hook(lambda oid, message: status.write(status_dir, f"{oid}: {message}"))
         try:
             cache = Path(task.cache_dir) if task.cache_dir is not None else None
-            model = load_object(span.source, config.objects, scale=span.scale, cache_dir=cache)
+            return load_object(span.source, config.objects, scale=span.scale, cache_dir=cache)
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
         finally:
             remove_hook()
+
+    def _keep(self, loaded: LoadedObject) -> None:
+        """Remember the object a worker leaves (its model and candidates) within the memory budget."""
+        self.recent[loaded.key] = (loaded.model, loaded.candidates)
+        total = sum(_footprint(*kept) for kept in self.recent.values())
+        while self.recent and total > RECENT_OBJECT_BYTES:
+            total -= _footprint(*self.recent.popitem(last=False)[1])
+
+    def _create(self, model: ObjectModel, key: tuple, candidates: dict) -> LoadedObject:
+        """The object's body in this world, its trial (or its placements on the table)."""
+        config = self.config
+        world, hand = self.world, self.hand
         physics = physics_for(model, config.physics)  # a light object needs a finer time step
         if world.physics != physics:
             world.physics = physics
@@ -288,8 +330,7 @@ class WorkerState:
         uid = create_body(world.client, model)
         if self.cell is None:
             world.set_gravity(False)
-            self.obj = LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config))
-            return self.obj
+            return LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config), candidates)
         try:
             placed = self.cell.load(model, uid)
         except ObjectError as exc:
@@ -299,8 +340,7 @@ class WorkerState:
         except BaseException:
             world.remove_body(uid)
             raise
-        self.obj = LoadedObject(key, model, uid, placed.trials[0], cell=placed)
-        return self.obj
+        return LoadedObject(key, model, uid, placed.trials[0], candidates, cell=placed)
 
     def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
         """The object's N candidates, sampled once per (seed, N) and kept."""
@@ -434,10 +474,14 @@ def simulate(
     """
     model = loaded.model
     rows = []
+    # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
+    sampled_quats = (
+        matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
+    )
     for k in range(len(widths)):
         grasp_id = first_id + k
-        if quats is None:
-            T = Transform.from_matrix(T_obj_tcp[k])
+        if sampled_quats is not None:
+            T = Transform(T_obj_tcp[k][:3, 3], sampled_quats[k])
         else:  # a recorded commanded pose: the very transform of the trial that recorded it
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])

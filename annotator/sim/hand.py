@@ -178,13 +178,14 @@ class FloatingRG2:
             plan = [(axis, phase, phase) for axis in range(3)]  # (axis, translation, rotation)
         else:
             plan = [(axis, phase, zero) for axis in range(3)] + [(axis, zero, phase) for axis in range(3)]
-        positions, quats = [], []
-        for axis, shift, turn in plan:
-            R_deltas = axis_angle_to_matrix(R[:, axis], angle * turn)  # (per, 3, 3)
-            p = centre.pos + shift[:, None] * (amplitude * R[:, axis])  # translated, (per, 3)
-            positions.append(pivot + np.einsum("nij,nj->ni", R_deltas, p - pivot))
-            quats.append(matrix_to_quat(R_deltas @ R))
-        steps = self._follow(np.concatenate(positions), np.concatenate(quats), force, on_step)
+        # the motions' rotations (M, 3, 3) and translated positions (M, 3), M = motions * per,
+        # turned into poses in one batch (row for row the same floats as motion by motion)
+        R_deltas = np.concatenate([axis_angle_to_matrix(R[:, axis], angle * turn) for axis, _, turn in plan])
+        p = np.concatenate(
+            [centre.pos + shift[:, None] * (amplitude * R[:, axis]) for axis, shift, _ in plan]
+        )
+        positions = pivot + np.einsum("nij,nj->ni", R_deltas, p - pivot)
+        steps = self._follow(positions, matrix_to_quat(R_deltas @ R), force, on_step)
         self.set_target(centre)
         return steps
 

@@ -1,0 +1,138 @@
+"""Where a light object stops needing a finer time step: labels at 1/240 s against a fine step,
+per object mass, over several shapes and seeds (the derivation of PhysicsConfig.light_object_mass).
+
+    python bench/light_threshold.py                               # the default grid, 2 processes
+    python bench/light_threshold.py --grams 24 32 40 --seeds 0 --shapes domino cube40
+
+For every (shape, mass, seed) the object's sampled candidates that pass the kinematic collision
+check are simulated twice with the current default gripper and protocol: at ``time_step`` (one
+step per 1/240 s) and at ``time_step / --fine`` (the fine reference; 4 is finer than the annotator
+uses for any mass >= 2.5 g). Printed per row: the successes at each step, the success agreement
+between the two, and how many successes' widths differ by more than 0.2 mm. A heavy mass (80 g by
+default) is in the grid as the control: 1/240 s against the fine step disagrees there too, because
+a grasp that is decided by a hair flips with any change of step. A mass needs no finer step when
+its agreement is within the control's. Prints figures; asserts nothing.
+
+Shapes (all boxes and cylinders of trimesh.creation, made here):
+  domino   48 x 24 x 6.35 mm plate (thin faces: the case that sank at 1/240 s)
+  cube40   40 mm cube (bench/peers.py's cube)
+  rod      cylinder 12 mm across, 80 mm long
+  disc     cylinder 60 mm across, 5 mm thick
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform
+from annotator.objects import ObjectProperties, ObjectSource, create_body, load_object
+from annotator.pipeline.worker import PARKED
+from annotator.sampler import object_rng, sample_candidates
+from annotator.sim.hand import FloatingRG2
+from annotator.sim.world import World
+from annotator.trial import GraspTrial
+
+SHAPES = {
+    "domino": lambda: trimesh.creation.box((0.048, 0.024, 0.00635)),
+    "cube40": lambda: trimesh.creation.box((0.04, 0.04, 0.04)),
+    "rod": lambda: trimesh.creation.cylinder(radius=0.006, height=0.08, sections=32),
+    "disc": lambda: trimesh.creation.cylinder(radius=0.03, height=0.005, sections=48),
+}
+WIDTH_TOLERANCE = 0.0002  # m, the width agreement of issue 12
+WIDTHS = (8, 5, 4, 4, 6, 7, 6, 7)  # printed column widths
+
+
+def run_at(shape: str, grams: float, seed: int, n: int, substeps: int, folder: Path):
+    """(successes (K,) bool, widths (K,) float m) of the simulated candidates at time_step / substeps."""
+    config = AnnotatorConfig()
+    physics = dataclasses.replace(
+        config.physics, time_step=config.physics.time_step / substeps, light_object_mass=1e-9
+    )  # light_object_mass 1e-9 kg: the step is the one given here, whatever the mass
+    config = dataclasses.replace(config, physics=physics)
+    path = folder / f"{shape}.obj"
+    if not path.exists():
+        SHAPES[shape]().export(path)
+    source = ObjectSource(shape, path, properties=ObjectProperties(mass=grams / 1000.0))
+    model = load_object(source, config.objects, cache_dir=folder / "cache")
+    cands = sample_candidates(model.mesh, n, object_rng(seed, shape), config.sampler, 0.110)
+    success, widths = [], []
+    with World(config.physics) as world:
+        hand = FloatingRG2(world, config.gripper)
+        hand.teleport(PARKED, hand.rg2.max_width)
+        uid = create_body(world.client, model)
+        world.set_gravity(False)
+        trial = GraspTrial(world, hand, uid, config)
+        for k in range(n):
+            r = trial.run(Transform.from_matrix(cands.T_obj_tcp[k]), float(cands.width_expected[k]))
+            if r.outcome == Outcome.COLLISION:
+                continue
+            success.append(r.outcome == Outcome.SUCCESS)
+            widths.append(r.width)
+    return np.array(success, bool), np.array(widths, float)
+
+
+def row(args: tuple[str, float, int, int, int]) -> tuple[str, float, int, int, int, int, int, int]:
+    shape, grams, seed, n, fine = args
+    with tempfile.TemporaryDirectory() as tmp:
+        s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp))
+        sf, wf = run_at(shape, grams, seed, n, fine, Path(tmp))
+    both = s1 & sf
+    wide = int(np.sum(np.abs(w1[both] - wf[both]) > WIDTH_TOLERANCE))
+    return shape, grams, seed, len(s1), int(s1.sum()), int(sf.sum()), int(np.sum(s1 == sf)), wide
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=list(SHAPES))
+    ap.add_argument(
+        "--grams", type=float, nargs="+", default=[12.0, 16.0, 20.0, 24.0, 28.0, 32.0, 40.0, 80.0]
+    )
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument(
+        "--candidates", type=int, default=60, help="sampled per (shape, seed); colliding ones skipped"
+    )
+    ap.add_argument("--fine", type=int, default=4, help="substeps of the fine reference step")
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    grid = [
+        (s, g, seed, args.candidates, args.fine)
+        for s in args.shapes
+        for g in args.grams
+        for seed in args.seeds
+    ]
+    totals: dict[float, np.ndarray] = {}
+    print(f"1/240 s against 1/{240 * args.fine} s, default gripper and protocol", flush=True)
+    header = ("shape", "g", "seed", "sim", "ok@240", "ok@fine", "agree", "w>0.2mm")
+    print(
+        " ".join(
+            f"{h:8s}" if k == 0 else f"{h:>{w}s}" for k, (h, w) in enumerate(zip(header, WIDTHS, strict=True))
+        )
+    )
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for shape, grams, seed, sim, ok1, okf, agree, wide in pool.map(row, grid):
+            print(
+                f"{shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} {wide:7d}",
+                flush=True,
+            )
+            totals.setdefault(grams, np.zeros(5, int))
+            totals[grams] += (sim, ok1, okf, agree, wide)
+    print("\nper mass, all shapes and seeds:")
+    for grams in sorted(totals):
+        sim, ok1, okf, agree, wide = totals[grams]
+        print(
+            f"{grams:5.1f} g: {agree} of {sim} agree ({100.0 * agree / max(sim, 1):.1f} %), "
+            f"successes {ok1} at 1/240 s vs {okf} fine, {wide} widths beyond 0.2 mm"
+        )
+
+
+if __name__ == "__main__":
+    main()
