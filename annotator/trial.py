@@ -245,10 +245,14 @@ class GraspTrial:
 
     def _hand_obj_position(self) -> np.ndarray:
         """The object's centre of mass in the gripper's COM frame, (3,) m (cheap, C-level math)."""
+        return np.asarray(self._hand_obj_xyz())
+
+    def _hand_obj_xyz(self) -> tuple[float, float, float]:
+        """:meth:`_hand_obj_position` as PyBullet gives it (a tuple: no array per call)."""
         hand = pb.getBasePositionAndOrientation(self.hand.uid, physicsClientId=self.client)
         obj = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
         inv = pb.invertTransform(hand[0], hand[1])
-        return np.asarray(pb.multiplyTransforms(inv[0], inv[1], obj[0], obj[1])[0])
+        return pb.multiplyTransforms(inv[0], inv[1], obj[0], obj[1])[0]
 
     def _slip(self, reference: np.ndarray) -> float:
         """How far the object moved in the hand since ``reference`` (from _hand_obj_position), m."""
@@ -263,15 +267,26 @@ class _LossMonitor:
 
     def __init__(self, trial: GraspTrial, reference: np.ndarray) -> None:
         self.trial = trial
-        self.ref = reference
+        self.ref = tuple(float(v) for v in reference)
         self.lost = False
         self.every = trial.config.protocol.check_every
+        self.lost_distance2 = trial.config.protocol.lost_distance**2
+        self.pads = [(trial.hand.uid, trial.obj, link) for link in trial.hand.rg2.pads]
 
     def __call__(self, i: int) -> bool:
+        """Every ``check_every`` steps: lost once no pad touches or the object is ``lost_distance``
+        from where it was grasped (plain floats and one contact query per pad at most: this runs
+        during every lift and shake)."""
         if i % self.every:
             return False
         t = self.trial
-        a, b = t.hand.rg2.pad_contacts(t.obj)
-        if t._slip(self.ref) > t.config.protocol.lost_distance or not (a or b):
+        x, y, z = t._hand_obj_xyz()
+        rx, ry, rz = self.ref
+        moved2 = (x - rx) ** 2 + (y - ry) ** 2 + (z - rz) ** 2
+        client = t.client
+        touching = any(
+            pb.getContactPoints(a, b, linkIndexA=link, physicsClientId=client) for a, b, link in self.pads
+        )
+        if moved2 > self.lost_distance2 or not touching:
             self.lost = True
         return self.lost
