@@ -57,9 +57,18 @@ def chunk(source, start: int, T_obj_tcp: np.ndarray, width: np.ndarray) -> Span:
     return Span(source.object_id, source, None, start, start + len(width), GivenGrasps(T_obj_tcp, width))
 
 
+# Fields added after labels were cached, at the value every run had before they existed (PyBullet's
+# own): at that value they are left out of the key, so those labels stay valid.
+IMPLICIT_BEFORE = {("physics", "contact_breaking_threshold"): 0.02}
+
+
 def settings(config: AnnotatorConfig) -> dict:
     """The configuration's sections that floating labels read (the cache's key)."""
-    return {k: v for k, v in config.to_dict().items() if k not in CELL_ONLY}
+    out = {k: v for k, v in config.to_dict().items() if k not in CELL_ONLY}
+    for (section, name), value in IMPLICIT_BEFORE.items():
+        if out[section][name] == value:
+            del out[section][name]
+    return out
 
 
 def code_digest() -> str:

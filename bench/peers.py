@@ -218,10 +218,24 @@ class Result:
     width: float = float("nan")
 
 
+# PyBullet's contact breaking threshold (m) when none is set, as the peers' code leaves it.
+PYBULLET_CONTACT_BREAKING_THRESHOLD = 0.02
+
+
 class Tool:
     """A grasp trial in its own client; ``load`` an object, ``run`` candidates, ``unload``."""
 
     name = "tool"
+    client: int
+    contact_breaking_threshold = PYBULLET_CONTACT_BREAKING_THRESHOLD
+
+    def enter(self) -> None:
+        """Make this tool's contact breaking threshold the process's before its turn: PyBullet keeps
+        one for all clients of a process (gContactBreakingThreshold), so the tools taking turns
+        here would otherwise all run with the one set last."""
+        pb.setPhysicsEngineParameter(
+            contactBreakingThreshold=self.contact_breaking_threshold, physicsClientId=self.client
+        )
 
     def load(self, model: ObjectModel) -> None:
         raise NotImplementedError
@@ -241,6 +255,10 @@ class PeerTool(Tool):
 
     sim: Sim
     obj: FloatingObject | None = None
+
+    @property
+    def client(self) -> int:
+        return self.sim.client
 
     def load(self, model: ObjectModel) -> None:
         self.obj = FloatingObject(self.sim.client, model)
@@ -270,6 +288,8 @@ class Ours(Tool):
         self.name = name
         self.config = config
         self.world = CpuWorld(config.physics)
+        self.client = self.world.client
+        self.contact_breaking_threshold = config.physics.contact_breaking_threshold
         self.hand = FloatingRG2(self.world, config.gripper)
         self.trial: GraspTrial | None = None
         self.uid: int | None = None
@@ -734,12 +754,14 @@ def main() -> None:
             by_object: dict[tuple[str, str], Tally] = {}
             for model, cands in work:
                 for t in tools:
+                    t.enter()
                     t.load(model)
                 for k in range(len(cands)):
                     T = Transform.from_matrix(cands.T_obj_tcp[k])
                     w = float(cands.width_expected[k])
                     for i in range(len(tools)):
                         t = tools[(i + k) % len(tools)]
+                        t.enter()
                         t0, c0 = time.perf_counter(), time.process_time()
                         res = t.run(T, w)
                         cpu, wall = time.process_time() - c0, time.perf_counter() - t0

@@ -66,7 +66,21 @@ def test_profiler_attributes_samples_to_the_innermost_process(bench, tmp_path, m
     counter: collections.Counter = stacks[worker]
     assert sum(counter.values()) == 9
     (in_step,) = [s for s in counter if s[-1].startswith("step (")]
-    assert counter[in_step] == 7 and profile_worker.is_worker(worker) and not profile_worker.is_worker(parent)
+    assert counter[in_step] == 7
+    assert profile_worker.is_worker(worker, counter) and not profile_worker.is_worker(parent, stacks[parent])
+    # a process py-spy read no command line for is a worker when it ran a span
+    assert profile_worker.is_worker('process 12:""', counter)
+    # what a span was doing, and within a trial which step of it
+    sampling = (span, "candidates (annotator/pipeline/worker.py:1)", "_first_hits (annotator/sampler.py:90)")
+    assert profile_worker.phase(sampling) == "candidates"
+    shaking = (
+        span,
+        "simulate (w.py:1)",
+        "GraspTrial.run (t.py:2)",
+        "FloatingRG2.shake (h.py:3)",
+        "x (y.py:4)",
+    )
+    assert profile_worker.phase(shaking) == "trial: FloatingRG2.shake"
     assert profile_worker.owner(("a (lib.py:1)", "_first_hits (annotator/sampler.py:90)", "b (np.py:2)")) == (
         "_first_hits (annotator/sampler.py)"
     )

@@ -98,6 +98,34 @@ def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     _fresh_worker()
 
 
+def test_labels_do_not_depend_on_another_worlds_contact_breaking_threshold(concave, cache):
+    """PyBullet keeps one contact breaking threshold per process: a world made since (here one
+    at PyBullet's 0.02 m) must not decide the contacts of the worker's world (at 5 mm)."""
+    import dataclasses
+
+    from annotator.sim.world import World
+
+    base = AnnotatorConfig()
+    config = dataclasses.replace(
+        base, physics=dataclasses.replace(base.physics, contact_breaking_threshold=0.005)
+    )
+    other = dataclasses.replace(
+        base, physics=dataclasses.replace(base.physics, contact_breaking_threshold=0.02)
+    )
+    source = next(s for s in discover_objects(concave) if s.object_id == "banana")
+    span = worker.Span(source.object_id, source, None, 0, N)
+    _fresh_worker()
+    alone = _run([span], config)
+    with_other = _run([span], other)
+    assert not with_other.equals(alone)  # the threshold matters to these trials
+    _fresh_worker()
+    _run([span], config)  # the worker's world at 5 mm ...
+    with World(other.physics):  # ... then another world sets 0.02 m for the process
+        again = _run([span], config)
+    pd.testing.assert_frame_equal(again, alone, check_exact=True)
+    _fresh_worker()
+
+
 def _annotate(objs: Path, out: Path, *extra) -> pd.DataFrame:
     from click.testing import CliRunner
 

@@ -35,6 +35,7 @@ class World:
             numSolverIterations=self.physics.solver_iterations,
             numNonContactInnerIterations=self.physics.non_contact_iterations,
             contactERP=self.physics.contact_erp,
+            contactBreakingThreshold=self.physics.contact_breaking_threshold,
             # Sorted broadphase pairs: without it a trial's result depended on which trials the
             # worker ran before (8 of 30 differed when run in reverse order), so labels would
             # have depended on --workers.
@@ -69,8 +70,15 @@ class World:
         3 different rows of 10). So the bodies are first scattered far apart, one collision pass
         releases every pair (and its manifold), and the snapshot is restored again; the next
         step finds its contacts afresh, exactly as in a new world.
+
+        The contact breaking threshold is set again first: PyBullet keeps one for all the clients
+        of a process (gContactBreakingThreshold, read when a pair's manifold is made), so another
+        world configured since this one would otherwise decide this world's contacts.
         """
         client = self.client
+        pb.setPhysicsEngineParameter(
+            contactBreakingThreshold=self.physics.contact_breaking_threshold, physicsClientId=client
+        )
         pb.restoreState(stateId=state_id, physicsClientId=client)
         for i in range(pb.getNumBodies(physicsClientId=client)):
             uid = pb.getBodyUniqueId(i, physicsClientId=client)
