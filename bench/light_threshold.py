@@ -3,6 +3,7 @@ per object mass, over several shapes and seeds (the derivation of PhysicsConfig.
 
     python bench/light_threshold.py                               # the default grid, 2 processes
     python bench/light_threshold.py --grams 24 32 40 --seeds 0 --shapes domino cube40
+    python bench/light_threshold.py --grams 40 80 --set physics.contact_breaking_threshold=0.01
 
 For every (shape, mass, seed) the object's sampled candidates that pass the kinematic collision
 check are simulated twice with the current default gripper and protocol: at ``time_step`` (one
@@ -11,7 +12,8 @@ uses for any mass >= 2.5 g). Printed per row: the successes at each step, the su
 between the two, and how many successes' widths differ by more than 0.2 mm. A heavy mass (80 g by
 default) is in the grid as the control: 1/240 s against the fine step disagrees there too, because
 a grasp that is decided by a hair flips with any change of step. A mass needs no finer step when
-its agreement is within the control's. Prints figures; asserts nothing.
+its agreement is within the control's. ``--set FIELD=VALUE[,...]`` changes the configuration of
+both runs (as bench/fidelity.py's ``--variant``). Prints figures; asserts nothing.
 
 Shapes (all boxes and cylinders of trimesh.creation, made here):
   domino   48 x 24 x 6.35 mm plate (thin faces: the case that sank at 1/240 s)
@@ -30,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from _variants import parse_variant
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
@@ -51,9 +54,8 @@ WIDTH_TOLERANCE = 0.0002  # m, the width agreement of issue 12
 WIDTHS = (8, 5, 4, 4, 6, 7, 6, 7)  # printed column widths
 
 
-def run_at(shape: str, grams: float, seed: int, n: int, substeps: int, folder: Path):
+def run_at(shape: str, grams: float, seed: int, n: int, substeps: int, folder: Path, config: AnnotatorConfig):
     """(successes (K,) bool, widths (K,) float m) of the simulated candidates at time_step / substeps."""
-    config = AnnotatorConfig()
     physics = dataclasses.replace(
         config.physics, time_step=config.physics.time_step / substeps, light_object_mass=1e-9
     )  # light_object_mass 1e-9 kg: the step is the one given here, whatever the mass
@@ -80,11 +82,12 @@ def run_at(shape: str, grams: float, seed: int, n: int, substeps: int, folder: P
     return np.array(success, bool), np.array(widths, float)
 
 
-def row(args: tuple[str, float, int, int, int]) -> tuple[str, float, int, int, int, int, int, int]:
-    shape, grams, seed, n, fine = args
+def row(args: tuple[str, float, int, int, int, str]) -> tuple[str, float, int, int, int, int, int, int]:
+    shape, grams, seed, n, fine, changes = args
+    config = parse_variant(changes)[1]
     with tempfile.TemporaryDirectory() as tmp:
-        s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp))
-        sf, wf = run_at(shape, grams, seed, n, fine, Path(tmp))
+        s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp), config)
+        sf, wf = run_at(shape, grams, seed, n, fine, Path(tmp), config)
     both = s1 & sf
     wide = int(np.sum(np.abs(w1[both] - wf[both]) > WIDTH_TOLERANCE))
     return shape, grams, seed, len(s1), int(s1.sum()), int(sf.sum()), int(np.sum(s1 == sf)), wide
@@ -102,15 +105,17 @@ def main() -> None:
     )
     ap.add_argument("--fine", type=int, default=4, help="substeps of the fine reference step")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--set", default="", help="FIELD=VALUE[,FIELD=VALUE] for both runs")
     args = ap.parse_args()
+    parse_variant(args.set)  # an unknown field exits here, not in a worker
     grid = [
-        (s, g, seed, args.candidates, args.fine)
+        (s, g, seed, args.candidates, args.fine, args.set)
         for s in args.shapes
         for g in args.grams
         for seed in args.seeds
     ]
     totals: dict[float, np.ndarray] = {}
-    print(f"1/240 s against 1/{240 * args.fine} s, default gripper and protocol", flush=True)
+    print(f"1/240 s against 1/{240 * args.fine} s, default gripper and protocol {args.set}", flush=True)
     header = ("shape", "g", "seed", "sim", "ok@240", "ok@fine", "agree", "w>0.2mm")
     print(
         " ".join(
