@@ -127,18 +127,7 @@ def _first_hits(
         ray_i, face_i = np.nonzero(co - cd * cd <= threshold[None, :])
         if ray_i.size == 0:
             continue
-        dd = d[ray_i]
-        pvec = np.cross(dd, e2[face_i])
-        det = np.sum(pvec * e1[face_i], axis=1)
-        parallel = np.abs(det) < _DET_EPS
-        inv = 1.0 / np.where(parallel, 1.0, det)
-        tvec = o[ray_i] - v0[face_i]
-        u = np.sum(tvec * pvec, axis=1) * inv
-        qvec = np.cross(tvec, e1[face_i])
-        v = np.sum(dd * qvec, axis=1) * inv
-        t = np.sum(e2[face_i] * qvec, axis=1) * inv
-        hit = ~parallel & (u >= -_BARY_EPS) & (v >= -_BARY_EPS) & (u + v <= 1.0 + _BARY_EPS) & (t > 0.0)
-        ray_i, face_i, t = ray_i[hit], face_i[hit], t[hit]
+        ray_i, face_i, t = _pair_hits(v0, e1, e2, o, d, ray_i, face_i)
         # Nearest hit per ray: sort by (ray, t), keep the first of each ray.
         order = np.lexsort((t, ray_i))
         rays_sorted = ray_i[order]
@@ -147,6 +136,35 @@ def _first_hits(
         t_best[rows] = t[order][first]
         face_best[rows] = face_i[order][first]
     return t_best, face_best
+
+
+def _pair_hits(
+    v0: np.ndarray,
+    e1: np.ndarray,
+    e2: np.ndarray,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    ray_i: np.ndarray,
+    face_i: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The exact Moller-Trumbore test of (ray ``ray_i``, triangle ``face_i``) pairs, float64.
+
+    v0, e1, e2 : (F, 3) a vertex of each triangle and its two edges from it; origins, directions :
+    (R, 3); ray_i, face_i : (P,) int. Returns the pairs that hit at t > 0 (both faces count):
+    their ``ray_i``, ``face_i`` and ``t`` (the distance along the ray), in the order given.
+    """
+    dd = directions[ray_i]
+    pvec = np.cross(dd, e2[face_i])
+    det = np.sum(pvec * e1[face_i], axis=1)
+    parallel = np.abs(det) < _DET_EPS
+    inv = 1.0 / np.where(parallel, 1.0, det)
+    tvec = origins[ray_i] - v0[face_i]
+    u = np.sum(tvec * pvec, axis=1) * inv
+    qvec = np.cross(tvec, e1[face_i])
+    v = np.sum(dd * qvec, axis=1) * inv
+    t = np.sum(e2[face_i] * qvec, axis=1) * inv
+    hit = ~parallel & (u >= -_BARY_EPS) & (v >= -_BARY_EPS) & (u + v <= 1.0 + _BARY_EPS) & (t > 0.0)
+    return ray_i[hit], face_i[hit], t[hit]
 
 
 def unit(v: np.ndarray) -> np.ndarray:

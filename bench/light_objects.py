@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -27,20 +28,30 @@ from annotator.pipeline.worker import PARKED
 from annotator.sampler import object_rng, sample_candidates
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
-from annotator.trial import GraspTrial
+from annotator.trial import GraspTrial, TrialResult
 
 EXTENTS = (0.048, 0.024, 0.00635)
 
 
-def measure(grams: float, hz: float, n: int, folder: Path) -> str:
-    config = AnnotatorConfig()
-    config = dataclasses.replace(config, physics=dataclasses.replace(config.physics, time_step=1.0 / hz))
-    path = folder / "domino.obj"
-    trimesh.creation.box(EXTENTS).export(path)
-    source = ObjectSource("domino", path, properties=ObjectProperties(mass=grams / 1000.0))
+def simulated_trials(
+    mesh: trimesh.Trimesh,
+    name: str,
+    grams: float,
+    seed: int,
+    n: int,
+    config: AnnotatorConfig,
+    folder: Path,
+    keep: Callable[[Transform], bool] | None = None,
+) -> Iterator[TrialResult]:
+    """Trials of the first ``n`` sampled candidates on ``mesh`` (metres) of ``grams``, floating
+    gripper, simulated at ``config.physics`` as given (no light-object substeps); those ``keep``
+    rejects (by pose) are not run, those the collision check rejects are not yielded."""
+    path = folder / f"{name}.obj"
+    if not path.exists():
+        mesh.export(path)
+    source = ObjectSource(name, path, properties=ObjectProperties(mass=grams / 1000.0))
     model = load_object(source, config.objects, cache_dir=folder / "cache")
-    cands = sample_candidates(model.mesh, n, object_rng(0, "domino"), config.sampler, 0.110)
-    outcomes, depths = [], []
+    cands = sample_candidates(model.mesh, n, object_rng(seed, name), config.sampler, 0.110)
     with World(config.physics) as world:
         hand = FloatingRG2(world, config.gripper)
         hand.teleport(PARKED, hand.rg2.max_width)
@@ -49,14 +60,24 @@ def measure(grams: float, hz: float, n: int, folder: Path) -> str:
         trial = GraspTrial(world, hand, uid, config)
         for k in range(n):
             T = Transform.from_matrix(cands.T_obj_tcp[k])
-            if abs(T.rotation[2, 0]) < 0.95:  # closing across the thin faces only
+            if keep is not None and not keep(T):
                 continue
             r = trial.run(T, float(cands.width_expected[k]))
-            if r.outcome == Outcome.COLLISION:
-                continue
-            outcomes.append(r.outcome)
-            if r.outcome == Outcome.SUCCESS:
-                depths.append(EXTENTS[2] - r.width)
+            if r.outcome != Outcome.COLLISION:
+                yield r
+
+
+def measure(grams: float, hz: float, n: int, folder: Path) -> str:
+    config = AnnotatorConfig()
+    config = dataclasses.replace(config, physics=dataclasses.replace(config.physics, time_step=1.0 / hz))
+    outcomes, depths = [], []
+    across_thin_faces = lambda T: abs(T.rotation[2, 0]) >= 0.95  # noqa: E731
+    for r in simulated_trials(
+        trimesh.creation.box(EXTENTS), "domino", grams, 0, n, config, folder, across_thin_faces
+    ):
+        outcomes.append(r.outcome)
+        if r.outcome == Outcome.SUCCESS:
+            depths.append(EXTENTS[2] - r.width)
     held = sum(o == Outcome.SUCCESS for o in outcomes)
     d = np.array(depths) * 1e3
     deep = f"pads {d.mean():.2f} mm deep on average, {d.max():.2f} max" if len(d) else "no success"

@@ -33,16 +33,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from _variants import parse_variant
+from light_objects import simulated_trials
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
-from annotator.geometry import Transform
-from annotator.objects import ObjectProperties, ObjectSource, create_body, load_object
-from annotator.pipeline.worker import PARKED
-from annotator.sampler import object_rng, sample_candidates
-from annotator.sim.hand import FloatingRG2
-from annotator.sim.world import World
-from annotator.trial import GraspTrial
 
 SHAPES = {
     "domino": lambda: trimesh.creation.box((0.048, 0.024, 0.00635)),
@@ -56,29 +50,12 @@ WIDTHS = (8, 5, 4, 4, 6, 7, 6, 7)  # printed column widths
 
 def run_at(shape: str, grams: float, seed: int, n: int, substeps: int, folder: Path, config: AnnotatorConfig):
     """(successes (K,) bool, widths (K,) float m) of the simulated candidates at time_step / substeps."""
-    physics = dataclasses.replace(
-        config.physics, time_step=config.physics.time_step / substeps, light_object_mass=1e-9
-    )  # light_object_mass 1e-9 kg: the step is the one given here, whatever the mass
-    config = dataclasses.replace(config, physics=physics)
-    path = folder / f"{shape}.obj"
-    if not path.exists():
-        SHAPES[shape]().export(path)
-    source = ObjectSource(shape, path, properties=ObjectProperties(mass=grams / 1000.0))
-    model = load_object(source, config.objects, cache_dir=folder / "cache")
-    cands = sample_candidates(model.mesh, n, object_rng(seed, shape), config.sampler, 0.110)
+    physics = dataclasses.replace(config.physics, time_step=config.physics.time_step / substeps)
+    config = dataclasses.replace(config, physics=physics)  # as given: no light-object substeps
     success, widths = [], []
-    with World(config.physics) as world:
-        hand = FloatingRG2(world, config.gripper)
-        hand.teleport(PARKED, hand.rg2.max_width)
-        uid = create_body(world.client, model)
-        world.set_gravity(False)
-        trial = GraspTrial(world, hand, uid, config)
-        for k in range(n):
-            r = trial.run(Transform.from_matrix(cands.T_obj_tcp[k]), float(cands.width_expected[k]))
-            if r.outcome == Outcome.COLLISION:
-                continue
-            success.append(r.outcome == Outcome.SUCCESS)
-            widths.append(r.width)
+    for r in simulated_trials(SHAPES[shape](), shape, grams, seed, n, config, folder):
+        success.append(r.outcome == Outcome.SUCCESS)
+        widths.append(r.width)
     return np.array(success, bool), np.array(widths, float)
 
 

@@ -8,7 +8,7 @@ import trimesh
 
 from annotator.config import SamplerConfig
 from annotator.geometry import Transform
-from annotator.sampler import Candidates, _first_hits, object_rng, sample_candidates
+from annotator.sampler import Candidates, _first_hits, _pair_hits, object_rng, sample_candidates
 
 RG2_MAX_WIDTH = 0.110  # m, RG2 stroke
 CONFIG = SamplerConfig()
@@ -151,28 +151,16 @@ def test_first_hits_matches_analytic_sphere() -> None:
 
 
 def _all_pairs_first_hits(triangles: np.ndarray, origins: np.ndarray, directions: np.ndarray):
-    """The same Moller-Trumbore test as the sampler's, on every (ray, triangle) pair unscreened."""
-    from annotator.sampler import _BARY_EPS, _DET_EPS
-
+    """The sampler's exact test on every (ray, triangle) pair, unscreened; the nearest hit per ray."""
     ray_i, face_i = (
         a.ravel() for a in np.meshgrid(np.arange(len(origins)), np.arange(len(triangles)), indexing="ij")
     )
     v0 = triangles[:, 0]
-    e1, e2 = triangles[:, 1] - v0, triangles[:, 2] - v0
-    dd = directions[ray_i]
-    pvec = np.cross(dd, e2[face_i])
-    det = np.sum(pvec * e1[face_i], axis=1)
-    parallel = np.abs(det) < _DET_EPS
-    inv = 1.0 / np.where(parallel, 1.0, det)
-    tvec = origins[ray_i] - v0[face_i]
-    u = np.sum(tvec * pvec, axis=1) * inv
-    qvec = np.cross(tvec, e1[face_i])
-    v = np.sum(dd * qvec, axis=1) * inv
-    t = np.sum(e2[face_i] * qvec, axis=1) * inv
-    hit = ~parallel & (u >= -_BARY_EPS) & (v >= -_BARY_EPS) & (u + v <= 1.0 + _BARY_EPS) & (t > 0.0)
+    ray_i, face_i, t = _pair_hits(
+        v0, triangles[:, 1] - v0, triangles[:, 2] - v0, origins, directions, ray_i, face_i
+    )
     t_best = np.full(len(origins), np.inf)
     face_best = np.full(len(origins), -1)
-    ray_i, face_i, t = ray_i[hit], face_i[hit], t[hit]
     order = np.lexsort((t, ray_i))
     for r, f, tt in zip(ray_i[order][::-1], face_i[order][::-1], t[order][::-1], strict=True):
         t_best[r], face_best[r] = tt, f  # the last written is each ray's first in order
