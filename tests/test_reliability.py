@@ -422,6 +422,39 @@ def test_absurd_workers_and_n_are_usage_errors(objs, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("ahead", [1, 3, 8])
+def test_plan_gives_first_spans_a_bounded_distance_ahead(ahead):
+    """Every missing span once; each object's first missing span comes before the rest of it, and
+    from an object's first span to its last, the spans planned in between belong to at most
+    2 (ahead - 1) other objects (the rest of those before it, the first span of those after it), so
+    a worker still holds the object, whatever the folder's size; done chunks (a resumed run) are
+    skipped."""
+    from annotator.objects import ObjectSource
+
+    sources = [ObjectSource(f"o{k}", Path(f"/nowhere/o{k}.obj")) for k in range(20)]
+    done = {3: frozenset({(0, 10)}), 4: frozenset({(0, 10), (10, 20), (20, 30)})}  # o4 finished
+    planned = [PlannedObject(s, done.get(k, frozenset())) for k, s in enumerate(sources)]
+    spans = [(s.object_id, s.start) for s in plan_spans(planned, 30, 10, None, ahead=ahead)]
+    expected = (
+        {(f"o{k}", a) for k in range(20) for a in (0, 10, 20)}
+        - {("o3", 0)}
+        - {("o4", a) for a in (0, 10, 20)}
+    )
+    assert len(spans) == len(set(spans)) and set(spans) == expected
+    for k in range(20):
+        mine = [i for i, (oid, _) in enumerate(spans) if oid == f"o{k}"]
+        if not mine:
+            continue
+        first = min(mine, key=lambda i: spans[i][1])
+        assert first == mine[0]  # the first missing span is planned first
+        between = {oid for oid, _ in spans[first : mine[-1] + 1]} - {f"o{k}"}
+        assert len(between) <= 2 * (ahead - 1), (k, between)
+    # the first spans of the first ``ahead`` objects lead (a first run decomposes in parallel);
+    # o4 is done, o3's first missing span is its second
+    lead = [(f"o{k}", 10 if k == 3 else 0) for k in range(ahead) if k != 4]
+    assert spans[: len(lead)] == lead
+
+
 def test_planning_is_lazy(objs):
     """A million candidates per object plan without building a list of spans."""
     import tracemalloc

@@ -36,6 +36,7 @@ from annotator.objects import (
 from annotator.pipeline import status
 from annotator.pipeline.files import OutputError
 from annotator.pipeline.plan import (
+    FIRST_SPANS_AHEAD,
     MAX_N,
     PlannedObject,
     candidates_to_do,
@@ -473,7 +474,9 @@ def _run(
 
     interrupted = True
     try:
-        execute(plan_spans(planned, n, chunk, options.scale), make_task, workers, on_result, on_tick)
+        # first spans at least one per worker ahead: on a first run every worker starts on its own object
+        spans = plan_spans(planned, n, chunk, options.scale, ahead=max(FIRST_SPANS_AHEAD, workers.count))
+        execute(spans, make_task, workers, on_result, on_tick)
         interrupted = False
     except (KeyboardInterrupt, Terminated):
         log.info("interrupted: %d candidates written this run", summary.candidates)

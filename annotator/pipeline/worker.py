@@ -54,11 +54,13 @@ log = logging.getLogger(__name__)
 # outlives a killed main process by at most this long (plus the span it is in).
 PARENT_CHECK_SECONDS = 1.0
 # Objects a worker keeps in memory (model and sampled candidates, not the body) after it moves to
-# another one, up to about this many bytes in all. The plan's first pass gives every object one
-# span before the rest of its spans, so a worker comes back to objects it had: without them it
-# loaded and sampled each object a second time (bench/profile_worker.py). An object larger than
-# the budget (a mesh with millions of faces, a million candidates) is not kept.
-RECENT_OBJECT_BYTES = 256 * 2**20
+# another one, up to about this many bytes in all. The plan gives each object's first span a few
+# objects ahead of the rest of it (annotator.pipeline.plan.FIRST_SPANS_AHEAD), so a worker comes
+# back to objects it had: without them it loaded and sampled each object again (sampling was
+# 4.4 % of a span's time on the sample objects, bench/profile_worker.py). 128 MB holds the 14
+# objects a worker can meet in between when they are under ~8 MB each (about 40,000 faces) and
+# keeps a worker within its memory target; a larger object is loaded again, as before.
+RECENT_OBJECT_BYTES = 128 * 2**20
 # Memory of a mesh or collision-part face with its vertices and trimesh's cached normals, about.
 BYTES_PER_FACE = 200
 # Where the floating gripper waits while no trial runs: 2 m above the object's mesh frame.
