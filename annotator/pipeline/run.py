@@ -19,6 +19,7 @@ import os
 import shutil
 import signal
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -163,8 +164,29 @@ class Workers:
             with contextlib.suppress(Exception):
                 self.client.close()
         elif kill and self._executor is not None:
+            _quiet_after_kill(getattr(self._executor, "_executor_manager_thread", None))
             with contextlib.suppress(Exception):
                 self._executor.shutdown(wait=False, kill_workers=True)
+
+
+def _quiet_after_kill(manager: threading.Thread | None) -> None:
+    """Log, instead of printing a traceback, what the manager thread of a killed loky executor
+    raises: while its workers are killed it can meet a result of a task it already dropped
+    (KeyError in ``pending_work_items``; seen on SIGTERM in 2 of 5 runs of
+    tests/test_reliability.py::test_sigterm_stops_like_ctrl_c_and_the_run_resumes with two other
+    test files). The run is
+    over by then and nothing is lost; any other thread's error keeps Python's own handling."""
+    if manager is None:
+        return
+    previous = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        if args.thread is manager:
+            log.debug("the killed executor's manager thread: %s: %s", args.exc_type.__name__, args.exc_value)
+            return
+        previous(args)
+
+    threading.excepthook = hook
 
 
 def execute(
