@@ -174,8 +174,8 @@ def _quiet_after_kill(manager: threading.Thread | None) -> None:
     raises: while its workers are killed it can meet a result of a task it already dropped
     (KeyError in ``pending_work_items``; seen on SIGTERM in 2 of 5 runs of
     tests/test_reliability.py::test_sigterm_stops_like_ctrl_c_and_the_run_resumes with two other
-    test files). The run is
-    over by then and nothing is lost; any other thread's error keeps Python's own handling."""
+    test files). The run is over by then and nothing is lost; any other thread's error keeps
+    Python's own handling."""
     if manager is None:
         return
     previous = threading.excepthook
