@@ -271,7 +271,6 @@ class _LossMonitor:
         self.lost = False
         self.every = trial.config.protocol.check_every
         self.lost_distance2 = trial.config.protocol.lost_distance**2
-        self.pads = [(trial.hand.uid, trial.obj, link) for link in trial.hand.rg2.pads]
 
     def __call__(self, i: int) -> bool:
         """Every ``check_every`` steps: lost once no pad touches or the object is ``lost_distance``
@@ -283,10 +282,6 @@ class _LossMonitor:
         x, y, z = t._hand_obj_xyz()
         rx, ry, rz = self.ref
         moved2 = (x - rx) ** 2 + (y - ry) ** 2 + (z - rz) ** 2
-        client = t.client
-        touching = any(
-            pb.getContactPoints(a, b, linkIndexA=link, physicsClientId=client) for a, b, link in self.pads
-        )
-        if moved2 > self.lost_distance2 or not touching:
+        if moved2 > self.lost_distance2 or not t.hand.rg2.touches(t.obj):
             self.lost = True
         return self.lost

@@ -21,6 +21,7 @@ import signal
 import tempfile
 import threading
 import time
+import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -169,24 +170,32 @@ class Workers:
                 self._executor.shutdown(wait=False, kill_workers=True)
 
 
+# The manager threads of the loky executors this process killed, and the thread excepthook that
+# was in place before ours (see _quiet_after_kill).
+_KILLED_MANAGERS: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
+_previous_excepthook = threading.excepthook
+
+
 def _quiet_after_kill(manager: threading.Thread | None) -> None:
     """Log, instead of printing a traceback, what the manager thread of a killed loky executor
     raises: while its workers are killed it can meet a result of a task it already dropped
     (KeyError in ``pending_work_items``; seen on SIGTERM in 2 of 5 runs of
     tests/test_reliability.py::test_sigterm_stops_like_ctrl_c_and_the_run_resumes with two other
     test files). The run is over by then and nothing is lost; any other thread's error keeps
-    Python's own handling."""
+    the handling it had."""
+    global _previous_excepthook
     if manager is None:
         return
-    previous = threading.excepthook
+    if threading.excepthook is not _quiet_killed_managers:
+        _previous_excepthook, threading.excepthook = threading.excepthook, _quiet_killed_managers
+    _KILLED_MANAGERS.add(manager)
 
-    def hook(args: threading.ExceptHookArgs) -> None:
-        if args.thread is manager:
-            log.debug("the killed executor's manager thread: %s: %s", args.exc_type.__name__, args.exc_value)
-            return
-        previous(args)
 
-    threading.excepthook = hook
+def _quiet_killed_managers(args: threading.ExceptHookArgs) -> None:
+    if args.thread in _KILLED_MANAGERS:
+        log.debug("the killed executor's manager thread: %s: %s", args.exc_type.__name__, args.exc_value)
+        return
+    _previous_excepthook(args)
 
 
 def execute(

@@ -470,6 +470,13 @@ class RG2:
             for link in self.pads
         )
 
+    def touches(self, other: int) -> bool:
+        """Does either pad touch body ``other``? (one contact query per pad at most)"""
+        uid, client = self.body.uid, self.client
+        return any(
+            pb.getContactPoints(uid, other, linkIndexA=link, physicsClientId=client) for link in self.pads
+        )
+
     def pad_normal_forces(self, other: int) -> np.ndarray:
         """Sum of normal forces (N) on each pad from body ``other``, (2,)."""
         return np.array([sum(c[9] for c in pts) for pts in self.pad_contacts(other)])
