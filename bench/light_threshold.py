@@ -15,11 +15,18 @@ a grasp that is decided by a hair flips with any change of step. A mass needs no
 its agreement is within the control's. ``--set FIELD=VALUE[,...]`` changes the configuration of
 both runs (as bench/fidelity.py's ``--variant``). Prints figures; asserts nothing.
 
-Shapes (all boxes and cylinders of trimesh.creation, made here):
+Shapes (the first four are the default set; ``--shapes all`` adds eleven more):
   domino   48 x 24 x 6.35 mm plate (thin faces: the case that sank at 1/240 s)
   cube40   40 mm cube (bench/peers.py's cube)
   rod      cylinder 12 mm across, 80 mm long
   disc     cylinder 60 mm across, 5 mm thick
+  card     85 x 54 x 3 mm plate          slab10   80 x 60 x 10 mm plate
+  box642   60 x 40 x 20 mm box           cube30, cube60   30 and 60 mm cubes
+  can40    cylinder 40 mm across, 80 mm  rod20    cylinder 20 mm across, 100 mm
+  sphere40 sphere 40 mm across           stick    100 x 15 x 8 mm bar
+  mug, banana   the sample objects' meshes (objects/), at the masses of the grid
+
+    python bench/light_threshold.py --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
 """
 
 from __future__ import annotations
@@ -38,12 +45,26 @@ from light_objects import simulated_trials
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 
+OBJECTS = Path(__file__).resolve().parents[1] / "objects"
+box, cylinder = trimesh.creation.box, trimesh.creation.cylinder
 SHAPES = {
-    "domino": lambda: trimesh.creation.box((0.048, 0.024, 0.00635)),
-    "cube40": lambda: trimesh.creation.box((0.04, 0.04, 0.04)),
-    "rod": lambda: trimesh.creation.cylinder(radius=0.006, height=0.08, sections=32),
-    "disc": lambda: trimesh.creation.cylinder(radius=0.03, height=0.005, sections=48),
+    "domino": lambda: box((0.048, 0.024, 0.00635)),
+    "cube40": lambda: box((0.04, 0.04, 0.04)),
+    "rod": lambda: cylinder(radius=0.006, height=0.08, sections=32),
+    "disc": lambda: cylinder(radius=0.03, height=0.005, sections=48),
+    "card": lambda: box((0.085, 0.054, 0.003)),
+    "slab10": lambda: box((0.08, 0.06, 0.01)),
+    "box642": lambda: box((0.06, 0.04, 0.02)),
+    "cube30": lambda: box((0.03, 0.03, 0.03)),
+    "cube60": lambda: box((0.06, 0.06, 0.06)),
+    "can40": lambda: cylinder(radius=0.02, height=0.08, sections=40),
+    "sphere40": lambda: trimesh.creation.icosphere(subdivisions=3, radius=0.02),
+    "rod20": lambda: cylinder(radius=0.01, height=0.1, sections=32),
+    "stick": lambda: box((0.1, 0.015, 0.008)),
+    "mug": lambda: trimesh.load(OBJECTS / "mug.obj", force="mesh"),
+    "banana": lambda: trimesh.load(OBJECTS / "banana.obj", force="mesh"),
 }
+DEFAULT_SHAPES = ("domino", "cube40", "rod", "disc")
 WIDTH_TOLERANCE = 0.0002  # m, the width agreement of issue 12
 WIDTHS = (8, 5, 4, 4, 6, 7, 6, 7)  # printed column widths
 
@@ -72,7 +93,7 @@ def row(args: tuple[str, float, int, int, int, str]) -> tuple[str, float, int, i
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=list(SHAPES))
+    ap.add_argument("--shapes", nargs="+", default=list(DEFAULT_SHAPES), choices=[*SHAPES, "all"])
     ap.add_argument(
         "--grams", type=float, nargs="+", default=[12.0, 16.0, 20.0, 24.0, 28.0, 32.0, 40.0, 80.0]
     )
@@ -85,6 +106,8 @@ def main() -> None:
     ap.add_argument("--set", default="", help="FIELD=VALUE[,FIELD=VALUE] for both runs")
     args = ap.parse_args()
     parse_variant(args.set)  # an unknown field exits here, not in a worker
+    if "all" in args.shapes:
+        args.shapes = list(SHAPES)
     grid = [
         (s, g, seed, args.candidates, args.fine, args.set)
         for s in args.shapes
