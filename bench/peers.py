@@ -9,8 +9,10 @@ bodies (``annotator.objects.load_object`` + ``create_body``: same mass, inertia,
 parts) and on our sampler's candidates; for each candidate the tools take turns (the order rotates
 per candidate), so machine load hits all of them alike. Printed per tool: ms per candidate
 (collision rejection included), ms per simulated trial, steps per trial, ms per step (time inside
-``stepSimulation`` only), and the agreement of ``success`` with ours. ``os.getloadavg()`` is printed
-with every timing; ``--rounds R`` repeats the whole set and prints the spread.
+``stepSimulation`` only), and the agreement of ``success`` with ours; per object, and over the
+objects at or above ``physics.light_object_mass`` apart from the light ones ours substeps.
+``os.getloadavg()`` is printed with every timing; ``--rounds R`` repeats the whole set and prints
+the spread.
 
 Objects: a 40 mm cube, a 66 x 120 mm cylinder and a generated duck (a star-shaped union of
 ellipsoids: body, head, beak, tail; concave at the neck and under the tail; several convex parts).
@@ -747,6 +749,7 @@ def main() -> None:
             print(f"{source.object_id}: {len(model.parts)} convex part(s), {model.mass * 1000:.0f} g")
         print(f"{sum(len(c) for _, c in work)} candidates; tools take turns per candidate")
 
+        light = {m.object_id for m, _ in work if m.substeps(config.physics) > 1}
         rounds: list[dict[str, Tally]] = []
         for r in range(args.rounds):
             print(load(f"\nround {r + 1}: start,"))
@@ -772,6 +775,7 @@ def main() -> None:
             print(load(f"round {r + 1}: end,"))
             report(tallies, tools[0].name)
             per_object(by_object, tools[0].name)
+            by_light_boundary(by_object, tools[0].name, light, config.physics.light_object_mass)
             rounds.append(tallies)
         if args.rounds > 1:
             spread(rounds)
@@ -831,6 +835,40 @@ def per_object(by_object: dict[tuple[str, str], Tally], reference: str) -> None:
                 ratio = "" if name == reference else f" x{ref['ms_trial'] / f['ms_trial']:.2f}"
                 cells.append(f"{name} {f['ms_trial']:.1f} ({f['steps_trial']:.0f}){ratio}")
         print(f"  {obj:<16} " + ", ".join(cells))
+
+
+def merged(tallies: list[Tally]) -> Tally:
+    """One tally of several (the candidates of several objects)."""
+    out = Tally()
+    for t in tallies:
+        for seconds, wall, result in zip(t.seconds, t.wall, t.results, strict=True):
+            out.add(seconds, wall, result)
+    return out
+
+
+def by_light_boundary(
+    by_object: dict[tuple[str, str], Tally], reference: str, light: set[str], boundary: float
+) -> None:
+    """Ours / each tool per candidate and per trial over the objects ours simulates at time_step
+    (at or above ``boundary``) and over the light ones it substeps (PhysicsConfig.light_object_mass)."""
+    objects = list(dict.fromkeys(o for o, _ in by_object))
+    tools = list(dict.fromkeys(n for _, n in by_object))
+    for label, group in (
+        (f"at or above {boundary * 1000:.0f} g", [o for o in objects if o not in light]),
+        (f"below {boundary * 1000:.0f} g (substepped)", [o for o in objects if o in light]),
+    ):
+        if not group:
+            continue
+        ref = merged([by_object[(o, reference)] for o in group]).figures()
+        cells = []
+        for name in tools:
+            if name != reference:
+                f = merged([by_object[(o, name)] for o in group]).figures()
+                cells.append(
+                    f"/ {name} per candidate {ref['ms_candidate'] / f['ms_candidate']:.2f}, "
+                    f"per trial {ref['ms_trial'] / f['ms_trial']:.2f}"
+                )
+        print(f"  objects {label} ({', '.join(group)}): {reference} " + "; ".join(cells))
 
 
 def spread(rounds: list[dict[str, Tally]]) -> None:
