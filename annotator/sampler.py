@@ -104,12 +104,12 @@ def _first_hits(
     centre = triangles.mean(axis=1)
     radius = np.linalg.norm(triangles - centre[:, None, :], axis=2).max(axis=1)
     # the broad phase's frame: centred on the triangles, so its float32 terms are ~ size^2
-    shift = 0.5 * (triangles.reshape(-1, 3).min(axis=0) + triangles.reshape(-1, 3).max(axis=0))
-    c32 = (centre - shift).astype(np.float32)
+    corners = triangles.reshape(-1, 3)
+    shift = 0.5 * (corners.min(axis=0) + corners.max(axis=0))
+    c64 = centre - shift
+    c32 = c64.astype(np.float32)
     o64 = origins - shift
-    size2 = max(
-        float(np.max(np.sum((centre - shift) ** 2, axis=1))), float(np.max(np.sum(o64 * o64, axis=1)))
-    )
+    size2 = max(float(np.max(np.sum(c64**2, axis=1))), float(np.max(np.sum(o64 * o64, axis=1))))
     # |c - o|^2 - ((c - o).d)^2 from float32 products of terms <= size2: its rounding error is
     # below ~16 eps32 size2; 64 eps32 size2 (+ the float64 margin) is the screen's slack
     slack = 64.0 * float(np.finfo(np.float32).eps) * size2

@@ -71,7 +71,10 @@ def measure(grams: float, hz: float, n: int, folder: Path) -> str:
     config = AnnotatorConfig()
     config = dataclasses.replace(config, physics=dataclasses.replace(config.physics, time_step=1.0 / hz))
     outcomes, depths = [], []
-    across_thin_faces = lambda T: abs(T.rotation[2, 0]) >= 0.95  # noqa: E731
+
+    def across_thin_faces(T: Transform) -> bool:
+        return abs(T.rotation[2, 0]) >= 0.95  # the closing axis along the plate's thickness
+
     for r in simulated_trials(
         trimesh.creation.box(EXTENTS), "domino", grams, 0, n, config, folder, across_thin_faces
     ):
