@@ -11,7 +11,6 @@ start with ``.``.
 from __future__ import annotations
 
 import enum
-import hashlib
 import logging
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.geometry import matrix_to_quat, quat_to_matrix
+from annotator.rng import keyed_rng
 
 log = logging.getLogger(__name__)
 
@@ -220,12 +220,6 @@ RG2_SYMMETRY = np.diag([-1.0, -1.0, 1.0])
 # (110 mm / 2). Turning the gripper by theta about its TCP moves a pad centre, at most 55 mm
 # from the TCP, by at most 55 mm x theta, so the two terms are both "how far a pad moves".
 ROTATION_LENGTH = 0.055
-
-
-def keyed_rng(*keys: object) -> np.random.Generator:
-    """A Generator that depends only on ``keys`` (SHA-256 of their text): stable across processes."""
-    digest = hashlib.sha256("\x00".join(str(k) for k in keys).encode()).digest()
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.frombuffer(digest, "<u4").tolist())))
 
 
 def balance_outcomes(df: pd.DataFrame, seed: int = 0, per_object: bool = True) -> pd.DataFrame:

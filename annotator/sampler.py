@@ -20,7 +20,6 @@ needed; a bounding-sphere broad phase keeps 500 candidates on a 5k-face mesh wel
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from dataclasses import dataclass
 
@@ -28,6 +27,7 @@ import numpy as np
 import trimesh
 
 from annotator.config import SamplerConfig
+from annotator.rng import object_rng  # noqa: F401  (re-exported)
 
 log = logging.getLogger(__name__)
 
@@ -66,16 +66,6 @@ class Candidates:
 
     def __len__(self) -> int:
         return int(self.T_obj_tcp.shape[0])
-
-
-def object_rng(seed: int, object_id: str) -> np.random.Generator:
-    """A Generator that depends only on ``(seed, object_id)``: stable across processes and runs.
-
-    Python's ``hash()`` is salted per process, so the key is a SHA-256 digest instead.
-    """
-    digest = hashlib.sha256(f"{int(seed)}\x00{object_id}".encode()).digest()
-    words = np.frombuffer(digest, dtype="<u4").tolist()
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(words)))
 
 
 def _first_hits(

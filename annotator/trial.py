@@ -15,7 +15,6 @@ The protocol (DESIGN.md), with an early exit at each stage:
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ import numpy as np
 from annotator.config import AnnotatorConfig, RobustConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, axis_angle_to_matrix
+from annotator.rng import trial_rng  # noqa: F401  (re-exported)
 from annotator.sim import pb
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
@@ -54,12 +54,6 @@ class Perturbation:
         friction = rng.uniform(-robust.friction_delta, robust.friction_delta)
         mass = rng.uniform(1.0 - robust.mass_delta, 1.0 + robust.mass_delta)
         return cls(Transform.from_rotation(R, pos), float(friction), float(mass))
-
-
-def trial_rng(seed: int, object_id: str, grasp_id: int) -> np.random.Generator:
-    """The candidate's own Generator for its perturbations: depends on (seed, object, grasp) only."""
-    digest = hashlib.sha256(f"robust\x00{int(seed)}\x00{object_id}\x00{int(grasp_id)}".encode()).digest()
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.frombuffer(digest, "<u4").tolist())))
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,8 @@ from click.testing import CliRunner, Result
 import annotator.dataset as ds
 from annotator.cli import annotate_command
 from annotator.config import AnnotatorConfig
-from annotator.sampler import object_rng, sample_candidates
+from annotator.rng import object_rng
+from annotator.sampler import sample_candidates
 
 
 def run_annotate(*args, check: int | None = 0) -> Result:

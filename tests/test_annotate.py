@@ -32,7 +32,8 @@ from annotator.objects import ObjectSource, load_object
 from annotator.pipeline.files import chunk_filename, write_labels
 from annotator.pipeline.store import MANIFEST_NAME
 from annotator.pipeline.worker import max_width as _max_width
-from annotator.sampler import object_rng, sample_candidates
+from annotator.rng import object_rng
+from annotator.sampler import sample_candidates
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "objects"

@@ -16,8 +16,9 @@ from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import ObjectProperties, ObjectSource
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
-from annotator.sampler import _first_hits, object_rng, sample_candidates
-from annotator.trial import Perturbation, trial_rng
+from annotator.rng import object_rng, trial_rng
+from annotator.sampler import _first_hits, sample_candidates
+from annotator.trial import Perturbation
 
 CONFIG = AnnotatorConfig()
 MAX_WIDTH = 0.110

@@ -8,7 +8,8 @@ import trimesh
 
 from annotator.config import SamplerConfig
 from annotator.geometry import Transform
-from annotator.sampler import Candidates, _first_hits, _pair_hits, object_rng, sample_candidates
+from annotator.rng import object_rng
+from annotator.sampler import Candidates, _first_hits, _pair_hits, sample_candidates
 
 RG2_MAX_WIDTH = 0.110  # m, RG2 stroke
 CONFIG = SamplerConfig()

@@ -18,7 +18,8 @@ from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource, create_body, load_object
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
-from annotator.sampler import object_rng, sample_candidates
+from annotator.rng import object_rng
+from annotator.sampler import sample_candidates
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, Perturbation

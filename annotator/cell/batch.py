@@ -44,10 +44,10 @@ from annotator.cell.reach import READY, Reach, check_reach
 from annotator.cell.views import OBJECT_POSE_COLUMNS, SEG_NOTHING, SEG_OBJECT, SEG_ROBOT, SEG_TABLE
 from annotator.cell.world import Cell, build_cell
 from annotator.config import AnnotatorConfig
-from annotator.dataset import keyed_rng
 from annotator.geometry import Transform
 from annotator.objects import ObjectError, ObjectModel, create_body, get_object_pose, reset_object_pose
 from annotator.pipeline.files import artifact_relpath
+from annotator.rng import keyed_rng
 from annotator.sampler import Candidates
 from annotator.sim import pb
 from annotator.sim.hand import FloatingRG2

@@ -39,8 +39,8 @@ import numpy as np
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import keyed_rng
 from annotator.geometry import Transform
+from annotator.rng import keyed_rng
 from annotator.sampler import Candidates, ContactPairs, chords, unit
 from annotator.sim.rg2 import FingerEnvelope
 

@@ -42,8 +42,9 @@ from annotator.objects import (
 )
 from annotator.pipeline import status
 from annotator.pipeline.store import bound_versions
-from annotator.sampler import Candidates, object_rng, sample_candidates
-from annotator.trial import GraspTrial, Perturbation, trial_rng
+from annotator.rng import object_rng, trial_rng
+from annotator.sampler import Candidates, sample_candidates
+from annotator.trial import GraspTrial, Perturbation
 
 if TYPE_CHECKING:
     from annotator.cell.batch import CellObject, CellWorlds

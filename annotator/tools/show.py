@@ -21,9 +21,10 @@ import pandas as pd
 
 from annotator import paths
 from annotator.config import GripperConfig
-from annotator.dataset import OUTCOMES, keyed_rng, poses_as_matrices
+from annotator.dataset import OUTCOMES, poses_as_matrices
 from annotator.geometry import Transform
 from annotator.render import Camera, Frame, look_at_camera, project, render_frame
+from annotator.rng import keyed_rng
 from annotator.sim import pb
 from annotator.sim.body import Body
 from annotator.sim.rg2 import RG2
