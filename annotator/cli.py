@@ -207,8 +207,8 @@ def run_pipeline(
 ) -> None:
     """Run the job's pipeline (``annotate``, or ``evaluate`` with given ``candidates``) and exit
     with the documented code; problems are one line prefixed with ``command``."""
-    from annotator.pipeline.files import OutputError
     from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
+    from annotator.store import OutputError
 
     run_options = RunOptions(workers=workers or os.cpu_count() or 1, **options)
     try:

@@ -1,7 +1,7 @@
 """Reading grasp labels: the schema (``Outcome``, columns), validation, loading and splitting.
 
 This is the side of the dataset a learner uses; it does not import pybullet. Writing labels (atomic
-files, the manifest, the lock, resume) is :mod:`annotator.pipeline.store`.
+files, the manifest, the lock, resume) is :mod:`annotator.store`.
 
 ``pandas.read_parquet("labels/")`` reads every label: pyarrow's dataset discovery skips names
 starting with ``.`` or ``_``, which is why the manifest is ``_manifest.json`` and temporary files

@@ -25,11 +25,10 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome, load_labels
 from annotator.geometry import Transform
 from annotator.objects import create_body, load_object, reset_object_pose
-from annotator.pipeline.files import ARTIFACTS_DIR
-from annotator.pipeline.store import MANIFEST_NAME
 from annotator.sim import ur3
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
+from annotator.store import ARTIFACTS_DIR, MANIFEST_NAME
 from annotator.trial import GraspTrial
 
 SAMPLES = Path(__file__).resolve().parents[1] / "objects"

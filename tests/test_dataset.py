@@ -10,7 +10,8 @@ import pytest
 from helpers import synthetic_labels
 
 import annotator.dataset as ds
-import annotator.pipeline.files as files
+import annotator.store.files as files
+import annotator.store.names as names
 from annotator.geometry import Transform
 
 
@@ -26,7 +27,7 @@ def test_outcomes_and_enum() -> None:
 def _write(folder: Path, df: pd.DataFrame) -> Path:
     """One object's labels as the store writes them (marked, atomic)."""
     oid = str(df["object_id"].iloc[0])
-    name = files.object_filename(oid)
+    name = names.object_filename(oid)
     files.write_labels(folder, df, 0, len(df), name, "run-key", "cd" * 32)
     return folder / name
 
@@ -55,7 +56,7 @@ def test_round_trip_read_parquet_directory(tmp_path: Path) -> None:
     assert list(loaded["object_id"].unique()) == sorted(frames)
     assert loaded["object_id"].is_monotonic_increasing
     assert (loaded.groupby("object_id")["grasp_id"].apply(list) == [list(range(12))] * 3).all()
-    one = ds.load_labels(tmp_path / files.object_filename("cube"))
+    one = ds.load_labels(tmp_path / names.object_filename("cube"))
     assert set(one["object_id"]) == {"cube"} and len(one) == 12
 
 

@@ -23,11 +23,11 @@ from helpers import run_annotate
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
-from annotator.pipeline.files import object_filename
 from annotator.pipeline.plan import PlannedObject, plan_spans
 from annotator.pipeline.run import RunOptions, Workers, execute
-from annotator.pipeline.store import MANIFEST_NAME, STALE_DIR
 from annotator.pipeline.worker import Span, SpanResult, SpanTask, label_span
+from annotator.store import MANIFEST_NAME, STALE_DIR
+from annotator.store.names import object_filename
 
 N = 20  # two spans per object
 

@@ -1,6 +1,6 @@
 """The store: atomic marked files, the manifest that binds a run, verification, the lock, resume.
 
-Unit tests of annotator.pipeline.store on label tables from the real sampler (no simulation);
+Unit tests of annotator.store on label tables from the real sampler (no simulation);
 the end-to-end faults are in tests/test_reliability.py.
 """
 
@@ -22,8 +22,7 @@ from helpers import synthetic_labels
 
 import annotator.dataset as ds
 from annotator.config import AnnotatorConfig
-from annotator.pipeline import files
-from annotator.pipeline.store import (
+from annotator.store import (
     LOCK_NAME,
     MANIFEST_NAME,
     STALE_DIR,
@@ -32,6 +31,8 @@ from annotator.pipeline.store import (
     RunMismatchError,
     RunSpec,
     Store,
+    files,
+    names,
 )
 
 N = 10
@@ -74,13 +75,13 @@ def _open(folder: Path, spec: RunSpec | None = None, **kwargs) -> Store:
 
 def test_object_filename_is_safe_and_collision_free() -> None:
     ids = ["ycb/mug", "ycb__mug", "ycb_mug", "YCB/mug", "a/b/c", "_hidden", ".dot", "with space/ü"]
-    names = [files.object_filename(i) for i in ids]
-    assert len(set(names)) == len(ids)
-    for name in names:
+    written = [names.object_filename(i) for i in ids]
+    assert len(set(written)) == len(ids)
+    for name in written:
         assert "/" not in name and "\\" not in name and " " not in name
         assert name.endswith(".parquet") and name[0] not in "._"
-    assert files.object_filename("ycb/mug").startswith("ycb__mug-")
-    assert files.chunk_filename("ycb/mug", 0, 4).endswith(".000000-000004.parquet")
+    assert names.object_filename("ycb/mug").startswith("ycb__mug-")
+    assert names.chunk_filename("ycb/mug", 0, 4).endswith(".000000-000004.parquet")
 
 
 def test_write_is_atomic_and_names_the_path_on_os_errors(tmp_path: Path) -> None:
@@ -151,9 +152,9 @@ def test_chunks_are_readable_at_once_merged_and_resumed(tmp_path: Path) -> None:
     stats = store.finish_object("ycb/mug", SRC)
     store.close()
     assert stats["n"] == N and stats["successes"] == int(whole["success"].sum())
-    assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [files.object_filename("ycb/mug")]
+    assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [names.object_filename("ycb/mug")]
     pd.testing.assert_frame_equal(
-        ds.load_labels(tmp_path), ds.load_labels(tmp_path / files.object_filename("ycb/mug"))
+        ds.load_labels(tmp_path), ds.load_labels(tmp_path / names.object_filename("ycb/mug"))
     )
     data = json.loads((tmp_path / MANIFEST_NAME).read_text())
     entry = data["objects_done"]["ycb/mug"]
@@ -203,7 +204,7 @@ def test_overwrite_removes_only_the_tools_files(tmp_path: Path) -> None:
 
 def test_a_truncated_object_file_is_named_removed_and_redone(tmp_path: Path) -> None:
     _finished(tmp_path)
-    path = tmp_path / files.object_filename("a")
+    path = tmp_path / names.object_filename("a")
     path.write_bytes(path.read_bytes()[:100])
     store = _open(tmp_path)
     resume = store.reconcile({"a": SRC, "b": SRC})
@@ -220,7 +221,7 @@ def test_a_truncated_chunk_the_manifest_lists_is_redone(tmp_path: Path) -> None:
     store.write_chunk("a", whole.iloc[:5], 0, SRC)
     store.write_chunk("a", whole.iloc[5:], 5, SRC)
     store.close()
-    chunk = tmp_path / files.chunk_filename("a", 5, 10)
+    chunk = tmp_path / names.chunk_filename("a", 5, 10)
     chunk.write_bytes(chunk.read_bytes()[:50])
     store = _open(tmp_path)
     assert store.reconcile({"a": SRC}).chunks == {"a": {(0, 5)}}
@@ -233,7 +234,7 @@ def test_unvouched_files_of_the_tool_go_and_a_users_stay(tmp_path: Path) -> None
     store.close()
     # a chunk written just before a kill (never recorded), a temp file, a user's own file
     files.write_labels(
-        tmp_path, synthetic_labels("a", 5), 0, 5, files.chunk_filename("a", 0, 5), _spec().key, SRC
+        tmp_path, synthetic_labels("a", 5), 0, 5, names.chunk_filename("a", 0, 5), _spec().key, SRC
     )
     (tmp_path / ".x.parquet.abc123.tmp").write_bytes(b"half")
     pd.DataFrame({"mine": [1]}).to_parquet(tmp_path / "mine.parquet")
@@ -247,7 +248,7 @@ def test_unvouched_files_of_the_tool_go_and_a_users_stay(tmp_path: Path) -> None
         (b"[]", "expected a JSON object"),
         (b"null", "expected a JSON object"),
         (bytes(range(256)), "not valid JSON"),
-        (b'{"tool": "rg2-annotator", "manifest_version": 3, "run": 5}', "field 'run'"),
+        (b'{"tool": "rg2-annotator", "manifest_version": 3, "run": 5}', "manifest.run: expected a JSON object"),
         (b"{", "not valid JSON"),
     ],
 )
@@ -269,7 +270,7 @@ def test_an_unreadable_manifest_is_one_line_and_repair_rebuilds_it(tmp_path: Pat
 def test_repair_keeps_only_files_that_verify(tmp_path: Path) -> None:
     _finished(tmp_path)
     (tmp_path / MANIFEST_NAME).unlink()
-    bad = tmp_path / files.object_filename("b")
+    bad = tmp_path / names.object_filename("b")
     bad.write_bytes(bad.read_bytes()[:-40])  # truncated: its rows cannot be read
     with pytest.raises(ManifestUnreadableError, match="no _manifest.json.*--repair"):
         _open(tmp_path)
@@ -298,7 +299,7 @@ def test_changed_source_is_redone_and_removed_object_set_aside(tmp_path: Path) -
     store.close()
     assert resume.done == {"a"} and resume.changed == ["b"] and resume.stale == ["c"]
     assert set(pd.read_parquet(tmp_path)["object_id"]) == {"a"}  # c is left out of the dataset
-    assert (tmp_path / STALE_DIR / files.object_filename("c")).exists()  # but not lost
+    assert (tmp_path / STALE_DIR / names.object_filename("c")).exists()  # but not lost
     assert any("c: no longer among the objects" in n for n in store.notes)
     assert any("b: its source changed" in n for n in store.notes)
 
@@ -309,7 +310,7 @@ _HOLD = """
 import sys, time
 from pathlib import Path
 from annotator.config import AnnotatorConfig
-from annotator.pipeline.store import RunSpec, Store
+from annotator.store import RunSpec, Store
 store = Store(Path(sys.argv[1]), RunSpec(0, 10, 1, None, 5, AnnotatorConfig().to_dict()))
 store.open()
 print("locked", flush=True)
@@ -378,11 +379,11 @@ def _with_artifacts(folder: Path, oids=("a", "b"), finish: bool = True) -> dict[
 def test_artifacts_are_written_atomically_recorded_with_their_labels_and_ignored_by_read_parquet(tmp_path):
     records = _with_artifacts(tmp_path)
     rec = records["a/v.png"]
-    assert rec["file"] == f"{files.ARTIFACTS_DIR}/{files.object_stem('a')}/v.png"
+    assert rec["file"] == f"{names.ARTIFACTS_DIR}/{names.object_stem('a')}/v.png"
     assert (tmp_path / rec["file"]).read_bytes() == b"a v.png"
     manifest = json.loads((tmp_path / MANIFEST_NAME).read_text())
     assert manifest["objects_done"]["a"]["artifacts"]["v.png"] == rec  # merged with the object's file
-    mark = files.read_mark(tmp_path / files.object_filename("a"))
+    mark = files.read_mark(tmp_path / names.object_filename("a"))
     assert mark["artifacts"]["c.parquet"] == records["a/c.parquet"]  # the file vouches for them too
     assert len(pd.read_parquet(tmp_path)) == 2 * N  # labels only: _views/ is skipped
     with pytest.raises(ValueError, match="artifact name"):
@@ -412,12 +413,12 @@ def test_unbound_artifacts_go_on_resume_and_foreign_files_stay(tmp_path: Path) -
     store = _open(tmp_path)
     stray = store.write_artifact("a", "written-before-a-kill.png", b"x")  # never bound to labels
     store.close()
-    views = tmp_path / files.ARTIFACTS_DIR
+    views = tmp_path / names.ARTIFACTS_DIR
     (views / "mine").mkdir()
     (views / "mine" / "notes.txt").write_text("keep")
     _open(tmp_path).close()
     assert not (tmp_path / stray["file"]).exists()
-    assert (views / files.object_stem("a") / "v.png").exists()
+    assert (views / names.object_stem("a") / "v.png").exists()
     assert (views / "mine" / "notes.txt").exists()
 
 
@@ -428,11 +429,11 @@ def test_overwrite_removes_artifacts_and_stale_objects_take_theirs_along(tmp_pat
     store.close()
     moved = tmp_path / STALE_DIR / records["b/v.png"]["file"]
     assert moved.read_bytes() == b"b v.png" and not (tmp_path / records["b/v.png"]["file"]).exists()
-    (tmp_path / files.ARTIFACTS_DIR / "mine").mkdir()
-    (tmp_path / files.ARTIFACTS_DIR / "mine" / "notes.txt").write_text("keep")
+    (tmp_path / names.ARTIFACTS_DIR / "mine").mkdir()
+    (tmp_path / names.ARTIFACTS_DIR / "mine" / "notes.txt").write_text("keep")
     _open(tmp_path, overwrite=True).close()
     left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file())
-    assert left == [LOCK_NAME, MANIFEST_NAME, f"{files.ARTIFACTS_DIR}/mine/notes.txt"]
+    assert left == [LOCK_NAME, MANIFEST_NAME, f"{names.ARTIFACTS_DIR}/mine/notes.txt"]
 
 
 def test_repair_rebuilds_artifact_records_from_the_marks_and_drops_what_does_not_verify(tmp_path: Path):
@@ -444,7 +445,7 @@ def test_repair_rebuilds_artifact_records_from_the_marks_and_drops_what_does_not
     assert store.reconcile({"a": SRC, "b": SRC}).done == {"a"}
     store.close()
     assert json.loads((tmp_path / MANIFEST_NAME).read_text())["objects_done"]["a"]["artifacts"] == before
-    assert not (tmp_path / files.object_filename("b")).exists()
+    assert not (tmp_path / names.object_filename("b")).exists()
 
 
 def test_a_manifest_cannot_point_the_tool_at_other_files(tmp_path: Path) -> None:
@@ -456,6 +457,6 @@ def test_a_manifest_cannot_point_the_tool_at_other_files(tmp_path: Path) -> None
     data = json.loads((tmp_path / MANIFEST_NAME).read_text())
     data["objects_done"]["a"]["artifacts"]["v.png"]["file"] = "precious.txt"
     (tmp_path / MANIFEST_NAME).write_text(json.dumps(data))
-    with pytest.raises(ManifestUnreadableError, match="objects_done\\['a'\\] is malformed"):
+    with pytest.raises(ManifestUnreadableError, match=r"objects_done\['a'\]\.artifacts\['v.png'\]\.file"):
         _open(tmp_path)
     assert victim.exists()

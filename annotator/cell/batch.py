@@ -46,12 +46,12 @@ from annotator.cell.world import Cell, build_cell
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import ObjectError, ObjectModel, create_body, get_object_pose, reset_object_pose
-from annotator.pipeline.files import artifact_relpath
 from annotator.rng import keyed_rng
 from annotator.sampler import Candidates
 from annotator.sim import pb
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
+from annotator.store.names import artifact_relpath
 from annotator.trial import GraspTrial
 
 log = logging.getLogger(__name__)

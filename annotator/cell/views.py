@@ -30,7 +30,7 @@ import pandas as pd
 from annotator.cell.kinect import DEPTH_PNG_SCALE, Intrinsics, point_cloud, project
 from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
-from annotator.pipeline.files import ARTIFACTS_DIR
+from annotator.store.names import ARTIFACTS_DIR
 
 # Segmentation image values: what a learner needs, not PyBullet body ids.
 SEG_NOTHING, SEG_TABLE, SEG_OBJECT, SEG_ROBOT = 0, 1, 2, 3

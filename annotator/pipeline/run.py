@@ -36,7 +36,6 @@ from annotator.objects import (
     source_digest,
 )
 from annotator.pipeline import status
-from annotator.pipeline.files import OutputError
 from annotator.pipeline.plan import (
     FIRST_SPANS_AHEAD,
     MAX_N,
@@ -47,9 +46,9 @@ from annotator.pipeline.plan import (
     spans_to_do,
 )
 from annotator.pipeline.source import GivenCandidates, SampledCandidates
-from annotator.pipeline.store import RunSpec, Store, StoreError
 from annotator.pipeline.summary import ObjectStats, Summary, format_summary
 from annotator.pipeline.worker import CellOptions, Span, SpanResult, SpanTask, WorkerStats, label_span
+from annotator.store import OutputError, RunSpec, Store, StoreError
 
 log = logging.getLogger(__name__)
 

@@ -41,9 +41,9 @@ from annotator.objects import (
     physics_for,
 )
 from annotator.pipeline import status
-from annotator.pipeline.store import bound_versions
 from annotator.rng import object_rng, trial_rng
 from annotator.sampler import Candidates, sample_candidates
+from annotator.store.manifest import bound_versions
 from annotator.trial import GraspTrial, Perturbation
 
 if TYPE_CHECKING:

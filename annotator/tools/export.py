@@ -101,7 +101,7 @@ def _write_atomically(path: Path, write) -> None:
 
 
 def _stem(object_id: str) -> str:
-    from annotator.pipeline.store import object_filename
+    from annotator.store.names import object_filename
 
     return object_filename(object_id)[: -len(".parquet")]
 

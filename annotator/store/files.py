@@ -1,4 +1,4 @@
-"""Label files on disk: names, atomic writes with a checksum, the tool's mark, reading back.
+"""Label files on disk: atomic writes with a checksum, the tool's mark, reading back.
 
 Every Parquet file the tool writes carries a key-value entry ``rg2_annotator`` in its schema
 metadata (the run key, the object id and the grasp range), so the tool can tell its own files from
@@ -11,13 +11,11 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import glob
 import hashlib
 import io
 import json
 import logging
 import os
-import re
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -30,13 +28,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
+from annotator.store.names import is_label_filename, is_temp_file_name
 
 log = logging.getLogger(__name__)
 
 MARK_KEY = b"rg2_annotator"  # schema metadata key of every label file the tool writes
 _ARROW_TYPES = {STRING: pa.string(), "int64": pa.int64(), "float64": pa.float64(), "bool": pa.bool_()}
-_TEMP_RE = re.compile(r"^\..+\.[A-Za-z0-9_]+\.tmp$")  # mkstemp names of _atomic_write
-_LABEL_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}(\.\d{6}-\d{6})?\.parquet$")
 
 
 class OutputError(OSError):
@@ -49,72 +46,6 @@ def output_error(path: Path | str, exc: OSError) -> OutputError:
     err = OutputError(exc.errno or errno.EIO, f"cannot write {path}: {reason}")
     err.filename = str(path)
     return err
-
-
-def object_filename(object_id: str) -> str:
-    """A safe file name for ``object_id`` (which may contain ``/``), unique per id.
-
-    Readable part: ``/`` -> ``__``, other unsafe characters -> ``_``, no leading ``.``/``_``
-    (pyarrow would skip the file), at most 80 characters; then 10 hex digits of the id's SHA-256,
-    so distinct ids never collide even when their readable parts do (or differ only in case).
-    """
-    readable = re.sub(r"[^A-Za-z0-9.-]", "_", object_id.replace("/", "__").replace("\\", "__"))
-    readable = readable.lstrip("._")[:80] or "object"
-    digest = hashlib.sha256(object_id.encode("utf-8")).hexdigest()[:10]
-    return f"{readable}-{digest}.parquet"
-
-
-# Per-object artifacts (today the Kinect views of ``annotate --cell --views``) live in
-# ``ARTIFACTS_DIR/<object stem>/<name>``: a name starting with ``_``, so pyarrow's discovery of
-# the label folder skips it and ``pandas.read_parquet(OUT)`` still returns only labels.
-ARTIFACTS_DIR = "_views"
-_ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-_OBJECT_STEM_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}$")
-
-
-def object_stem(object_id: str) -> str:
-    """``object_filename`` without ``.parquet``: the object's chunk prefix and artifact folder."""
-    return object_filename(object_id)[: -len(".parquet")]
-
-
-def is_object_stem(name: str) -> bool:
-    """A folder name the tool gives an object's artifacts."""
-    return _OBJECT_STEM_RE.match(name) is not None
-
-
-def is_artifact_relpath(path: object) -> bool:
-    """``path`` names a file the tool would write as an artifact (``_views/<object stem>/<name>``),
-    so a manifest or a mark can never point the tool at another file to check or delete."""
-    if not isinstance(path, str):
-        return False
-    parts = path.split("/")
-    return (
-        len(parts) == 3
-        and parts[0] == ARTIFACTS_DIR
-        and is_object_stem(parts[1])
-        and _ARTIFACT_NAME_RE.match(parts[2]) is not None
-    )
-
-
-def artifact_relpath(object_id: str, name: str) -> str:
-    """Where artifact ``name`` of ``object_id`` lives, relative to the output folder (``/``-separated).
-
-    ``name``: a plain file name (letters, digits, ``.``, ``_``, ``-``; not hidden); ValueError else.
-    """
-    if not _ARTIFACT_NAME_RE.match(name):
-        raise ValueError(f"artifact name {name!r}: use letters, digits, '.', '_' and '-' only")
-    return f"{ARTIFACTS_DIR}/{object_stem(object_id)}/{name}"
-
-
-def chunk_filename(object_id: str, start: int, stop: int) -> str:
-    """File name of candidates ``start..stop-1`` of an object: ``<object stem>.SSSSSS-EEEEEE.parquet``."""
-    return f"{object_filename(object_id)[: -len('.parquet')]}.{start:06d}-{stop:06d}.parquet"
-
-
-def chunk_files(out_dir: str | Path, object_id: str) -> list[Path]:
-    """Every chunk file name of ``object_id`` present in ``out_dir`` (recorded in a manifest or not)."""
-    stem = object_filename(object_id)[: -len(".parquet")]
-    return sorted(Path(out_dir).glob(f"{glob.escape(stem)}.*-*.parquet"))
 
 
 def _fsync_dir(path: Path) -> None:
@@ -167,7 +98,7 @@ def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
 
 def is_temp_file(path: Path) -> bool:
     """A leftover temporary file of :func:`atomic_write` (from a killed run)."""
-    return _TEMP_RE.match(path.name) is not None
+    return is_temp_file_name(path.name)
 
 
 def file_sha256(path: str | Path) -> str:
@@ -266,7 +197,7 @@ def is_own_file(path: Path) -> bool:
     (a truncated label file; a user's Parquet file that reads, unmarked, is never counted)."""
     if read_mark(path) is not None:
         return True
-    if not _LABEL_NAME_RE.match(path.name):
+    if not is_label_filename(path.name):
         return False
     try:
         pq.read_schema(path)

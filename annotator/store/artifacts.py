@@ -1,0 +1,97 @@
+"""Label file records and the artifacts bound to them: checking, writing and removing them.
+
+Artifacts are files that belong with an object's labels (the Kinect views rendered with them).
+Each is written atomically and recorded, with its checksum, in the record of the label file it
+came with, so it is verified with it (a missing or corrupt artifact redoes those labels), removed
+with it and set aside with it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+from pathlib import Path
+from typing import Any
+
+from annotator.store.files import atomic_write, file_sha256, is_temp_file, output_error
+from annotator.store.names import ARTIFACTS_DIR, artifact_relpath, is_artifact_relpath, is_object_stem
+
+
+def write_artifact(out_dir: Path, object_id: str, name: str, data: bytes) -> dict[str, str]:
+    """Write ``data`` atomically as artifact ``name`` of ``object_id`` (``_views/<object stem>/<name>``)
+    and return its record ``{"file", "sha256"}`` for the label file that vouches for it."""
+    relpath = artifact_relpath(object_id, name)
+    path = out_dir / relpath
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(path.parent, exc) from exc
+    atomic_write(path, lambda fh: fh.write(data))
+    return {"file": relpath, "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def check_sha256(path: Path, sha256: str) -> str | None:
+    """Why ``path`` does not hold bytes with this checksum ("missing", "corrupt: ..."), or None."""
+    try:
+        digest = file_sha256(path)
+    except FileNotFoundError:
+        return "missing"
+    except OSError as exc:
+        return f"unreadable ({exc.strerror or exc})"
+    return None if digest == sha256 else "corrupt: checksum mismatch"
+
+
+def check_artifacts(out_dir: Path, artifacts: dict[str, dict[str, str]]) -> str | None:
+    """Why one of a label file's artifacts cannot be trusted, or None."""
+    for a in artifacts.values():
+        why = check_sha256(out_dir / a["file"], a["sha256"])
+        if why:
+            return f"(its {a['file']} {why})"
+    return None
+
+
+def check_record(out_dir: Path, record: dict[str, Any]) -> str | None:
+    """Why a label file (and the artifacts that came with it) cannot be trusted, or None."""
+    why = check_sha256(out_dir / record["file"], record["sha256"])
+    return why or check_artifacts(out_dir, record.get("artifacts", {}))
+
+
+def delete_record(out_dir: Path, record: dict[str, Any]) -> None:
+    """Remove a label file and the artifacts that came with it."""
+    (out_dir / record["file"]).unlink(missing_ok=True)
+    for a in record.get("artifacts", {}).values():
+        path = out_dir / a["file"]
+        path.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            path.parent.rmdir()  # once empty
+
+
+def artifacts_ok(record: dict[str, Any]) -> bool:
+    """A record's optional ``artifacts``: name -> {"file" (a path the tool writes), "sha256"}."""
+    artifacts = record.get("artifacts", {})
+    return isinstance(artifacts, dict) and all(
+        isinstance(a, dict) and is_artifact_relpath(a.get("file")) and isinstance(a.get("sha256"), str)
+        for a in artifacts.values()
+    )
+
+
+def remove_artifacts(root: Path, keep: set[str]) -> int:
+    """Remove the tool's artifact files under ``root`` (``<root>/<object stem>/<file>``) whose path
+    relative to the output folder is not in ``keep``, with emptied folders; returns how many.
+    Folders not named as the tool names an object's, and anything in them deeper down, stay."""
+    if not root.is_dir():
+        return 0
+    removed = 0
+    for folder in root.iterdir():
+        if not (folder.is_dir() and is_object_stem(folder.name)):
+            continue
+        for p in folder.iterdir():
+            relpath = f"{ARTIFACTS_DIR}/{folder.name}/{p.name}"
+            if p.is_file() and relpath not in keep and (is_artifact_relpath(relpath) or is_temp_file(p)):
+                p.unlink(missing_ok=True)
+                removed += 1
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+    with contextlib.suppress(OSError):
+        root.rmdir()
+    return removed
