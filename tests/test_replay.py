@@ -12,12 +12,12 @@ from click.testing import CliRunner
 from PIL import Image, ImageSequence
 
 from annotator.cell import build_cell
+from annotator.cli.replay import replay_command
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.objects import create_body, load_object
 from annotator.pipeline.run import RunOptions, run
 from annotator.sim.world import World
-from annotator.tools.commands import replay_command
 from annotator.tools.replay import PLACEMENT_COLUMNS, plan_replay, replay
 
 CONFIG = AnnotatorConfig()

@@ -16,9 +16,10 @@ from click.testing import CliRunner
 from PIL import Image
 
 from annotator import paths
+from annotator.cli.scene import scene_command
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
-from annotator.scene import SceneConfig, build_scene, scene_command
+from annotator.scene import SceneConfig, build_scene
 from annotator.sim.rg2 import fk_table
 from annotator.sim.ur3 import JOINT_NAMES
 from annotator.sim.world import World

@@ -248,7 +248,10 @@ def test_unvouched_files_of_the_tool_go_and_a_users_stay(tmp_path: Path) -> None
         (b"[]", "expected a JSON object"),
         (b"null", "expected a JSON object"),
         (bytes(range(256)), "not valid JSON"),
-        (b'{"tool": "rg2-annotator", "manifest_version": 3, "run": 5}', "manifest.run: expected a JSON object"),
+        (
+            b'{"tool": "rg2-annotator", "manifest_version": 3, "run": 5}',
+            "manifest.run: expected a JSON object",
+        ),
         (b"{", "not valid JSON"),
     ],
 )

@@ -3,10 +3,10 @@
 ``annotator scene`` opens the PyBullet GUI with the seed's sliders; ``annotator scene --headless
 --gif out.gif`` plays a scripted sequence (sweep, reach towards the cube, open, close, lift) in
 DIRECT mode and records it with the software renderer. Parts: ``model`` (the scene on the cell),
-``demo`` (the scripted sequence), ``gui`` (the slider loop), ``command`` (the click command).
+``demo`` (the scripted sequence), ``gui`` (the slider loop), ``capture`` (a grasp captured by
+hand); the click command is :mod:`annotator.cli.scene`.
 """
 
-from annotator.scene.command import scene_command
 from annotator.scene.model import Scene, SceneConfig, build_scene, open_world
 
-__all__ = ["Scene", "SceneConfig", "build_scene", "open_world", "scene_command"]
+__all__ = ["Scene", "SceneConfig", "build_scene", "open_world"]

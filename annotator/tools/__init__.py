@@ -2,5 +2,5 @@
 exports, evaluation of given grasps, calibration against real trials.
 
 Each module is a library first (functions with typed results) and a thin click command second
-(:mod:`annotator.tools.commands`, registered on the ``annotator`` group by :mod:`annotator.cli`).
+(in :mod:`annotator.cli`, one module per command).
 """

@@ -25,8 +25,8 @@ def _not_blank(path: Path) -> np.ndarray:
 
 
 def test_command_line_outcomes_are_the_schema_s() -> None:
+    from annotator.cli.common import OUTCOMES as CLI_OUTCOMES
     from annotator.dataset import OUTCOMES
-    from annotator.tools.commands import OUTCOMES as CLI_OUTCOMES
 
     assert CLI_OUTCOMES == OUTCOMES
 

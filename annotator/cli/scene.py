@@ -7,17 +7,10 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cell.kinect import write_depth_png
-from annotator.config import AnnotatorConfig
-from annotator.objects import ObjectError
-from annotator.render import write_gif, write_png
-from annotator.scene.capture import Capturer, load_capture_object
-from annotator.scene.demo import demo_script, run_script
-from annotator.scene.gui import run_gui
-from annotator.scene.model import SceneConfig, build_scene, open_world
+from annotator.cli.common import CONTEXT
 
 
-@click.command("scene")
+@click.command("scene", context_settings=CONTEXT)
 @click.option("--headless", is_flag=True, help="No window: play the scripted sequence in DIRECT mode.")
 @click.option(
     "--gif",
@@ -130,6 +123,15 @@ def scene_command(
       xvfb-run -a annotator scene --demo --seconds 3 --screenshot-at 2 --screenshot window.png
       annotator scene --object objects/mug.obj --capture-out mug_captures.parquet
     """
+    from annotator.cell.kinect import write_depth_png
+    from annotator.config import AnnotatorConfig
+    from annotator.objects import ObjectError
+    from annotator.render import write_gif, write_png
+    from annotator.scene.capture import Capturer, load_capture_object
+    from annotator.scene.demo import demo_script, run_script
+    from annotator.scene.gui import run_gui
+    from annotator.scene.model import SceneConfig, build_scene, open_world
+
     config = SceneConfig()
     labels_config = AnnotatorConfig()
     try:

@@ -1,0 +1,105 @@
+"""What every command shares: exit codes, logging, option types, reading a configuration file,
+running the labelling pipeline with the documented exit codes."""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+EXIT_OK, EXIT_SOME_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OUTPUT = 3  # the output folder cannot be written (disk full, read-only, permission)
+EXIT_SCHEDULER = 4  # the Dask scheduler was lost
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, the shell convention
+EXIT_TERMINATED = 143  # 128 + SIGTERM
+
+CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+# annotator.dataset.OUTCOMES, spelled out so that `annotator --help` does not import pandas
+# (tests/tools/test_show.py checks they are the same)
+OUTCOMES = ("success", "collision", "no_contact", "slipped_lift", "slipped_shake", "error")
+
+LABELS = click.argument("labels", type=click.Path(path_type=Path))
+OBJECTS_OPTION = click.option(
+    "--objects",
+    "objects_dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=None,
+    help="The folder the labels were made from (annotate --objects): where the object meshes are.",
+)
+CONFIG_OPTION = click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path, dir_okay=False, exists=True),
+    default=None,
+    help="TOML file overriding constants by section, e.g. [protocol] lift_height = 0.15.",
+)
+VERBOSE_OPTION = click.option("--verbose", "-v", is_flag=True, help="Debug logging.")
+
+
+def positive_finite(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    """Reject 0, negative, inf and nan at the command line (exit 2), not per object later."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(f"must be a finite number > 0, got {value}", param=param)
+    return value
+
+
+class _QuietLibraries(logging.Filter):
+    """Dask and tornado log their own connection trouble, tracebacks included; the run says what
+    matters in one line (a lost scheduler, a dead worker). ``--verbose`` shows everything."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.name.startswith(("distributed", "tornado")) or record.levelno >= logging.CRITICAL
+
+
+def setup_logging(quiet: bool, verbose: bool, *, default: int = logging.INFO) -> None:
+    """``--quiet``: warnings only; ``--verbose``: debug; else ``default``."""
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose else default)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    if not verbose:
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(_QuietLibraries())
+
+
+def load_config(config_file: Path | None):
+    """The :class:`AnnotatorConfig` of ``--config`` (defaults without one); a bad file is a usage error."""
+    from annotator.config import AnnotatorConfig
+
+    try:
+        return AnnotatorConfig.from_toml(config_file) if config_file else AnnotatorConfig()
+    except (ValueError, OSError) as exc:
+        raise click.UsageError(f"--config {config_file}: {exc}") from exc
+
+
+def run_pipeline(
+    command: str, *, config: Any, candidates: Any = None, workers: int | None, **options: Any
+) -> None:
+    """Run the labelling pipeline (``annotate``, or ``evaluate`` with given ``candidates``) and exit
+    with the documented code; problems are one line prefixed with ``command``."""
+    from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
+    from annotator.store import OutputError
+
+    run_options = RunOptions(workers=workers or os.cpu_count() or 1, **options)
+    try:
+        summary = run(run_options, config, candidates)
+    except UsageError as exc:
+        raise click.UsageError(str(exc)) from exc
+    except OutputError as exc:
+        click.echo(f"{command}: {exc}", err=True)
+        sys.exit(EXIT_OUTPUT)
+    except SchedulerLost as exc:
+        click.echo(f"{command}: {exc} ({run_options.scheduler}); re-run the same command to resume", err=True)
+        sys.exit(EXIT_SCHEDULER)
+    except KeyboardInterrupt:
+        # Ctrl-C: finished work is on disk; exit 130 (128 + SIGINT), not click's "Aborted!" + 1,
+        # which would read as "some objects failed".
+        click.echo(f"{command}: interrupted; re-run the same command to resume", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except Terminated:
+        click.echo(f"{command}: terminated; re-run the same command to resume", err=True)
+        sys.exit(EXIT_TERMINATED)
+    sys.exit(EXIT_OK if not summary.failed else EXIT_SOME_FAILED)

@@ -1,0 +1,112 @@
+"""``annotator evaluate``: annotate's protocol on grasps someone else proposed."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from annotator.cli.common import (
+    CONTEXT,
+    VERBOSE_OPTION,
+    load_config,
+    run_pipeline,
+    setup_logging,
+)
+
+
+@click.command("evaluate", context_settings=CONTEXT)
+@click.argument("grasps_file", metavar="GRASPS", type=click.Path(path_type=Path, dir_okay=False))
+@click.option(
+    "--objects",
+    "objects_dir",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Folder of the objects the grasps refer to (object_id = path without suffix, as annotate).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Output folder: label files (one per object) and _manifest.json, as annotate writes.",
+)
+@click.option(
+    "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the perturbed trials.")
+@click.option(
+    "--trials", type=click.IntRange(min=1), default=1, show_default=True, help="Perturbed trials per grasp."
+)
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler (tcp://host:8786).")
+@click.option(
+    "--scale", type=float, default=None, help="Scale every mesh by this factor (as annotate --scale)."
+)
+@click.option("--overwrite", is_flag=True, help="Discard existing labels in --out and start over.")
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path, dir_okay=False, exists=True),
+    default=None,
+    help="TOML file overriding constants, as for annotate.",
+)
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
+@VERBOSE_OPTION
+def evaluate_command(
+    grasps_file,
+    objects_dir,
+    out_dir,
+    workers,
+    seed,
+    trials,
+    scheduler,
+    scale,
+    overwrite,
+    config_file,
+    quiet,
+    verbose,
+):
+    """Simulate grasps someone else proposed with annotate's protocol; write label columns.
+
+    GRASPS is a Parquet or CSV file with object_id, the TCP pose as the labels give it (x y z,
+    qx qy qz qw in the object's mesh frame, metres, xyzw) and optionally width (m, the opening at
+    the grasp; measured on the mesh when missing) and grasp_id. The output is what annotate
+    writes (same columns, resume, determinism, workers); grasps keep their grasp_id when those
+    are 0..k-1 per object, else they are numbered in the order of the file.
+
+    \b
+    Example:
+      annotator evaluate predictions.parquet --objects objects/ --out evaluated/
+      python -c "import pandas; print(pandas.read_parquet('evaluated/').outcome.value_counts())"
+
+    Exit codes as annotate's: 0 all objects done, 1 some failed, 2 usage error, 3 output
+    folder not writable, 4 Dask scheduler lost, 130/143 interrupted (re-run to resume).
+    """
+    setup_logging(False, verbose, default=logging.WARNING)
+    from annotator.pipeline.worker import max_width
+    from annotator.tools.evaluate import given_candidates, read_grasps
+
+    config = load_config(config_file)
+    grasps = read_grasps(grasps_file)
+    if not Path(objects_dir).is_dir():
+        raise click.UsageError(f"objects folder not found: {objects_dir}")
+    candidates, renumbered = given_candidates(grasps, objects_dir, config, scale, max_width(config))
+    if renumbered:
+        click.echo(f"grasp ids of {len(renumbered)} object(s) renumbered 0..k-1 in file order", err=True)
+    run_pipeline(
+        "evaluate",
+        objects_dir=objects_dir,
+        n=max(candidates.counts.values()),
+        out_dir=out_dir,
+        workers=workers,
+        seed=seed,
+        trials=trials,
+        scheduler=scheduler,
+        scale=scale,
+        overwrite=overwrite,
+        repair=False,
+        quiet=quiet,
+        config=config,
+        candidates=candidates,
+    )

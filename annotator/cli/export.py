@@ -1,0 +1,44 @@
+"""``annotator export``: the labels in the formats other grasp learners read."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION, setup_logging
+
+
+@click.command("export", context_settings=CONTEXT)
+@LABELS
+@click.option(
+    "--format",
+    "fmt",
+    required=True,
+    type=click.Choice(["acronym", "graspgen"]),
+    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object.",
+)
+@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
+@OBJECTS_OPTION
+@click.option("--object", "object_ids", multiple=True, help="Only this object (repeat for several).")
+@VERBOSE_OPTION
+def export_command(labels, fmt, out_dir, objects_dir, object_ids, verbose):
+    """The labels in the formats existing grasp learners read, with each object's mesh.
+
+    Both formats store the pose of the RG2's base frame (rg2_base_link: on the tool flange,
+    +z approach, +x closing), not our TCP: T_obj_base = T_obj_tcp * T_base_tcp(width)^-1, with
+    the width of each grasp stored beside it (see the README, "Exports").
+
+    \b
+    Example:
+      annotator export labels/ --format acronym --objects objects/ --out acronym/
+      annotator export labels/ --format graspgen --objects objects/ --out graspgen/
+    """
+    setup_logging(False, verbose, default=logging.WARNING)
+    from annotator.tools.export import export
+
+    result = export(labels, fmt, out_dir, objects_dir, tuple(object_ids))
+    click.echo(
+        f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) and their meshes to {out_dir}"
+    )

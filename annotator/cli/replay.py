@@ -1,0 +1,160 @@
+"""``annotator replay``: one label executed by the UR3 + RG2 in the seed's cell."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from annotator.cli.common import CONTEXT, load_config
+
+
+def _fmt_q(q: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v:.3f}" for v in q) + "]"
+
+
+@click.command("replay", context_settings=CONTEXT)
+@click.argument("labels", type=click.Path(path_type=Path, exists=True))
+@click.option("--object", "object_id", required=True, help="The label's object_id.")
+@click.option("--grasp", "grasp_id", required=True, type=int, help="The label's grasp_id.")
+@click.option(
+    "--objects",
+    "objects_dir",
+    default=Path("objects"),
+    show_default=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="The folder the labels were made from (the object is found there by its id).",
+)
+@click.option(
+    "--gif", "gif_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the replay as a GIF."
+)
+@click.option("--gui", is_flag=True, help="Show the replay in the PyBullet GUI at real time.")
+@click.option(
+    "--hold",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="GUI: keep the window this many seconds after the replay [default: until it is closed].",
+)
+@click.option(
+    "--size", default=(320, 240), show_default=True, type=(int, int), help="GIF frame width height."
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path, dir_okay=False, exists=True),
+    help="The TOML file the labels were made with (physics, gripper, protocol, cell).",
+)
+def replay_command(
+    labels: Path,
+    object_id: str,
+    grasp_id: int,
+    objects_dir: Path,
+    gif_path: Path | None,
+    gui: bool,
+    hold: float | None,
+    size: tuple[int, int],
+    config_file: Path | None,
+) -> None:
+    """Execute one label with the UR3 + RG2 in the seed's cell (table, Kinect) and say what happened.
+
+    \b
+    The object rests on the table: at the label's own placement (labels of `annotate --cell`), or,
+    for a floating label, in the stable pose and turn about the vertical that makes the grasp
+    approach most from above while the arm can still reach it. The arm goes from the pregrasp to
+    the grasp through the closed-form IK solutions of the straight approach, the RG2 closes with
+    its grip force, the arm lifts 10 cm. Printed: the placement, contacts during the approach,
+    the width reached, whether the object came up and how far it moved in the hand.
+
+    \b
+    Examples:
+      annotator replay labels/ --object box --grasp 3 --gif box3.gif
+      annotator replay labels/ --object mug --grasp 17 --gui
+    """
+    from annotator.cell import build_cell
+    from annotator.dataset import SchemaError, load_labels
+    from annotator.objects import (
+        ObjectDiscoveryError,
+        ObjectError,
+        create_body,
+        discover_objects,
+        load_object,
+    )
+    from annotator.render import write_gif
+    from annotator.tools.replay import (
+        default_camera,
+        frames_every,
+        label_row,
+        plan_replay,
+        replay,
+        replay_world,
+    )
+
+    config = load_config(config_file)
+    try:
+        row = label_row(load_labels(labels), object_id, grasp_id)
+    except (FileNotFoundError, SchemaError, KeyError) as exc:
+        raise click.UsageError(f"{labels}: {exc.args[0] if exc.args else exc}") from exc
+    try:
+        sources = {s.object_id: s for s in discover_objects(objects_dir)}
+    except ObjectDiscoveryError as exc:
+        raise click.UsageError(f"--objects: {exc}") from exc
+    if object_id not in sources:
+        raise click.UsageError(f"object {object_id!r} is not in {objects_dir} (pass --objects DIR)")
+    try:
+        model = load_object(sources[object_id], config.objects, scale=float(row["object_scale"]))
+    except ObjectError as exc:
+        raise click.UsageError(f"{object_id}: {exc}") from exc
+    if model.mesh_sha256 != row["mesh_sha256"]:
+        click.echo(
+            f"warning: {sources[object_id].path} changed since it was labelled (mesh hash differs)", err=True
+        )
+
+    width_mm = float(row["width"]) * 1000
+    click.echo(f"label: {object_id} #{grasp_id}: {row['outcome']}, width {width_mm:.1f} mm")
+    with replay_world(model, config, gui=gui) as world:  # a light object at its finer time step
+        cell = build_cell(world, config.cell, gripper=config.gripper, kinect_config=config.kinect)
+        obj = create_body(world.client, model)
+        plan = plan_replay(cell, model, obj, row, config)
+        click.echo(plan.note)
+        if not plan.reach.reachable:
+            click.echo(f"not reachable: {plan.reach.reason} ({plan.reach.detail})")
+            return
+        click.echo(f"arm: pregrasp {_fmt_q(plan.reach.q_pregrasp)} -> grasp {_fmt_q(plan.reach.q_grasp)}")
+        camera = default_camera(plan.T_world_obj, size) if gif_path else None
+        every = frames_every(world.dt)
+        result = replay(cell, obj, plan, config, camera=camera, frame_every=every, realtime=gui)
+        if result.approach_contacts:
+            click.echo("contact during the approach: " + "; ".join(result.approach_contacts))
+        else:
+            click.echo("contact during the approach: none")
+        lift_mm = config.protocol.lift_height * 1000
+        pads = f"{result.pads_touching} of 2 pads on the object"
+        click.echo(f"closed: width {result.closed_width * 1000:.1f} mm, {pads}")
+        came_up = "came up" if result.lifted(config.protocol.lift_height) else "did not come up"
+        click.echo(
+            f"lift: the object {came_up} ({result.rise * 1000:.0f} of {lift_mm:.0f} mm) and moved "
+            f"{result.slip * 1000:.1f} mm in the hand; {result.pads_at_end} of 2 pads on it"
+        )
+        held = result.held(config.protocol.lift_height, config.protocol.max_slip)
+        click.echo(f"verdict: {'held' if held else 'not held'} (the label says {row['outcome']})")
+        if gif_path:
+            write_gif(result.frames, gif_path, fps=1.0 / (every * world.dt))
+            click.echo(f"gif: {len(result.frames)} frames {size[0]}x{size[1]} -> {gif_path}")
+        if gui:
+            _hold_window(world, hold)
+
+
+def _hold_window(world, seconds: float | None) -> None:
+    """Keep the GUI open (stepping, real time) until it is closed or ``seconds`` pass."""
+    import time
+
+    from annotator.sim import pb
+
+    start = time.monotonic()
+    while seconds is None or time.monotonic() - start < seconds:
+        try:
+            pb.stepSimulation(physicsClientId=world.client)
+        except pb.error:
+            return
+        time.sleep(world.dt)

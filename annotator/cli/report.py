@@ -1,0 +1,49 @@
+"""``annotator report``: a self-contained HTML report of a labels folder."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION, setup_logging
+
+
+@click.command("report", context_settings=CONTEXT)
+@LABELS
+@click.option(
+    "--html",
+    "html_path",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The report to write (one file; open it in any browser, offline).",
+)
+@OBJECTS_OPTION
+@click.option(
+    "--pictures",
+    "picture_objects",
+    default=3,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Objects shown with pictures (those with the most successes); 0 for none.",
+)
+@VERBOSE_OPTION
+def report_command(labels, html_path, objects_dir, picture_objects, verbose):
+    """A dataset at a glance: one self-contained HTML file (pictures embedded, no network).
+
+    The run's configuration and versions (from _manifest.json), objects that failed and why,
+    per-object success rates and outcome mix with mass and collision error, width and score
+    histograms, the distribution of approach directions and pictures of a few objects (they
+    need the meshes: --objects, the folder the labels were made from).
+
+    \b
+    Example:
+      annotator report labels/ --objects objects/ --html report.html
+    """
+    setup_logging(False, verbose, default=logging.WARNING)
+    from annotator.tools.report import report
+
+    result = report(labels, html_path, objects_dir, picture_objects)
+    counts = f"{result.n_objects} objects, {result.n_grasps} grasps, {result.pictures} pictures"
+    click.echo(f"wrote {result.path}: {counts}")

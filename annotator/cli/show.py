@@ -1,0 +1,60 @@
+"""``annotator show``: pictures of labelled grasps."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, OUTCOMES, VERBOSE_OPTION, setup_logging
+
+
+@click.command("show", context_settings=CONTEXT)
+@LABELS
+@click.option("--object", "object_id", required=True, help="Object id, as in the labels' object_id column.")
+@click.option(
+    "--png", "png", required=True, type=click.Path(path_type=Path, dir_okay=False), help="Sheet to write."
+)
+@click.option(
+    "--outcome",
+    "outcomes",
+    multiple=True,
+    type=click.Choice(OUTCOMES),
+    help="Only grasps with this outcome (repeat for several).",
+)
+@click.option(
+    "--grasp", "grasp_ids", multiple=True, type=int, help="These grasp ids instead of a random choice."
+)
+@click.option(
+    "--n", "n", default=8, show_default=True, type=click.IntRange(min=1), help="Grasps on the sheet."
+)
+@click.option("--seed", default=0, show_default=True, help="Seed of the random choice of grasps.")
+@click.option(
+    "--overview",
+    "overview_png",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="Overview picture to write [default: <png>-overview.png].",
+)
+@OBJECTS_OPTION
+@VERBOSE_OPTION
+def show_command(labels, object_id, png, outcomes, grasp_ids, n, seed, overview_png, objects_dir, verbose):
+    """Pictures of labelled grasps: the RG2 at each label's pose and width around the object.
+
+    Writes a sheet of N grasps (front and side view each, titled with grasp id, outcome and
+    width) and an overview of every grasp of the object as a small gripper glyph coloured by
+    outcome (parts behind the object faint).
+
+    \b
+    Example:
+      annotator show labels/ --object mug --objects objects/ --png mug.png
+      annotator show labels/ --object mug --objects objects/ --outcome success --n 4 --png ok.png
+    """
+    setup_logging(False, verbose, default=logging.WARNING)
+    from annotator.tools.show import show
+
+    result = show(
+        labels, object_id, png, n, seed, tuple(outcomes), tuple(grasp_ids), objects_dir, overview_png
+    )
+    click.echo(f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}")
