@@ -469,26 +469,3 @@ def test_planning_is_lazy(objs):
     assert (first[3].object_id, first[3].start) == ("box", 500)
     assert peak < 1_000_000, peak  # bytes: nothing of size N
     assert isinstance(first[0], Span)
-
-
-def test_a_killed_executors_manager_thread_error_is_no_traceback(monkeypatch):
-    """On SIGTERM loky's manager thread can raise while its workers are killed (a KeyError for a
-    task it dropped): that thread's error is logged, not handed to the thread excepthook (which
-    prints a traceback); another thread's still is."""
-    import threading
-
-    from annotator.pipeline.run import _quiet_after_kill
-
-    handled: list[str] = []
-    monkeypatch.setattr(threading, "excepthook", lambda args: handled.append(args.thread.name))
-
-    def fail() -> None:
-        raise KeyError(4)
-
-    manager = threading.Thread(target=fail, name="ExecutorManagerThread")
-    other = threading.Thread(target=fail, name="other")
-    _quiet_after_kill(manager)
-    for thread in (manager, other):
-        thread.start()
-        thread.join()
-    assert handled == ["other"]

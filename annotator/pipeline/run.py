@@ -19,7 +19,6 @@ import os
 import shutil
 import signal
 import tempfile
-import threading
 import time
 import weakref
 from collections.abc import Callable, Iterator
@@ -45,6 +44,7 @@ from annotator.pipeline.plan import (
     plan_spans,
     spans_to_do,
 )
+from annotator.pipeline.progress import Progress
 from annotator.pipeline.source import GivenCandidates, SampledCandidates
 from annotator.pipeline.summary import ObjectStats, Summary, format_summary
 from annotator.pipeline.worker import CellOptions, Span, SpanResult, SpanTask, WorkerStats, label_span
@@ -116,8 +116,14 @@ class Workers:
     ``Parallel`` does not): the runner retries exactly those tasks, alone.
     """
 
-    def __init__(self, options: RunOptions) -> None:
+    # After an interrupt, how long (s) the local workers get to end themselves (they poll for the
+    # stop request every PARENT_CHECK_SECONDS) before the pool is shut down by force.
+    STOP_SECONDS = 3.0
+
+    def __init__(self, options: RunOptions, status_dir: str | None = None) -> None:
         self.client = None
+        self.status_dir = status_dir
+        self._futures: weakref.WeakSet[cf.Future] = weakref.WeakSet()
         self.count = options.workers
         if options.scheduler:
             try:
@@ -148,7 +154,9 @@ class Workers:
         return self._executor
 
     def submit(self, task: SpanTask, fn: Callable[[SpanTask], SpanResult] = label_span) -> cf.Future:
-        return self.executor().submit(fn, task)
+        future = self.executor().submit(fn, task)
+        self._futures.add(future)
+        return future
 
     def restart(self) -> None:
         """After a worker died: a fresh pool (loky) for what follows."""
@@ -164,37 +172,22 @@ class Workers:
             with contextlib.suppress(Exception):
                 self.client.close()
         elif kill and self._executor is not None:
-            _quiet_after_kill(getattr(self._executor, "_executor_manager_thread", None))
-            with contextlib.suppress(Exception):
-                self._executor.shutdown(wait=False, kill_workers=True)
+            self._stop_local()
 
-
-# The manager threads of the loky executors this process killed, and the thread excepthook that
-# was in place before ours (see _quiet_after_kill).
-_KILLED_MANAGERS: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
-_previous_excepthook = threading.excepthook
-
-
-def _quiet_after_kill(manager: threading.Thread | None) -> None:
-    """Log, instead of printing a traceback, what the manager thread of a killed loky executor
-    raises: while its workers are killed it can meet a result of a task it already dropped
-    (KeyError in ``pending_work_items``; seen on SIGTERM in 2 of 5 runs of
-    tests/test_reliability.py::test_sigterm_stops_like_ctrl_c_and_the_run_resumes with two other
-    test files). The run is over by then and nothing is lost; any other thread's error keeps
-    the handling it had."""
-    global _previous_excepthook
-    if manager is None:
-        return
-    if threading.excepthook is not _quiet_killed_managers:
-        _previous_excepthook, threading.excepthook = threading.excepthook, _quiet_killed_managers
-    _KILLED_MANAGERS.add(manager)
-
-
-def _quiet_killed_managers(args: threading.ExceptHookArgs) -> None:
-    if args.thread in _KILLED_MANAGERS:
-        log.debug("the killed executor's manager thread: %s: %s", args.exc_type.__name__, args.exc_value)
-        return
-    _previous_excepthook(args)
+    def _stop_local(self) -> None:
+        """Interrupted: the workers end their own processes on the stop request (the pool sees
+        them gone and fails what was out), then the pool is shut down. Only if they do not end in
+        time is it shut down killing them, where loky's manager thread can meet a task it has
+        already dropped and print a traceback."""
+        executor, self._executor = self._executor, None
+        out = [f for f in self._futures if not f.done()]
+        for future in out:
+            future.cancel()
+        status.request_stop(self.status_dir)
+        _, not_done = cf.wait(out, timeout=self.STOP_SECONDS)
+        log.debug("stopping: %d of %d spans out ended by themselves", len(out) - len(not_done), len(out))
+        with contextlib.suppress(Exception):
+            executor.shutdown(wait=False, kill_workers=bool(not_done))
 
 
 def execute(
@@ -440,10 +433,8 @@ def _run(
     if total == 0:
         return
 
-    workers = Workers(options)
-    from tqdm.auto import tqdm
-
-    bar = tqdm(total=total, unit="grasp", disable=options.quiet, smoothing=0.1, dynamic_ncols=True)
+    workers = Workers(options, status_dir)
+    progress = Progress(total, len(planned), quiet=options.quiet)
     object_seconds: dict[str, float] = {}
     versions = store.spec.versions
     cell = options.cell_options()
@@ -466,7 +457,7 @@ def _run(
 
     def on_result(result: SpanResult) -> None:
         span, oid = result.span, result.span.object_id
-        bar.update(span.size)
+        progress.advance(span.size)
         summary.peak_rss_mb[result.stats.pid] = result.stats.peak_rss_mb
         summary.worker_seconds += result.stats.seconds
         if oid in summary.failed:  # another span of it failed first: the object is failed
@@ -476,6 +467,7 @@ def _run(
             store.fail_object(oid, result.error)
             named = result.error.startswith(f"{oid}:")  # an ObjectError names its object
             log.error("%s", result.error if named else f"{oid}: {result.error}")
+            progress.object_done(oid, "failed")
             return
         df = result.rows
         object_seconds[oid] = object_seconds.get(oid, 0.0) + result.stats.seconds
@@ -495,12 +487,13 @@ def _run(
         remaining[oid] -= 1
         if remaining[oid] == 0:
             stats = store.finish_object(oid, digests[oid])
-            summary.done[oid] = ObjectStats.from_json(stats, object_seconds[oid])
+            summary.done[oid] = done = ObjectStats.from_json(stats, object_seconds[oid])
+            progress.object_done(oid, done.line())
 
     def on_tick() -> None:
-        if not options.quiet:
+        if progress.bar is not None:
             busy = status.read(status_dir, older_than=STATUS_AFTER)
-            bar.set_postfix_str("; ".join(busy)[:80] if busy else "", refresh=True)
+            progress.status("; ".join(busy) if busy else "")
 
     interrupted = True
     try:
@@ -512,7 +505,7 @@ def _run(
         log.info("interrupted: %d candidates written this run", summary.candidates)
         raise
     finally:
-        bar.close()
+        progress.close()
         workers.close(kill=interrupted)
 
 

@@ -27,6 +27,13 @@ class ObjectStats:
         reachable = None if reach is None else int(reach)
         return cls(n, successes, score, dict(stats["outcomes"]), seconds, reachable)
 
+    def line(self) -> str:
+        """One line of figures: ``500 labels, 41.2 % held, 12.3 s``."""
+        rate = self.successes / self.n if self.n else 0.0
+        when = f", {self.seconds:.1f} s" if self.seconds is not None else ""
+        reach = "" if self.reachable_successes is None else f" ({self.reachable_successes} reachable)"
+        return f"{self.n} labels, {rate:.1%} held{reach}{when}"
+
 
 @dataclass
 class Summary:

@@ -51,9 +51,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-# How often (s) a local worker checks that the process that started it is still alive: a worker
-# outlives a killed main process by at most this long (plus the span it is in).
-PARENT_CHECK_SECONDS = 1.0
+# How often (s) a local worker checks that the process that started it is still alive and has not
+# asked it to stop: a worker outlives a killed or interrupted main process by at most this long.
+PARENT_CHECK_SECONDS = 0.2
 # Objects a worker keeps in memory (model and sampled candidates, not the body) after it moves to
 # another one, up to about this many bytes in all. The plan gives each object's first span a few
 # objects ahead of the rest of it (annotator.pipeline.plan.FIRST_SPANS_AHEAD), so a worker comes
@@ -236,6 +236,7 @@ class WorkerState:
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
         self._watched_parent: int | None = None
+        self._stop_folder: str | None = None
         self._versions_ok: dict[str, str] | None = None
 
     # --- the world ------------------------------------------------------------------------------
@@ -361,7 +362,7 @@ class WorkerState:
     def label(self, task: SpanTask) -> SpanResult:
         """Labels of one span, or its object's one-line error."""
         t0 = time.perf_counter()
-        self._watch_parent(task.parent_pid)
+        self._watch_parent(task.parent_pid, task.status_dir)
         span = task.span
         try:
             self._check_versions(task.versions)
@@ -431,8 +432,10 @@ class WorkerState:
             raise ObjectError(f"worker on {socket.gethostname()} has other versions: {', '.join(diffs)}")
         self._versions_ok = expected
 
-    def _watch_parent(self, parent_pid: int | None) -> None:
-        """Exit this worker soon after the local main process is gone (killed, even by SIGKILL)."""
+    def _watch_parent(self, parent_pid: int | None, status_dir: str | None) -> None:
+        """End this worker's process soon after the local main process is gone (killed, even by
+        SIGKILL) or has asked its workers to stop (:func:`status.request_stop`, on Ctrl-C/SIGTERM)."""
+        self._stop_folder = status_dir  # the current run's; a reused worker serves several runs
         if parent_pid is None or self._watched_parent == parent_pid:
             return
         self._watched_parent = parent_pid
@@ -440,7 +443,7 @@ class WorkerState:
         def watch() -> None:
             while True:
                 time.sleep(PARENT_CHECK_SECONDS)
-                if os.getppid() != parent_pid:
+                if os.getppid() != parent_pid or status.stop_requested(self._stop_folder):
                     os._exit(0)
 
         threading.Thread(target=watch, name="rg2-parent-watch", daemon=True).start()
