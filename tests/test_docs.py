@@ -262,7 +262,8 @@ def _annotate(folder: Path, *args: str) -> None:
     exe = shutil.which("annotate", path=str(bindir)) or shutil.which("annotate")
     assert exe, "the annotate console script is not installed (pip install -e '.[test]')"
     proc = subprocess.run([exe, *args, "--quiet"], cwd=folder, capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, f"annotate {' '.join(args)} exited {proc.returncode}:\n{proc.stdout}{proc.stderr}"
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 0, f"annotate {' '.join(args)} exited {proc.returncode}:\n{output}"
 
 
 @pytest.fixture(scope="module")
