@@ -95,70 +95,27 @@ class _Section:
 
 @dataclass(frozen=True)
 class PhysicsConfig(_Section):
-    """World-level simulation settings."""
+    """World-level simulation settings (docs/protocol.md, "Physics")."""
 
-    # 1/240 s is PyBullet's default step and VGN's; contact-rich grasping is stable there with
-    # enough solver iterations (bullet3 #1936).
+    # s; PyBullet's default step and VGN's; contacts are stable there with enough iterations (bullet3 #1936).
     time_step: float = _field(1.0 / 240.0, gt=0.0, le=0.1)
-    # Solver iterations of the annotation worlds: the floating RG2 with its passive links kinematic
-    # (GripperConfig.passive_links), 3 gear constraints instead of 5. bench/fidelity.py, seed 0,
-    # 1,100 candidates, against the model before issue 12 (150 iterations, whole linkage):
-    #   iterations   success agrees   vs thorough (386 simulated)   widths vs thorough > 0.2 mm
-    #   before 150        --              96.6 %                       68 of 357 (max 2.2 mm)
-    #   100             99.1 %            96.1 %                       64 of 355 (max 3.8 mm)
-    #   110             99.4 %            96.4 %                       50 of 356
-    #   120             99.6 %            96.6 %                       48 of 357 (max 1.4 mm)
-    #   130             99.3 %            97.2 %                       43 of 358
-    # Widths against the model before: 24 of 369 beyond 0.2 mm, but the model before is itself 68
-    # beyond the reference, 120 is 48. At 50 iterations the 50 g box of tests/test_rg2.py slipped
-    # 27 mm in the shake with the followers 1.4 deg off; at 120 they stay within 1 deg
-    # (tests/test_rg2.py). A step at 120 costs 0.81 of the whole linkage's at 150 (bench/peers.py).
+    # Annotation worlds (the RG2's passive links kinematic): 120 keep the followers within 1 deg.
+    # see docs/decisions/0002-annotation-gripper-and-solver-iterations.md
     solver_iterations: int = _field(120, ge=1, le=100_000)
-    # Worlds that simulate the whole RG2 linkage (the arm in the cell and in replay, the seed scene):
-    # PyBullet's default 50 let its five gear constraints buckle by 4-5 deg under a 40 N squeeze
-    # (bullet3 #2035); 150 keep them within 1 deg (tests/test_rg2.py).
+    # Worlds with the whole RG2 linkage (arm, replay, scene): at 50 its gears buckled 4-5 deg (bullet3 #2035).
+    # see docs/decisions/0002-annotation-gripper-and-solver-iterations.md
     linkage_solver_iterations: int = _field(150, ge=1, le=100_000)
-    # Inner iterations for the non-contact rows (gear constraints, motors, limits) in each solver
-    # iteration (PyBullet's numNonContactInnerIterations; its default is 1).
+    # PyBullet's numNonContactInnerIterations (default 1): gear constraints, motors, limits per iteration.
     non_contact_iterations: int = _field(1, ge=1, le=1_000)
     gravity: float = -9.81  # m/s^2, standard gravity
-    # Share of a contact's penetration corrected per step. With Bullet's default (0.2) a pad
-    # squeezing 40 N on the edge of an 8 mm plate sank 6 mm into it over a slow close, so thin
-    # objects got widths far below their thickness; 0.8 keeps it under 1 mm (bench/fidelity.py,
-    # tests/test_protocol.py::test_thin_plate_width_is_its_thickness).
+    # Share of a contact's penetration corrected per step; Bullet's 0.2 let a pad sink 6 mm into a plate.
+    # see docs/decisions/0001-contact-erp.md
     contact_erp: float = _field(0.8, gt=0.0, le=1.0)
-    # Distance (m) within which Bullet keeps a contact point in a manifold and merges a new point
-    # into an old one, and makes speculative contacts between convex hulls (gContactBreakingThreshold,
-    # PyBullet's default 0.02; one per process, so World.restore_state sets it again). Measured for
-    # issue 12 and left at 0.02: 10 mm makes a step 7 % cheaper and keeps the sample objects' labels
-    # (bench/fidelity.py seeds 0 and 1: success vs 0.02 99.6 / 99.5 %, widths within 0.13 mm; vs
-    # the thorough reference 96.6 / 97.5 % against 96.6 / 96.7 %), but thin plates held face to face
-    # at 1/240 s slip out: an 80 g domino (6.35 mm) held 42 of 53 grasps against 53 at 0.02 and
-    # 1/960 s, a 5 mm disc 40 of 47 (python bench/light_threshold.py --grams 40 80 with the
-    # threshold changed; at 0.02 all held). The sample objects' thin plate is light, so it runs at
-    # 1/480 s and fidelity.py did not see it.
+    # m, gContactBreakingThreshold (PyBullet's 0.02); kept per process, so each world sets it again.
+    # see docs/decisions/0007-contact-breaking-threshold.md
     contact_breaking_threshold: float = _field(0.02, gt=0.0, le=1.0)
-    # Objects lighter than this are simulated with ceil(sqrt(light_object_mass / mass)) physics
-    # steps per time_step (annotator.objects.contact_substeps). Squeezed between the heavy
-    # (armature-loaded) fingers, a light object's contacts are too stiff for its mass at 1/240 s:
-    # a 4 g, 6.35 mm plate held 2 of 49 face-to-face grasps with the pads 3.9 mm deep; at 1/760 s
-    # 49 of 49, 0.15 mm. Neither contact stiffness/damping (k 3e4..1e6 N/m), CCD (swept sphere
-    # 2 mm), 300 solver iterations, the Dantzig or PGS solvers, a global CFM nor a friction anchor
-    # helped; a 40 g plate holds 48 of 49 at 1/240 s with the pads 0.1 mm deep, hence 40 g.
-    # Re-derived for the annotation gripper (python bench/light_threshold.py: a domino, a 40 mm
-    # cube, a rod and a disc, seeds 0 and 1, 391 simulated candidates per mass, 1/240 s against
-    # 1/960 s): success agreement 96.7 % at 32 g with 29 widths beyond 0.2 mm, 98.7 % and 10 at
-    # 40 g, 99.0 % and 2 at 80 g (the control); the domino at 32 g lost 7 of 103 grasps. 40 g stays.
-    # Over 15 shapes (--shapes all: plates, boxes, cubes of 30-60 mm, cylinders, a sphere, a bar,
-    # the sample mug and banana; ~1,250 simulated candidates per mass) widths move on wide grasps
-    # too: beyond 0.2 mm 161 at 32 g (a 60 x 40 x 20 mm box 10, a 40 mm can 11, a 60 mm cube 8),
-    # 82 at 40 g, 17 at 80 g; success agrees 97.4 / 98.9 / 99.0 %. No rule by shape or grasp width
-    # lets a 32 g object through at 1/240 s, and 40 g is the lowest boundary the data support.
-    # A step of time_step * sqrt(m / 40 g) instead of the next whole fraction (1/246 s for 38 g, not
-    # 1/480) matches the boundary's own quality over the 15 shapes (success agrees 98.4-99.0 % at
-    # 16-36 g, 79-106 widths beyond 0.2 mm; 40 g at 1/240 s: 98.9 %, 82) and takes 18 % of the steps
-    # off fidelity.py's trials, but the sample 8 mm plate (38 g) then closes to 7.5-7.8 mm instead
-    # of 7.94-8.0 (54 of 357 widths beyond 0.2 mm of the thorough reference, against 30): not kept.
+    # kg; lighter objects take ceil(sqrt(light_object_mass / m)) steps per time_step (contact_substeps).
+    # see docs/decisions/0003-light-objects.md
     light_object_mass: float = _field(0.04, gt=0.0)  # kg
 
     def whole_linkage(self) -> PhysicsConfig:
@@ -298,73 +255,57 @@ class ObjectConfig(_Section):
 
 @dataclass(frozen=True)
 class SamplerConfig(_Section):
-    """Antipodal candidate sampling (owned by annotator/sampler.py)."""
+    """Antipodal candidate sampling (annotator/sampler.py; docs/protocol.md, "Candidates")."""
 
-    # Coulomb friction coefficient used for the friction-cone test; below the simulated 1.0 so
-    # that sampled candidates keep a margin.
+    # Coulomb coefficient of the friction-cone test; below the simulated 1.0 so pairs keep a margin.
+    # see docs/decisions/0012-sampler-constants.md
     friction_coefficient: float = _field(0.5, ge=0.0)
     # Share of candidates sampled without the antipodal test (informative negatives).
     random_fraction: float = _field(0.2, ge=0.0, le=1.0)
-    # Rotations tried about the closing axis for each antipodal pair: 8 gives approach
-    # directions 45 deg apart, an even cover of the circle of approaches (a chosen value,
-    # not a measured optimum).
+    # Rotations about the closing axis per pair: approaches 45 deg apart (chosen, not a measured optimum).
     n_rotations: int = _field(8, ge=1)
-    # Clearance subtracted from the gripper's maximum opening before a pair is accepted: the
-    # open pads must pass the surface on the approach, 5 mm per side (RG2 stroke 0..110 mm).
+    # m off the stroke before a pair is accepted: the open pads pass the surface, 5 mm per side.
     width_margin: float = _field(0.010, ge=0.0)  # m
-    # Chords shorter than this are numerical self-hits at creases or duplicate faces, not
-    # graspable walls (the thinnest real household wall, a plastic lid, is ~ 1 mm).
+    # m; shorter chords are self-hits at creases or duplicate faces (a plastic lid's wall is ~1 mm).
     min_width: float = _field(0.0005, ge=0.0)  # m
-    # Ray origins are moved this far along the ray so the source face itself is not hit; far
-    # above float64 noise at metre scale, far below any feature the pads can feel.
+    # m a ray origin moves along the ray so its own face is not hit: far above float64 noise at 1 m.
     ray_offset: float = _field(1e-6, gt=0.0)  # m
-    # Surface points drawn per wanted antipodal candidate in one round. Measured on primitives
-    # (box, sphere, cylinder, torus, thin-walled tube) 90-100 % pass; 3x leaves room for shapes
-    # where most points have no opposite wall within the stroke before a second round is needed.
+    # Surface points drawn per wanted pair per round (90-100 % pass on primitives).
+    # see docs/decisions/0012-sampler-constants.md
     oversample: int = _field(3, ge=1)
-    # Rounds of drawing (each doubling the draw) before scarce pairs are topped up with the
-    # less selective kind; bounds the time spent on objects that have few or no pairs.
+    # Rounds of drawing (each doubling the draw) before scarce pairs are topped up with less selective rows.
     max_rounds: int = _field(3, ge=1)
 
 
 @dataclass(frozen=True)
 class ProtocolConfig(_Section):
-    """The grasp trial: collision check, close, lift, shake (annotator/trial.py)."""
+    """The grasp trial: collision check, close, lift, shake (annotator/trial.py; docs/protocol.md)."""
 
-    # Kinematic collision check: any gripper-object distance below this (m) is a collision.
-    # 0 means touching counts; the sampler leaves pregrasp_clearance on each side of the pads.
+    # m; any gripper-object distance below this in the kinematic checks is a collision (0: touching).
     collision_margin: float = _field(0.0, ge=0.0)
     pregrasp_clearance: float = _field(0.01, ge=0.0)  # m per side: the gripper opens to width + 2 x this
     approach_distance: float = _field(0.10, ge=0.0)  # m, straight-line approach checked behind the grasp pose
     approach_step: float = _field(0.01, gt=0.0)  # m, < the 11.45 mm pad thickness so no thin wall is skipped
-    # The close starts with the pads this far (m per side) outside the expected chord instead of
-    # at the open width: the skipped travel is through free space (checked kinematically), and
-    # 3 mm leaves the closing speed reached before contact (bench/fidelity.py).
+    # m per side outside the expected chord where the close starts (free-space travel skipped).
+    # see docs/decisions/0005-close-from-outside-the-chord.md
     preclose_gap: float = _field(0.003, ge=0.0)
     # GraspDataGen closes for 1 s; the close ends earlier as soon as the fingers stall.
     close_timeout: float = _field(1.0, gt=0.0)  # s
-    lift_height: float = _field(0.10, ge=0.0)  # m, the robot issue's 10 cm lift
-    lift_duration: float = _field(
-        0.2, gt=0.0
-    )  # s: 0.5 m/s average, 0.75 m/s peak (UR3 tool speed limit ~1 m/s)
-    # The shake: three motions, each translating along and rotating about one gripper axis at
-    # once, one 0.2 s sine period each: peak 0.03 m x (2 pi / 0.2 s)^2 = 30 m/s^2 (3 g; GraspDataGen
-    # tugs at 1 g) and 0.35 rad x (2 pi / 0.2 s)^2 = 345 rad/s^2. Chosen with bench/fidelity.py
-    # against the thorough reference (see AnnotatorConfig.thorough), agreement on the 393
-    # simulated candidates of seed 0: six sequential 0.35 s motions at 1 g (the first default)
-    # 92.6 % at 654 steps per trial, paired 0.35 s periods 92.4 %, paired 0.25 s 95.9 %, these
-    # 0.2 s periods 96.2 % (270 steps; 96.7 % at 244 with preclose_gap).
+    lift_height: float = _field(0.10, ge=0.0)  # m, a 10 cm lift
+    # s: 0.5 m/s on average, 0.75 m/s at peak (the UR3's tool speed is ~1 m/s).
+    # see docs/decisions/0004-short-paired-shake.md
+    lift_duration: float = _field(0.2, gt=0.0)
+    # The shake: one 0.2 s sine period per paired motion, peak 3 g and 345 rad/s^2.
+    # see docs/decisions/0004-short-paired-shake.md
     shake_amplitude: float = _field(0.03, ge=0.0)  # m, "a shake of a few centimetres"
     shake_angle: float = _field(0.35, ge=0.0)  # rad (20 deg), "tens of degrees"
     shake_duration: float = _field(0.6, gt=0.0)  # s, all motions
     shake_cycles: int = _field(1, ge=1)  # sine periods per motion
     shake_paired: bool = True  # translate along and rotate about each axis at once (3 motions, not 6)
-    # Seconds held still after the shake before judging. 0: judged as the last motion ends. A
-    # 0.05 s settle (12 steps, 5 % of a trial) changed none of the 386 simulated outcomes of
-    # bench/fidelity.py seed 0 (the thorough reference keeps its 0.05 s).
+    # s held still after the shake before the verdict; 0: judged as the last motion ends.
+    # see docs/decisions/0004-short-paired-shake.md
     settle_time: float = _field(0.0, ge=0.0)
-    # Held = both pads touch and the object moved less than this in the hand (m); ACRONYM and
-    # GraspDataGen judge contact only, the slip bound catches an object hanging by one edge.
+    # m; held = both pads touch and the object moved less than this in the hand (catches one-edge hangs).
     max_slip: float = _field(0.02, gt=0.0)
     lost_distance: float = _field(0.03, gt=0.0)  # m: early exit once the object is this far from its grasp
     check_every: int = _field(6, ge=1)  # steps between loss checks during lift and shake (25 ms)
@@ -374,9 +315,8 @@ class ProtocolConfig(_Section):
 class RobustConfig(_Section):
     """Perturbations of the K - 1 extra trials of ``--trials K`` (trial 0 is unperturbed).
 
-    Dex-Net 2.0's robust metric samples the gripper pose with sigma 5 mm and friction with sigma
-    0.1; ours models a calibrated UR3 (repeatability +-0.1 mm [UR datasheet]) seen by a depth
-    camera, whose object pose error is a few millimetres and degrees.
+    A calibrated UR3 (repeatability +-0.1 mm, docs/robots.md) seen by a depth camera, whose object
+    pose error is a few millimetres and degrees: see docs/decisions/0011-robust-perturbations.md.
     """
 
     position_sigma: float = _field(0.002, ge=0.0)  # m, TCP position noise (Gaussian, per axis)
@@ -391,8 +331,8 @@ class RobustConfig(_Section):
 class CellConfig(_Section):
     """The seed's robot cell (annotator/cell): table, UR3 mount and Kinect v2, in the world frame.
 
-    Positions are metres, angles degrees. The seed script's numbers (../shared/ROBOT_FACTS.md
-    "Seed scene"): UR3 at the origin, table/table.urdf at (0.5, 0, -0.65), Kinect at (0.4, 0, 1.57).
+    Positions are metres, angles degrees; the seed scene's numbers and their sources are in
+    docs/robots.md ("The seed scene"), the cell's behaviour in docs/cell.md.
     """
 
     table_urdf: str = _field("table/table.urdf")  # from the installed pybullet_data, as the seed
@@ -407,84 +347,54 @@ class CellConfig(_Section):
     kinect_x: float = _field(0.4)
     kinect_y: float = _field(0.0)
     kinect_z: float = _field(1.57)
-    # The seed's Kinect orientation is not recorded (ROBOT_FACTS gives the position only); chosen:
-    # straight down (pitch 90 deg turns the body's +x, its viewing axis, to world -z), so the
-    # 70.6 x 60 deg depth frustum covers the table top in front of the arm from 1.6 m above it.
+    # Not given by the seed; chosen: straight down (the body's +x, its view, to world -z).
+    # see docs/decisions/0014-kinect-views.md
     kinect_pitch: float = _field(90.0, ge=-90.0, le=90.0)  # deg about world y
     kinect_yaw: float = _field(0.0)  # deg about world z, applied after the pitch
-    # Placements (annotator/cell/placement.py): each object rests on the table top in its stable
-    # poses (trimesh's compute_stable_poses), its centre of mass over this point in front of the
-    # mount: 0.35 m out is mid-reach for the UR3 (the closed-form IK reaches a top-down TCP at the
-    # table out to 0.52 m; nearer than ~0.2 m the wrist centre runs into the d4 cylinder).
+    # m, world: where a placed object's centre of mass rests, mid-reach for the UR3.
+    # see docs/decisions/0013-placements.md
     placement_x: float = _field(0.35)  # m, world
     placement_y: float = _field(0.0)  # m, world
     placements_per_object: int = _field(3, ge=1)  # the most probable few stable poses
-    # Stable poses whose "up" directions in the object frame are linked by a chain of neighbours
-    # each within this angle are one placement (a cylinder's hull gives one pose per side facet,
-    # 7.5 deg apart on the can: the whole ring is one placement, lying): probabilities add.
+    # Stable poses whose "up" directions chain within this angle are one placement (probabilities add).
+    # see docs/decisions/0013-placements.md
     placement_merge_angle: float = _field(20.0, ge=0.0, le=180.0)  # deg
     placement_min_probability: float = _field(0.02, ge=0.0, le=1.0)  # rarer poses are not used
-    # annotate --cell: each placement settles under gravity on the table before its trials (the
-    # settled pose is the label's obj_x..obj_qw). trimesh's stable poses come from the mesh's hull
-    # about the mesh's centre of mass; the simulated body (convex parts) can still tip or roll: of
-    # the sample objects, the bowl's third pose moved 31 mm in 1 s, every other pose < 0.1 mm. A
-    # pose that moves more than placement_max_drift while settling is skipped for the next one.
+    # Each placement settles under gravity this long; its settled pose is the label's obj_x..obj_qw.
     placement_settle_time: float = _field(0.5, ge=0.0)  # s
+    # A pose that moves more than this while settling is skipped for the next one.
     placement_max_drift: float = _field(0.005, gt=0.0)  # m, of any point of the object's bounding box
-    # annotate --cell candidates (annotator/cell/candidates.py), sampled per placement knowing the
-    # table. How the N rows of an object are shared among its placements: "probability" in
-    # proportion to their stable-pose probabilities (renormalised over the placements kept), so
-    # the labels meet each placement as often as an object dropped on the table lands in it;
-    # "even": the same share each.
+    # "probability": an object's rows shared by stable-pose probability; "even": the same share each.
+    # see docs/decisions/0010-cell-candidates.md
     candidates_per_placement: str = _field("probability", choices=("probability", "even"))
-    # Approach directions within this angle of straight down. With the floating sampler's
-    # directions, every cell success approached less than 75 deg from vertical and 168 of the 220
-    # floating successes that hit the table came in lower than 60 deg or with the TCP < 15 mm up.
-    # Sample objects, --n 100, held (reachable) for a cone of 55 / 65 / 75 deg: 374 (316) / 360
-    # (306) / 350 (292), of which reachable more than 45 deg off vertical 16 / 19 / 28: a middle
-    # value that keeps side grasps of tall objects (a can, a bottle) at little cost.
+    # Approach directions within this angle of straight down.
+    # see docs/decisions/0010-cell-candidates.md
     approach_cone: float = _field(65.0, gt=0.0, le=90.0)  # deg from vertical
-    # An antipodal pair's closing axis is the first contact's inward normal turned towards the
-    # horizontal by a uniform angle up to this (never past level); the usual antipodal test then
-    # runs on it. A level axis admits a grasp from straight above; the sample ring's tube (16 faces,
-    # none vertical: normals 11.2 deg off horizontal at best) had no pair within 10 deg of level
-    # without it. Below the sampler's friction cone (atan 0.5 = 26.6 deg), so the first contact
-    # stays inside it with margin.
+    # Closing axis turned towards the horizontal by up to this (below the friction cone's 26.6 deg).
+    # see docs/decisions/0010-cell-candidates.md
     level_angle: float = _field(15.0, ge=0.0, le=45.0)  # deg
-    # The open and the closed fingers' lowest point (their collision boxes, read from the RG2
-    # model) stays this far above the table top; the kinematic check with the table still decides
-    # ``collision``. A few mm: the height a taught grasp keeps off a table (the UR3 repeats to
-    # 0.1 mm, a table top is flat to ~1 mm).
+    # The fingers' lowest point (their collision boxes) stays this far above the table top.
+    # see docs/decisions/0010-cell-candidates.md
     finger_clearance: float = _field(0.003, ge=0.0)  # m
-    # A grasp on a low object may sit back along its approach (the TCP above the midpoint of the
-    # two contacts) by up to this much so the fingertips clear the table: the contacts then lie
-    # between the pad centre and its tip, still 4.9 mm inside the 29.8 mm pad at the maximum.
+    # A low grasp may sit back along its approach by up to this; its contacts stay 4.9 mm inside the pad.
     max_standoff: float = _field(0.010, ge=0.0)  # m
-    # Reachability (annotator/cell/reach.py): any arm or gripper link closer than this to the
-    # table, or arm link (not gripper) to the object, along the approach is a collision.
+    # Reachability: any arm or gripper link this close to the table, or arm link to the object, collides.
     arm_collision_margin: float = _field(0.0, ge=0.0)  # m; 0: touching counts
-    # annotate --cell --views K: view 0 is the seed's Kinect; views 1..K-1 look at the object's
-    # centre of mass from view_distance away and view_elevation above the horizontal, at azimuths
-    # (about world z, from +x) spread evenly over view_azimuth_span centred on view_azimuth
-    # (one extra view: at view_azimuth). 0 deg is the table's far side, facing the arm; a camera
-    # behind the arm (180 deg) sees mostly the arm, within the sensor's 0.5 m minimum range, so
-    # the default span covers the far side and the two ends of the table. 1 m is twice that
-    # minimum range; a 10 cm object then spans ~ 36 depth pixels.
+    # --views K: views 1..K-1 look at the object from this far, this high, over this span of azimuths.
+    # see docs/decisions/0014-kinect-views.md
     view_distance: float = _field(1.0, gt=0.0)  # m
     view_elevation: float = _field(45.0, gt=0.0, le=90.0)  # deg
-    view_azimuth: float = _field(0.0)  # deg
+    view_azimuth: float = _field(0.0)  # deg about world z from +x: the table's far side, facing the arm
     view_azimuth_span: float = _field(180.0, ge=0.0, le=360.0)  # deg
 
 
 @dataclass(frozen=True)
 class KinectConfig(_Section):
-    """The Kinect v2 as rendered (annotator/cell/kinect.py); ../shared/ROBOT_FACTS.md "Kinect v2".
+    """The Kinect v2 as rendered (annotator/cell/kinect.py); the numbers' sources are in docs/robots.md.
 
-    Images are rendered with the pinhole intrinsics these fields imply: fx from the horizontal,
-    fy from the vertical field of view, principal point at the image centre (for depth fx = 361.6,
-    fy = 367.2 px; the sample calibration in ROBOT_FACTS has fx = fy = 365.5: within 1 %). Depth and
-    colour are rendered from one optical frame (the real colour camera sits ~5 cm beside the depth
-    camera; a learner that needs the offset should calibrate it on the real sensor).
+    Images are rendered with the pinhole intrinsics these fields imply: fx from the horizontal, fy
+    from the vertical field of view, principal point at the image centre (depth: fx = 361.6,
+    fy = 367.2 px). Depth and colour are rendered from one optical frame.
     """
 
     depth_width: int = _field(512, ge=1)  # px [V]
@@ -498,20 +408,14 @@ class KinectConfig(_Section):
     # Depth range [V] 0.5..4.5 m: outside it the sensor reports 0 (no measurement), as here.
     min_range: float = _field(0.5, gt=0.0)
     max_range: float = _field(4.5, gt=0.0)
-    # Clip planes of the off-screen renderer (m): inside the near one and beyond the far one
-    # nothing is drawn; chosen to bracket the sensor's range so that range is cut explicitly.
+    # m; clip planes of the off-screen renderer, bracketing the sensor's range so that is cut explicitly.
     near_plane: float = _field(0.05, gt=0.0)
     far_plane: float = _field(6.0, gt=0.0)
-    # Optional depth noise (used only when a render is given a Generator). [C] Gaussian along the
-    # ray with sigma = noise_sigma_1m x z^2 (z in m), then rounded to noise_quantum, the sensor's
-    # millimetre output. The published Kinect v2 evaluations (Fankhauser et al., ICAR 2015; Corti
-    # et al., RAS 2016) report random errors of a few mm at 1 m growing with distance and with the
-    # surface's angle: 1.5 mm at 1 m is that order of magnitude, not a calibration of a sensor.
+    # Optional depth noise (a render given a Generator): Gaussian, sigma = noise_sigma_1m x z^2 (z in m).
+    # see docs/decisions/0014-kinect-views.md (an order of magnitude, not a calibration)
     noise_sigma_1m: float = _field(0.0015, ge=0.0)  # m at z = 1 m
-    noise_quantum: float = _field(0.001, ge=0.0)  # m; 0 keeps floats
-    # annotate --views: depth images with the noise model above (a Generator keyed on seed, object,
-    # placement and view) instead of the exact render; colour rendered at color_scale times
-    # 1920 x 1080 (one full-size TinyRenderer colour image costs ~ 0.8 s of a worker).
+    noise_quantum: float = _field(0.001, ge=0.0)  # m, the sensor's millimetre output; 0 keeps floats
+    # --views: the noise model on depth images; colour at views_color_scale x 1920 x 1080 (the costly part).
     views_depth_noise: bool = False
     views_color_scale: float = _field(1.0, gt=0.0, le=1.0)
 
@@ -535,7 +439,7 @@ class AnnotatorConfig:
 
         Time step 1/1000 s, 300 solver iterations (twice what the default had when this reference
         was set), the whole RG2 linkage simulated, 0.1 mm rolling resistance on pads and objects
-        (as when it was set: issue 12 dropped it from the default, and a reference that followed the
+        (as when it was set: the default dropped it later, and a reference that followed the
         default moved from 96.6 % agreement to 96.4 %), and a long shake: six sequential
         motions (translations along x, y, z, then rotations about them), each three 0.35 s sine
         periods at 4.5 cm and 30 deg (1.5 g): 6.3 s, over ten times the default's 0.6 s, at 1.5x its

@@ -48,7 +48,7 @@ class Outcome(enum.IntEnum):
 
 OUTCOMES: tuple[str, ...] = tuple(o.label for o in Outcome)
 
-# Required columns in order, with their pandas dtype names (DESIGN.md "Labels").
+# Required columns in order, with their pandas dtype names (docs/labels.md, "Columns").
 STRING = "string"
 COLUMNS: dict[str, str] = {
     "object_id": STRING,
@@ -77,7 +77,7 @@ _QUAT_NORM_TOL = 1e-6
 
 
 class SchemaError(ValueError):
-    """A label table does not match the schema in DESIGN.md."""
+    """A label table does not match the label contract (docs/labels.md)."""
 
 
 # --------------------------------------------------------------------------------------- schema

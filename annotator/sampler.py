@@ -1,7 +1,7 @@
 """Antipodal grasp candidates for a parallel gripper on a triangle mesh, drawn from a numpy Generator.
 
 A candidate is a TCP pose ``T_obj_tcp`` in the object's mesh frame plus the expected opening. The
-TCP frame (DESIGN.md): origin midway between the two contacts (where the pad centres go), +x the
+TCP frame (docs/frames.md): origin midway between the two contacts (where the pad centres go), +x the
 closing direction from finger 1 to finger 2 along the contact line, +z the approach direction
 (from the gripper into the object), +y = z x x.
 

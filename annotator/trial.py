@@ -1,6 +1,6 @@
 """One grasp trial -> outcome: collision check, close, contacts, lift, shake, still held?
 
-The protocol (DESIGN.md), with an early exit at each stage:
+The protocol (docs/protocol.md), with an early exit at each stage:
 
 1. ``collision``: the open gripper intersects the object at the grasp pose or anywhere along the
    approach, or, closed on the expected chord, touches it with anything but the pads, or touches

@@ -2,7 +2,7 @@
 
 Every run here goes through the click command (in process with CliRunner, or as a real
 subprocess where signals are involved) and checks what a user gets: exit codes, the printed
-summary, the Parquet labels (DESIGN.md "Labels"), the manifest, resume and Ctrl-C safety.
+summary, the Parquet labels (docs/labels.md), the manifest, resume and Ctrl-C safety.
 Objects are small convex primitives written into tmp dirs (no CoACD decomposition) or convex
 sample objects copied from ``objects/``.
 """

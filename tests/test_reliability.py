@@ -1,7 +1,7 @@
 """Faults injected on purpose, end to end: killed workers, two runs at once, a full or read-only
 disk, a lost scheduler, a killed or terminated main process, changed inputs, rotten files.
 
-Each test names the item of the reliability issue it covers (README "Reliability").
+Each test covers a line of the fault table in docs/reliability.md, which names it.
 """
 
 from __future__ import annotations

@@ -24,8 +24,8 @@ from annotator.sim.rg2 import fk_table
 from annotator.sim.ur3 import JOINT_NAMES
 from annotator.sim.world import World
 
-# The seed script's gripper loop: the driven joint and each follower's multiplier (ROBOT_FACTS
-# "Seed naming").
+# The seed script's gripper loop: the driven joint and each follower's multiplier (the seed's
+# joint names, docs/grippers.md).
 SEED_DRIVEN = "gripper_finger1_joint"
 SEED_FOLLOWERS = {
     "gripper_finger2_joint": -1.0,
@@ -35,7 +35,7 @@ SEED_FOLLOWERS = {
     "gripper_finger2_finger_tip_joint": 1.0,
 }
 PADS = ("gripper_finger1_pad_link", "gripper_finger2_pad_link")
-PAD_THICKNESS = 0.01145  # m, the RG2 pad box along the closing axis (ROBOT_FACTS)
+PAD_THICKNESS = 0.01145  # m, the RG2 pad box along the closing axis (docs/grippers.md)
 SEED_GRIPPER_LIMITS = (-0.04547, 1.268131)  # the driven joint's URDF limits (rad)
 
 

@@ -1,7 +1,7 @@
 """``--trials K``: perturbations are applied inside their trial, undone for the next, and counted.
 
 A score is the fraction of the K trials that held; a candidate whose nominal pose collides gets
-score 0 and no perturbed trial (README "Robust labels").
+score 0 and no perturbed trial (docs/protocol.md, "Robust labels").
 """
 
 from __future__ import annotations

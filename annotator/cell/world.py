@@ -28,7 +28,7 @@ from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
 
-# The seed's load flags (ROBOT_FACTS "Seed scene": EXCLUDE_PARENT) with self-collision switched on
+# The seed's load flags (EXCLUDE_PARENT, docs/robots.md "The seed scene") with self-collision switched on
 # so the RG2's finger pairs collide (RG2 filters the in-finger pairs), and inertia from the file.
 ROBOT_FLAGS = (
     pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT | pb.URDF_USE_INERTIA_FROM_FILE

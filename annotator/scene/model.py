@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """The seed scene beyond the cell, number for number (seed script; ROBOT_FACTS "Seed scene").
+    """The seed scene beyond the cell, number for number (docs/robots.md, "The seed scene").
 
     Positions are metres in the world frame, camera angles degrees (as PyBullet's debug camera).
     """

@@ -1,4 +1,4 @@
-"""A small real dataset, labelled once per session by the real ``annotate`` command, for the tools."""
+"""A small real dataset, labelled once for these tests by the real ``annotate`` command, for the tools."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ class Labelled:
     df: pd.DataFrame
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # once for every module of tests/tools/
 def labelled(tmp_path_factory: pytest.TempPathFactory) -> Labelled:
     root = tmp_path_factory.mktemp("tools")
     objects = root / "objects"
