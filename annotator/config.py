@@ -537,6 +537,10 @@ class SceneConfig(_Section):
     rest_check_time: float = _field(0.25, gt=0.0)  # s (VGN: 60 steps of 1/240 s)
     drop_settle_time: float = _field(1.0, ge=0.0)  # s after each pile drop (VGN)
     settle_time: float = _field(2.0, ge=0.0)  # s once all are in, and after each removal (VGN)
+    # VGN stops after a settle that removed nothing, even if something still moves (a can rolling on
+    # its side on the 12 cm test workspace kept rolling at 4 cm/s); here settling goes on while
+    # something moves, at most this many settle_time rounds, and what still moves is removed.
+    settle_rounds: int = _field(5, ge=1)
     # pile: each object dropped in a uniformly random orientation, its centre of mass
     # pile_drop_height above the table (raised over the objects already there) over a point uniform
     # in the central third of the workspace (VGN: U(size/3, 2 size/3)), inside a box of walls

@@ -13,8 +13,9 @@ Three arrangements (numbers and sources in :class:`annotator.config.SceneConfig`
   up to 100 attempts.
 
 After arranging, objects settle until at rest (or a time limit); an object whose centre of mass
-left the workspace is removed and the rest settle again, until none leaves (VGN's
-``remove_and_wait``).
+left the workspace is removed and the rest settle again, until none leaves and all are at rest
+(VGN's ``remove_and_wait``, which stops at its time limit even if something still moves; here an
+object still moving after ``settle_rounds`` is removed, so a recorded scene is always at rest).
 
 Determinism: the object count, the objects (drawn from the sorted pool, with replacement, as VGN
 draws) and every pose come from one Generator keyed on (seed, scene_id); each scene is built in a
@@ -40,6 +41,7 @@ from annotator.objects import ObjectModel, create_body, get_object_pose, reset_o
 from annotator.scenes.records import (
     KEPT,
     LEFT_WORKSPACE,
+    NOT_AT_REST,
     NOT_PLACED,
     Instance,
     SceneRecord,
@@ -133,9 +135,9 @@ def _com_world(client: int, uid: int) -> np.ndarray:
     return np.asarray(pb.getBasePositionAndOrientation(uid, physicsClientId=client)[0], dtype=np.float64)
 
 
-def settle(build: _Build, seconds: float) -> None:
+def settle(build: _Build, seconds: float) -> bool:
     """Simulate until every body is at rest (VGN's rule, checked every ``rest_check_time``) or
-    ``seconds`` of simulated time have passed."""
+    ``seconds`` of simulated time have passed; whether all came to rest."""
     world, scenes = build.world, build.scenes
     chunk = max(1, round(scenes.rest_check_time / world.dt))
     elapsed = 0
@@ -145,7 +147,8 @@ def settle(build: _Build, seconds: float) -> None:
         world.step(chunk)
         elapsed += chunk
         if all(_at_rest(build.client, b.uid, scenes.rest_speed) for b in build.bodies):
-            return
+            return True
+    return False
 
 
 def _at_rest(client: int, uid: int, speed: float) -> bool:
@@ -154,21 +157,25 @@ def _at_rest(client: int, uid: int, speed: float) -> bool:
 
 
 def remove_outside_and_settle(build: _Build) -> None:
-    """VGN's ``remove_and_wait``: settle; remove bodies whose centre of mass left the workspace;
-    repeat until none leaves."""
-    while True:
-        settle(build, build.scenes.settle_time)
-        T_table_world = build.T_world_table.inverse()
+    """VGN's ``remove_and_wait``, until the scene is at rest: settle; remove bodies whose centre of
+    mass left the workspace; repeat while one was removed or one still moves, at most
+    ``settle_rounds`` times; a body still moving then (a can rolling on its side) is removed."""
+    T_table_world = build.T_world_table.inverse()
+    for _ in range(build.scenes.settle_rounds):
+        at_rest = settle(build, build.scenes.settle_time)
         outside = [
             b
             for b in build.bodies
             if not build.workspace.contains(T_table_world.apply(_com_world(build.client, b.uid)))[0]
         ]
-        if not outside:
-            return
         for body in outside:
             log.debug("instance %d (%s) left the workspace; removed", body.instance_id, body.object_id)
             build.drop(body, LEFT_WORKSPACE)
+        if at_rest and not outside:
+            return
+    for body in [b for b in build.bodies if not _at_rest(build.client, b.uid, build.scenes.rest_speed)]:
+        log.debug("instance %d (%s) still moves; removed", body.instance_id, body.object_id)
+        build.drop(body, NOT_AT_REST)
 
 
 # --- pile -------------------------------------------------------------------------------------------

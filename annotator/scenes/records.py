@@ -7,7 +7,8 @@ records ``T_world_table`` too, so ``T_world_obj = T_world_table * T_table_obj``.
 
 A scene's objects are *instances*: the k-th object drawn for the scene has ``instance_id`` k
 (0-based, in draw order), whatever happens to it. An instance that is not in the settled scene
-keeps its id with a status saying why (it left the workspace, or found no free place), so the ids
+keeps its id with a status saying why (it left the workspace, found no free place, or was still
+moving when settling ended), so the ids
 of the others do not depend on it and a gap in the kept ids shows where one went.
 
 :func:`scene_table` / :func:`scenes_from_table` turn records into one flat table (one row per
@@ -25,8 +26,8 @@ import pandas as pd
 from annotator.geometry import Transform
 
 ARRANGEMENTS = ("pile", "packed", "table")
-KEPT, LEFT_WORKSPACE, NOT_PLACED = "kept", "left_workspace", "not_placed"
-STATUSES = (KEPT, LEFT_WORKSPACE, NOT_PLACED)
+KEPT, LEFT_WORKSPACE, NOT_PLACED, NOT_AT_REST = "kept", "left_workspace", "not_placed", "not_at_rest"
+STATUSES = (KEPT, LEFT_WORKSPACE, NOT_PLACED, NOT_AT_REST)
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")  # T_table_obj: metres, quaternion xyzw
 TABLE_POSE_COLUMNS = tuple(f"table_{c}" for c in POSE_COLUMNS)  # T_world_table
 SCENE_COLUMNS = (
