@@ -71,7 +71,7 @@ def write_meshes(root: Path, meshes: Mapping[str, trimesh.Trimesh]) -> dict[str,
     means = {}
     for object_id, mesh in sorted(meshes.items()):
         path = root / mesh_file(object_id)
-        text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False)
+        text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False, digits=10)
         _write_atomically(path, lambda target, text=text: target.write_text(text))
         means[object_id] = np.mean(np.asarray(trimesh.load(path, force="mesh").vertices), axis=0)
     return means
