@@ -421,6 +421,65 @@ class KinectConfig(_Section):
 
 
 @dataclass(frozen=True)
+class SceneConfig(_Section):
+    """Scenes of several objects settled on the seed's table (annotator/scenes): the workspace, the
+    three arrangements, settling and the views. Not yet a section of AnnotatorConfig: the scene
+    pipeline adds it (and binds it in the manifest) when ``annotate --scenes`` lands.
+
+    Sources: VGN (ethz-asl/vgn, branch corl2020, src/vgn/simulation.py and scripts/generate_data.py;
+    branch devel for the packed region) and ACRONYM (NVlabs/acronym, acronym_tools/acronym.py).
+    """
+
+    # A cube on the table top, centred over the cell's placement point (CellConfig placement_x/y,
+    # mid-reach for the UR3): VGN's 0.3 m (6 x the Panda's 50 mm finger depth). Its box in the
+    # table-top frame is [-s/2, s/2]^2 x [-s/6, 5 s/6] (VGN's task frame puts the table s/6 = 5 cm
+    # above the cube's floor); an object whose centre of mass leaves it is removed (VGN).
+    workspace_size: float = _field(0.30, gt=0.0)  # m
+    # Settling (VGN's wait_for_objects_to_rest): simulate rest_check_time at a time until every
+    # object's |(linear m/s, angular rad/s)| < rest_speed, or the time limit.
+    rest_speed: float = _field(0.01, gt=0.0)
+    rest_check_time: float = _field(0.25, gt=0.0)  # s (VGN: 60 steps of 1/240 s)
+    drop_settle_time: float = _field(1.0, ge=0.0)  # s after each pile drop (VGN)
+    settle_time: float = _field(2.0, ge=0.0)  # s once all are in, and after each removal (VGN)
+    # VGN stops after a settle that removed nothing, even if something still moves (a can rolling on
+    # its side on the 12 cm test workspace kept rolling at 4 cm/s); here settling goes on while
+    # something moves, at most this many settle_time rounds, and what still moves is removed.
+    settle_rounds: int = _field(5, ge=1)
+    # pile: each object dropped in a uniformly random orientation, its centre of mass
+    # pile_drop_height above the table (raised over the objects already there) over a point uniform
+    # in the central third of the workspace (VGN: U(size/3, 2 size/3)), inside a box of walls
+    # pile_box_margin in from the workspace's sides (VGN's box at (0.02, 0.02)); the box is then
+    # removed. VGN's box model is not published in its repository; 0.2 m walls hold a drop from 0.2 m.
+    pile_drop_height: float = _field(0.20, gt=0.0)  # m
+    pile_drop_region: float = _field(1.0 / 3.0, gt=0.0, le=1.0)  # share of the side
+    pile_box_margin: float = _field(0.02, ge=0.0)  # m
+    pile_box_height: float = _field(0.20, gt=0.0)  # m
+    # packed: upright (the stable pose nearest the mesh's own +z, as VGN's packed objects stand),
+    # random yaw, the centre of mass uniform in the central packed_region of the side (VGN devel:
+    # U(0.2, 0.8) x size), placement_gap above the table; rejected when closer than placement_gap
+    # to an object already placed; packed_attempts per object (VGN devel: 10).
+    packed_region: float = _field(0.6, gt=0.0, le=1.0)  # share of the side
+    packed_attempts: int = _field(10, ge=1)
+    # table: ACRONYM's random arrangement: a stable pose drawn by its probability (merged as the
+    # cell merges them), random yaw, the centre of mass uniform over the workspace's square less
+    # table_edge_clearance from its sides (ACRONYM erodes the support polygon by 0.02 m),
+    # table_attempts per object (ACRONYM's max_iter 100), placement_gap apart.
+    table_edge_clearance: float = _field(0.02, ge=0.0)  # m
+    table_attempts: int = _field(100, ge=1)
+    # ACRONYM places 2 mm above the support and rejects distances below 2 mm - 1 mm; VGN lifts
+    # packed objects 2 mm. Our overlap test rejects anything closer than this.
+    placement_gap: float = _field(0.002, ge=0.0)  # m
+    # Views (VGN's generate_data.py): distance r ~ U(view_radius_min, view_radius_max), polar angle
+    # from the vertical ~ U(0, view_max_polar), azimuth ~ U(0, 360 deg), looking at the workspace's
+    # centre on the table. VGN's r = U(1.6, 2.4) x 0.3 m = 0.48-0.72 m is inside the Kinect v2's
+    # 0.5 m minimum range for anything standing on the table; 0.8-1.2 m keeps VGN's ratio (1.5)
+    # and a workspace-tall pile (0.25 m along the view) beyond 0.5 m.
+    view_radius_min: float = _field(0.8, gt=0.0)  # m
+    view_radius_max: float = _field(1.2, gt=0.0)  # m
+    view_max_polar: float = _field(45.0, ge=0.0, lt=90.0)  # deg (VGN: pi / 4)
+
+
+@dataclass(frozen=True)
 class AnnotatorConfig:
     """All sections together; the single configuration object the runner passes to workers."""
 
@@ -514,4 +573,5 @@ _SECTION_NAMES = {
     "RobustConfig": "robust",
     "CellConfig": "cell",
     "KinectConfig": "kinect",
+    "SceneConfig": "scenes",
 }

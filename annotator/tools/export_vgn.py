@@ -1,0 +1,250 @@
+"""Scenes and their grasps in VGN's files (ethz-asl/vgn, branch corl2020).
+
+Two layouts, both as VGN's own scripts write them:
+
+- *raw* (``scripts/generate_data.py`` via ``src/vgn/io.py``)::
+
+      ROOT/setup.json           {"size", "intrinsic": {"width", "height", "K"}, "max_opening_width",
+                                 "finger_depth"}
+      ROOT/grasps.csv           scene_id,qx,qy,qz,qw,x,y,z,width,label   (one line per grasp)
+      ROOT/scenes/<id>.npz      depth_imgs (n, H, W) float32 m; extrinsics (n, 7) float32
+                                [qx, qy, qz, qw, x, y, z] of T_camera_task
+
+  VGN's ``construct_dataset.py`` turns it into the dataset below (it needs Open3D).
+- *dataset* (``scripts/construct_dataset.py``, read by ``src/vgn/dataset.py``)::
+
+      ROOT/grasps.csv           scene_id,qx,qy,qz,qw,i,j,k,width,label   (x, y, z, width / voxel)
+      ROOT/scenes/<id>.npz      grid (1, 40, 40, 40) float32: VGN's TSDF grid
+                                (:meth:`annotator.scenes.tsdf.TSDFVolume.vgn_grid`)
+
+Frames. VGN's *task frame* is the workspace cube's lower corner (the table top s/6 above it, axes
+of the table): :attr:`annotator.scenes.Workspace.T_table_task`. VGN's grasp frame has its fingers
+closing along **y** and approaching along z; ours closes along x. A grasp is written as our TCP
+(midpoint of the pads) in the task frame, turned -90 degrees about its z so that VGN's y is our
+closing axis: ``T_task_vgn = T_task_table T_table_tcp Rz(-90 deg)``. ``width`` is the opening (m);
+``label`` 1 for a success, 0 otherwise.
+
+Scene ids in the files are ``scene_NNNNNN``: VGN reads ``scene_id`` with ``pandas.read_csv`` and
+appends ``.npz``, so an id pandas would parse as a number must not be used.
+
+``setup.json``'s ``finger_depth``: VGN's dataset step asserts ``size == 6 * finger_depth`` and uses
+it for nothing else; the writer is given it (default ``size / 6``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from annotator.cell.kinect import Intrinsics
+from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
+from annotator.scenes.records import SceneRecord
+from annotator.scenes.tsdf import fuse
+from annotator.tools.export import _write_atomically
+
+RAW_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "x", "y", "z", "width", "label")
+DATASET_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "i", "j", "k", "width", "label")
+DATASET_RESOLUTION = 40  # construct_dataset.py's RESOLUTION
+# Our TCP frame (x closing, z approach) -> VGN's grasp frame (y closing, z approach): Rz(-90 deg).
+T_TCP_VGN = np.eye(4)
+T_TCP_VGN[:3, :3] = axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), -math.pi / 2)
+
+
+def scene_name(scene_id: int) -> str:
+    """The scene's id in VGN's files (not numeric: VGN appends ".npz" to what read_csv gives)."""
+    return f"scene_{int(scene_id):06d}"
+
+
+@dataclass(frozen=True)
+class VgnSetup:
+    """``setup.json``: workspace ``size`` (m), the depth camera's intrinsics, the gripper's
+    ``max_opening_width`` (m) and ``finger_depth`` (m; VGN asserts size == 6 x finger_depth)."""
+
+    size: float
+    intrinsic: Intrinsics
+    max_opening_width: float
+    finger_depth: float | None = None
+
+    def to_json(self) -> dict:
+        K = self.intrinsic
+        return {
+            "size": float(self.size),
+            "intrinsic": {
+                "width": int(K.width),
+                "height": int(K.height),
+                "K": [float(v) for v in K.K.reshape(-1)],
+            },
+            "max_opening_width": float(self.max_opening_width),
+            "finger_depth": float(self.size / 6 if self.finger_depth is None else self.finger_depth),
+        }
+
+
+@dataclass(frozen=True)
+class SceneGrasps:
+    """A scene's grasps for export: ``T_table_tcp`` (n, 4, 4) TCP poses (our TCP frame) in the
+    table frame, ``width`` (n,) m, ``success`` (n,) bool; ``instance_id`` and ``grasp_id`` (n,) int
+    say which object and label each is."""
+
+    scene_id: int
+    T_table_tcp: np.ndarray
+    width: np.ndarray
+    success: np.ndarray
+    instance_id: np.ndarray
+    grasp_id: np.ndarray
+
+
+def task_poses(record: SceneRecord, grasps: SceneGrasps) -> np.ndarray:
+    """VGN grasp frames (n, 4, 4) in the task frame of ``record``'s workspace."""
+    T_task_table = record.workspace.T_table_task.inverse().as_matrix()
+    return T_task_table @ np.asarray(grasps.T_table_tcp, dtype=np.float64).reshape(-1, 4, 4) @ T_TCP_VGN
+
+
+def grasp_rows(record: SceneRecord, grasps: SceneGrasps) -> pd.DataFrame:
+    """The scene's lines of the raw ``grasps.csv`` (RAW_COLUMNS)."""
+    T = task_poses(record, grasps)
+    q = matrix_to_quat(T[:, :3, :3]).reshape(-1, 4)
+    df = pd.DataFrame(
+        {
+            "scene_id": scene_name(record.scene_id),
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+            "x": T[:, 0, 3],
+            "y": T[:, 1, 3],
+            "z": T[:, 2, 3],
+            "width": np.asarray(grasps.width, dtype=np.float64),
+            "label": np.asarray(grasps.success, dtype=bool).astype(np.int64),
+        }
+    )
+    return df[list(RAW_COLUMNS)]
+
+
+def extrinsics(record: SceneRecord, views) -> np.ndarray:
+    """(n, 7) float32 ``[qx, qy, qz, qw, x, y, z]`` of ``T_camera_task`` for each view."""
+    out = np.empty((len(views), 7), np.float32)
+    T_table_task = record.workspace.T_table_task
+    for i, view in enumerate(views):
+        T = view.T_table_camera.inverse() * T_table_task
+        out[i] = np.r_[T.quat, T.pos]
+    return out
+
+
+def _csv_text(df: pd.DataFrame) -> str:
+    """``df`` as VGN writes its CSV: a header, then ``",".join(str(value))`` per line."""
+    lines = [",".join(df.columns)]
+    for row in df.itertuples(index=False):
+        lines.append(",".join(str(v.item() if isinstance(v, np.generic) else v) for v in row))
+    return "\n".join(lines) + "\n"
+
+
+def _npz_bytes(**arrays: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def _write(path: Path, data: bytes) -> None:
+    _write_atomically(path, lambda target: target.write_bytes(data))
+
+
+def write_vgn_raw(
+    root: Path | str, setup: VgnSetup, scenes: list[tuple[SceneRecord, list, SceneGrasps]]
+) -> list[Path]:
+    """Write the raw layout: ``setup.json``, ``grasps.csv`` (every scene's grasps, in scene order)
+    and ``scenes/<id>.npz`` per scene. ``scenes``: (record, its views, its grasps). Returns the paths."""
+    root = Path(root)
+    paths = [root / "setup.json", root / "grasps.csv"]
+    _write(paths[0], (json.dumps(setup.to_json(), indent=4) + "\n").encode())
+    rows = []
+    for record, views, grasps in sorted(scenes, key=lambda s: s[0].scene_id):
+        if grasps.scene_id != record.scene_id:
+            raise ValueError(f"grasps of scene {grasps.scene_id} given with scene {record.scene_id}")
+        depth = (
+            np.stack([np.asarray(v.depth, dtype=np.float32) for v in views]) if views else np.zeros((0, 0, 0))
+        )
+        path = root / "scenes" / f"{scene_name(record.scene_id)}.npz"
+        _write(path, _npz_bytes(depth_imgs=depth.astype(np.float32), extrinsics=extrinsics(record, views)))
+        paths.append(path)
+        rows.append(grasp_rows(record, grasps))
+    table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(RAW_COLUMNS))
+    _write(paths[1], _csv_text(table).encode())
+    return paths
+
+
+def write_vgn_dataset(
+    root: Path | str,
+    setup: VgnSetup,
+    scenes: list[tuple[SceneRecord, list, SceneGrasps]],
+    resolution: int = DATASET_RESOLUTION,
+) -> list[Path]:
+    """Write the dataset layout VGN trains on: ``grasps.csv`` in voxel units and each scene's TSDF
+    grid (1, r, r, r) fused from its views (:mod:`annotator.scenes.tsdf`, VGN's conventions)."""
+    root = Path(root)
+    voxel = setup.size / resolution
+    paths = [root / "grasps.csv"]
+    rows = []
+    for record, views, grasps in sorted(scenes, key=lambda s: s[0].scene_id):
+        volume = fuse(views, setup.size, resolution, record.workspace.T_table_task)
+        path = root / "scenes" / f"{scene_name(record.scene_id)}.npz"
+        _write(path, _npz_bytes(grid=volume.vgn_grid()[None].astype(np.float32)))
+        paths.append(path)
+        df = grasp_rows(record, grasps)
+        for c in ("x", "y", "z", "width"):
+            df[c] = df[c] / voxel
+        rows.append(df.rename(columns={"x": "i", "y": "j", "z": "k"}))
+    table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(DATASET_COLUMNS))
+    _write(paths[0], _csv_text(table[list(DATASET_COLUMNS)]).encode())
+    return paths
+
+
+# --- reading back (what VGN's io.py and dataset.py do, without Open3D or torch) -----------------------
+
+
+def read_setup(root: Path | str) -> dict:
+    """``setup.json`` as VGN's ``read_setup`` reads it: size, intrinsics (width, height, fx, fy, cx,
+    cy from K), max_opening_width, finger_depth."""
+    data = json.loads((Path(root) / "setup.json").read_text())
+    K = data["intrinsic"]["K"]
+    intrinsic = Intrinsics(data["intrinsic"]["width"], data["intrinsic"]["height"], K[0], K[4], K[2], K[5])
+    return {
+        "size": data["size"],
+        "intrinsic": intrinsic,
+        "max_opening_width": data["max_opening_width"],
+        "finger_depth": data["finger_depth"],
+    }
+
+
+def read_grasps(root: Path | str) -> pd.DataFrame:
+    """``grasps.csv`` as VGN's ``read_df``: ``pandas.read_csv``."""
+    return pd.read_csv(Path(root) / "grasps.csv")
+
+
+def read_sensor_data(root: Path | str, scene_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """A raw scene's ``(depth_imgs, extrinsics)`` as VGN's ``read_sensor_data``."""
+    data = np.load(Path(root) / "scenes" / (scene_id + ".npz"))
+    return data["depth_imgs"], data["extrinsics"]
+
+
+def read_grid(root: Path | str, scene_id: str) -> np.ndarray:
+    """A dataset scene's grid as VGN's ``read_voxel_grid``: (1, r, r, r) float32."""
+    return np.load(Path(root) / "scenes" / (scene_id + ".npz"))["grid"]
+
+
+def grasp_in_task(row: pd.Series) -> tuple[Transform, float, int]:
+    """One raw row as VGN's ``read_grasp``: the grasp frame in the task frame (quaternion columns
+    qx..qw, position x..z, by column order), width and label."""
+    q = row.loc["qx":"qw"].to_numpy(np.double)
+    p = row.loc["x":"z"].to_numpy(np.double)
+    return Transform(p, q), float(row["width"]), int(row["label"])
+
+
+def tcp_in_table(T_task_vgn: np.ndarray, record: SceneRecord) -> np.ndarray:
+    """Our TCP pose (4, 4) in the table frame from a VGN grasp frame in the task frame."""
+    return record.workspace.T_table_task.as_matrix() @ np.asarray(T_task_vgn) @ np.linalg.inv(T_TCP_VGN)
