@@ -28,7 +28,7 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, verbose):
 
     Both formats store the pose of the RG2's base frame (rg2_base_link: on the tool flange,
     +z approach, +x closing), not our TCP: T_obj_base = T_obj_tcp * T_base_tcp(width)^-1, with
-    the width of each grasp stored beside it (see the README, "Exports").
+    the width of each grasp stored beside it (docs/tools.md, "Export").
 
     \b
     Example:
