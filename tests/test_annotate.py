@@ -113,6 +113,7 @@ def reference_run(two_objects, tmp_path_factory) -> tuple[Path, str]:
 # --- 1. happy path -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_labels_have_the_contract_schema_and_values(two_objects, reference_run):
     out, output = reference_run
     df = _labels(out)
@@ -176,12 +177,15 @@ def test_labels_have_the_contract_schema_and_values(two_objects, reference_run):
 # --- 2., 3. the same labels whatever runs them ---------------------------------------------------
 
 
+@pytest.mark.slow
 def test_labels_do_not_depend_on_workers(two_objects, reference_run, tmp_path):
     out2 = tmp_path / "w2"
     run_annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 2, "--out", out2, "--quiet")
     pd.testing.assert_frame_equal(_labels(out2), _labels(reference_run[0]), check_exact=True)
 
 
+@pytest.mark.slow
+@pytest.mark.cluster
 def test_dask_cluster_gives_the_same_labels(two_objects, reference_run, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     out = tmp_path / "dask"
@@ -202,6 +206,8 @@ def test_dask_cluster_gives_the_same_labels(two_objects, reference_run, tmp_path
     pd.testing.assert_frame_equal(_labels(out), _labels(reference_run[0]), check_exact=True)
 
 
+@pytest.mark.slow
+@pytest.mark.cluster
 def test_unreachable_scheduler_is_a_usage_error(two_objects, tmp_path):
     dask = pytest.importorskip("dask")
     pytest.importorskip("dask.distributed")
@@ -426,6 +432,7 @@ def _span_of(path: Path) -> tuple[int, int] | None:
     return int(start), int(stop)
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_whole_files_and_resume_completes(tmp_path):
     objs = _primitives(tmp_path / "objs", LONG_OBJECTS)
     out = tmp_path / "interrupted"

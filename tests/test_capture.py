@@ -128,6 +128,8 @@ def test_a_light_objects_capture_is_the_batch_jobs_label(tmp_path):
         capturer.close()
 
 
+@pytest.mark.slow
+@pytest.mark.gui
 def test_enter_key_captures_in_the_gui(tmp_path):
     """`annotator scene` under Xvfb; xdotool presses Enter in the window; a row appears."""
     if shutil.which("xvfb-run") is None or shutil.which("xdotool") is None:

@@ -100,6 +100,7 @@ def _T_world_cmd(row: pd.Series) -> Transform:
     return _T_world_obj(row) * Transform.exact(cmd[:3], cmd[3:])
 
 
+@pytest.mark.slow
 def test_cell_labels_have_the_columns_and_a_placement_each(cell_run):
     _, out = cell_run
     df = load_labels(out)  # pandas.read_parquet underneath: the _views/ folder is not read as labels
@@ -125,6 +126,7 @@ def test_cell_labels_have_the_columns_and_a_placement_each(cell_run):
         assert lowest == pytest.approx(top.z, abs=0.002)
 
 
+@pytest.mark.slow
 def test_candidates_come_from_above_shared_by_placement_probability_and_mostly_hold(cell_run):
     """Each object's N rows are shared among its placements by their stable-pose probabilities (as
     the manifest lists them), every commanded grasp approaches within the cone of straight down,

@@ -51,9 +51,16 @@ def test_integers_for_floats_are_stored_as_floats():
     assert config.to_dict() == AnnotatorConfig.from_dict({"protocol": {"lift_height": 1.0}}).to_dict()
 
 
-def test_defaults_and_the_thorough_reference_are_valid():
-    AnnotatorConfig()
-    AnnotatorConfig.thorough()
+def test_defaults_and_the_thorough_reference_round_trip_through_a_manifest():
+    """Both configurations pass their own range checks and come back equal from the manifest's
+    dictionary form; the reference is the finer, longer protocol it says it is."""
+    default, thorough = AnnotatorConfig(), AnnotatorConfig.thorough()
+    for config in (default, thorough):
+        assert AnnotatorConfig.from_dict(config.to_dict()) == config
+    assert thorough.physics.time_step < default.physics.time_step
+    assert thorough.physics.solver_iterations > default.physics.solver_iterations
+    assert thorough.protocol.shake_duration >= 10 * default.protocol.shake_duration
+    assert thorough.gripper.passive_links == "simulated" != default.gripper.passive_links
 
 
 @pytest.mark.parametrize(

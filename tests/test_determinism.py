@@ -52,6 +52,7 @@ def _run(spans, config) -> pd.DataFrame:
     return pd.concat(frames).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
 
 
+@pytest.mark.slow
 def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
     config = AnnotatorConfig()
     sources = discover_objects(concave)
@@ -68,6 +69,7 @@ def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
     _fresh_worker()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("budget", [worker.RECENT_OBJECT_BYTES, 0])
 def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     concave, cache, monkeypatch, budget
@@ -98,6 +100,7 @@ def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     _fresh_worker()
 
 
+@pytest.mark.slow
 def test_labels_do_not_depend_on_another_worlds_contact_breaking_threshold(concave, cache):
     """PyBullet keeps one contact breaking threshold per process: a world made since (here one
     at PyBullet's 0.02 m) must not decide the contacts of the worker's world (at 5 mm)."""
@@ -137,6 +140,8 @@ def _annotate(objs: Path, out: Path, *extra) -> pd.DataFrame:
     return pd.read_parquet(out).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
 
 
+@pytest.mark.slow
+@pytest.mark.cluster
 def test_labels_are_identical_cold_or_warm_on_any_worker_layout(concave, tmp_path, monkeypatch):
     """Decomposed concave objects: a first run (empty cache, 2 workers) equals later runs with the
     parts read back from the cache (1 worker, 2 workers, a Dask cluster), column for column."""
@@ -173,6 +178,7 @@ def _run_cell(spans, config, cell) -> tuple[pd.DataFrame, dict[str, bytes]]:
     return rows, artifacts
 
 
+@pytest.mark.slow
 def test_cell_rows_and_views_do_not_depend_on_the_worker_history(cache):
     """Objects resting on the table (settled placements, reach checks in the arm world, rendered
     views): spans dealt shuffled, interleaved and twice to one worker give the rows and the image
@@ -199,6 +205,7 @@ def test_cell_rows_and_views_do_not_depend_on_the_worker_history(cache):
     _fresh_worker()
 
 
+@pytest.mark.slow
 def test_cell_labels_and_views_are_identical_on_any_worker_count(concave, tmp_path, monkeypatch):
     import hashlib
 

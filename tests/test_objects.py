@@ -380,6 +380,7 @@ def test_big_ball_is_wider_than_the_rg2_stroke():
 # ---------------------------------------------------------------------------------------------- decomposition
 
 
+@pytest.mark.slow
 def test_mug_is_decomposed_and_cached(mug_models, cache_dir):
     first, second = mug_models
     assert not first.convex
@@ -397,6 +398,7 @@ def test_mug_is_decomposed_and_cached(mug_models, cache_dir):
         assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
 
 
+@pytest.mark.slow
 def test_cache_dir_defaults_to_env_var(tmp_path, monkeypatch):
     monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "envcache"))
     model = load_object(REPO_OBJECTS / "banana.obj", CONFIG)
@@ -430,6 +432,7 @@ def test_body_link_frame_is_the_mesh_frame(client, tmp_path):
     np.testing.assert_allclose(get_object_pose(client, body).pos, 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_bodies_dropped_on_a_plane_come_to_rest(client, mug_models, tmp_path):
     plane = pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client)
     pybullet.createMultiBody(0, plane, physicsClientId=client)
@@ -671,6 +674,7 @@ def test_thin_walled_pot_is_weighed_as_a_shell_and_a_brick_as_a_solid(tmp_path):
     assert mass.weigh(plate, plate.convex_hull, True, CONFIG).model == "solid"
 
 
+@pytest.mark.slow
 def test_shipped_mug_and_bowl_are_shells(shipped_models):
     model = shipped_models["mug"]
     assert model.mass_model == "shell"
@@ -763,6 +767,7 @@ def _load_from_cache(path: Path, cache: Path) -> tuple[bool, list[np.ndarray]]:
     return model.from_cache, [p.vertices.copy() for p in model.parts]
 
 
+@pytest.mark.slow
 def test_two_workers_decompose_a_new_object_once_and_agree_bit_for_bit(tmp_path):
     concave = _write_l(tmp_path / "corner.obj")
     cache = tmp_path / "cache"
@@ -774,6 +779,7 @@ def test_two_workers_decompose_a_new_object_once_and_agree_bit_for_bit(tmp_path)
     assert len(list(cache.glob("*.npz"))) == 1
 
 
+@pytest.mark.slow
 def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_models):
     assert shipped_models["banana"].collision_threshold == 0.03  # refined: 0.05 misses the limits
     for oid, model in shipped_models.items():
@@ -785,6 +791,7 @@ def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_mo
         assert within, f"{oid}: collision error mean {mean * 1e3:.2f} mm, max {worst * 1e3:.2f} mm"
 
 
+@pytest.mark.slow
 def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cache_dir, hand):
     """On the mug's 4 mm wall and the banana's inner curve, a success's width is the opening the
     mesh gives the RG2's flat pads within ObjectConfig.collision_max_limit (2 mm).
@@ -831,6 +838,7 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
 # ---------------------------------------------------------------------------------------------- record
 
 
+@pytest.mark.slow
 def test_geometry_record_ties_each_object_to_the_mesh_its_poses_refer_to(tmp_path, monkeypatch):
     """A URDF with centimetre meshes and a millimetre mesh scaled by the sidecar: the record says
     what was simulated and load_object_mesh gives the mesh in the poses' frame (metres)."""

@@ -97,6 +97,7 @@ def box_and_can_labels(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_successes_close_on_the_object_and_width_is_the_chord(box_and_can_labels):
     checked = 0
     for name, (mesh, df) in box_and_can_labels.items():
@@ -110,6 +111,7 @@ def test_successes_close_on_the_object_and_width_is_the_chord(box_and_can_labels
     assert checked >= 10
 
 
+@pytest.mark.slow
 def test_collision_rows_carry_the_open_width_and_no_steps(box_and_can_labels):
     for _, (_, df) in box_and_can_labels.items():
         hits = df[df["outcome"] == "collision"]
@@ -134,6 +136,7 @@ def test_starting_the_close_near_the_chord_changes_no_label(box_and_can_labels, 
     assert long["sim_steps"].mean() > simulated["sim_steps"].mean() + 10  # and it does save steps
 
 
+@pytest.mark.slow
 def test_heavier_or_slipperier_objects_are_never_more_successful(tmp_path):
     """Over >= 200 simulated grasps: mass x2 and friction 0.3 can only lose grasps."""
     mesh = trimesh.creation.box((0.05, 0.04, 0.10))
@@ -177,6 +180,7 @@ def test_robust_score_is_a_fraction_and_success_is_the_unperturbed_trial(tmp_pat
     assert (four.loc[~four["success"], "score"] <= 0.75).all()
 
 
+@pytest.mark.slow
 def test_thin_plate_width_is_its_thickness(tmp_path):
     """Pads squeezing 40 N on an 8 mm plate must not sink into it (contact ERP, config.physics)."""
     mesh = trimesh.creation.box((0.12, 0.08, 0.008))
@@ -194,6 +198,7 @@ def test_thin_plate_width_is_its_thickness(tmp_path):
         ("heavy-domino", (0.048, 0.024, 0.00635), 80.0),
     ],
 )
+@pytest.mark.slow
 def test_thin_objects_hold_face_to_face_with_pads_on_the_surface(tmp_path, name, extents, grams):
     """A 4 g domino, a 14 g block and an 80 g domino (at 1/240 s): face-to-face grasps hold, pads
     end within 0.5 mm of the faces.

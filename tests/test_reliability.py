@@ -102,6 +102,7 @@ def reference(objs, tmp_path_factory) -> pd.DataFrame:
 # --- 2. one run per output folder ----------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_second_run_on_the_same_out_is_a_usage_error_naming_the_first(objs, reference, tmp_path):
     out = tmp_path / "out"
     first = _spawn(objs, out, "--n", N, "--workers", 1)
@@ -120,6 +121,7 @@ def test_a_second_run_on_the_same_out_is_a_usage_error_naming_the_first(objs, re
 # --- 3. resume binds every label-affecting input ---------------------------------------------------
 
 
+@pytest.mark.slow
 def test_changed_inputs_are_refused_or_redone(objs, reference, tmp_path):
     local = shutil.copytree(objs, tmp_path / "objs")
     out = tmp_path / "out"
@@ -145,6 +147,7 @@ def test_changed_inputs_are_refused_or_redone(objs, reference, tmp_path):
     assert (out / STALE_DIR / object_filename("slab")).exists()
 
 
+@pytest.mark.slow
 def test_a_mesh_changed_behind_an_unchanged_urdf_is_redone(tmp_path):
     objs = tmp_path / "objs"
     (objs / "thing").mkdir(parents=True)
@@ -194,6 +197,7 @@ def test_a_broken_manifest_is_one_line_and_repair_recovers(objs, reference, tmp_
     pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
 
 
+@pytest.mark.slow
 def test_overwrite_keeps_a_users_own_files(objs, tmp_path):
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
@@ -209,6 +213,7 @@ def test_overwrite_keeps_a_users_own_files(objs, tmp_path):
 # --- 6. faults --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_killed_worker_costs_a_retry_and_the_labels_are_the_same(objs, reference, tmp_path):
     out = tmp_path / "out"
     proc = _spawn(objs, out, "--n", N, "--workers", 2)
@@ -253,6 +258,7 @@ def crash_on_poison(task: SpanTask) -> SpanResult:
     return label_span(task)
 
 
+@pytest.mark.slow
 def test_a_span_that_kills_its_worker_twice_fails_its_object_only(tmp_path):
     objs = _objects(tmp_path / "objs", ("box", "poison"))
     results = _execute_spans(objs, Workers(RunOptions(objs, 20, workers=2)), fn=crash_on_poison)
@@ -284,6 +290,7 @@ class _RefusesOnce(Workers):
         return super().submit(task, fn)
 
 
+@pytest.mark.slow
 def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_the_run(tmp_path):
     objs = _objects(tmp_path / "objs", ("box", "slab"))
     results = _execute_spans(objs, _RefusesOnce(RunOptions(objs, 20, workers=1), refuse_at=2))
@@ -305,6 +312,8 @@ def _umount(where: Path) -> None:
     subprocess.run(["umount", "-l", str(where)], capture_output=True)
 
 
+@pytest.mark.slow
+@pytest.mark.root
 def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, reference, tmp_path):
     disk = tmp_path / "disk"
     _mount_tmpfs(disk, "24k")
@@ -321,6 +330,8 @@ def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, ref
         _umount(disk)
 
 
+@pytest.mark.slow
+@pytest.mark.root
 def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_path):
     disk = tmp_path / "disk"
     _mount_tmpfs(disk, "16m")
@@ -338,6 +349,7 @@ def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_pat
         _umount(disk)
 
 
+@pytest.mark.slow
 def test_workers_exit_soon_after_the_main_process_is_killed(objs, tmp_path):
     out = tmp_path / "out"
     proc = _spawn(objs, out, "--n", 60, "--workers", 2)
@@ -356,6 +368,7 @@ def test_workers_exit_soon_after_the_main_process_is_killed(objs, tmp_path):
         proc.wait()
 
 
+@pytest.mark.slow
 def test_sigterm_stops_like_ctrl_c_and_the_run_resumes(objs, reference, tmp_path):
     out = tmp_path / "out"
     proc = _spawn(objs, out, "--n", N, "--workers", 2)
@@ -378,6 +391,24 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _wait_for_dask_worker(address: str, timeout: float = 60.0) -> None:
+    """Poll until the scheduler at ``address`` has a worker (instead of sleeping a guessed time)."""
+    from distributed import Client
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with Client(address, timeout=2) as client:
+                client.wait_for_workers(1, timeout=max(1.0, deadline - time.monotonic()))
+                return
+        except (OSError, TimeoutError):
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.cluster
 def test_a_lost_scheduler_is_one_line_and_exit_4(objs, tmp_path):
     pytest.importorskip("distributed")
     port = _free_port()
@@ -396,7 +427,7 @@ def test_a_lost_scheduler_is_one_line_and_exit_4(objs, tmp_path):
     out = tmp_path / "out"
     proc = None
     try:
-        time.sleep(3)
+        _wait_for_dask_worker(address)
         proc = _spawn(objs, out, "--n", 60, "--scheduler", address)
         _wait_for_labels(proc, out)
         scheduler.kill()

@@ -160,6 +160,8 @@ def test_seed_script_runs_on_combined_model_as_written(position, yaw):
         assert widths[0.8] > 0.08 and widths[0.0] < 0.006 and widths[0.0] < widths[0.4] < widths[0.8]
 
 
+@pytest.mark.slow
+@pytest.mark.gui
 def test_gui_under_xvfb(tmp_path):
     """`annotator scene` in a real GUI window: the demo moves the arm, the screenshot shows it."""
     if shutil.which("xvfb-run") is None:

@@ -337,6 +337,7 @@ def test_a_second_run_is_refused_naming_the_holder_and_a_crash_releases(tmp_path
     assert (tmp_path / LOCK_NAME).exists()
 
 
+@pytest.mark.root
 def test_a_read_only_folder_reads_a_finished_run_and_refuses_writes(tmp_path: Path) -> None:
     mount = tmp_path / "ro"
     mount.mkdir()

@@ -84,6 +84,7 @@ def _scores(source, cands, config: AnnotatorConfig, trials: int):
     return label_span(SpanTask(span, config, 0, len(cands), trials)).rows
 
 
+@pytest.mark.slow
 def test_perturbed_trials_are_counted(brick):
     source, _, cands = brick
     still = dataclasses.replace(

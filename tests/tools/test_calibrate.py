@@ -96,6 +96,7 @@ def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
         ("object_id,grasp_id,real_success,grip_force\nbox,0,1,strong\n", "grip_force must be a number"),
     ],
 )
+@pytest.mark.slow
 def test_calibrate_bad_real_trials_are_one_line(labelled, tmp_path: Path, text: str, message: str) -> None:
     csv = tmp_path / "real.csv"
     csv.write_text(text)

@@ -20,6 +20,7 @@ def _evaluate(grasps: Path, objects: Path, out: Path, *extra: str):
     return CliRunner().invoke(main, args)
 
 
+@pytest.mark.slow
 def test_evaluating_a_dataset_reproduces_it_exactly(labelled, tmp_path: Path) -> None:
     """Every row of a labelled dataset, evaluated again (2 workers, rows shuffled), is the same row."""
     grasps = tmp_path / "grasps.parquet"

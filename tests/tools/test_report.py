@@ -54,6 +54,7 @@ def _browse(page: Path, shot: Path, profile: Path) -> list[str]:
     return [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
 
 
+@pytest.mark.browser
 def test_console_check_catches_a_broken_page(tmp_path: Path) -> None:
     """The browser check itself can fail: a script error and an undecodable picture are seen."""
     from annotator.tools.report import IMAGE_CHECK
@@ -68,6 +69,8 @@ def test_console_check_catches_a_broken_page(tmp_path: Path) -> None:
     assert "noSuchFunction" in text and "did not decode" in text
 
 
+@pytest.mark.slow
+@pytest.mark.browser
 def test_report_loads_cleanly_in_chromium(labelled, tmp_path: Path) -> None:
     out = tmp_path / "report.html"
     args = ["report", str(labelled.labels_dir), "--objects", str(labelled.objects_dir), "--html", str(out)]
