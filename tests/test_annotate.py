@@ -386,9 +386,10 @@ def test_resume_redoes_chunks_the_manifest_does_not_vouch_for(two_objects, refer
     fake = reference[reference["object_id"] == "box"].copy()
     fake["success"], fake["outcome"] = False, "error"  # wrong on purpose
     stale = [out / chunk_filename("box", 0, 10), out / chunk_filename("box", 10, 13)]
-    key, source = manifest["run_key"], entry["source_sha256"]
-    write_labels(out, fake.iloc[0:10], 0, 10, stale[0].name, key, source)  # as if killed before recording
-    write_labels(out, fake.iloc[10:13], 10, 13, stale[1].name, key, source)
+    key, source, run_id = manifest["run_key"], entry["source_sha256"], manifest["run_id"]
+    # as if this folder's run was killed after writing them and before recording them
+    write_labels(out, fake.iloc[0:10], 0, 10, stale[0].name, key, source, run_id=run_id)
+    write_labels(out, fake.iloc[10:13], 10, 13, stale[1].name, key, source, run_id=run_id)
     assert all(p.exists() for p in stale)
 
     result = run_annotate("--objects", two_objects, "--n", N_SMALL, "--workers", 1, "--out", out, "--quiet")

@@ -210,6 +210,32 @@ def test_overwrite_keeps_a_users_own_files(objs, tmp_path):
     assert json.loads((out / MANIFEST_NAME).read_text())["run"]["seed"] == 3
 
 
+@pytest.mark.slow
+def test_another_runs_files_copied_into_out_are_never_deleted_or_adopted(objs, tmp_path):
+    """A plain resume, an overwrite and a repair leave label files of another run alone and name
+    them; a copy under the name this run writes refuses the run in one line."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    args = ["--objects", objs, "--n", 10, "--workers", 1, "--quiet"]
+    run_annotate(*args, "--out", a)
+    run_annotate(*args, "--out", b, "--seed", 1)
+    box_b = b / object_filename("box")
+    copy = a / "ok_copy_from_run_B.parquet"
+    shutil.copy(box_b, copy)
+    for mode in ((), ("--overwrite",)):
+        result = run_annotate(*args, "--out", a, *mode)
+        assert copy.read_bytes() == box_b.read_bytes()
+        assert "ok_copy_from_run_B.parquet: written by another run; left as it is" in result.output
+    (a / MANIFEST_NAME).unlink()
+    result = run_annotate(*args, "--out", a, "--repair")
+    assert copy.read_bytes() == box_b.read_bytes()
+    shutil.copy(box_b, a / "cylinder-placeholder.parquet")  # a user's name: fine
+    own = a / object_filename("box")
+    own.unlink()
+    shutil.copy(box_b, own)  # another run's file exactly where this run writes box's labels
+    result = run_annotate(*args, "--out", a, check=2)
+    assert "did not write it; move it away" in result.output and own.read_bytes() == box_b.read_bytes()
+
+
 # --- 6. faults --------------------------------------------------------------------------------------------
 
 

@@ -10,6 +10,7 @@ import errno
 import json
 import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -34,6 +35,9 @@ from annotator.store import (
     files,
     names,
 )
+from annotator.store.lock import LockLostError
+from annotator.store.manifest import Manifest
+from annotator.store.reconcile import ForeignFileError
 
 N = 10
 SRC = "ab" * 32
@@ -229,17 +233,35 @@ def test_a_truncated_chunk_the_manifest_lists_is_redone(tmp_path: Path) -> None:
     assert not chunk.exists()
 
 
-def test_unvouched_files_of_the_tool_go_and_a_users_stay(tmp_path: Path) -> None:
+def test_unvouched_files_of_this_run_go_and_nothing_else_is_touched(tmp_path: Path) -> None:
     store = _open(tmp_path)
     store.close()
-    # a chunk written just before a kill (never recorded), a temp file, a user's own file
+    run_id = store.manifest.run_id
+    # a chunk this folder's run wrote just before a kill (never recorded), a temp file, a user's own
+    # file, and label files of another run copied in: renamed, and under the tool's own name
     files.write_labels(
-        tmp_path, synthetic_labels("a", 5), 0, 5, names.chunk_filename("a", 0, 5), _spec().key, SRC
+        tmp_path,
+        synthetic_labels("a", 5),
+        0,
+        5,
+        names.chunk_filename("a", 0, 5),
+        _spec().key,
+        SRC,
+        run_id=run_id,
     )
     (tmp_path / ".x.parquet.abc123.tmp").write_bytes(b"half")
     pd.DataFrame({"mine": [1]}).to_parquet(tmp_path / "mine.parquet")
-    _open(tmp_path).close()
-    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith((".", "_"))) == ["mine.parquet"]
+    other = "f" * 32
+    b5 = synthetic_labels("b", 5)
+    files.write_labels(tmp_path, b5, 0, 5, "ok_copy_from_run_B.parquet", _spec().key, SRC, run_id=other)
+    files.write_labels(tmp_path, b5, 0, 5, names.chunk_filename("z", 0, 5), _spec().key, SRC, run_id=other)
+    store = _open(tmp_path)
+    store.close()
+    left = sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith((".", "_")))
+    assert left == sorted(["mine.parquet", "ok_copy_from_run_B.parquet", names.chunk_filename("z", 0, 5)])
+    named = "\n".join(store.notes)
+    assert "ok_copy_from_run_B.parquet: written by another run; left as it is" in named
+    assert "mine.parquet: not a label file of this tool; left as it is" in named
 
 
 @pytest.mark.parametrize(
@@ -283,13 +305,19 @@ def test_repair_keeps_only_files_that_verify(tmp_path: Path) -> None:
     assert not bad.exists()
 
 
-def test_other_runs_files_are_not_adopted_by_repair(tmp_path: Path) -> None:
+def test_other_runs_files_are_neither_adopted_nor_deleted_by_repair(tmp_path: Path) -> None:
     _finished(tmp_path, spec=_spec(seed=5))
+    before = sorted(p.name for p in tmp_path.glob("*.parquet"))
     (tmp_path / MANIFEST_NAME).unlink()
-    store = _open(tmp_path, repair=True)  # this run has seed 0: the seed-5 files cannot be trusted
-    assert store.reconcile({"a": SRC, "b": SRC}).done == set()
+    store = _open(tmp_path, repair=True)  # this run has seed 0: the seed-5 files are another run's
+    with pytest.raises(ForeignFileError, match="did not write it; move it away") as info:
+        store.reconcile({"a": SRC, "b": SRC})  # they lie where this run writes a's and b's labels
     store.close()
-    assert not list(tmp_path.glob("*.parquet"))
+    assert "\n" not in str(info.value)
+    assert sorted(p.name for p in tmp_path.glob("*.parquet")) == before
+    store = _open(tmp_path)  # the folder still serves a run that writes other objects
+    assert store.reconcile({"c": SRC}).done == set()
+    store.close()
 
 
 # --- inputs that change ------------------------------------------------------------------------------
@@ -464,3 +492,184 @@ def test_a_manifest_cannot_point_the_tool_at_other_files(tmp_path: Path) -> None
     with pytest.raises(ManifestUnreadableError, match=r"objects_done\['a'\]\.artifacts\['v.png'\]\.file"):
         _open(tmp_path)
     assert victim.exists()
+
+
+# --- the store's edges: paths, links, FIFOs, the lock, merges, malformed manifests ----------------------
+
+
+def _tamper(folder: Path, change) -> None:
+    data = json.loads((folder / MANIFEST_NAME).read_text())
+    change(data)
+    (folder / MANIFEST_NAME).write_text(json.dumps(data))
+
+
+@pytest.mark.parametrize("target", ["../../victim.txt", "ABSOLUTE"])
+def test_a_manifest_entry_outside_the_folder_is_refused_and_deletes_nothing(tmp_path: Path, target) -> None:
+    out = tmp_path / "a" / "b" / "out"
+    out.mkdir(parents=True)
+    _finished(out)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep")
+    name = str(victim) if target == "ABSOLUTE" else target
+
+    def point_away(data):
+        data["objects_done"]["a"]["file"] = name
+
+    _tamper(out, point_away)
+    with pytest.raises(ManifestUnreadableError, match=r"objects_done\['a'\]\.file") as info:
+        _open(out)
+    assert "\n" not in str(info.value)
+    assert victim.read_text() == "keep"
+
+
+def test_a_fifo_where_a_label_file_was_is_never_opened_or_removed(tmp_path: Path) -> None:
+    _finished(tmp_path)
+    path = tmp_path / names.object_filename("a")
+    path.unlink()
+    os.mkfifo(path)  # opening it for reading would block the run forever
+    store = _open(tmp_path)
+    assert any("not a regular file; left as it is" in note for note in store.notes)
+    with pytest.raises(ForeignFileError, match="did not write it"):
+        store.reconcile({"a": SRC, "b": SRC})
+    store.close()
+    assert stat.S_ISFIFO(os.lstat(path).st_mode)
+
+
+def test_a_symlinked_label_file_is_not_followed(tmp_path: Path) -> None:
+    _finished(tmp_path)
+    victim = tmp_path.parent / f"{tmp_path.name}-victim.parquet"
+    path = tmp_path / names.object_filename("a")
+    path.rename(victim)
+    path.symlink_to(victim)
+    store = _open(tmp_path)
+    with pytest.raises(ForeignFileError):
+        store.reconcile({"a": SRC, "b": SRC})
+    store.close()
+    assert path.is_symlink() and victim.is_file()
+
+
+def test_the_lock_survives_its_file_being_removed(tmp_path: Path) -> None:
+    first = _open(tmp_path)
+    (tmp_path / LOCK_NAME).unlink()
+    with pytest.raises(LockedError, match="in use by another run"):
+        _open(tmp_path)
+    first.write_chunk("a", synthetic_labels("a", 5), 0, SRC)  # the first run goes on
+    first.save(force=True)
+    first.close()
+    _open(tmp_path).close()  # and the folder is free once it ends
+
+
+def test_a_run_whose_lock_file_is_replaced_stops_with_one_line(tmp_path: Path, monkeypatch) -> None:
+    """Where folders cannot be locked (some network file systems), the lock file is the lock and
+    its inode is checked at every save."""
+    from annotator.store import lock as lock_module
+
+    real_open = os.open
+
+    def no_folder_locks(path, flags, *args):
+        if flags & os.O_DIRECTORY:
+            raise OSError(errno.EINVAL, "no directory locks here")
+        return real_open(path, flags, *args)
+
+    monkeypatch.setattr(lock_module.os, "open", no_folder_locks)
+    store = _open(tmp_path)
+    assert store.lock.on_file
+    (tmp_path / LOCK_NAME).unlink()
+    (tmp_path / LOCK_NAME).write_text("{}")  # another run's, say
+    store.write_chunk("a", synthetic_labels("a", 5), 0, SRC)
+    with pytest.raises(LockLostError, match="was removed or replaced while this run held it") as info:
+        store.save(force=True)  # every manifest save checks the lock first
+    assert "\n" not in str(info.value)
+    with pytest.raises(LockLostError):
+        store.close()  # nothing more is written, and the lock is released
+    assert store.lock.fd is None
+
+
+def _no_duplicates(folder: Path) -> None:
+    df = pd.read_parquet(folder)
+    assert not df.duplicated(["object_id", "grasp_id"]).any(), df.groupby("object_id").size()
+
+
+def test_a_merge_that_cannot_record_leaves_the_chunks_and_no_duplicates(tmp_path: Path, monkeypatch) -> None:
+    store = _open(tmp_path)
+    whole = synthetic_labels("a")
+    store.write_chunk("a", whole.iloc[:5], 0, SRC)
+    store.write_chunk("a", whole.iloc[5:], 5, SRC)
+    real_save = Manifest.save
+
+    def disk_full(self, out_dir):
+        raise files.output_error(out_dir, OSError(errno.ENOSPC, "No space left on device"))
+
+    monkeypatch.setattr(Manifest, "save", disk_full)
+    with pytest.raises(files.OutputError, match="No space left on device"):
+        store.finish_object("a", SRC)
+    _no_duplicates(tmp_path)
+    assert len(pd.read_parquet(tmp_path)) == N  # the chunks
+    monkeypatch.setattr(Manifest, "save", real_save)
+    store.close()
+    store = _open(tmp_path)
+    assert store.reconcile({"a": SRC}).chunks == {"a": {(0, 5), (5, 10)}}
+    store.finish_object("a", SRC)
+    store.close()
+    _no_duplicates(tmp_path)
+    pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.validate_labels(whole))
+
+
+def test_a_merge_stopped_before_its_rename_is_completed_on_resume(tmp_path: Path, monkeypatch) -> None:
+    store = _open(tmp_path)
+    whole = synthetic_labels("a")
+    store.write_chunk("a", whole.iloc[:5], 0, SRC)
+    store.write_chunk("a", whole.iloc[5:], 5, SRC)
+    real_replace = os.replace
+
+    def killed_before_the_rename(source, target):
+        if Path(target).name == names.object_filename("a"):
+            raise SystemExit("killed")
+        return real_replace(source, target)
+
+    monkeypatch.setattr(os, "replace", killed_before_the_rename)
+    with pytest.raises(SystemExit):
+        store.finish_object("a", SRC)
+    monkeypatch.undo()
+    store.lock.release()
+    assert not list(tmp_path.glob("*.parquet"))  # neither chunks nor merged rows are visible
+    store = _open(tmp_path)
+    assert store.reconcile({"a": SRC}).done == {"a"}
+    store.close()
+    pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.validate_labels(whole))
+
+
+@pytest.mark.parametrize(
+    "change, where",
+    [
+        (lambda d: d["run"].__setitem__("config", 1), "manifest.run.config"),
+        (lambda d: d["run"].__setitem__("versions", 5), "manifest.run.versions"),
+        (lambda d: d["run"].__setitem__("seed", 2**64), "manifest.run.seed"),
+        (lambda d: d["objects_done"]["a"].pop("stats"), "'stats' is missing"),
+        (lambda d: d["objects_done"]["a"]["stats"].__setitem__("n", "ten"), "stats.n"),
+        (lambda d: d["objects_failed"].__setitem__("x", 3), "objects_failed['x']"),
+    ],
+)
+def test_a_manifest_of_any_other_shape_is_one_line(tmp_path: Path, change, where) -> None:
+    _finished(tmp_path)
+    _tamper(tmp_path, change)
+    with pytest.raises(ManifestUnreadableError) as info:
+        _open(tmp_path)
+    assert where in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_renamed_chunk_key_and_a_deeply_nested_manifest_are_one_line(tmp_path: Path) -> None:
+    store = _open(tmp_path)
+    store.write_chunk("a", synthetic_labels("a", 5), 0, SRC)
+    store.close()
+
+    def rename(data):
+        files_ = data["chunks_done"]["a"]["files"]
+        files_["0-6"] = files_.pop("0-5")
+
+    _tamper(tmp_path, rename)
+    with pytest.raises(ManifestUnreadableError, match=r"chunks_done\['a'\]\['0-6'\]"):
+        _open(tmp_path)
+    (tmp_path / MANIFEST_NAME).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ManifestUnreadableError, match="nested too deep|expected a JSON object"):
+        _open(tmp_path)

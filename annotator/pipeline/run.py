@@ -358,12 +358,17 @@ def run(
         store.open(overwrite=options.overwrite, repair=options.repair)
     except StoreError as exc:
         raise UsageError(str(exc)) from exc
+    try:
+        resume = store.reconcile(digests)
+    except StoreError as exc:
+        store.close()
+        raise UsageError(str(exc)) from exc
     status_dir = tempfile.mkdtemp(prefix="rg2-status-")
     previous_term = signal.getsignal(signal.SIGTERM)
     with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
         signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        _run(options, config, summary, store, sources, digests, status_dir, candidates)
+        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates)
     except (OutputError, SchedulerLost) as exc:
         summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
         raise
@@ -395,13 +400,13 @@ def _raise_terminated(signum, frame) -> None:
 
 
 def _run(
-    options, config, summary: Summary, store: Store, sources, digests, status_dir: str, candidates
+    options, config, summary: Summary, store: Store, resume, sources, digests, status_dir: str, candidates
 ) -> None:
-    """The body of :func:`run` once the folder is open."""
+    """The body of :func:`run` once the folder is open and matched to the objects (``resume``)."""
+    store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
     for oid, error in summary.failed.items():
         store.fail_object(oid, error)
     live = [s for s in sources if s.object_id in digests]
-    resume = store.reconcile(digests)
     chunk = store.spec.chunk_size
     n = options.n
     for oid in sorted(resume.done):

@@ -10,12 +10,14 @@ manifest is ``_manifest.json`` and temporary files start with ``.``.
 from __future__ import annotations
 
 import contextlib
+import enum
 import errno
 import hashlib
 import io
 import json
 import logging
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,7 +30,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
-from annotator.store.names import is_label_filename, is_temp_file_name
+from annotator.store.names import chunk_filename, is_label_filename, is_temp_file_name, object_filename
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +40,9 @@ _ARROW_TYPES = {STRING: pa.string(), "int64": pa.int64(), "float64": pa.float64(
 
 class OutputError(OSError):
     """The output folder cannot be written (disk full, read-only, permissions): exit code 3."""
+
+    def __str__(self) -> str:  # the one line, without OSError's "[Errno N] ...: 'path'" dressing
+        return str(self.strerror or super().__str__())
 
 
 def output_error(path: Path | str, exc: OSError) -> OutputError:
@@ -152,11 +157,14 @@ def write_labels(
     run_key: str,
     source_sha256: str,
     artifacts: dict[str, dict[str, str]] | None = None,
+    *,
+    run_id: str | None = None,
 ) -> FileRecord:
     """Validate rows of ONE object with ``grasp_id`` exactly ``start..stop-1``; write them atomically
-    as ``out_dir / name``, marked as the tool's (``run_key``, the object's ``source_sha256`` and the
-    records of the ``artifacts`` that came with these labels, so a lost manifest can be rebuilt
-    from the files); return the file's record."""
+    as ``out_dir / name``, marked as the tool's (``run_key``, the folder's ``run_id``, the object's
+    ``source_sha256`` and the records of the ``artifacts`` that came with these labels, so a lost
+    manifest can be rebuilt from the files and another run's files are never taken for this
+    run's); return the file's record."""
     out = validate_labels(df)
     ids = out["object_id"].unique()
     if len(ids) != 1:
@@ -174,6 +182,8 @@ def write_labels(
     }
     if artifacts:
         mark["artifacts"] = artifacts
+    if run_id is not None:
+        mark["run_id"] = run_id
     buffer = io.BytesIO()
     pq.write_table(arrow_table(out, mark), buffer)
     data = buffer.getvalue()
@@ -182,8 +192,19 @@ def write_labels(
     return FileRecord(name, hashlib.sha256(data).hexdigest(), len(out))
 
 
+def is_regular_file(path: Path) -> bool:
+    """``path`` is a regular file itself (not a link, a FIFO, a device or a folder): the only kind
+    of file the tool opens in an output folder (opening a FIFO would hang the run)."""
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
 def read_mark(path: Path) -> dict[str, Any] | None:
     """The tool's mark of a Parquet file (footer only), or None for anything else or unreadable."""
+    if not is_regular_file(path):
+        return None
     try:
         metadata = pq.read_schema(path).metadata or {}
         mark = json.loads(metadata[MARK_KEY])
@@ -192,18 +213,38 @@ def read_mark(path: Path) -> dict[str, Any] | None:
     return mark if isinstance(mark, dict) else None
 
 
-def is_own_file(path: Path) -> bool:
-    """A file this tool wrote: marked, or named as the tool names files and no longer readable
-    (a truncated label file; a user's Parquet file that reads, unmarked, is never counted)."""
-    if read_mark(path) is not None:
-        return True
-    if not is_label_filename(path.name):
-        return False
-    try:
-        pq.read_schema(path)
-    except Exception:
-        return True
-    return False
+class Owner(enum.Enum):
+    """Who wrote a file found in an output folder, as far as the file itself can tell."""
+
+    THIS_RUN = "this run"  # marked by the folder's run, under the name its mark gives
+    OTHER_RUN = "another run"  # marked by the tool, but by another run (or renamed)
+    CORRUPT = "corrupt"  # named as the tool names label files, and no longer readable
+    USER = "the user"  # anything else: a user's own file
+    NOT_A_FILE = "not a regular file"  # a link, a FIFO, a folder: never opened, never touched
+
+
+def owner_of(path: Path, run_id: str | None) -> Owner:
+    """Who wrote ``path``: only :attr:`Owner.THIS_RUN` and :attr:`Owner.CORRUPT` files are ever
+    removed or replaced by the tool (``run_id``: the folder's run, None for folders of versions
+    that did not record one)."""
+    if not is_regular_file(path):
+        return Owner.NOT_A_FILE
+    mark = read_mark(path)
+    if mark is not None:
+        oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
+        named = (
+            isinstance(oid, str)
+            and isinstance(start, int)
+            and isinstance(stop, int)
+            and path.name in (object_filename(oid), chunk_filename(oid, start, stop))
+        )
+        return Owner.THIS_RUN if named and mark.get("run_id") == run_id else Owner.OTHER_RUN
+    if is_label_filename(path.name):
+        try:
+            pq.read_schema(path)
+        except Exception:
+            return Owner.CORRUPT
+    return Owner.USER
 
 
 def read_labels(out_dir: Path, names: list[str]) -> pd.DataFrame:

@@ -1,9 +1,18 @@
-"""One run per output folder: an exclusive ``flock`` the OS releases however the run ends."""
+"""One run per output folder: an exclusive ``flock`` the OS releases however the run ends.
+
+The lock is taken on the folder itself (its directory file descriptor), so removing the lock
+file during a run neither frees the folder for a second run nor breaks the first; the lock file
+(``.rg2-annotator.lock``) only says who holds the folder. Where a file system cannot lock a
+directory, the lock file is locked instead and its inode is checked whenever the manifest is
+saved: a run whose lock file was removed or replaced stops with one line
+(:class:`LockLostError`) instead of writing beside another run.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import fcntl
 import json
 import os
@@ -16,30 +25,36 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from annotator.store.errors import LockedError
-from annotator.store.files import output_error
+from annotator.store.files import OutputError, output_error
 from annotator.store.names import LOCK_NAME
+
+
+class LockLostError(OutputError):
+    """The folder's lock file was removed or replaced while this run held it (exit code 3)."""
 
 
 @dataclass
 class RunLock:
-    """An exclusive ``flock`` on ``LOCK_NAME`` in the folder: the OS releases it when the process
-    ends, however it ends (a crash or SIGKILL included); the file tells who holds it."""
+    """An exclusive ``flock`` on the output folder (or, where folders cannot be locked, on its
+    lock file); the file tells who holds it."""
 
     out_dir: Path
-    fd: int | None = None
+    fd: int | None = None  # the locked descriptor: the folder's, or the lock file's
+    on_file: bool = False  # the lock file itself is locked (no directory locks here)
+    inode: tuple[int, int] | None = None  # (st_dev, st_ino) of the lock file this run wrote
 
     def acquire(self) -> None:
         """Take the lock, LockedError naming the holder, or OutputError if the folder is not writable."""
         path = self.out_dir / LOCK_NAME
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+            info_fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
         except OSError as exc:
             raise output_error(path, exc) from exc
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            self.fd, self.on_file = self._lock(info_fd)
         except BlockingIOError:
-            holder = _read_holder(fd)
-            os.close(fd)
+            holder = _read_holder(info_fd)
+            os.close(info_fd)
             raise LockedError(
                 f"{self.out_dir} is in use by another run ({holder}); wait for it to finish or choose "
                 "another --out"
@@ -51,15 +66,55 @@ class RunLock:
             "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])[:300],
         }
         with contextlib.suppress(OSError):
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, json.dumps(info).encode(), 0)
-        self.fd = fd
+            os.ftruncate(info_fd, 0)
+            os.pwrite(info_fd, json.dumps(info).encode(), 0)
+        stat = os.fstat(info_fd)
+        self.inode = (stat.st_dev, stat.st_ino)
+        if not self.on_file:
+            os.close(info_fd)
+
+    def _lock(self, info_fd: int) -> tuple[int, bool]:
+        """Lock the folder (or the lock file where that is not possible); BlockingIOError if held."""
+        try:
+            dir_fd = os.open(self.out_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        except OSError:
+            dir_fd = None
+        if dir_fd is not None:
+            try:
+                fcntl.flock(dir_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return dir_fd, False
+            except BlockingIOError:
+                os.close(dir_fd)
+                raise
+            except OSError as exc:  # a file system that cannot lock a folder (some NFS)
+                os.close(dir_fd)
+                if exc.errno not in (errno.EBADF, errno.ENOLCK, errno.EINVAL, errno.EOPNOTSUPP):
+                    raise
+        fcntl.flock(info_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return info_fd, True
+
+    def check(self) -> None:
+        """Where the lock file itself is the lock: LockLostError if it was removed or replaced."""
+        if not self.on_file or self.fd is None:
+            return
+        try:
+            stat = os.stat(self.out_dir / LOCK_NAME, follow_symlinks=False)
+            same = (stat.st_dev, stat.st_ino) == self.inode
+        except OSError:
+            same = False
+        if not same:
+            raise LockLostError(
+                errno.ENOLCK,
+                f"{self.out_dir / LOCK_NAME} was removed or replaced while this run held it; another run "
+                "may be writing here, so this one stops (re-run to resume once the folder is free)",
+            )
 
     def release(self) -> None:
         if self.fd is not None:
             with contextlib.suppress(OSError):
                 fcntl.flock(self.fd, fcntl.LOCK_UN)
-            os.close(self.fd)
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
             self.fd = None
 
 
@@ -68,7 +123,7 @@ def _read_holder(fd: int) -> str:
         info = json.loads(os.pread(fd, 4096, 0).decode())
         return f"pid {info['pid']} on {info['host']}, started {info['started']}: {info['command']}"
     except Exception:
-        return "a process that has not said who it is yet"
+        return "a process whose lock file says nothing: it may have been removed"
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@ import importlib.metadata
 import json
 import platform
 import stat
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,7 +33,7 @@ from annotator.store.names import (
     is_label_filename,
     object_filename,
 )
-from annotator.store.schema import Any_, Int, Invalid, Map, Num, Record, Str
+from annotator.store.schema import Any_, Int, Invalid, Map, Num, Record, Seq, Str
 
 TOOL = "rg2-annotator"
 MANIFEST_VERSION = 3  # 3: run binding, per-file checksums, source digests, marked files
@@ -169,7 +170,14 @@ _RUN = Record(
     }
 )
 MANIFEST_SCHEMA = Record(
-    {
+    optional={
+        # this folder's run: every label file it writes carries it, so another run's files copied
+        # into the folder are never taken for its own (absent in folders of earlier versions)
+        "run_id": Str(lambda s: len(s) == 32 and all(c in "0123456789abcdef" for c in s), "a run id"),
+        # every object id of the run's inputs, so readers can tell a finished run from one that stopped
+        "objects_planned": Seq(Str()),
+    },
+    required={
         "tool": Str(lambda s: s == TOOL, f"{TOOL!r}"),
         "manifest_version": Int(MANIFEST_VERSION, MANIFEST_VERSION),
         "run": _RUN,
@@ -181,7 +189,7 @@ MANIFEST_SCHEMA = Record(
         "objects_info": Map(Map(Any_())),
         "created": Str(),
         "updated": Str(),
-    }
+    },
 )
 
 
@@ -234,17 +242,28 @@ class Manifest:
     updated: str = field(default_factory=utc_now)
     manifest_version: int = MANIFEST_VERSION
     tool: str = TOOL
+    run_id: str | None = None
+    objects_planned: list[str] | None = None
 
     @classmethod
-    def fresh(cls, spec: RunSpec) -> Manifest:
-        return cls(run=spec.to_json(), run_key=spec.key)
+    def fresh(cls, spec: RunSpec, run_id: str | None = None) -> Manifest:
+        return cls(run=spec.to_json(), run_key=spec.key, run_id=run_id or uuid.uuid4().hex)
+
+    def unfinished(self) -> list[str]:
+        """Planned objects neither done nor failed (every planned one still running or never started)."""
+        planned = self.objects_planned or []
+        return sorted(set(planned) - set(self.objects_done) - set(self.objects_failed))
 
     @staticmethod
     def path(out_dir: Path) -> Path:
         return Path(out_dir) / MANIFEST_NAME
 
     def to_json(self) -> dict[str, Any]:
-        return canonical(dataclasses.asdict(self))
+        data = canonical(dataclasses.asdict(self))
+        for name in MANIFEST_SCHEMA.optional:  # absent rather than null (folders of earlier versions)
+            if data.get(name) is None:
+                data.pop(name, None)
+        return data
 
     def save(self, out_dir: Path) -> None:
         """Write atomically (OutputError if the folder cannot be written)."""

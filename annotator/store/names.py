@@ -26,7 +26,7 @@ STALE_DIR = "_stale"
 # ``ARTIFACTS_DIR/<object stem>/<name>``.
 ARTIFACTS_DIR = "_views"
 
-_TEMP_RE = re.compile(r"^\..+\.[A-Za-z0-9_]+\.tmp$")  # mkstemp names of files.atomic_write
+_TEMP_RE = re.compile(r"^\..+\.([A-Za-z0-9_]+\.tmp|merging)$")  # atomic_write's temporaries, merges
 _LABEL_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}(\.\d{6}-\d{6})?\.parquet$")
 _ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _OBJECT_STEM_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}$")
@@ -55,13 +55,20 @@ def chunk_filename(object_id: str, start: int, stop: int) -> str:
     return f"{object_stem(object_id)}.{start:06d}-{stop:06d}.parquet"
 
 
+def merging_name(name: str) -> str:
+    """Where an object's merged file is written before it replaces its chunks: hidden, so
+    ``read_parquet`` never sees the merged rows and the chunks at once."""
+    return f".{name}.merging"
+
+
 def is_label_filename(name: object) -> bool:
     """``name`` is a plain file name (no folder) of the form the tool gives label files."""
     return isinstance(name, str) and _LABEL_NAME_RE.match(name) is not None
 
 
 def is_temp_file_name(name: str) -> bool:
-    """A temporary file name of :func:`annotator.store.files.atomic_write` (left by a killed run)."""
+    """A temporary file name of :func:`annotator.store.files.atomic_write` or a merge (left by a
+    killed run)."""
     return _TEMP_RE.match(name) is not None
 
 

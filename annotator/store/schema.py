@@ -90,6 +90,19 @@ class Map(Check):
 
 
 @dataclass(frozen=True)
+class Seq(Check):
+    """A JSON array whose items pass ``item``."""
+
+    item: Check
+
+    def check(self, value: Any, where: str) -> None:
+        if not isinstance(value, list):
+            raise Invalid(f"{where}: expected a JSON array, found {_show(value)}")
+        for i, v in enumerate(value):
+            self.item.check(v, f"{where}[{i}]")
+
+
+@dataclass(frozen=True)
 class Record(Check):
     """A JSON object with ``required`` fields, ``optional`` ones, and (unless ``open``) no others."""
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ from annotator.store.artifacts import delete_record, write_artifact
 from annotator.store.files import FileRecord, OutputError, output_error, read_labels, write_labels
 from annotator.store.lock import RunLock, sigint_deferred
 from annotator.store.manifest import Manifest, RunSpec, canonical, utc_now
-from annotator.store.names import chunk_filename, object_filename
+from annotator.store.names import chunk_filename, merging_name, object_filename
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +105,17 @@ class Store:
         self.require_writable()
         stop = start + len(df)
         name = chunk_filename(oid, start, stop)
-        rec = write_labels(self.out_dir, df, start, stop, name, self.spec.key, source_sha256, artifacts)
+        rec = write_labels(
+            self.out_dir,
+            df,
+            start,
+            stop,
+            name,
+            self.spec.key,
+            source_sha256,
+            artifacts,
+            run_id=self.manifest.run_id,
+        )
         entry = self.manifest.chunks_done.setdefault(oid, {"source_sha256": source_sha256, "files": {}})
         record: dict[str, Any] = rec.to_json()
         if artifacts:
@@ -115,7 +126,11 @@ class Store:
     def finish_object(self, oid: str, source_sha256: str) -> dict[str, Any]:
         """Merge the object's chunks into its file, record it, delete the chunks; returns its stats.
 
-        Ctrl-C waits for the three steps, so the folder never holds an object's file and its chunks.
+        In an order that never shows ``read_parquet`` the merged rows and the chunks at once,
+        whatever stops the run (Ctrl-C waits for the steps; a full disk or a kill may not): the
+        merged file is written hidden, recorded, the chunks removed, then it is renamed into place.
+        A run stopped between the last two steps is completed on resume
+        (:func:`annotator.store.reconcile.verify`).
         """
         self.require_writable()
         chunks = sorted(self.manifest.chunks_done[oid]["files"].items(), key=_start)
@@ -123,21 +138,38 @@ class Store:
         artifacts = {name: a for _, rec in chunks for name, a in rec.get("artifacts", {}).items()}
         df = read_labels(self.out_dir, files)
         stats = object_stats(df)
+        final = object_filename(oid)
         with sigint_deferred():
             rec: FileRecord = write_labels(
-                self.out_dir, df, 0, len(df), object_filename(oid), self.spec.key, source_sha256, artifacts
+                self.out_dir,
+                df,
+                0,
+                len(df),
+                merging_name(final),
+                self.spec.key,
+                source_sha256,
+                artifacts,
+                run_id=self.manifest.run_id,
             )
             self.manifest.objects_done[oid] = {
                 **rec.to_json(),
+                "file": final,
                 "source_sha256": source_sha256,
                 "stats": stats,
                 "time": utc_now(),
                 **({"artifacts": artifacts} if artifacts else {}),
             }
-            self.manifest.chunks_done.pop(oid, None)
-            self.save(force=True)
+            chunk_entry = self.manifest.chunks_done.pop(oid)
+            try:
+                self.save(force=True)
+            except BaseException:  # not recorded: the chunks stay the object's labels
+                self.manifest.objects_done.pop(oid)
+                self.manifest.chunks_done[oid] = chunk_entry
+                (self.out_dir / merging_name(final)).unlink(missing_ok=True)
+                raise
             for name in files:
                 (self.out_dir / name).unlink(missing_ok=True)
+            os.replace(self.out_dir / merging_name(final), self.out_dir / final)
         return stats
 
     def fail_object(self, oid: str, error: str) -> None:
@@ -155,8 +187,11 @@ class Store:
         self.manifest.objects_info[oid] = canonical(info)
 
     def save(self, force: bool = False) -> None:
+        """Save the manifest (at most every SAVE_SECONDS unless ``force``), first checking that
+        this run still holds the folder (LockLostError otherwise)."""
         now = time.monotonic()
         if force or now - self._saved_at >= self.SAVE_SECONDS:
+            self.lock.check()
             self.manifest.save(self.out_dir)
             self._saved_at = now
 
