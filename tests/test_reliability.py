@@ -26,7 +26,7 @@ from annotator.objects import discover_objects
 from annotator.pipeline.plan import PlannedObject, plan_spans
 from annotator.pipeline.run import RunOptions, Workers, execute
 from annotator.pipeline.worker import Span, SpanResult, SpanTask, label_span
-from annotator.store import MANIFEST_NAME, STALE_DIR
+from annotator.store import LOCK_NAME, MANIFEST_NAME, STALE_DIR
 from annotator.store.names import object_filename
 
 N = 20  # two spans per object
@@ -116,6 +116,23 @@ def test_a_second_run_on_the_same_out_is_a_usage_error_naming_the_first(objs, re
         first.wait()
     assert first.returncode == 0, stderr
     pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)  # nothing mixed in
+
+
+@pytest.mark.slow
+def test_removing_the_lock_file_during_a_run_frees_nothing(objs, reference, tmp_path):
+    out = tmp_path / "out"
+    first = _spawn(objs, out, "--n", N, "--workers", 1)
+    try:
+        _wait_for_labels(first, out)
+        (out / LOCK_NAME).unlink()
+        second = run_annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--seed", 1, check=2)
+        assert "in use by another run" in second.output
+        _, stderr = first.communicate(timeout=180)
+    finally:
+        first.kill()
+        first.wait()
+    assert first.returncode == 0 and "Traceback" not in stderr, stderr
+    pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
 
 
 # --- 3. resume binds every label-affecting input ---------------------------------------------------

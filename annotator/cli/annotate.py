@@ -10,6 +10,7 @@ from annotator import __version__
 from annotator.cli.common import (
     CONFIG_OPTION,
     CONTEXT,
+    SEED,
     VERBOSE_OPTION,
     load_config,
     positive_finite,
@@ -51,7 +52,7 @@ from annotator.cli.common import (
     default=None,
     help="Worker processes [default: all cores]. Labels do not depend on it.",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every random draw.")
 @click.option(
     "--trials",
     type=click.IntRange(min=1),

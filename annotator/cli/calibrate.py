@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CONTEXT, LABELS, VERBOSE_OPTION, setup_logging
+from annotator.cli.common import CONTEXT, LABELS, SEED, VERBOSE_OPTION, setup_logging
 from annotator.tools import calibrate as cal
 
 
@@ -61,7 +61,7 @@ def _floats(text: str) -> tuple[float, ...]:
 @click.option(
     "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
 )
-@click.option("--seed", default=0, show_default=True, help="Seed of the bootstrap resampling.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the bootstrap resampling.")
 @VERBOSE_OPTION
 def calibrate_command(
     labels, real_csv, objects_dir, friction, force, severity, config_out, workers, seed, verbose
@@ -82,12 +82,15 @@ def calibrate_command(
     setup_logging(False, verbose, default=logging.WARNING)
     import os
 
-    from annotator.tools.common import labelling_config, read_labels
+    from annotator.tools.common import check_output_file, labelling_config, read_labels
 
     frictions, forces, severities = _floats(friction), _floats(force), _floats(severity)
+    check_output_file(config_out, "--write-config")  # before the simulation, not after it
     labels_df = read_labels(labels)
     trials = cal.read_real_trials(real_csv, labels_df)
-    base = labelling_config(labels)
+    chosen = labelling_config(labels)
+    click.echo(chosen.line())
+    base = chosen.config
     settings = cal.grid(frictions, forces, severities, real_force="grip_force" in trials.columns)
     click.echo(
         f"{len(trials)} real trials ({int(trials.real_success.sum())} held) on {trials.object_id.nunique()} "

@@ -18,6 +18,9 @@ EXIT_SCHEDULER = 4  # the Dask scheduler was lost
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, the shell convention
 EXIT_TERMINATED = 143  # 128 + SIGTERM
 
+# Seeds are stored as int64 in every label row: larger ones are refused at the command line.
+SEED = click.IntRange(0, 2**63 - 1)
+
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 # annotator.dataset.OUTCOMES, spelled out so that `annotator --help` does not import pandas
 # (tests/tools/test_show.py checks they are the same)

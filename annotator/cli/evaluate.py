@@ -9,15 +9,16 @@ import click
 
 from annotator.cli.common import (
     CONTEXT,
+    SEED,
     VERBOSE_OPTION,
-    load_config,
+    positive_finite,
     run_pipeline,
     setup_logging,
 )
 
 
 @click.command("evaluate", context_settings=CONTEXT)
-@click.argument("grasps_file", metavar="GRASPS", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("grasps_file", metavar="GRASPS", type=click.Path(path_type=Path))
 @click.option(
     "--objects",
     "objects_dir",
@@ -35,13 +36,17 @@ from annotator.cli.common import (
 @click.option(
     "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the perturbed trials.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the perturbed trials.")
 @click.option(
     "--trials", type=click.IntRange(min=1), default=1, show_default=True, help="Perturbed trials per grasp."
 )
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler (tcp://host:8786).")
 @click.option(
-    "--scale", type=float, default=None, help="Scale every mesh by this factor (as annotate --scale)."
+    "--scale",
+    type=float,
+    default=None,
+    callback=positive_finite,
+    help="Scale every mesh by this factor (as annotate --scale).",
 )
 @click.option("--overwrite", is_flag=True, help="Discard existing labels in --out and start over.")
 @click.option(
@@ -49,7 +54,8 @@ from annotator.cli.common import (
     "config_file",
     type=click.Path(path_type=Path, dir_okay=False, exists=True),
     default=None,
-    help="TOML file overriding constants, as for annotate.",
+    help="TOML file overriding constants, as for annotate [default: the configuration recorded "
+    "beside GRASPS when it is a labels folder or file of this tool, else the defaults].",
 )
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
@@ -69,11 +75,11 @@ def evaluate_command(
 ):
     """Simulate grasps someone else proposed with annotate's protocol; write label columns.
 
-    GRASPS is a Parquet or CSV file with object_id, the TCP pose as the labels give it (x y z,
-    qx qy qz qw in the object's mesh frame, metres, xyzw) and optionally width (m, the opening at
-    the grasp; measured on the mesh when missing) and grasp_id. The output is what annotate
-    writes (same columns, resume, determinism, workers); grasps keep their grasp_id when those
-    are 0..k-1 per object, else they are numbered in the order of the file.
+    GRASPS is a Parquet or CSV file (or a labels folder) with object_id, the TCP pose as the
+    labels give it (x y z, qx qy qz qw in the object's mesh frame, metres, xyzw) and optionally
+    width (m, the opening at the grasp; measured on the mesh when missing) and grasp_id. The
+    output is what annotate writes (same columns, resume, determinism, workers); grasps keep their
+    grasp_id when those are 0..k-1 per object, else they are numbered in the order of the file.
 
     \b
     Example:
@@ -85,10 +91,13 @@ def evaluate_command(
     """
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.pipeline.worker import max_width
+    from annotator.tools.common import labelling_config
     from annotator.tools.evaluate import given_candidates, read_grasps
 
-    config = load_config(config_file)
     grasps = read_grasps(grasps_file)
+    chosen = labelling_config(grasps_file, config_file)
+    config = chosen.config
+    click.echo(chosen.line(), err=True)
     if not Path(objects_dir).is_dir():
         raise click.UsageError(f"objects folder not found: {objects_dir}")
     candidates, renumbered = given_candidates(grasps, objects_dir, config, scale, max_width(config))

@@ -22,8 +22,14 @@ from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
 @OBJECTS_OPTION
 @click.option("--object", "object_ids", multiple=True, help="Only this object (repeat for several).")
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Replace an earlier export in --out (only the files it wrote are removed).",
+)
+@click.option("--partial", is_flag=True, help="Export the labels of a run that has not finished.")
 @VERBOSE_OPTION
-def export_command(labels, fmt, out_dir, objects_dir, object_ids, verbose):
+def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, partial, verbose):
     """The labels in the formats existing grasp learners read, with each object's mesh.
 
     Both formats store the pose of the RG2's base frame (rg2_base_link: on the tool flange,
@@ -38,7 +44,9 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, verbose):
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.tools.export import export
 
-    result = export(labels, fmt, out_dir, objects_dir, tuple(object_ids))
+    result = export(
+        labels, fmt, out_dir, objects_dir, tuple(object_ids), overwrite=overwrite, partial=partial
+    )
     click.echo(
         f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) and their meshes to {out_dir}"
     )

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CONTEXT, load_config
+from annotator.cli.common import CONTEXT
 
 
 def _fmt_q(q: np.ndarray) -> str:
@@ -43,7 +43,7 @@ def _fmt_q(q: np.ndarray) -> str:
     "--config",
     "config_file",
     type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    help="The TOML file the labels were made with (physics, gripper, protocol, cell).",
+    help="Simulate with this TOML file [default: the configuration recorded beside the labels].",
 )
 def replay_command(
     labels: Path,
@@ -72,7 +72,6 @@ def replay_command(
       annotator replay labels/ --object mug --grasp 17 --gui
     """
     from annotator.cell import build_cell
-    from annotator.dataset import SchemaError, load_labels
     from annotator.objects import (
         ObjectDiscoveryError,
         ObjectError,
@@ -81,6 +80,7 @@ def replay_command(
         load_object,
     )
     from annotator.render import write_gif
+    from annotator.tools.common import check_output_file, labelling_config, read_labels
     from annotator.tools.replay import (
         default_camera,
         frames_every,
@@ -90,11 +90,15 @@ def replay_command(
         replay_world,
     )
 
-    config = load_config(config_file)
+    if gif_path is not None:
+        check_output_file(gif_path, "--gif")
+    chosen = labelling_config(labels, config_file)
+    config = chosen.config
     try:
-        row = label_row(load_labels(labels), object_id, grasp_id)
-    except (FileNotFoundError, SchemaError, KeyError) as exc:
+        row = label_row(read_labels(labels), object_id, grasp_id)
+    except KeyError as exc:
         raise click.UsageError(f"{labels}: {exc.args[0] if exc.args else exc}") from exc
+    click.echo(chosen.line())
     try:
         sources = {s.object_id: s for s in discover_objects(objects_dir)}
     except ObjectDiscoveryError as exc:

@@ -47,3 +47,5 @@ def report_command(labels, html_path, objects_dir, picture_objects, verbose):
     result = report(labels, html_path, objects_dir, picture_objects)
     counts = f"{result.n_objects} objects, {result.n_grasps} grasps, {result.pictures} pictures"
     click.echo(f"wrote {result.path}: {counts}")
+    if result.run_state != "finished":
+        click.echo(f"note: the labels' run is {result.run_state}; the report shows what is there", err=True)

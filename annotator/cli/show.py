@@ -7,7 +7,15 @@ from pathlib import Path
 
 import click
 
-from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, OUTCOMES, VERBOSE_OPTION, setup_logging
+from annotator.cli.common import (
+    CONTEXT,
+    LABELS,
+    OBJECTS_OPTION,
+    OUTCOMES,
+    SEED,
+    VERBOSE_OPTION,
+    setup_logging,
+)
 
 
 @click.command("show", context_settings=CONTEXT)
@@ -29,7 +37,7 @@ from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, OUTCOMES, VERB
 @click.option(
     "--n", "n", default=8, show_default=True, type=click.IntRange(min=1), help="Grasps on the sheet."
 )
-@click.option("--seed", default=0, show_default=True, help="Seed of the random choice of grasps.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random choice of grasps.")
 @click.option(
     "--overview",
     "overview_png",
@@ -52,9 +60,11 @@ def show_command(labels, object_id, png, outcomes, grasp_ids, n, seed, overview_
       annotator show labels/ --object mug --objects objects/ --outcome success --n 4 --png ok.png
     """
     setup_logging(False, verbose, default=logging.WARNING)
+    from annotator.tools.common import labelling_config
     from annotator.tools.show import show
 
+    source = labelling_config(labels).line()
     result = show(
         labels, object_id, png, n, seed, tuple(outcomes), tuple(grasp_ids), objects_dir, overview_png
     )
-    click.echo(f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}")
+    click.echo(f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}; {source}")

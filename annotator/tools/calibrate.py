@@ -158,10 +158,14 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
             raise ToolError(f"{path}: real_success must be 1/0 or true/false, got {bad!r}")
         real["real_success"] = text.map(mapping).astype(bool)
     real["object_id"] = real["object_id"].astype(str)
-    real["grasp_id"] = pd.to_numeric(real["grasp_id"], errors="coerce")
-    if real["grasp_id"].isna().any():
-        raise ToolError(f"{path}: grasp_id must be an integer")
-    real["grasp_id"] = real["grasp_id"].astype(np.int64)
+    ids = pd.to_numeric(real["grasp_id"], errors="coerce")
+    bad = ids.isna() | (ids != ids.round()) | (ids < 0) | (ids > 2**62)
+    if bad.any():
+        row = int(np.argmax(bad.to_numpy()))
+        raise ToolError(
+            f"{path}: row {row}: grasp_id {real['grasp_id'].astype(str).iloc[row]} is not a non-negative integer"
+        )
+    real["grasp_id"] = ids.astype(np.int64)
     if "grip_force" in real.columns:
         force = pd.to_numeric(real["grip_force"], errors="coerce")
         if force.isna().any() or ((force < 0) | (force > 400)).any():

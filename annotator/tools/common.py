@@ -1,19 +1,30 @@
-"""Shared by the tools: reading a labels folder with one-line errors, finding an object's mesh."""
+"""Shared by the tools: one validated reader of a labels folder (its labels and its manifest), the
+configuration the labels were made with, output paths checked before any work, an object's mesh.
+
+Every problem is one line and an exit code (:class:`ToolError`: 2, :class:`OutputToolError`: 3),
+never a traceback and never a silent fallback.
+"""
 
 from __future__ import annotations
 
-import json
 import logging
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import click
 import pandas as pd
 
-from annotator.dataset import SchemaError, load_labels
+from annotator.dataset import SchemaError, validate_labels
 
 log = logging.getLogger(__name__)
 
-MANIFEST_NAME = "_manifest.json"
+# A label file can vanish between listing a folder and reading it (a run merging its chunks):
+# the folder is read again, up to this many times.
+READ_ATTEMPTS = 5
 
 
 class ToolError(click.ClickException):
@@ -22,53 +33,218 @@ class ToolError(click.ClickException):
     exit_code = 2
 
 
-def read_labels(labels: str | Path) -> pd.DataFrame:
-    """Every label under ``labels`` (a folder or a Parquet file), or :class:`ToolError`."""
+class OutputToolError(ToolError):
+    """An output of a tool cannot be written (missing or read-only folder, no space): exit code 3."""
+
+    exit_code = 3
+
+
+# --- outputs -------------------------------------------------------------------------------------
+
+
+def check_output_file(path: str | Path, what: str) -> Path:
+    """Before any work: ``path`` can be written (its folder exists or can be made and takes a file,
+    and ``path`` is not a folder). Returns it; :class:`OutputToolError` naming it otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputToolError(f"{what} {path} is a folder; give a file name")
+    check_output_dir(path.parent if str(path.parent) else Path("."), what)
+    return path
+
+
+def check_output_dir(path: str | Path, what: str) -> Path:
+    """Before any work: the folder ``path`` exists or can be made, and a file can be written in it."""
+    path = Path(path)
     try:
-        return load_labels(labels)
-    except FileNotFoundError as exc:
-        raise ToolError(str(exc)) from None
-    except SchemaError as exc:
-        raise ToolError(f"{labels}: not a label table ({exc})") from None
-    except OSError as exc:  # unreadable or not Parquet
-        raise ToolError(f"{labels}: cannot read labels ({exc})") from None
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputToolError(f"{what} {path} cannot be written: {exc.strerror or exc}") from None
+    return path
 
 
-def read_manifest(labels: str | Path) -> dict | None:
-    """The run's ``_manifest.json`` beside the labels as a dict, or None if there is none."""
+# --- reading a labels folder ---------------------------------------------------------------------
+
+
+@dataclass
+class LabelsRun:
+    """A labels folder (or one label file) as read: validated labels, the run's manifest (None
+    when there is none beside the labels), and whether the run is unfinished.
+
+    ``unfinished``: objects the run planned that are neither done nor failed; ``running``: a run
+    holds the folder right now.
+    """
+
+    path: Path
+    labels: pd.DataFrame
+    manifest: dict[str, Any] | None = None
+    unfinished: list[str] = field(default_factory=list)
+    running: bool = False
+
+    @property
+    def finished(self) -> bool:
+        return not self.unfinished and not self.running
+
+    def state(self) -> str:
+        """One line: ``finished``, or why not."""
+        if self.finished:
+            return "finished" if self.manifest is not None else "unknown (no manifest beside the labels)"
+        parts = ["a run is writing it now"] if self.running else []
+        if self.unfinished:
+            shown = ", ".join(self.unfinished[:3]) + (" ..." if len(self.unfinished) > 3 else "")
+            parts.append(f"{len(self.unfinished)} of its objects not labelled yet ({shown})")
+        return "unfinished: " + "; ".join(parts)
+
+    def require_finished(self, command: str) -> None:
+        """``--partial`` not given: an unfinished run is refused with one line."""
+        if not self.finished:
+            raise ToolError(
+                f"{self.path} is {self.state()}; finish it (re-run the same annotate command) or pass "
+                f"--partial to {command} what is there"
+            )
+
+
+def _manifest_path(labels: Path) -> Path:
+    from annotator.store import MANIFEST_NAME
+
+    return (labels if labels.is_dir() else labels.parent) / MANIFEST_NAME
+
+
+def read_manifest(labels: str | Path) -> dict[str, Any] | None:
+    """The run's manifest beside the labels, checked against its schema (as a dict), or None if
+    there is none; :class:`ToolError` in one line for one of any other shape."""
+    from annotator.store import Manifest, ManifestUnreadableError
+
+    path = _manifest_path(Path(labels))
+    try:
+        manifest = Manifest.load(path.parent)
+    except ManifestUnreadableError as exc:
+        raise ToolError(f"{exc}") from None
+    return None if manifest is None else manifest.to_json()
+
+
+def _vouched_files(manifest: dict[str, Any]) -> list[str]:
+    names = [e["file"] for e in manifest["objects_done"].values()]
+    for entry in manifest["chunks_done"].values():
+        names += [r["file"] for r in entry["files"].values()]
+    return sorted(names)
+
+
+def _read_files(folder: Path, names: list[str]) -> pd.DataFrame:
+    """The named label files, concatenated; FileNotFoundError if one vanished, ToolError if one
+    cannot be read as a label table."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from annotator.store.files import is_regular_file
+
+    tables = []
+    for name in names:
+        path = folder / name
+        if not is_regular_file(path):
+            if not path.exists():
+                raise FileNotFoundError(path)
+            raise ToolError(f"{path} is not a regular file")
+        try:
+            tables.append(pq.read_table(path))
+        except FileNotFoundError:
+            raise
+        except Exception as exc:  # ArrowInvalid, OSError: a truncated or foreign file
+            raise ToolError(f"{path}: not a readable label file ({type(exc).__name__}: {exc})") from None
+    if not tables:
+        return pd.DataFrame()
+    try:
+        return pa.concat_tables(tables, promote_options="permissive").to_pandas()
+    except Exception as exc:
+        raise ToolError(f"{folder}: label files of different layouts ({exc})") from None
+
+
+def open_labels(labels: str | Path) -> LabelsRun:
+    """Read a labels folder or file once, validated: the labels the run's manifest vouches for
+    (files of other runs or a user's in the folder are not its labels), or every Parquet file
+    when there is no manifest; one line and exit 2 for anything unreadable."""
+    from annotator.dataset import load_labels
+    from annotator.store.lock import is_locked
+
     path = Path(labels)
-    path = (path if path.is_dir() else path.parent) / MANIFEST_NAME
-    if not path.is_file():
-        return None
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        log.warning("%s is unreadable (%s); ignoring it", path, exc)
-        return None
+    if not path.exists():
+        raise ToolError(f"no labels at {path}")
+    for attempt in range(READ_ATTEMPTS):
+        manifest = read_manifest(path)
+        try:
+            if path.is_dir() and manifest is not None:
+                df = _read_files(path, _vouched_files(manifest))
+                if df.empty:
+                    raise ToolError(f"{path}: its run has written no labels yet")
+                df = validate_labels(df).sort_values(
+                    ["object_id", "grasp_id"], kind="stable", ignore_index=True
+                )
+            else:
+                df = load_labels(path)
+            break
+        except FileNotFoundError as exc:
+            if attempt == READ_ATTEMPTS - 1:
+                raise ToolError(f"{path}: label files keep changing while being read ({exc})") from None
+            time.sleep(0.05)  # a merge renamed or removed a chunk: read the folder again
+        except SchemaError as exc:
+            raise ToolError(f"{path}: not a label table ({exc})") from None
+        except ToolError:
+            raise
+        except Exception as exc:  # unreadable, not Parquet
+            raise ToolError(f"{path}: cannot read labels ({type(exc).__name__}: {exc})") from None
+    folder = path if path.is_dir() else path.parent
+    unfinished: list[str] = []
+    if manifest is not None:
+        planned = manifest.get("objects_planned") or []
+        unfinished = sorted(set(planned) - set(manifest["objects_done"]) - set(manifest["objects_failed"]))
+        unfinished += sorted(set(manifest["chunks_done"]) - set(planned))
+    return LabelsRun(path, df, manifest, unfinished, running=is_locked(folder))
+
+
+def read_labels(labels: str | Path) -> pd.DataFrame:
+    """Every label under ``labels`` (a folder or a Parquet file), validated, or :class:`ToolError`."""
+    return open_labels(labels).labels
 
 
 def run_settings(manifest: dict | None) -> dict:
-    """The run's settings (seed, n, trials, scale, config, ...) from a manifest of either layout:
-    flat (manifest version 2) or under ``run`` (the pipeline's store)."""
-    if not manifest:
-        return {}
-    run = manifest.get("run")
-    if isinstance(run, dict):
-        return run
-    return {k: manifest[k] for k in ("seed", "n", "trials", "scale", "config") if k in manifest}
+    """The run's settings (seed, n, trials, scale, config, ...) of a manifest, {} without one."""
+    return dict((manifest or {}).get("run") or {})
 
 
-def labelling_config(labels_dir: str | Path):
-    """The :class:`AnnotatorConfig` the labels were made with (defaults without a manifest)."""
+@dataclass(frozen=True)
+class LabellingConfig:
+    """The configuration to simulate labels with, and where it came from (said to the user)."""
+
+    config: Any  # annotator.config.AnnotatorConfig
+    source: str
+
+    def line(self) -> str:
+        return f"configuration: {self.source}"
+
+
+def labelling_config(labels: str | Path | None, config_file: Path | None = None) -> LabellingConfig:
+    """The configuration the labels were made with (their manifest's), unless ``config_file``
+    (--config) is given; the defaults when there is neither. A manifest whose configuration this
+    version cannot read is one line, never a silent fallback to the defaults."""
     from annotator.config import AnnotatorConfig
 
-    config = run_settings(read_manifest(labels_dir)).get("config")
+    if config_file is not None:
+        try:
+            return LabellingConfig(AnnotatorConfig.from_toml(config_file), f"--config {config_file}")
+        except (ValueError, OSError) as exc:
+            raise ToolError(f"--config {config_file}: {exc}") from None
+    manifest = read_manifest(labels) if labels is not None and Path(labels).exists() else None
+    config = run_settings(manifest).get("config")
     if not config:
-        return AnnotatorConfig()
+        return LabellingConfig(AnnotatorConfig(), "the defaults (no manifest beside the labels)")
     try:
-        return AnnotatorConfig.from_dict(config)
+        return LabellingConfig(
+            AnnotatorConfig.from_dict(config), f"the labels' own ({_manifest_path(Path(labels))})"
+        )
     except (ValueError, TypeError) as exc:
-        raise ToolError(f"{labels_dir}: the manifest's configuration is not this version's ({exc})") from None
+        raise ToolError(f"{labels}: the manifest's configuration is not this version's ({exc})") from None
 
 
 def object_info(manifest: dict | None, object_id: str) -> dict:
@@ -120,7 +296,7 @@ def object_mesh(
     if object_id not in sources:
         raise ToolError(f"object {object_id!r} is not in {objects_dir}")
     scale = float(rows["object_scale"].iloc[0]) if rows is not None and len(rows) else None
-    config = labelling_config(labels_dir)
+    config = labelling_config(labels_dir).config
     try:
         model = load_object(sources[object_id], config.objects, scale=scale)
     except ObjectError as exc:

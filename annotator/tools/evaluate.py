@@ -34,17 +34,35 @@ QUAT_RENORMALISE_TOL = 1e-3
 def read_grasps(path: str | Path) -> pd.DataFrame:
     """The proposed grasps, validated: ``object_id`` (str), pose columns (float64, unit xyzw),
     ``width`` (float64, NaN where not given) and ``grasp_id`` (int64, unique per object; the row
-    number within its object when not given). Raises :class:`annotator.tools.common.ToolError`.
+    number within its object when not given); a label table's commanded grasps (``cmd_*``) and
+    ``outcome`` are kept. Raises :class:`annotator.tools.common.ToolError` naming the file and
+    the first bad row: nothing is dropped or replaced silently.
     """
+    path = Path(path)
+    df = _read_table(path)
+    out = pd.DataFrame({"object_id": df["object_id"].astype(str).to_numpy(dtype=object)})
+    out[list(POSE_COLUMNS)] = _numbers(df, POSE_COLUMNS, path)
+    out[["qx", "qy", "qz", "qw"]] = _unit_quaternions(out[["qx", "qy", "qz", "qw"]].to_numpy(), path, "")
+    out["width"] = _widths(df, path)
+    out["grasp_id"] = _grasp_ids(df, out, path)
+    if any(c in df.columns for c in CMD_COLUMNS):  # a label table: its commanded grasps, bit for bit
+        _commanded(df, out, path)
+    if "outcome" in df.columns:
+        out["outcome"] = df["outcome"].astype(str).to_numpy(dtype=object)
+    return out
+
+
+def _read_table(path: Path) -> pd.DataFrame:
     from annotator.tools.common import ToolError
 
-    path = Path(path)
     if not path.exists():
         raise ToolError(f"no grasps file at {path}")
     try:
         df = pd.read_csv(path) if path.suffix.lower() == ".csv" else pd.read_parquet(path)
-    except (OSError, ValueError) as exc:
-        raise ToolError(f"{path}: cannot read grasps ({exc}); give a Parquet or .csv file") from None
+    except Exception as exc:  # OSError, ValueError, ArrowInvalid: not a table we can read
+        raise ToolError(
+            f"{path}: cannot read grasps ({type(exc).__name__}: {exc}); give a Parquet or .csv file"
+        ) from None
     missing = [c for c in ("object_id", *POSE_COLUMNS) if c not in df.columns]
     if missing:
         raise ToolError(
@@ -52,47 +70,87 @@ def read_grasps(path: str | Path) -> pd.DataFrame:
         )
     if df.empty:
         raise ToolError(f"{path}: no grasps")
-    out = pd.DataFrame({"object_id": df["object_id"].astype(str).to_numpy(dtype=object)})
-    for c in POSE_COLUMNS:
-        values = pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=np.float64)
-        if not np.isfinite(values).all():
-            row = int(np.argmin(np.isfinite(values)))
-            raise ToolError(f"{path}: column {c} has missing or non-numeric values (row {row})")
-        out[c] = values
-    q = out[["qx", "qy", "qz", "qw"]].to_numpy()
+    return df
+
+
+def _numbers(df: pd.DataFrame, columns, path: Path) -> np.ndarray:
+    """Columns as float64 (n, k); ToolError naming the first row with a missing or non-number."""
+    from annotator.tools.common import ToolError
+
+    values = np.column_stack(
+        [pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=np.float64) for c in columns]
+    )
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise ToolError(f"{path}: row {row}: {columns[col]} is missing or not a finite number")
+    return values
+
+
+def _unit_quaternions(q: np.ndarray, path: Path, prefix: str) -> np.ndarray:
+    """xyzw quaternions renormalised (within QUAT_RENORMALISE_TOL of unit) with w >= 0."""
+    from annotator.tools.common import ToolError
+
     norm = np.linalg.norm(q, axis=1)
     bad = np.abs(norm - 1.0) > QUAT_RENORMALISE_TOL
     if bad.any():
         row = int(np.argmax(bad))
-        raise ToolError(f"{path}: row {row}: quaternion (qx, qy, qz, qw) has norm {norm[row]:.4g}, not 1")
+        names = ", ".join(f"{prefix}q{a}" for a in "xyzw")
+        raise ToolError(f"{path}: row {row}: quaternion ({names}) has norm {norm[row]:.4g}, not 1")
     q = q / norm[:, None]
     q[q[:, 3] < 0] *= -1.0  # w >= 0, as the labels
-    out[["qx", "qy", "qz", "qw"]] = q
-    if "width" in df.columns:
-        width = pd.to_numeric(df["width"], errors="coerce").to_numpy(dtype=np.float64)
-        if (width[np.isfinite(width)] < 0).any():
-            raise ToolError(f"{path}: width must be >= 0 (metres)")
-        out["width"] = width
-    else:
-        out["width"] = np.nan
-    if "grasp_id" in df.columns:
-        ids = pd.to_numeric(df["grasp_id"], errors="coerce")
-        if ids.isna().any() or (ids < 0).any() or (ids != ids.round()).any():
-            raise ToolError(f"{path}: grasp_id must be a non-negative integer")
-        out["grasp_id"] = ids.astype(np.int64).to_numpy()
-        if out.duplicated(["object_id", "grasp_id"]).any():
-            first = out[out.duplicated(["object_id", "grasp_id"])].iloc[0]
-            raise ToolError(f"{path}: grasp {int(first.grasp_id)} of {first.object_id!r} appears twice")
-    else:
-        out["grasp_id"] = out.groupby("object_id", sort=False).cumcount().astype(np.int64)
-    if set(CMD_COLUMNS) <= set(df.columns):  # a label table: its commanded grasps, kept bit for bit
-        cmd = df[list(CMD_COLUMNS)].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
-        norm = np.linalg.norm(cmd[:, 3:7], axis=1)
-        if np.isfinite(cmd).all() and np.all(np.abs(norm - 1.0) < 1e-9):
-            out[list(CMD_COLUMNS)] = cmd
-    if "outcome" in df.columns:
-        out["outcome"] = df["outcome"].astype(str).to_numpy(dtype=object)
-    return out
+    return q
+
+
+def _widths(df: pd.DataFrame, path: Path) -> np.ndarray:
+    from annotator.tools.common import ToolError
+
+    if "width" not in df.columns:
+        return np.full(len(df), np.nan)
+    width = pd.to_numeric(df["width"], errors="coerce").to_numpy(dtype=np.float64)
+    if (width[np.isfinite(width)] < 0).any():
+        raise ToolError(f"{path}: width must be >= 0 (metres)")
+    return width
+
+
+def _grasp_ids(df: pd.DataFrame, out: pd.DataFrame, path: Path) -> np.ndarray:
+    from annotator.tools.common import ToolError
+
+    if "grasp_id" not in df.columns:
+        return out.groupby("object_id", sort=False).cumcount().astype(np.int64).to_numpy()
+    ids = pd.to_numeric(df["grasp_id"], errors="coerce")
+    bad = ids.isna() | (ids < 0) | (ids != ids.round()) | (ids > 2**62)
+    if bad.any():
+        row = int(np.argmax(bad.to_numpy()))
+        raise ToolError(
+            f"{path}: row {row}: grasp_id {df['grasp_id'].astype(str).iloc[row]} is not a non-negative integer"
+        )
+    keyed = pd.DataFrame({"object_id": out["object_id"].to_numpy(), "grasp_id": ids.to_numpy(dtype=np.int64)})
+    if keyed.duplicated().any():
+        first = keyed[keyed.duplicated()].iloc[0]
+        raise ToolError(f"{path}: grasp {int(first.grasp_id)} of {first.object_id!r} appears twice")
+    return keyed["grasp_id"].to_numpy()
+
+
+def _commanded(df: pd.DataFrame, out: pd.DataFrame, path: Path) -> None:
+    """A label table's commanded grasps, checked row by row: all of ``CMD_COLUMNS`` or none, every
+    value finite, unit quaternions. A bad row is named (the rows are replayed from exactly these
+    values; dropping them would replay every row from another pose)."""
+    from annotator.tools.common import ToolError
+
+    missing = [c for c in CMD_COLUMNS if c not in df.columns]
+    if missing:
+        raise ToolError(f"{path}: has some commanded-grasp columns but not {missing}; give all or none")
+    cmd = _numbers(df, CMD_COLUMNS, path)
+    norm = np.linalg.norm(cmd[:, 3:7], axis=1)
+    bad = np.abs(norm - 1.0) > 1e-9
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise ToolError(
+            f"{path}: row {row}: commanded quaternion (cmd_qx .. cmd_qw) has norm {norm[row]:.6g}, not 1; "
+            "fix the row, or drop every cmd_* column to evaluate the end-of-close poses instead"
+        )
+    out[list(CMD_COLUMNS)] = cmd
 
 
 def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float) -> np.ndarray:

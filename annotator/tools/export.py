@@ -21,6 +21,7 @@ Each object's mesh is written once, as the labels see it (metres, mesh frame, sc
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -100,21 +101,85 @@ def _write_atomically(path: Path, write) -> None:
         tmp.unlink(missing_ok=True)
 
 
+EXPORT_RECORD = "_export.json"  # what an export wrote into its folder: the only files --overwrite removes
+
+
+@dataclass
+class ExportFolder:
+    """An export's output folder: what earlier exports wrote there (its ``_export.json``) and what
+    this one writes. Files an export did not write are never replaced or removed."""
+
+    path: Path
+    written: list[str]
+
+    @classmethod
+    def open(cls, out_dir: Path, *, overwrite: bool) -> ExportFolder:
+        """Check (and with ``overwrite`` clear) the folder before any work; ToolError if it holds
+        another export and ``overwrite`` is not given, OutputToolError if it cannot be written."""
+        from annotator.tools.common import ToolError, check_output_dir
+
+        out_dir = check_output_dir(out_dir, "--out")
+        record = out_dir / EXPORT_RECORD
+        if record.exists():
+            if not overwrite:
+                raise ToolError(
+                    f"{out_dir} holds an earlier export; pass --overwrite to replace it (only the files an "
+                    "export wrote are removed) or choose another --out"
+                )
+            for name in _earlier_files(record):
+                path = out_dir / name
+                if path.is_file() and not path.is_symlink():
+                    path.unlink()
+            record.unlink()
+            for sub in ("grasps", "splits", "meshes"):
+                with contextlib.suppress(OSError):
+                    (out_dir / sub).rmdir()  # once empty
+        return cls(out_dir, [])
+
+    def target(self, name: str) -> Path:
+        """Where the export writes ``name`` (relative, ``/``-separated); ToolError if a file the
+        export did not write lies there."""
+        from annotator.tools.common import ToolError
+
+        path = self.path / name
+        if path.exists() or path.is_symlink():
+            raise ToolError(
+                f"{path} exists and was not written by an export; move it away or choose another --out"
+            )
+        self.written.append(name)
+        return path
+
+    def close(self, fmt: str, labels: Path) -> None:
+        """Record what this export wrote (so a later --overwrite removes exactly that)."""
+        text = json.dumps({"format": fmt, "labels": str(labels), "files": sorted(self.written)}, indent=1)
+        _write_atomically(self.path / EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
+
+
+def _earlier_files(record: Path) -> list[str]:
+    """The files an earlier export recorded, each a plain relative path inside its folder."""
+    try:
+        names = json.loads(record.read_text())["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [
+        n for n in names if isinstance(n, str) and not Path(n).is_absolute() and ".." not in Path(n).parts
+    ]
+
+
 def _stem(object_id: str) -> str:
     from annotator.store.names import object_filename
 
     return object_filename(object_id)[: -len(".parquet")]
 
 
-def _object_mass(rows: pd.DataFrame, record: pd.DataFrame | None) -> float:
-    oid = rows["object_id"].iloc[0]
-    if record is not None and {"object_id", "mass"} <= set(record.columns):
-        match = record.loc[record["object_id"] == oid, "mass"]
-        if len(match):
-            return float(match.iloc[0])
-    if "object_mass" in rows.columns:
+def _object_mass(rows: pd.DataFrame, manifest: dict | None) -> float:
+    """The object's mass (kg) as simulated: the run's record of it, else the labels' column."""
+    from annotator.tools.report import MASS_COLUMNS, _recorded
+
+    mass = _recorded(manifest, str(rows["object_id"].iloc[0]), MASS_COLUMNS)
+    if np.isnan(mass) and "object_mass" in rows.columns:
         return float(rows["object_mass"].median())
-    return float("nan")
+    return mass
 
 
 def _write_acronym(
@@ -195,22 +260,19 @@ def export(
     out_dir: Path,
     objects_dir: Path | None = None,
     object_ids: tuple[str, ...] = (),
+    *,
+    overwrite: bool = False,
+    partial: bool = False,
 ) -> ExportResult:
     """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
     its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
-    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0)."""
+    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0).
+
+    A folder holding an earlier export is refused unless ``overwrite`` (which removes what that
+    export wrote, nothing else); labels of an unfinished run are refused unless ``partial``."""
     from annotator.dataset import split_by_object
-    from annotator.tools.common import (
-        ToolError,
-        labelling_config,
-        object_info,
-        object_mesh,
-        object_rows,
-        read_labels,
-        read_manifest,
-    )
+    from annotator.tools.common import ToolError, labelling_config, object_mesh, object_rows, open_labels
     from annotator.tools.given import records_commands, replay_grasps
-    from annotator.tools.report import _objects_record
 
     if fmt not in FORMATS:
         raise ToolError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
@@ -221,14 +283,15 @@ def export(
             raise ToolError(
                 "--format acronym writes HDF5: pip install 'rg2-annotator[export]' (h5py)"
             ) from None
-    labels = read_labels(labels_dir)
+    run = open_labels(labels_dir)
+    if not partial:
+        run.require_finished("export")
+    labels, manifest = run.labels, run.manifest
     ids = list(object_ids) or sorted(labels["object_id"].unique())
-    manifest = read_manifest(labels_dir)
-    config = labelling_config(labels_dir)
+    config = labelling_config(labels_dir).config
     friction, grip_force = config.objects.lateral_friction, config.gripper.grip_force
-    record = _objects_record(Path(labels_dir))
-    out_dir = Path(out_dir)
-    (out_dir / "meshes").mkdir(parents=True, exist_ok=True)
+    folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
+    out_dir = folder.path
     depth = TcpDepth()
     files: list[Path] = []
     n = 0
@@ -236,15 +299,17 @@ def export(
         rows = object_rows(labels, oid).sort_values("grasp_id", ignore_index=True)
         mesh = object_mesh(labels_dir, oid, objects_dir, rows)
         mesh_file = f"meshes/{_stem(oid)}.obj"
-        mesh.export(out_dir / mesh_file)
+        mesh_path = folder.target(mesh_file)
+        mesh_path.parent.mkdir(parents=True, exist_ok=True)
+        mesh.export(mesh_path)
         T_obj_base = base_poses(poses_as_matrices(rows), rows["width"].to_numpy(), depth)
         commanded = None
         if records_commands(rows):  # where the gripper was placed before closing, flange frame
-            T_cmd, cmd_width, _ = replay_grasps(rows, labelling_config(labels_dir), depth.max_width)
+            T_cmd, cmd_width, _ = replay_grasps(rows, config, depth.max_width)
             commanded = base_poses(T_cmd, cmd_width, depth)
         extra = {
             "object_id": oid,
-            "mass": float(object_info(manifest, oid).get("mass", _object_mass(rows, record))),
+            "mass": _object_mass(rows, manifest),
             "friction": float(friction),
             "grip_force": float(grip_force),
             "mesh_sha256": str(rows["mesh_sha256"].iloc[0]),
@@ -252,18 +317,20 @@ def export(
             "commanded": commanded,
         }
         if fmt == "acronym":
-            path = out_dir / f"{_stem(oid)}.h5"
+            path = folder.target(f"{_stem(oid)}.h5")
             _write_acronym(path, rows, T_obj_base, mesh_file, extra)
         else:
-            path = out_dir / "grasps" / f"{_stem(oid)}.json"
+            path = folder.target(f"grasps/{_stem(oid)}.json")
             _write_graspgen(path, rows, T_obj_base, mesh_file, extra)
         files.append(path)
         n += len(rows)
     if fmt == "graspgen":
         train, val = split_by_object(labels[labels["object_id"].isin(ids)], val_fraction=0.2, seed=0)
-        (out_dir / "splits").mkdir(exist_ok=True)
         for name, part in (("train", train), ("valid", val)):
             lines = [f"meshes/{_stem(o)}.obj" for o in sorted(part["object_id"].unique())]
-            (out_dir / "splits" / f"{name}.txt").write_text("".join(f"{x}\n" for x in lines))
+            split = folder.target(f"splits/{name}.txt")
+            split.parent.mkdir(parents=True, exist_ok=True)
+            split.write_text("".join(f"{x}\n" for x in lines))
+    folder.close(fmt, Path(labels_dir))
     log.info("exported %d grasps of %d objects to %s (%s)", n, len(ids), out_dir, fmt)
     return ExportResult(out_dir, files, n)

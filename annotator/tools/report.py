@@ -24,12 +24,10 @@ from annotator.dataset import OUTCOMES, poses_as_matrices
 
 log = logging.getLogger(__name__)
 
-OBJECTS_RECORD = "objects.parquet"  # per-object geometry record beside the labels (objects work)
-# Column names in that record (or the labels) for the per-object table; the first present is used.
-MASS_COLUMNS = ("mass", "object_mass")
-# mean distance (m) between the collision shape and the mesh surface; the objects work records
-# collision_error_mean / _max per object in the manifest (objects_info.<id>.geometry)
-COLLISION_ERROR_COLUMNS = ("collision_error_mean", "collision_error", "collision_error_m", "hull_error")
+# Keys of the run's per-object record (the manifest's objects_info.<id>.geometry) for the per-object
+# table: mass (kg) and the mean distance (m) between the collision shape and the mesh surface.
+MASS_COLUMNS = ("mass",)
+COLLISION_ERROR_COLUMNS = ("collision_error_mean",)
 OUTCOME_HEX = {
     "success": "#009e73",
     "collision": "#999999",
@@ -50,6 +48,7 @@ td.l,th.l{text-align:left}.na{color:#999}.muted{color:#666;font-size:0.9em}
 .grid{display:flex;flex-wrap:wrap;gap:16px}.card{flex:1 1 480px}
 img{max-width:100%;border:1px solid #eee}details{margin:6px 0}code{background:#f5f5f5;padding:1px 4px}
 .sw{display:inline-block;width:10px;height:10px;margin:0 3px 0 10px}
+.unfinished{background:#fff3cd;border:1px solid #e6c200;padding:6px 10px}
 """
 
 # Flags every embedded picture that did not decode (a console error the report's test looks for).
@@ -69,6 +68,7 @@ class ReportResult:
     n_objects: int
     n_grasps: int
     pictures: int
+    run_state: str = "finished"  # or why the labels' run is unfinished
 
 
 # ------------------------------------------------------------------------------------ helpers
@@ -225,32 +225,24 @@ def approach_map_svg(df: pd.DataFrame, n_az: int = 24, n_el: int = 12, cell: int
     return _svg(width, height, "".join(parts), "approach directions")
 
 
-def _objects_record(labels_dir: Path) -> pd.DataFrame | None:
-    path = (labels_dir if labels_dir.is_dir() else labels_dir.parent) / OBJECTS_RECORD
-    if not path.is_file():
-        return None
-    try:
-        return pd.read_parquet(path)
-    except (OSError, ValueError) as exc:
-        log.warning("%s is unreadable (%s)", path, exc)
-        return None
+def _recorded(manifest: dict | None, object_id: str, names: tuple[str, ...]) -> float:
+    """A number the run recorded about an object as simulated (its geometry record in the
+    manifest, ``objects_info.<id>.geometry``, or ``objects_info.<id>``), NaN if none."""
+    entry = ((manifest or {}).get("objects_info") or {}).get(object_id) or {}
+    for where in (entry.get("geometry"), entry):
+        if isinstance(where, dict):
+            value = next((where[k] for k in names if isinstance(where.get(k), int | float)), None)
+            if value is not None:
+                return float(value)
+    return float("nan")
 
 
-def _first_column(df: pd.DataFrame | None, names: tuple[str, ...]) -> str | None:
-    if df is None:
-        return None
-    return next((n for n in names if n in df.columns), None)
-
-
-def per_object_table(
-    df: pd.DataFrame, record: pd.DataFrame | None, manifest: dict | None = None
-) -> pd.DataFrame:
+def per_object_table(df: pd.DataFrame, manifest: dict | None = None) -> pd.DataFrame:
     """One row per object: n, successes, rate, outcome counts, mass (kg), collision error (or NaN).
 
-    Mass and collision error (mean distance of the collision shape from the mesh) come from an
-    objects record beside the labels, else from what the manifest recorded per object
-    (``objects_info``, with its ``geometry`` record), else from the labels' own columns
-    (``object_mass``, a collision error column); ``NaN`` (shown n/a) when none has them.
+    Mass and collision error (mean distance of the collision shape from the mesh) come from what
+    the run recorded per object (the manifest's geometry record), else from the labels' own
+    columns (``object_mass``, ``collision_error_mean``); ``NaN`` (shown n/a) when none has them.
     """
     counts = df.groupby("object_id")["outcome"].value_counts().unstack(fill_value=0)
     table = pd.DataFrame(index=counts.index)
@@ -259,31 +251,14 @@ def per_object_table(
     table["rate"] = table["successes"] / table["n"]
     for outcome in OUTCOMES:
         table[outcome] = counts.get(outcome, 0)
-    table["mass"] = np.nan
-    table["collision_error"] = np.nan
-    rec = record.set_index("object_id") if record is not None and "object_id" in record.columns else None
-    mass_col = _first_column(rec, MASS_COLUMNS)
-    if mass_col is not None:
-        table["mass"] = rec[mass_col].reindex(table.index).astype(float)
-    elif "object_mass" in df.columns:
-        table["mass"] = df.groupby("object_id")["object_mass"].median()
-    err_col = _first_column(rec, COLLISION_ERROR_COLUMNS)
-    if err_col is not None:
-        table["collision_error"] = rec[err_col].reindex(table.index).astype(float)
-    info = (manifest or {}).get("objects_info") or {}
-    for oid in table.index:
-        entry = info.get(oid) or {}
-        if isinstance(entry.get("geometry"), dict):  # the objects' geometry record
-            entry = {**entry, **entry["geometry"]}
-        if mass_col is None and isinstance(entry.get("mass"), int | float):
-            table.loc[oid, "mass"] = float(entry["mass"])
-        err = next((entry[k] for k in COLLISION_ERROR_COLUMNS if isinstance(entry.get(k), int | float)), None)
-        if err_col is None and err is not None:
-            table.loc[oid, "collision_error"] = float(err)
-    if table["collision_error"].isna().all():  # a per-row label column, when the labels carry one
-        col = next((c for c in COLLISION_ERROR_COLUMNS if c in df.columns), None)
-        if col is not None and pd.api.types.is_numeric_dtype(df[col]):
-            table["collision_error"] = df.groupby("object_id")[col].median()
+    for name, recorded, column in (
+        ("mass", MASS_COLUMNS, "object_mass"),
+        ("collision_error", COLLISION_ERROR_COLUMNS, "collision_error_mean"),
+    ):
+        values = pd.Series([_recorded(manifest, oid, recorded) for oid in table.index], index=table.index)
+        if column in df.columns and pd.api.types.is_numeric_dtype(df[column]):
+            values = values.fillna(df.groupby("object_id")[column].median())
+        table[name] = values
     return table
 
 
@@ -447,16 +422,15 @@ def report(
     0 for none. Pictures need the meshes: ``objects_dir`` or the geometry the labels carry.
     """
     from annotator import __version__
-    from annotator.tools.common import read_labels, read_manifest
+    from annotator.tools.common import check_output_file, open_labels
 
-    df = read_labels(labels_dir)
-    manifest = read_manifest(labels_dir)
-    record = _objects_record(Path(labels_dir))
-    table = per_object_table(df, record, manifest)
+    out = check_output_file(out, "--html")
+    run = open_labels(labels_dir)
+    df, manifest = run.labels, run.manifest
+    table = per_object_table(df, manifest)
     n, rate = len(df), float(df["success"].mean()) if len(df) else 0.0
     max_width = None
-    if record is not None and "max_width" in record.columns:
-        max_width = float(record["max_width"].max())
+    state = "" if run.finished else f'<p class="unfinished"><b>This run is {_e(run.state())}.</b></p>'
     pictures, n_pictures = ("", 0)
     if picture_objects > 0:
         pictures, n_pictures = _pictures_section(
@@ -470,7 +444,7 @@ def report(
 <style>{CSS}</style><script>{IMAGE_CHECK}</script></head>
 <body>
 <h1>Grasp labels: {_e(Path(labels_dir).resolve())}</h1>
-<p class="muted">rg2-annotator {__version__}, report written {now}</p>
+<p class="muted">rg2-annotator {__version__}, report written {now}</p>{state}
 <p><b>{df["object_id"].nunique()}</b> objects, <b>{n}</b> grasps, <b>{rate:.1%}</b> success
 ({int(df["success"].sum())} held after the shake).</p>
 <h2>Run</h2>{_run_section(manifest)}
@@ -484,8 +458,11 @@ frame. Equal-area cells.</p>
 <h2>Pictures</h2>{pictures or "<p class='muted'>No pictures requested.</p>"}
 </body></html>
 """
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(page, encoding="utf-8")
+    try:
+        out.write_text(page, encoding="utf-8")
+    except OSError as exc:
+        from annotator.tools.common import OutputToolError
+
+        raise OutputToolError(f"--html {out} cannot be written: {exc.strerror or exc}") from None
     log.info("wrote %s (%d objects, %d grasps, %d pictures)", out, len(table), n, n_pictures)
-    return ReportResult(out, len(table), n, n_pictures)
+    return ReportResult(out, len(table), n, n_pictures, "finished" if run.finished else run.state())

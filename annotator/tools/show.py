@@ -373,8 +373,11 @@ def show(
     ``<png stem>-overview.png``). ``labels``/``mesh``: already loaded (the report passes them)."""
     from PIL import Image
 
-    from annotator.tools.common import ToolError, object_mesh, object_rows, read_labels
+    from annotator.tools.common import ToolError, check_output_file, object_mesh, object_rows, read_labels
 
+    overview_png = overview_png or png.with_name(f"{png.stem}-overview{png.suffix or '.png'}")
+    check_output_file(png, "--png")
+    check_output_file(overview_png, "--overview")
     labels = read_labels(labels_dir) if labels is None else labels
     rows = object_rows(labels, object_id)
     bad = sorted(set(outcomes) - set(OUTCOMES))
@@ -388,8 +391,6 @@ def show(
         have = ", ".join(f"{k} {v}" for k, v in rows["outcome"].value_counts().items())
         raise ToolError(f"{object_id} has no {'/'.join(outcomes)} grasps ({have})")
     mesh = object_mesh(labels_dir, object_id, objects_dir, rows) if mesh is None else mesh
-    overview_png = overview_png or png.with_name(f"{png.stem}-overview{png.suffix or '.png'}")
-    png.parent.mkdir(parents=True, exist_ok=True)
     with GraspRenderer(mesh) as renderer:
         Image.fromarray(grasp_sheet(renderer, chosen)).save(png, format="PNG")
         pool = rows[rows["outcome"].isin(outcomes)] if outcomes else rows

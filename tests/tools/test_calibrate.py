@@ -56,7 +56,7 @@ def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
     trials = labels[labels.outcome != "collision"].reset_index(drop=True)  # what a robot can execute
     n = len(trials)
     assert n >= 15
-    base = labelling_config(labels_dir)
+    base = labelling_config(labels_dir).config
 
     hidden = cal.Setting(HIDDEN_FRICTION, HIDDEN_FORCE, 1.0)
     truth = cal.simulate_grid(trials.assign(real_success=False), [hidden], base, objects, workers=2)[hidden]

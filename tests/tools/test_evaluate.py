@@ -85,7 +85,7 @@ def test_expected_width_is_the_chord_the_pads_meet(labelled) -> None:
     [
         ("object_id,x,y,z\nbox,0,0,0\n", "missing column(s) ['qx', 'qy', 'qz', 'qw']"),
         ("object_id,x,y,z,qx,qy,qz,qw\nbox,0,0,0,0,0,0,2\n", "norm 2, not 1"),
-        ("object_id,x,y,z,qx,qy,qz,qw\nbox,0,0,,0,0,0,1\n", "column z has missing"),
+        ("object_id,x,y,z,qx,qy,qz,qw\nbox,0,0,,0,0,0,1\n", "row 0: z is missing or not a finite number"),
         ("object_id,x,y,z,qx,qy,qz,qw,width\nbox,0,0,0,0,0,0,1,-1\n", "width must be >= 0"),
         ("object_id,grasp_id,x,y,z,qx,qy,qz,qw\nbox,1,0,0,0,0,0,0,1\nbox,1,0,0,0,0,0,0,1\n", "appears twice"),
     ],

@@ -115,7 +115,7 @@ def test_per_object_table_takes_mass_and_collision_error_where_recorded() -> Non
         }
     )
     manifest = {"objects_info": {"a": {"geometry": {"mass": 0.11, "collision_error_mean": 0.0004}}}}
-    table = per_object_table(df, None, manifest)
+    table = per_object_table(df, manifest)
     assert table.loc["a", ["n", "successes", "collision"]].tolist() == [2, 1, 1]
     assert table.loc["a", "mass"] == 0.11 and table.loc["a", "collision_error"] == 0.0004
     assert table.loc["b", "mass"] == 0.1 and np.isnan(table.loc["b", "collision_error"])  # shown n/a
