@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,61 +37,54 @@ def _field(
     return field(default=default, metadata={"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices})
 
 
+# Field types a section may have: what a value must be (for the message), the test, the conversion.
+# An int given for a float (TOML ``1``) becomes a float, so equal settings compare and hash equal.
+_TYPES: dict[str, tuple[str, Any, Any]] = {
+    "float": ("a number", lambda v: isinstance(v, int | float) and not isinstance(v, bool), float),
+    "int": ("an integer", lambda v: isinstance(v, int) and not isinstance(v, bool), int),
+    "bool": ("true or false", lambda v: isinstance(v, bool), bool),
+    "str": ("a string", lambda v: isinstance(v, str), str),
+}
+_BOUNDS = (
+    ("gt", operator.gt, ">"),
+    ("ge", operator.ge, ">="),
+    ("lt", operator.lt, "<"),
+    ("le", operator.le, "<="),
+)
+
+
 def _range_text(meta: dict[str, Any]) -> str:
-    lo = (
-        f"> {meta['gt']:g}"
-        if meta.get("gt") is not None
-        else (f">= {meta['ge']:g}" if meta.get("ge") is not None else "")
-    )
-    hi = (
-        f"< {meta['lt']:g}"
-        if meta.get("lt") is not None
-        else (f"<= {meta['le']:g}" if meta.get("le") is not None else "")
-    )
-    return " and ".join(t for t in (lo, hi) if t)
+    return " and ".join(f"{sign} {meta[k]:g}" for k, _, sign in _BOUNDS if meta.get(k) is not None)
+
+
+def _checked(where: str, kind: str, meta: dict[str, Any], value: Any) -> Any:
+    """``value`` as a field of type ``kind`` with ``meta``'s range and choices, or ConfigError."""
+    want, test, convert = _TYPES[kind]
+    if not test(value):
+        raise ConfigError(f"{where}: expected {want}, got {value!r}")
+    value = convert(value)
+    if kind == "float" and not math.isfinite(value):
+        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+    if meta.get("choices") is not None and value not in meta["choices"]:
+        raise ConfigError(f"{where}: must be one of {list(meta['choices'])}, got {value!r}")
+    if any(meta.get(k) is not None and not op(value, meta[k]) for k, op, _ in _BOUNDS):
+        raise ConfigError(f"{where}: must be {_range_text(meta)}, got {value!r}")
+    return value
 
 
 class _Section:
     """Type and range checks for every field of a frozen configuration section.
 
-    Fields are typed ``float``, ``int``, ``bool`` or ``str``; an int given for a float (TOML
-    ``1``) becomes a float so that equal settings compare and hash equal in the manifest.
+    Fields are typed ``float``, ``int``, ``bool`` or ``str`` (:data:`_TYPES`), each with its
+    allowed range or choices in its metadata (:func:`_field`).
     """
 
     def __post_init__(self) -> None:
         section = _SECTION_NAMES.get(type(self).__name__, type(self).__name__)
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            value = getattr(self, f.name)
-            where = f"[{section}] {f.name}"
             kind = f.type if isinstance(f.type, str) else f.type.__name__
-            if kind == "float":
-                if isinstance(value, bool) or not isinstance(value, int | float):
-                    raise ConfigError(f"{where}: expected a number, got {value!r}")
-                value = float(value)
-                if not math.isfinite(value):
-                    raise ConfigError(f"{where}: expected a finite number, got {value!r}")
-                object.__setattr__(self, f.name, value)
-            elif kind == "int":
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise ConfigError(f"{where}: expected an integer, got {value!r}")
-            elif kind == "bool":
-                if not isinstance(value, bool):
-                    raise ConfigError(f"{where}: expected true or false, got {value!r}")
-            elif kind == "str":
-                if not isinstance(value, str):
-                    raise ConfigError(f"{where}: expected a string, got {value!r}")
-            meta = f.metadata
-            if meta.get("choices") is not None and value not in meta["choices"]:
-                raise ConfigError(f"{where}: must be one of {list(meta['choices'])}, got {value!r}")
-            if kind in ("float", "int"):
-                bad = (
-                    (meta.get("gt") is not None and not value > meta["gt"])
-                    or (meta.get("ge") is not None and not value >= meta["ge"])
-                    or (meta.get("lt") is not None and not value < meta["lt"])
-                    or (meta.get("le") is not None and not value <= meta["le"])
-                )
-                if bad:
-                    raise ConfigError(f"{where}: must be {_range_text(meta)}, got {value!r}")
+            value = _checked(f"[{section}] {f.name}", kind, f.metadata, getattr(self, f.name))
+            object.__setattr__(self, f.name, value)
 
 
 @dataclass(frozen=True)

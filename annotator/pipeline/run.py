@@ -204,55 +204,83 @@ def execute(
     that was out is retried once, alone on a fresh worker, so the one that kills its worker is
     known; it then fails its object (an error result) and the run goes on.
     """
-    died = _worker_died_errors()
-    capacity = 2 * workers.count
-    out: dict[cf.Future, Span] = {}
-    pending = iter(spans)
-    exhausted = False
-    while True:
-        crashed: list[Span] = []
-        while not exhausted and len(out) < capacity:
-            span = next(pending, None)
+    _Execution(iter(spans), make_task, workers, on_result, on_tick, fn).run()
+
+
+@dataclass
+class _Execution:
+    """The state of :func:`execute`: spans still to submit, futures out, spans whose worker died."""
+
+    pending: Iterator[Span]
+    make_task: Callable[[Span], SpanTask]
+    workers: Workers
+    on_result: Callable[[SpanResult], None]
+    on_tick: Callable[[], None]
+    fn: Callable[[SpanTask], SpanResult]
+
+    def __post_init__(self) -> None:
+        self.died = _worker_died_errors()
+        self.out: dict[cf.Future, Span] = {}
+        self.exhausted = False
+
+    def run(self) -> None:
+        while True:
+            crashed = self._submit()
+            if not self.out and not crashed:
+                return
+            if crashed:  # what finished before the pool broke is handed on as usual
+                done = {future for future in self.out if future.done()}
+            else:
+                done, _ = cf.wait(self.out, timeout=TICK_SECONDS, return_when=cf.FIRST_COMPLETED)
+                self.on_tick()
+            if not done and not crashed and self.workers.lost():
+                raise SchedulerLost("lost the Dask scheduler")
+            crashed += self._collect(done)
+            if crashed:
+                self._retry(crashed)
+
+    def _submit(self) -> list[Span]:
+        """Submit spans up to capacity; a span the pool refuses (a worker died) is returned."""
+        capacity = 2 * self.workers.count
+        while not self.exhausted and len(self.out) < capacity:
+            span = next(self.pending, None)
             if span is None:
-                exhausted = True
+                self.exhausted = True
                 break
             try:
-                out[workers.submit(make_task(span), fn)] = span
-            except died:  # a worker died since the last wait: the pool refuses work
-                crashed.append(span)
-                break
-        if not out and not crashed:
-            return
-        if crashed:  # what finished before the pool broke is handed on as usual
-            done = {future for future in out if future.done()}
-        else:
-            done, _ = cf.wait(out, timeout=TICK_SECONDS, return_when=cf.FIRST_COMPLETED)
-            on_tick()
-        if not done and not crashed and workers.lost():
-            raise SchedulerLost("lost the Dask scheduler")
+                self.out[self.workers.submit(self.make_task(span), self.fn)] = span
+            except self.died:  # a worker died since the last wait: the pool refuses work
+                return [span]
+        return []
+
+    def _collect(self, done) -> list[Span]:
+        """Hand on the results of ``done``; returns the spans whose worker died."""
+        crashed = []
         for future in done:
-            span = out.pop(future)
+            span = self.out.pop(future)
             try:
                 result = future.result()
             except (Exception, cf.CancelledError) as exc:
-                if workers.lost():
+                if self.workers.lost():
                     raise SchedulerLost("lost the Dask scheduler") from exc
-                if isinstance(exc, (*died, cf.CancelledError)):
+                if isinstance(exc, (*self.died, cf.CancelledError)):
                     crashed.append(span)
                     continue
                 # the task itself failed in a way the worker did not catch
                 result = _failed(span, f"internal error: {type(exc).__name__}: {exc}")
-            on_result(result)
-        if crashed:
-            # the pool is broken: every span still out is lost with it
-            for future, span in list(out.items()):
-                future.cancel()
-                crashed.append(span)
-            out.clear()
-            log.warning("a worker process died; retrying its %d span(s) one at a time", len(crashed))
-            workers.restart()
-            for span in sorted(crashed, key=lambda s: s.key):
-                on_result(_retry_alone(span, make_task, workers, died, on_tick, fn))
+            self.on_result(result)
+        return crashed
+
+    def _retry(self, crashed: list[Span]) -> None:
+        """The pool is broken: every span still out is lost with it; each is retried alone."""
+        for future, span in list(self.out.items()):
+            future.cancel()
+            crashed.append(span)
+        self.out.clear()
+        log.warning("a worker process died; retrying its %d span(s) one at a time", len(crashed))
+        self.workers.restart()
+        for span in sorted(crashed, key=lambda s: s.key):
+            self.on_result(_retry_alone(span, self.make_task, self.workers, self.died, self.on_tick, self.fn))
 
 
 def _retry_alone(span, make_task, workers: Workers, died, on_tick, fn) -> SpanResult:

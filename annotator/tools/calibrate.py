@@ -163,7 +163,8 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
     if bad.any():
         row = int(np.argmax(bad.to_numpy()))
         raise ToolError(
-            f"{path}: row {row}: grasp_id {real['grasp_id'].astype(str).iloc[row]} is not a non-negative integer"
+            f"{path}: row {row}: grasp_id {real['grasp_id'].astype(str).iloc[row]} "
+            "is not a non-negative integer"
         )
     real["grasp_id"] = ids.astype(np.int64)
     if "grip_force" in real.columns:

@@ -123,7 +123,8 @@ def _grasp_ids(df: pd.DataFrame, out: pd.DataFrame, path: Path) -> np.ndarray:
     if bad.any():
         row = int(np.argmax(bad.to_numpy()))
         raise ToolError(
-            f"{path}: row {row}: grasp_id {df['grasp_id'].astype(str).iloc[row]} is not a non-negative integer"
+            f"{path}: row {row}: grasp_id {df['grasp_id'].astype(str).iloc[row]} "
+            "is not a non-negative integer"
         )
     keyed = pd.DataFrame({"object_id": out["object_id"].to_numpy(), "grasp_id": ids.to_numpy(dtype=np.int64)})
     if keyed.duplicated().any():
