@@ -21,7 +21,6 @@ from annotator.cell.placement import place, stable_poses
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform, axis_angle_to_matrix
 from annotator.sim.hand import FloatingRG2
-from annotator.sim.rg2 import FINGER_CHAINS
 from annotator.sim.world import World
 
 CONFIG = AnnotatorConfig()
@@ -39,7 +38,7 @@ def test_rows_are_shared_by_stable_pose_probability_or_evenly():
 
 def _finger_lowest(hand: FloatingRG2) -> float:
     """The lowest point of the finger links (finger plate and pad), from PyBullet's AABBs."""
-    links = [hand.body.links[name] for chain in FINGER_CHAINS for name in chain[2:]]
+    links = [hand.body.links[name] for finger in hand.gripper.rigid_finger_links() for name in finger]
     return min(pb.getAABB(hand.uid, link, physicsClientId=hand.client)[0][2] for link in links)
 
 

@@ -14,6 +14,7 @@ The TOML holds what the URDF cannot say (``docs/grippers.md`` documents every ke
     [stroke] min = 0.0; max = 0.110                 # pad-face separation the FK must reach (m)
     [drive]  joint = "..."; close_speed = 1.0; coupling = "gear"   # rad/s or m/s; gear|position
     [force]  default = 40.0; min = 3.0; max = 40.0  # N, each pad's squeeze on the object
+             simulated_max = 70.0   # optional: the most the model was measured to hold
     [pads]   links = ["finger 1 pad", "finger 2 pad"]; lateral_friction = 1.0
              spinning_friction = 0.002; rolling_friction = 0.0; size = [t, w, l] (optional)
     [collision] kinematic_links = [...]             # followers only posed for collision checks
@@ -56,7 +57,7 @@ SCHEMA: dict[str | None, dict[str, str]] = {
     "mount": {"xyz": "vec3", "rpy": "vec3"},
     "stroke": {"min": "float", "max": "float"},
     "drive": {"joint": "str", "close_speed": "float", "coupling": "str"},
-    "force": {"default": "float", "min": "float", "max": "float"},
+    "force": {"default": "float", "min": "float", "max": "float", "simulated_max": "float"},
     "pads": {
         "links": "str2",
         "size": "vec3",
@@ -66,7 +67,13 @@ SCHEMA: dict[str | None, dict[str, str]] = {
     },
     "collision": {"kinematic_links": "strs"},
 }
-OPTIONAL = {(None, "export_type"), (None, "title"), ("pads", "size"), ("collision", "kinematic_links")}
+OPTIONAL = {
+    (None, "export_type"),
+    (None, "title"),
+    ("force", "simulated_max"),
+    ("pads", "size"),
+    ("collision", "kinematic_links"),
+}
 OPTIONAL_TABLES = {"collision", "mount"}
 
 
@@ -104,6 +111,7 @@ class GripperDescription:
     grip_force: float  # the default squeeze
     grip_force_min: float
     grip_force_max: float
+    grip_force_simulated_max: float  # above it the coupled model was not measured to hold (a warning)
     pad_links: tuple[str, str]
     pad_size: tuple[float, float, float] | None  # (thickness, width, length); None: the URDF's box
     pad_lateral_friction: float
@@ -266,6 +274,7 @@ def _build(path: Path, v: dict[tuple[str | None, str], Any], sources: dict[str, 
         grip_force=v[("force", "default")],
         grip_force_min=v[("force", "min")],
         grip_force_max=v[("force", "max")],
+        grip_force_simulated_max=v.get(("force", "simulated_max"), v[("force", "max")]),
         pad_links=(pads[0], pads[1]),
         pad_size=v.get(("pads", "size")),
         pad_lateral_friction=v[("pads", "lateral_friction")],

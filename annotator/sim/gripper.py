@@ -71,6 +71,14 @@ class GripperSettings:
                 f"[gripper] grip_force: {settings.grip_force:g} N is outside the {description.name}'s "
                 f"{lo:g}..{hi:g} N"
             )
+        if settings.grip_force > description.grip_force_simulated_max:
+            log.warning(
+                "%s: a %g N squeeze is above the %g N its model was measured to hold with the default "
+                "solver settings (docs/grippers.md)",
+                description.name,
+                settings.grip_force,
+                description.grip_force_simulated_max,
+            )
         return settings
 
 
@@ -297,7 +305,7 @@ class ParallelGripper:
         model at half the stroke; the linkage is put back where it was."""
         angle = self.driven_angle()
         width = 0.5 * self.max_width
-        rigid = self._rigid_finger_links()
+        rigid = self.rigid_finger_links()
         self.reset_width(width)
         try:
             T_tcp_world = (self.base_pose() * self.T_base_tcp(width)).inverse()
@@ -317,7 +325,7 @@ class ParallelGripper:
             self.table.tcp_by_width.copy(),
         )
 
-    def _rigid_finger_links(self) -> list[list[str]]:
+    def rigid_finger_links(self) -> list[list[str]]:
         """Each finger's links that keep the base's orientation at every opening (and collide)."""
         lo, hi = self.table.angle[0], self.table.angle[-1]
         angle = self.driven_angle()
