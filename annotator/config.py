@@ -174,36 +174,36 @@ class PhysicsConfig(_Section):
 class GripperConfig(_Section):
     """How the gripper is simulated. Its own numbers (stroke, grip force, closing speed, pad friction,
     coupling) live in its description (annotator/grippers, docs/grippers.md); a field here that is
-    set (not None) overrides the description's value for a run. See docs/decisions/0200-gripper-as-data.md.
+    set (not None) overrides the description's value for a run (docs/decisions/0200-gripper-as-data.md).
     """
 
-    # N, each pad's squeeze on the object; None: the description's [force] default (RG2 40 N).
+    # N per pad, within the gripper's [force] range; None: the description's default (RG2 40 N).
     grip_force: float | None = _field(None, gt=0.0)
-    # rad/s or m/s of the driven joint; None: the description's [drive] close_speed.
+    # rad/s or m/s of the driven joint; None: the description's [drive] close_speed (RG2 1.0 rad/s).
     close_speed: float | None = _field(None, gt=0.0)
-    # Pad friction coefficients; None: the description's [pads] values (RG2 1.0, 0.002, 0).
+    # Pad friction coefficients; None: the description's [pads] values (RG2 1.0 and 0.002).
     pad_lateral_friction: float | None = _field(None, ge=0.0)
     pad_spinning_friction: float | None = _field(None, ge=0.0)
-    # m; see docs/decisions/0201-pad-rolling-friction.md (the rolling rows cost a quarter of a step).
+    # m; None: the description's (0 for the shipped grippers: docs/decisions/0201-pad-rolling-friction.md).
     pad_rolling_friction: float | None = _field(None, ge=0.0)
-    # How PyBullet holds the <mimic> followers: JOINT_GEAR constraints or per-step position control;
-    # None: the description's [drive] coupling (docs/decisions/0202-mimic-coupling.md).
+    # "gear" (JOINT_GEAR constraints) or "position" (per-step control); None: the description's
+    # [drive] coupling, measured per gripper (docs/decisions/0202-mimic-coupling.md).
     coupling: str | None = _field(None, choices=("gear", "position"))
-    # The annotation gripper's passive links: only posed for the kinematic checks ("kinematic") or
-    # coupled and colliding ("simulated"); the arm and the GUI always simulate them (0203).
+    # Passive links only posed for the kinematic checks, or coupled and colliding ("simulated": the
+    # arm and the GUI always); docs/decisions/0203-kinematic-passive-links.md.
     passive_links: str = _field("kinematic", choices=("simulated", "kinematic"))
-    # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); see 0202.
+    # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); 0202.
     coupling_erp: float = _field(0.8, gt=0.0, le=1.0)
     coupling_max_force: float = _field(1000.0, gt=0.0)  # N or N m; far above any squeeze it resists
-    # N, the fixed constraint carrying the floating gripper: ~2 kg (gripper + a heavy object) at a
-    # few g of shake, with margin (17 kg x 30 m/s^2).
+    # N, the fixed constraint carrying the floating gripper: ~3 kg (the Panda model and a heavy
+    # object) at a few g of shake, with margin.
     carrier_max_force: float = _field(500.0, gt=0.0)
-    # The close has stalled when the drive moves slower than this share of its closing speed for
-    # stall_steps steps in a row (RG2: 0.02 rad/s; 12 steps = 50 ms at 240 Hz). See 0204.
+    # The close has stalled after stall_steps steps with the drive slower than this share of its
+    # closing speed (RG2: 0.02 rad/s, 50 ms); docs/decisions/0204-close-and-squeeze-loop.md.
     stall_fraction: float = _field(0.02, gt=0.0, lt=1.0)
     stall_steps: int = _field(12, ge=1)
-    # While lifted and shaken the squeeze torque (force x dw/d(drive)) is re-sent every 6 steps
-    # (25 ms), and not re-sent when within this share of the last command; see 0204.
+    # While lifted and shaken the squeeze is re-sent every 6 steps (25 ms), and skipped within
+    # this share of the last torque sent (0204).
     motor_update_every: int = _field(6, ge=1)
     motor_torque_rtol: float = _field(1e-3, ge=0.0, lt=1.0)
     # Drive positions at which the FK width table is sampled (linear in between: < 0.01 mm error).

@@ -199,36 +199,55 @@ def _check_schema(
     return values, sources
 
 
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _as_int(value: Any) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def _as_float(value: Any) -> float | None:
+    return float(value) if _is_number(value) else None
+
+
+def _as_str(value: Any) -> str | None:
+    return value if isinstance(value, str) else None
+
+
+def _as_vec3(value: Any) -> tuple[float, ...] | None:
+    ok = isinstance(value, list) and len(value) == 3 and all(_is_number(v) for v in value)
+    return tuple(float(v) for v in value) if ok else None
+
+
+def _as_names(value: Any, count: int | None = None) -> tuple[str, ...] | None:
+    ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
+    return tuple(value) if ok and (count is None or len(value) == count) else None
+
+
+# kind -> (converter returning None for a value of the wrong kind, what was expected)
+KINDS = {
+    "int": (_as_int, "an integer"),
+    "float": (_as_float, "a number"),
+    "str": (_as_str, "a string"),
+    "vec3": (_as_vec3, "three numbers"),
+    "str2": (lambda v: _as_names(v, 2), "two link names"),
+    "strs": (_as_names, "a list of link names"),
+}
+
+
 def _typed(path: Path, table: str | None, key: str, value: Any) -> Any:
+    """``value`` of ``[table] key`` converted to its kind (SCHEMA); DescriptionError otherwise."""
     where = f"[{table}] {key}" if table else key
     kinds = SCHEMA.get(table, {})
     if key not in kinds:
-        raise _bad(
-            path, f"unknown key {where}; known: {sorted(kinds) + ['source'] if table else sorted(kinds)}"
-        )
-    kind = kinds[key]
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    if kind == "int" and not (isinstance(value, int) and not isinstance(value, bool)):
-        raise _bad(path, f"{where}: expected an integer, got {value!r}")
-    if kind == "float":
-        if not number:
-            raise _bad(path, f"{where}: expected a number, got {value!r}")
-        return float(value)
-    if kind == "str" and not isinstance(value, str):
-        raise _bad(path, f"{where}: expected a string, got {value!r}")
-    if kind == "vec3":
-        if not (
-            isinstance(value, list) and len(value) == 3 and all(isinstance(v, int | float) for v in value)
-        ):
-            raise _bad(path, f"{where}: expected three numbers, got {value!r}")
-        return tuple(float(v) for v in value)
-    if kind in ("str2", "strs"):
-        ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
-        if not ok or (kind == "str2" and len(value) != 2):
-            want = "two link names" if kind == "str2" else "a list of link names"
-            raise _bad(path, f"{where}: expected {want}, got {value!r}")
-        return tuple(value)
-    return value
+        known = sorted(kinds) + (["source"] if table else [])
+        raise _bad(path, f"unknown key {where}; known: {known}")
+    convert, expected = KINDS[kinds[key]]
+    typed = convert(value)
+    if typed is None:
+        raise _bad(path, f"{where}: expected {expected}, got {value!r}")
+    return typed
 
 
 def _build(path: Path, v: dict[tuple[str | None, str], Any], sources: dict[str, str]) -> GripperDescription:
@@ -336,22 +355,35 @@ def _check_links(
     pads: tuple[str, ...],
     kinematic: tuple[str, ...],
 ) -> list[Mimic]:
-    """Links and joints named in the TOML exist and the drive moves everything that moves."""
+    """Links and joints named in the TOML exist and the drive moves everything that moves; returns
+    the URDF's followers of the drive (document order)."""
+    _check_frames(path, model, v)
+    mimic = _check_drive(path, model, drive)
+    followers = {m.follower for m in mimic}
+    _check_pads(path, model, pads, {drive} | followers, stated_size=v.get(("pads", "size")) is not None)
+    _check_kinematic(path, model, pads, followers, kinematic)
+    return mimic
+
+
+def _check_frames(path: Path, model: UrdfModel, v: dict[tuple[str | None, str], Any]) -> None:
     urdf = model.path.name
     for key in (("base", "link"), ("tcp", "link")):
         if v[key] not in model.links:
             raise _bad(path, f"[{key[0]}] link {v[key]!r} is not a link of {urdf}")
     if v[("base", "link")] != model.root:
-        raise _bad(
-            path, f"[base] link {v[('base', 'link')]!r} must be the root link of {urdf} ({model.root!r})"
-        )
+        base = v[("base", "link")]
+        raise _bad(path, f"[base] link {base!r} must be the root link of {urdf} ({model.root!r})")
+
+
+def _check_drive(path: Path, model: UrdfModel, drive: str) -> list[Mimic]:
+    """The drive is a movable joint, every ``<mimic>`` follows it, every movable joint is one of them."""
+    urdf = model.path.name
     joint = model.joints.get(drive)
     if joint is None or not joint.movable:
         raise _bad(path, f"[drive] joint {drive!r} is not a revolute or prismatic joint of {urdf}")
     if joint.mimic is not None:
-        raise _bad(
-            path, f"[drive] joint {drive!r} itself mimics {joint.mimic.driven!r}: name the joint it follows"
-        )
+        follows = joint.mimic.driven
+        raise _bad(path, f"[drive] joint {drive!r} itself mimics {follows!r}: name the joint it follows")
     mimic = list(model.mimic_table().values())
     if not mimic:
         raise _bad(path, f"no <mimic> tag in {urdf}: nothing couples the fingers to the drive {drive!r}")
@@ -364,31 +396,43 @@ def _check_links(
             raise _bad(
                 path, f"{urdf}: movable joint {j.name!r} neither is the drive nor mimics it: nothing moves it"
             )
+    return mimic
+
+
+def _check_pads(
+    path: Path, model: UrdfModel, pads: tuple[str, ...], moved: set[str], stated_size: bool
+) -> None:
+    """Two distinct pad links, each moved by the drive, each a box unless its size is stated."""
+    urdf = model.path.name
     if pads[0] == pads[1]:
         raise _bad(path, f"[pads] links names {pads[0]!r} twice: give finger 1's pad, then finger 2's")
-    moved = {drive} | followers
     for pad in pads:
         if pad not in model.links:
             raise _bad(path, f"[pads] link {pad!r} is not a link of {urdf}")
         if not moved & set(model.joints_to(pad)):
-            raise _bad(path, f"[pads] link {pad!r} is not moved by the drive {drive!r} or its followers")
-    if v.get(("pads", "size")) is None:
-        for pad in pads:
-            if not _has_box(model.path, pad):
-                raise _bad(path, f"[pads] link {pad!r} has no collision box: state [pads] size")
+            raise _bad(path, f"[pads] link {pad!r} is not moved by the drive or its followers")
+        if not stated_size and not _has_box(model.path, pad):
+            raise _bad(path, f"[pads] link {pad!r} has no collision box: state [pads] size")
+
+
+def _check_kinematic(
+    path: Path, model: UrdfModel, pads: tuple[str, ...], followers: set[str], kinematic: tuple[str, ...]
+) -> None:
+    """Kinematic links are passive: children of followers, carrying no pad."""
     on_pad_chains = {link for pad in pads for link in model.chain(pad)}
+    urdf = model.path.name
     for link in kinematic:
         parent = model.parent_joint(link) if link in model.links else None
         if parent is None or parent.name not in followers:
             raise _bad(
-                path, f"[collision] kinematic link {link!r} is not the child of a <mimic> follower in {urdf}"
+                path,
+                f"[collision] kinematic link {link!r} is not the child of a <mimic> follower in {urdf}",
             )
         if link in on_pad_chains:
             raise _bad(
                 path,
                 f"[collision] kinematic link {link!r} carries a pad: only passive links can be kinematic",
             )
-    return mimic
 
 
 def _has_box(urdf: Path, link: str) -> bool:
