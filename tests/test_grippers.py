@@ -388,3 +388,43 @@ def test_kinematic_passive_links_are_checked_but_never_touch_while_stepping(name
                 p[3] == link for p in pb.getContactPoints(hand.uid, probe, physicsClientId=world.client)
             )
     assert touched == {"kinematic": False, "simulated": True}
+
+
+# --- pictures and exports draw and write the gripper used -------------------------------------------
+
+
+@pytest.mark.parametrize("name", GRIPPERS)
+def test_pictures_draw_the_gripper_used(name):
+    """The renderer loads the named gripper, poses its pads at the label's width around the TCP and
+    draws it (its body is in the picture)."""
+    from annotator.tools.show import GraspRenderer, grasp_cameras
+
+    mesh = trimesh.creation.box((0.03, 0.03, 0.03))
+    T_obj_tcp = Transform([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    with GraspRenderer(mesh, description=name) as renderer:
+        assert renderer.description.name == name
+        renderer.pose_gripper(T_obj_tcp, 0.03)
+        pads = [renderer.body.link_pose(n).pos for n in renderer.description.pad_links]
+        gap = abs(float(np.dot(pads[1] - pads[0], T_obj_tcp.rotation[:, 0]))) - renderer.gripper.pad_thickness
+        assert gap == pytest.approx(0.03, abs=1e-6)
+        np.testing.assert_allclose((pads[0] + pads[1]) / 2, T_obj_tcp.pos, atol=1e-6)
+        frame = renderer.render(grasp_cameras(T_obj_tcp, mesh, 120)[0])
+        assert (frame.segmentation == renderer.body.uid).sum() > 100
+
+
+@pytest.mark.parametrize("name", GRIPPERS)
+def test_exports_write_the_grippers_type_and_base_frame(name):
+    """``T_base_tcp`` of the export is the gripper model's own, and its type and frame are written."""
+    from annotator.tools.export import TcpDepth, frame_note
+
+    d = load_gripper(name)
+    depth = TcpDepth(name)
+    widths = np.array([0.0, 0.5 * d.stroke_max, d.stroke_max])
+    with World() as world:
+        hand = FloatingGripper(world, GripperConfig(), d)
+        expected = np.array([hand.gripper.T_base_tcp(w).as_matrix() for w in widths])
+    np.testing.assert_allclose(depth.T_base_tcp(widths), expected)
+    assert depth.description.export_type == {"rg2": "onrobot_rg2", "panda": "franka_panda"}.get(name, name)
+    assert d.base_link in frame_note(d)
+    if name == "panda":  # the fingers slide: the TCP stays 103.65 mm out of the mounting face
+        np.testing.assert_allclose(expected[:, 2, 3], 0.10365, atol=1e-9)

@@ -72,10 +72,15 @@ def load_gripper(spec: str | os.PathLike | GripperDescription | None = None) -> 
                 f"no gripper {text!r}: name a shipped one ({known}) or a folder with {TOML_NAME}"
             )
     toml = path if path.suffix == ".toml" else path / TOML_NAME
-    stamp = tuple(
-        (p.stat().st_mtime_ns, p.stat().st_size) for p in (toml, *toml.parent.glob("*.urdf")) if p.exists()
-    )
-    return _load(str(toml.resolve()) if toml.exists() else str(toml), stamp)
+    return _load(str(toml.resolve()) if toml.exists() else str(toml), _stamp(toml.parent))
+
+
+def _stamp(folder: Path) -> tuple:
+    """What changes when any file of a description folder changes (its cache key)."""
+    if not folder.is_dir():
+        return ()
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    return tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in files)
 
 
 @functools.lru_cache(maxsize=16)

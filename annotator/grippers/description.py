@@ -411,7 +411,7 @@ def _check_pads(
             raise _bad(path, f"[pads] link {pad!r} is not a link of {urdf}")
         if not moved & set(model.joints_to(pad)):
             raise _bad(path, f"[pads] link {pad!r} is not moved by the drive or its followers")
-        if not stated_size and not _has_box(model.path, pad):
+        if not stated_size and pad not in model.boxes:
             raise _bad(path, f"[pads] link {pad!r} has no collision box: state [pads] size")
 
 
@@ -433,17 +433,6 @@ def _check_kinematic(
                 path,
                 f"[collision] kinematic link {link!r} carries a pad: only passive links can be kinematic",
             )
-
-
-def _has_box(urdf: Path, link: str) -> bool:
-    """Is the first collision geometry of ``link`` a box?"""
-    import xml.etree.ElementTree as ET
-
-    for el in ET.parse(urdf).getroot().findall("link"):
-        if el.attrib.get("name") == link:
-            geometry = el.find("collision/geometry")
-            return geometry is not None and geometry.find("box") is not None
-    return False
 
 
 def _fingers(model: UrdfModel, pads: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[str, ...]]:

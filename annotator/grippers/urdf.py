@@ -51,7 +51,8 @@ class UrdfJoint:
 @dataclass(frozen=True)
 class UrdfModel:
     """A URDF's tree: ``links`` (names, document order), ``joints`` by name (document order), the
-    mesh files it references (as written) and the links that have ``<collision>`` elements."""
+    mesh files it references (as written), the links that have ``<collision>`` elements and those
+    whose first collision geometry is a box."""
 
     path: Path
     robot: str
@@ -59,6 +60,7 @@ class UrdfModel:
     joints: dict[str, UrdfJoint]
     meshes: tuple[str, ...]
     colliding: frozenset[str]
+    boxes: frozenset[str]
 
     @property
     def root(self) -> str:
@@ -135,6 +137,12 @@ def read_urdf(path: Path | str) -> UrdfModel:
     colliding = frozenset(
         link.attrib.get("name", "") for link in root.findall("link") if link.find("collision") is not None
     )
+    boxes = frozenset(
+        link.attrib.get("name", "")
+        for link in root.findall("link")
+        if link.find("collision/geometry/box") is not None
+        and link.find("collision/geometry/*") is link.find("collision/geometry/box")
+    )
     joints: dict[str, UrdfJoint] = {}
     for el in root.findall("joint"):
         name = el.attrib.get("name", "")
@@ -161,7 +169,7 @@ def read_urdf(path: Path | str) -> UrdfModel:
         except (KeyError, AttributeError, ValueError) as exc:
             raise ValueError(f"{path.name}: joint {name!r} is malformed ({exc})") from exc
     meshes = tuple(m.attrib.get("filename", "") for m in root.iter("mesh"))
-    return UrdfModel(path, root.attrib.get("name", ""), links, joints, meshes, colliding)
+    return UrdfModel(path, root.attrib.get("name", ""), links, joints, meshes, colliding, boxes)
 
 
 def read_mimic_table(urdf: Path | str) -> dict[str, Mimic]:

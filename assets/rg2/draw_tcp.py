@@ -12,9 +12,9 @@ import pybullet as pb
 
 from annotator import paths
 from annotator.geometry import Transform
+from annotator.grippers import default_gripper
 from annotator.render import orbit_camera, render_rgb, write_png
 from annotator.sim.body import Body
-from annotator.grippers import default_gripper
 from annotator.sim.gripper import ParallelGripper
 from annotator.sim.world import World
 
