@@ -83,8 +83,12 @@ class _Section:
         section = _SECTION_NAMES.get(type(self).__name__, type(self).__name__)
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             kind = f.type if isinstance(f.type, str) else f.type.__name__
-            value = _checked(f"[{section}] {f.name}", kind, f.metadata, getattr(self, f.name))
-            object.__setattr__(self, f.name, value)
+            value = getattr(self, f.name)
+            if kind.endswith(" | None"):  # optional: None leaves the value to the gripper description
+                if value is None:
+                    continue
+                kind = kind.removesuffix(" | None")
+            object.__setattr__(self, f.name, _checked(f"[{section}] {f.name}", kind, f.metadata, value))
 
 
 @dataclass(frozen=True)
@@ -119,60 +123,41 @@ class PhysicsConfig(_Section):
 
 @dataclass(frozen=True)
 class GripperConfig(_Section):
-    """The OnRobot RG2 as simulated (numbers from ../shared/ROBOT_FACTS.md)."""
+    """How the gripper is simulated. Its own numbers (stroke, grip force, closing speed, pad friction,
+    coupling) live in its description (annotator/grippers, docs/grippers.md); a field here that is
+    set (not None) overrides the description's value for a run (docs/decisions/0200-gripper-as-data.md).
+    """
 
-    # Grip force 3..40 N (OnRobot driver max_force 400 in 0.1 N units); annotate at the maximum
-    # a user is likely to set for household objects.
-    grip_force: float = _field(40.0, gt=0.0)  # N, per finger (squeeze force)
-    # Max closing speed: RG2 datasheet ~ 38..127 mm/s finger speed; a 0.5 rad/s link speed gives
-    # ~ 27 mm/s per finger at mid-stroke, slow enough that pads do not impact objects hard.
-    close_speed: float = _field(1.0, gt=0.0)  # rad/s of the driven link
-    # Friction of the pads: rubber-like pads on household objects, 1.0 as ACRONYM uses.
-    pad_lateral_friction: float = _field(1.0, ge=0.0)
-    # Spinning friction resists rotation of the object about the contact normal (bullet3 #3150);
-    # a few mm of effective radius for a 29.8 x 20.2 mm pad.
-    pad_spinning_friction: float = _field(0.002, ge=0.0)
-    # Rolling resistance (m) of the pads; 0, as the objects' (ObjectConfig.rolling_friction; Bullet
-    # solves rolling rows whenever either side has it). A pinched object cannot roll on one pad
-    # without sliding on the other, which lateral and spinning friction resist; the 0.1 mm it had
-    # held nothing measurable but cost two of the six solver rows of every contact point, a quarter
-    # of each step in contact (bench/peers.py). bench/fidelity.py, seed 0 (1,100 candidates): no
-    # success flips, agreement with the thorough reference 96.6 % of the 386 simulated (unchanged),
-    # widths of rows both succeed within 0.12 mm at the 99th percentile (3 of 369 beyond 0.2 mm, at
-    # most 0.57 mm: objects that turn in the hand while closing; 200 solver iterations instead of
-    # 150 move 33 beyond, up to 3.2 mm).
-    pad_rolling_friction: float = _field(0.0, ge=0.0)
-    # How the mimic followers are coupled: "gear" (JOINT_GEAR constraints) or "position"
-    # (per-step position control); chosen by the 40 N squeeze measurement in bench/rg2_coupling.py.
-    coupling: str = _field("gear", choices=("gear", "position"))
-    # The annotation gripper's passive links (the parallelogram's inner knuckles, which carry no
-    # pad): "simulated" couples them with gear constraints and lets them collide like the rest;
-    # "kinematic" only poses them for the kinematic collision checks (annotator.sim.rg2). The arm
-    # and the GUI always simulate the whole linkage.
+    # N per pad, within the gripper's [force] range; None: the description's default (RG2 40 N).
+    grip_force: float | None = _field(None, gt=0.0)
+    # rad/s or m/s of the driven joint; None: the description's [drive] close_speed (RG2 1.0 rad/s).
+    close_speed: float | None = _field(None, gt=0.0)
+    # Pad friction coefficients; None: the description's [pads] values (RG2 1.0 and 0.002).
+    pad_lateral_friction: float | None = _field(None, ge=0.0)
+    pad_spinning_friction: float | None = _field(None, ge=0.0)
+    # m; None: the description's (0 for the shipped grippers: docs/decisions/0201-pad-rolling-friction.md).
+    pad_rolling_friction: float | None = _field(None, ge=0.0)
+    # "gear" (JOINT_GEAR constraints) or "position" (per-step control); None: the description's
+    # [drive] coupling, measured per gripper (docs/decisions/0202-mimic-coupling.md).
+    coupling: str | None = _field(None, choices=("gear", "position"))
+    # Passive links only posed for the kinematic checks, or coupled and colliding ("simulated": the
+    # arm and the GUI always); docs/decisions/0203-kinematic-passive-links.md.
     passive_links: str = _field("kinematic", choices=("simulated", "kinematic"))
-    # Gear-constraint coupling of the mimic followers (bullet3 #2791: erp > 0 removes drift).
-    coupling_erp: float = _field(
-        0.8, gt=0.0, le=1.0
-    )  # 0.2 let followers lag 1.6 deg at 40 N on the floating gripper; 0.8: 0.5 deg
-    coupling_max_force: float = _field(1000.0, gt=0.0)  # N or N m; far above the 40 N squeeze it must resist
-    # The fixed constraint carrying the floating gripper: must hold gripper (0.74 kg) plus a
-    # heavy object (~1 kg) at shake accelerations of a few g with margin: 17 kg x 30 m/s^2.
-    carrier_max_force: float = _field(500.0, gt=0.0)  # N
-    # Finger speed below which the closing motion counts as stopped (rad/s of the driven link):
-    # a free-closing link moves at the commanded ~1 rad/s; stalled on an object it creeps < 1e-2.
-    stall_speed: float = _field(0.02, gt=0.0)
-    # Consecutive stalled steps before the close is declared finished (12 steps = 50 ms at 240 Hz):
-    # long enough for the contact forces to build up to the commanded squeeze.
+    # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); 0202.
+    coupling_erp: float = _field(0.8, gt=0.0, le=1.0)
+    coupling_max_force: float = _field(1000.0, gt=0.0)  # N or N m; far above any squeeze it resists
+    # N, the fixed constraint carrying the floating gripper: ~3 kg (the Panda model and a heavy
+    # object) at a few g of shake, with margin.
+    carrier_max_force: float = _field(500.0, gt=0.0)
+    # The close has stalled after stall_steps steps with the drive slower than this share of its
+    # closing speed (RG2: 0.02 rad/s, 50 ms); docs/decisions/0204-close-and-squeeze-loop.md.
+    stall_fraction: float = _field(0.02, gt=0.0, lt=1.0)
     stall_steps: int = _field(12, ge=1)
-    # While the carrier moves (lift, shake) the fingers are stalled on the object and the squeeze
-    # torque (force x dw/dphi at the current angle) barely changes: it is re-computed every 6 steps
-    # (25 ms, a 40 Hz force loop) rather than every step.
+    # While lifted and shaken the squeeze is re-sent every 6 steps (25 ms), and skipped within
+    # this share of the last torque sent (0204).
     motor_update_every: int = _field(6, ge=1)
-    # A motor command whose torque differs from the last one sent by less than this share is not
-    # re-sent (PyBullet keeps motor settings between steps): 0.1 % of 40 N is 0.04 N of squeeze.
     motor_torque_rtol: float = _field(1e-3, ge=0.0, lt=1.0)
-    # Driven angles at which the model's FK width table is sampled; widths between are linear
-    # interpolations (the table is smooth: w = f(sin phi), 400 samples -> < 0.01 mm error).
+    # Drive positions at which the FK width table is sampled (linear in between: < 0.01 mm error).
     width_table_samples: int = _field(400, ge=2)
 
 

@@ -11,9 +11,14 @@ def assets_dir() -> Path:
     return Path(str(resources.files("annotator.assets")))
 
 
+def grippers_dir() -> Path:
+    """The folder of the shipped gripper descriptions (``assets/grippers/<name>/``)."""
+    return assets_dir() / "grippers"
+
+
 def rg2_urdf() -> Path:
-    """The floating OnRobot RG2 used for annotation."""
-    return assets_dir() / "rg2" / "rg2.urdf"
+    """The floating OnRobot RG2 used for annotation (the default gripper's URDF)."""
+    return grippers_dir() / "rg2" / "rg2.urdf"
 
 
 def ur3_rg2_urdf() -> Path:

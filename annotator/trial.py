@@ -5,7 +5,7 @@ The protocol (docs/protocol.md), with an early exit at each stage:
 1. ``collision``: the open gripper intersects the object at the grasp pose or anywhere along the
    approach, or, closed on the expected chord, touches it with anything but the pads, or touches
    an obstacle (the cell's table) anywhere (kinematic checks, no simulation).
-2. close with the RG2's force, gravity off (GraspDataGen) for a floating object, on for one
+2. close with the gripper's force, gravity off (GraspDataGen) for a floating object, on for one
    resting on a support (``annotate --cell``), until the fingers stall.
 3. ``no_contact``: not both pads touch the object.
 4. ``slipped_lift``: gravity on, lift; the object lost a pad or moved in the hand.
@@ -26,7 +26,7 @@ from annotator.dataset import Outcome
 from annotator.geometry import Transform, axis_angle_to_matrix
 from annotator.rng import trial_rng  # noqa: F401  (re-exported)
 from annotator.sim import pb
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -68,7 +68,7 @@ class TrialResult:
 
 
 class GraspTrial:
-    """Runs trials for one object in a world that holds the floating RG2 and that object.
+    """Runs trials for one object in a world that holds the floating gripper and that object.
 
     The initial state (gripper parked, object at rest wherever it is: at the world origin for a
     floating object, on the table for the cell) is saved once and restored before every trial.
@@ -79,7 +79,7 @@ class GraspTrial:
     def __init__(
         self,
         world: World,
-        hand: FloatingRG2,
+        hand: FloatingGripper,
         object_uid: int,
         config: AnnotatorConfig,
         *,
@@ -111,7 +111,7 @@ class GraspTrial:
         """Does the gripper (without its pads, if ``skip_pads``) intersect the object?"""
         margin = self.config.protocol.collision_margin
         pts = pb.getClosestPoints(self.hand.uid, self.obj, margin, physicsClientId=self.client)
-        pads = self.hand.rg2.pads if skip_pads else ()
+        pads = self.hand.gripper.pads if skip_pads else ()
         return any(p[8] < margin and p[3] not in pads for p in pts)
 
     def _touches_obstacle(self) -> bool:
@@ -124,7 +124,7 @@ class GraspTrial:
         return False
 
     def _both_pads_touch(self) -> bool:
-        a, b = self.hand.rg2.pad_contacts(self.obj)
+        a, b = self.hand.gripper.pad_contacts(self.obj)
         return bool(a) and bool(b)
 
     # --- the protocol --------------------------------------------------------------------------
@@ -134,11 +134,11 @@ class GraspTrial:
         gripper closed on the expected chord touching the object with its pads only; no obstacle
         touched anywhere."""
         p = self.config.protocol
-        open_width = min(self.hand.rg2.max_width, width + 2 * p.pregrasp_clearance)
+        open_width = min(self.hand.gripper.max_width, width + 2 * p.pregrasp_clearance)
         T_world_tcp = self._T_world_obj() * T_obj_tcp
         T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width)
         approach = T_world_tcp.rotation[:, 2]
-        self.hand.rg2.reset_width(open_width)
+        self.hand.gripper.reset_width(open_width)
         n_checks = max(1, int(np.ceil(p.approach_distance / p.approach_step)))
         for k in range(n_checks + 1):  # from the grasp pose backwards
             back = Transform(T_world_base.pos - approach * k * p.approach_step, T_world_base.quat)
@@ -148,7 +148,7 @@ class GraspTrial:
         # closed on the expected chord, only the pads may touch: a finger link that reaches the
         # object first (e.g. a can's rim under a tilted grasp) would stop the close on it
         self.hand.body.reset_base_pose(T_world_base)
-        self.hand.rg2.reset_width(width)
+        self.hand.gripper.reset_width(width)
         if self._intersects(skip_pads=True) or self._touches_obstacle():
             return True, open_width
         return False, open_width
@@ -178,7 +178,7 @@ class GraspTrial:
         self._apply(perturbation)
         T_obj_tcp = T_obj_tcp * perturbation.T_tcp_tcp
         steps0 = self.world.steps
-        cfg, g = self.config.protocol, self.config.gripper
+        cfg, force = self.config.protocol, self.hand.grip_force
         collided, open_width = self.collides(T_obj_tcp, width_expected)
         if collided:
             return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"))
@@ -194,10 +194,10 @@ class GraspTrial:
         if start_width < open_width and self._intersects():
             self.hand.teleport(T_world_base, open_width)
         self.world.set_gravity(self.resting)
-        self.hand.close(g.grip_force, max_steps=round(cfg.close_timeout / self.world.dt))
-        width = self.hand.rg2.measured_width()
+        self.hand.close(force, max_steps=round(cfg.close_timeout / self.world.dt))
+        width = self.hand.gripper.measured_width()
         T_obj_tcp_closed = (
-            self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.rg2.T_base_tcp(width)
+            self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.gripper.T_base_tcp(width)
         )
 
         def result(outcome: Outcome, slip: float = float("nan")) -> TrialResult:
@@ -213,7 +213,7 @@ class GraspTrial:
         start = self.hand.target
         lifted = Transform(start.pos + np.array([0.0, 0.0, cfg.lift_height]), start.quat)
         lost = self._loss_monitor(grasped_at)
-        self.hand.move(lifted, cfg.lift_duration, g.grip_force, on_step=lost)
+        self.hand.move(lifted, cfg.lift_duration, force, on_step=lost)
         if lost.lost:
             return result(Outcome.SLIPPED_LIFT)
 
@@ -223,14 +223,14 @@ class GraspTrial:
             cfg.shake_amplitude,
             cfg.shake_angle,
             cfg.shake_duration,
-            g.grip_force,
+            force,
             lost,
             cfg.shake_cycles,
             cfg.shake_paired,
         )
         # let the last motion settle, then judge
         for _ in range(round(cfg.settle_time / self.world.dt)):
-            self.hand.rg2.command(-g.close_speed, g.grip_force)
+            self.hand.gripper.squeeze(force)
             self.world.step()
         slip = self._slip(grasped_at)
         if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
@@ -276,6 +276,6 @@ class _LossMonitor:
         x, y, z = t._hand_obj_xyz()
         rx, ry, rz = self.ref
         moved2 = (x - rx) ** 2 + (y - ry) ** 2 + (z - rz) ** 2
-        if moved2 > self.lost_distance2 or not t.hand.rg2.touches(t.obj):
+        if moved2 > self.lost_distance2 or not t.hand.gripper.touches(t.obj):
             self.lost = True
         return self.lost

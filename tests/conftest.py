@@ -7,7 +7,7 @@ import pybullet as pb
 import pytest
 
 from annotator.config import GripperConfig, PhysicsConfig
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 
 
@@ -20,7 +20,7 @@ def world():
 
 @pytest.fixture
 def hand(world):
-    return FloatingRG2(world, GripperConfig())
+    return FloatingGripper(world, GripperConfig())
 
 
 def make_box(

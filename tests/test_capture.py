@@ -33,7 +33,7 @@ def _pose_gripper(scene, T_world_tcp: Transform, width: float, opening: float) -
     """Put the arm so the TCP (at ``width``) is at ``T_world_tcp``, the pads ``opening`` apart."""
     q = scene.solve_ik(T_world_tcp, width)
     scene.cell.reset_arm(q)
-    scene.rg2.reset_width(opening)
+    scene.gripper.reset_width(opening)
 
 
 def test_capture_key_path_appends_a_label_row(tmp_path):

@@ -12,7 +12,7 @@ from annotator.cell import build_cell, kinect_pose, robot_mount_pose
 from annotator.cell.world import T_kinect_optical
 from annotator.config import CellConfig, PhysicsConfig
 from annotator.geometry import Transform
-from annotator.sim.rg2 import PAD_LINKS
+from annotator.grippers import default_gripper
 from annotator.sim.world import World
 
 
@@ -51,8 +51,8 @@ def test_ik_in_the_world_puts_the_models_tcp_on_target(mount):
             q = cell.nearest_ik(T_world_tcp, width, np.array([0, -1.5, 1.5, -1.5, -1.5, 0]))
             assert q is not None
             cell.reset_arm(q)
-            cell.rg2.reset_width(width)
-            mid = sum(cell.robot.link_pose(n).pos for n in PAD_LINKS) / 2
+            cell.gripper.reset_width(width)
+            mid = sum(cell.robot.link_pose(n).pos for n in default_gripper().pad_links) / 2
             np.testing.assert_allclose(mid, target, atol=2e-6)
             np.testing.assert_allclose(cell.robot.link_pose("tcp").rotation, down, atol=1e-6)
             np.testing.assert_allclose(

@@ -26,7 +26,7 @@ from annotator.dataset import Outcome, load_labels
 from annotator.geometry import Transform
 from annotator.objects import create_body, load_object, reset_object_pose
 from annotator.sim import ur3
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.store import ARTIFACTS_DIR, MANIFEST_NAME
 from annotator.trial import GraspTrial
@@ -54,9 +54,9 @@ def test_a_gripper_that_would_hit_the_table_is_a_collision(tmp_path):
     trimesh.creation.box((0.05, 0.05, 0.03)).export(tmp_path / "box.obj")
     model = load_object(tmp_path / "box.obj", config.objects)
     with World(config.physics) as world:
-        hand = FloatingRG2(world, config.gripper)
+        hand = FloatingGripper(world, config.gripper)
         table = build_cell(world, config.cell, robot=False, kinect=False)
-        hand.teleport(PARKED, hand.rg2.max_width)
+        hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
         reset_object_pose(world.client, uid, Transform([0.35, 0.0, table.top.z + 0.015], [0, 0, 0, 1]))
         in_cell = GraspTrial(world, hand, uid, config, obstacles=(table.table.uid,), resting=True)

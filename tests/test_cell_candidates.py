@@ -20,8 +20,7 @@ from annotator.cell.candidates import TableSide, allocate, sample_cell_candidate
 from annotator.cell.placement import place, stable_poses
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform, axis_angle_to_matrix
-from annotator.sim.hand import FloatingRG2
-from annotator.sim.rg2 import FINGER_CHAINS
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 
 CONFIG = AnnotatorConfig()
@@ -37,18 +36,18 @@ def test_rows_are_shared_by_stable_pose_probability_or_evenly():
         allocate(5, [], "even")
 
 
-def _finger_lowest(hand: FloatingRG2) -> float:
+def _finger_lowest(hand: FloatingGripper) -> float:
     """The lowest point of the finger links (finger plate and pad), from PyBullet's AABBs."""
-    links = [hand.body.links[name] for chain in FINGER_CHAINS for name in chain[2:]]
+    links = [hand.body.links[name] for finger in hand.gripper.rigid_finger_links() for name in finger]
     return min(pb.getAABB(hand.uid, link, physicsClientId=hand.client)[0][2] for link in links)
 
 
 @pytest.fixture(scope="module")
 def gripper():
     with World(CONFIG.physics) as world:
-        hand = FloatingRG2(world, CONFIG.gripper)
+        hand = FloatingGripper(world, CONFIG.gripper)
         table = build_cell(world, CONFIG.cell, robot=False, kinect=False)
-        yield hand, hand.rg2.finger_envelope(), table.top
+        yield hand, hand.gripper.finger_envelope(), table.top
 
 
 def test_the_finger_envelope_is_the_finger_links_collision_boxes(gripper):
@@ -109,7 +108,7 @@ def test_selective_candidates_come_from_above_with_the_fingers_clear_of_the_tabl
         assert math.degrees(math.acos(-approach[2])) <= cell.approach_cone + 1e-6
         chord = float(cands.width_expected[k])
         base = hand.T_world_base_for_tcp(T_world_tcp, chord)
-        for opening in (min(hand.rg2.max_width, chord + 2 * protocol.pregrasp_clearance), chord):
+        for opening in (min(hand.gripper.max_width, chord + 2 * protocol.pregrasp_clearance), chord):
             hand.teleport(base, opening)
             assert _finger_lowest(hand) >= top.z + cell.finger_clearance - 1e-6
         midpoint = T_world_obj.apply(cands.contacts[k].mean(axis=0))

@@ -19,9 +19,10 @@ from annotator import paths
 from annotator.cli.scene import scene_command
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
+from annotator.grippers import default_gripper
 from annotator.scene import SceneConfig, build_scene
-from annotator.sim.rg2 import fk_table
 from annotator.sim.ur3 import JOINT_NAMES
+from annotator.sim.width_table import fk_table
 from annotator.sim.world import World
 
 # The seed script's gripper loop: the driven joint and each follower's multiplier (the seed's
@@ -138,7 +139,10 @@ class SeedScript:
 def test_seed_script_runs_on_combined_model_as_written(position, yaw):
     """The seed's loop, verbatim: the base stays put, the arm reaches the sliders, the fingers follow."""
     urdf = paths.ur3_rg2_urdf()
-    table = fk_table(str(urdf), *SEED_GRIPPER_LIMITS, GripperConfig().width_table_samples)
+    rg2, samples = default_gripper(), GripperConfig().width_table_samples
+    table = fk_table(
+        str(urdf), rg2.drive_joint, rg2.pad_links, rg2.base_link, None, *SEED_GRIPPER_LIMITS, samples
+    )
     orientation = [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
     with World(PhysicsConfig(gravity=-9.8)) as world:
         seed = SeedScript(world.client, urdf, position, orientation)
@@ -203,7 +207,7 @@ def test_build_scene_matches_seed_numbers():
         optical_z = scene.kinect.link_pose("camera_optical_frame").rotation[:, 2]
         np.testing.assert_allclose(optical_z, [0.0, 0.0, -1.0], atol=1e-9)
         assert scene.gripper_range() == pytest.approx((-0.04547, 1.268131), abs=1e-6)
-        assert scene.rg2.max_width == pytest.approx(0.110, abs=0.001)  # the full stroke, not 0.8 rad's
+        assert scene.gripper.max_width == pytest.approx(0.110, abs=0.001)  # the full stroke, not 0.8 rad's
         # One simulated second: the arm holds the initial pose, the cube rests on the table.
         for _ in range(240):
             scene.command_arm(config.initial_arm)

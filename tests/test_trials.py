@@ -20,7 +20,7 @@ from annotator.objects import ObjectSource, create_body, load_object
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, Perturbation
 
@@ -46,8 +46,8 @@ def _dynamics(client: int, uid: int) -> tuple[float, float]:
 def test_a_perturbation_applies_inside_its_trial_and_not_in_the_next(brick):
     source, model, cands = brick
     with World(CONFIG.physics) as world:
-        hand = FloatingRG2(world, CONFIG.gripper)
-        hand.teleport(Transform([0, 0, 2.0], [0, 0, 0, 1]), hand.rg2.max_width)
+        hand = FloatingGripper(world, CONFIG.gripper)
+        hand.teleport(Transform([0, 0, 2.0], [0, 0, 0, 1]), hand.gripper.max_width)
         uid = create_body(world.client, model)
         trial = GraspTrial(world, hand, uid, CONFIG)
         nominal_mass, nominal_friction = _dynamics(world.client, uid)

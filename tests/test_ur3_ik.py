@@ -10,9 +10,11 @@ import pytest
 
 from annotator import paths
 from annotator.geometry import Transform
+from annotator.grippers import default_gripper, read_mimic_table
 from annotator.sim import ur3
 from annotator.sim.body import Body
-from annotator.sim.rg2 import PAD_LINKS, read_mimic_table
+
+PAD_LINKS = default_gripper().pad_links
 
 N_RANDOM = 4000
 

@@ -44,7 +44,9 @@ def client() -> Iterator[int]:
 def _combined_urdf() -> Path:
     path = paths.ur3_rg2_urdf()
     if not path.exists():
-        pytest.skip(f"{path} not generated yet (needs assets/rg2/make_rg2.py; run assets/ur3/make_ur3.py)")
+        pytest.skip(
+            f"{path} not generated yet (needs assets/grippers/rg2/make_rg2.py; run assets/ur3/make_ur3.py)"
+        )
     return path
 
 

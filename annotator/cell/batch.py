@@ -2,11 +2,11 @@
 
 A worker keeps two worlds for the cell, built once:
 
-- the *trial world*: the floating RG2 and the seed's table. The object rests on the table in each
+- the *trial world*: the floating gripper and the seed's table. The object rests on the table in each
   of its placements (one saved state each); a candidate runs the usual protocol there, with the
   table in the kinematic collision checks (a gripper that would touch it is a ``collision``) and
   gravity on from the start (the object rests on the table while the fingers close).
-- the *arm world*: the table, the UR3 + RG2 on its mount and a still copy of the object. Each
+- the *arm world*: the table, the UR3 with the same gripper on its flange and a still copy of the object. Each
   candidate's commanded grasp is checked for reachability there (:mod:`annotator.cell.reach`:
   closed-form IK along the approach from the arm's READY branch, arm-table and arm-object
   collisions), and the Kinect views are rendered there (the arm at READY is in the picture).
@@ -49,7 +49,7 @@ from annotator.objects import ObjectError, ObjectModel, create_body, get_object_
 from annotator.rng import keyed_rng
 from annotator.sampler import Candidates
 from annotator.sim import pb
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.store.names import artifact_relpath
 from annotator.trial import GraspTrial
@@ -157,16 +157,16 @@ def settle_placements(world: World, uid: int, cell: Cell, model: ObjectModel) ->
 
 
 class CellWorlds:
-    """A worker's worlds for ``--cell``: the trial world's table (beside the floating RG2) and the
-    arm world (table, UR3 + RG2, views). Built once per configuration."""
+    """A worker's worlds for ``--cell``: the trial world's table (beside the floating gripper) and
+    the arm world (table, UR3 + the same gripper, views). Built once per configuration."""
 
-    def __init__(self, world: World, hand: FloatingRG2, config: AnnotatorConfig) -> None:
+    def __init__(self, world: World, hand: FloatingGripper, config: AnnotatorConfig) -> None:
         self.world = world
         self.hand = hand
         self.config = config
         self.table_cell = build_cell(world, config.cell, robot=False, kinect=False)
-        self.envelope = hand.rg2.finger_envelope()  # the fingers, for the table-aware sampler
-        self.arm_world = World(config.physics.whole_linkage())  # the arm's RG2: whole linkage
+        self.envelope = hand.gripper.finger_envelope()  # the fingers, for the table-aware sampler
+        self.arm_world = World(config.physics.whole_linkage())  # the arm's gripper: whole linkage
         self.arm = build_cell(
             self.arm_world,
             config.cell,
@@ -174,6 +174,7 @@ class CellWorlds:
             kinect=False,
             gripper=config.gripper,
             kinect_config=config.kinect,
+            description=hand.description,
         )
         self.arm.reset_arm(READY)
 
@@ -197,17 +198,17 @@ class CellObject:
         self.trials: list[GraspTrial] = []
         self.arm_uid = create_body(worlds.arm_world.client, model)
         self.arm_states: list[int] = []
-        rg2 = worlds.arm.rg2
-        assert rg2 is not None
+        gripper = worlds.arm.gripper
+        assert gripper is not None
         for placement in self.placements:
             reset_object_pose(world.client, uid, placement.T_world_obj)
             _zero_velocity(world.client, uid)
-            hand.teleport(PARKED, hand.rg2.max_width)
+            hand.teleport(PARKED, hand.gripper.max_width)
             table = worlds.table_cell.table.uid
             self.trials.append(GraspTrial(world, hand, uid, config, obstacles=(table,), resting=True))
             reset_object_pose(worlds.arm_world.client, self.arm_uid, placement.T_world_obj)
             worlds.arm.reset_arm(READY)
-            rg2.reset_width(rg2.max_width)
+            gripper.reset_width(gripper.max_width)
             self.arm_states.append(worlds.arm_world.save_state())
 
     def close(self) -> None:
@@ -232,7 +233,7 @@ class CellObject:
                 worlds.table_cell.top.z,
                 worlds.envelope,
                 config.protocol.pregrasp_clearance,
-                worlds.hand.rg2.max_width,
+                worlds.hand.gripper.max_width,
             )
             for placement in self.placements
         ]
@@ -251,14 +252,14 @@ class CellObject:
     def reach(self, p: int, T_obj_tcp: Transform, width: float) -> Reach:
         """Can the arm execute the commanded grasp ``T_obj_tcp`` (pads ``width`` apart) in placement ``p``?"""
         worlds, protocol = self.worlds, self.worlds.config.protocol
-        rg2 = worlds.arm.rg2
-        assert rg2 is not None
+        gripper = worlds.arm.gripper
+        assert gripper is not None
         worlds.arm_world.restore_state(self.arm_states[p])
         return check_reach(
             worlds.arm,
             self.placements[p].T_world_obj * T_obj_tcp,
             width,
-            open_width=min(rg2.max_width, width + 2 * protocol.pregrasp_clearance),
+            open_width=min(gripper.max_width, width + 2 * protocol.pregrasp_clearance),
             approach_distance=protocol.approach_distance,
             approach_step=protocol.approach_step,
             obj=self.arm_uid,

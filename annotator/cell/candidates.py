@@ -16,7 +16,7 @@ each placement gets its own candidates, sampled in the world frame of that place
   ``approach_cone`` of straight down (where the fingers would not clear the table, turned halfway,
   then fully, to the most downward one); a pair whose closing axis is too steep for any such
   approach is dropped;
-* the fingers (their collision boxes, :class:`annotator.sim.rg2.FingerEnvelope`), open for the
+* the fingers (their collision boxes, :class:`annotator.sim.gripper.FingerEnvelope`), open for the
   approach and closed on the chord, must stay ``finger_clearance`` above the table top: a grasp
   on a low part sits back along its approach by the least standoff that clears, at most
   ``max_standoff`` (the contacts then lie towards the pads' tips); a pair that would need more is
@@ -42,7 +42,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.rng import keyed_rng
 from annotator.sampler import Candidates, ContactPairs, chords, unit
-from annotator.sim.rg2 import FingerEnvelope
+from annotator.sim.gripper import FingerEnvelope
 
 log = logging.getLogger(__name__)
 

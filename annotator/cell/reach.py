@@ -21,8 +21,6 @@ import numpy as np
 from annotator.cell.world import Cell
 from annotator.geometry import Transform
 from annotator.sim import pb, ur3
-from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
-from annotator.sim.rg2 import FINGER_CHAINS
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +34,6 @@ REASONS = (NO_IK, LIMITS, ARM_TABLE, ARM_OBJECT, SELF)
 # another IK branch (a 1 cm Cartesian step moves a UR3 joint by a few hundredths of a radian away
 # from singularities).
 MAX_JOINT_STEP = 0.5  # rad
-GRIPPER_LINKS = frozenset({GRIPPER_BASE_LINK, "tcp", *FINGER_CHAINS[0], *FINGER_CHAINS[1]})
 # The arm's home: upper arm up, forearm forward, the gripper pointing down over the table. IK
 # solutions nearest to it are tried first (the batch job and replay), so the chosen branch is the
 # one a UR3 reaches from its usual start (elbow up, wrist down), whatever the arm did before.
@@ -81,20 +78,25 @@ def _link_names(cell: Cell) -> dict[int, str]:
 
 
 def arm_collision(cell: Cell, obj: int | None, margin: float) -> tuple[str, str]:
-    """With the arm where it is: (reason, detail) of the first collision found, ('', '') if none."""
-    robot = cell.robot
-    assert robot is not None
+    """With the arm where it is: (reason, detail) of the first collision found, ('', '') if none.
+
+    The gripper's own links (every link of its description) against the object are the grasp's
+    collision check, not the arm's; against each other they are the gripper's business.
+    """
+    robot, gripper = cell.robot, cell.gripper
+    assert robot is not None and gripper is not None
     client = cell.client
     names = _link_names(cell)
+    gripper_links = frozenset(gripper.description.links)
     for link, distance in _closest(client, robot.uid, cell.table.uid, margin):
         return ARM_TABLE, f"{names[link]} touches the table ({distance * 1000:.1f} mm)"
     if obj is not None:
         for link, distance in _closest(client, robot.uid, obj, margin):
-            if names[link] not in GRIPPER_LINKS:
+            if names[link] not in gripper_links:
                 return ARM_OBJECT, f"{names[link]} touches the object ({distance * 1000:.1f} mm)"
     pb.performCollisionDetection(physicsClientId=client)
     for c in pb.getContactPoints(robot.uid, robot.uid, physicsClientId=client):
-        if c[8] < -1e-4 and not (names[c[3]] in GRIPPER_LINKS and names[c[4]] in GRIPPER_LINKS):
+        if c[8] < -1e-4 and not (names[c[3]] in gripper_links and names[c[4]] in gripper_links):
             return SELF, f"{names[c[3]]} touches {names[c[4]]}"
     return "", ""
 
@@ -123,12 +125,12 @@ def check_reach(
     simulated. ``obj``: the object's body, checked against the arm links. ``q_seed`` (6,):
     solutions nearest to it are tried first (default the arm's current joints).
     """
-    robot, rg2 = cell.robot, cell.rg2
-    if robot is None or rg2 is None:
+    robot, gripper = cell.robot, cell.gripper
+    if robot is None or gripper is None:
         raise ValueError("reachability needs the cell's robot")
     margin = cell.config.arm_collision_margin if margin is None else margin
     saved_q = cell.arm_positions()
-    saved_angle = rg2.driven_angle()
+    saved_angle = gripper.driven_angle()
     q_seed = saved_q if q_seed is None else np.asarray(q_seed, dtype=float)
     limits = cell.arm_limits()
     waypoints = approach_waypoints(T_world_tcp, approach_distance, approach_step)[::-1]  # grasp first
@@ -147,7 +149,7 @@ def check_reach(
         # one by one was a third of a cell worker's time); which branch continues the path is
         # chosen below, waypoint by waypoint, exactly as nearest_ik would
         along = ur3.ik_branches(np.stack(flange)) if len(flange) > 1 else None
-        rg2.reset_width(open_width)
+        gripper.reset_width(open_width)
         for k in order:
             path = [result.solutions[k]]
             failure: tuple[str, str] | None = None
@@ -174,4 +176,4 @@ def check_reach(
         return best
     finally:
         cell.reset_arm(saved_q)
-        rg2.reset_angle(saved_angle)
+        gripper.reset_angle(saved_angle)

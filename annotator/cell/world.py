@@ -1,9 +1,9 @@
-"""The cell's bodies in one world: table, UR3 + RG2 on its mount, Kinect v2 (numbers: CellConfig).
+"""The cell's bodies in one world: table, UR3 + gripper on its mount, Kinect v2 (numbers: CellConfig).
 
 Everything that needs the seed's table, arm or camera builds it here, so those poses exist once:
 ``build_cell(world, config)`` loads what is asked for (a trial needs the table only; the scene and
 replay the arm and the Kinect too) and returns a :class:`Cell` with the table's top surface, the
-arm's mount pose and, when loaded, the coupled RG2 and the arm's kinematics.
+arm's mount pose and, when loaded, the coupled gripper on the arm's flange and the arm's kinematics.
 """
 
 from __future__ import annotations
@@ -19,17 +19,20 @@ import pybullet_data
 
 from annotator import paths
 from annotator.cell.kinect import KinectView, render_view
+from annotator.cell.mount import mounted_urdf
 from annotator.config import CellConfig, GripperConfig, KinectConfig
 from annotator.geometry import Transform
+from annotator.grippers import GripperDescription, load_gripper
 from annotator.sim import pb, ur3
 from annotator.sim.body import Body
-from annotator.sim.rg2 import RG2
+from annotator.sim.gripper import ParallelGripper
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
 
 # The seed's load flags (EXCLUDE_PARENT, docs/robots.md "The seed scene") with self-collision switched on
-# so the RG2's finger pairs collide (RG2 filters the in-finger pairs), and inertia from the file.
+# so the gripper's finger pairs collide (ParallelGripper filters the in-finger pairs), and inertia
+# from the file.
 ROBOT_FLAGS = (
     pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT | pb.URDF_USE_INERTIA_FROM_FILE
 )
@@ -113,14 +116,18 @@ def table_top_of(body: Body) -> TableTop:
 
 @dataclass
 class Cell:
-    """The cell's bodies in ``world``; ``robot``, ``rg2`` and ``kinect`` are None when not loaded."""
+    """The cell's bodies in ``world``; ``robot``, ``gripper`` and ``kinect`` are None when not loaded.
+
+    ``robot`` is the UR3 with the gripper on its flange (one multibody, :mod:`annotator.cell.mount`),
+    ``gripper`` that gripper's coupled linkage on it.
+    """
 
     world: World
     config: CellConfig
     table: Body
     top: TableTop
     robot: Body | None = None
-    rg2: RG2 | None = None
+    gripper: ParallelGripper | None = None
     kinect: Body | None = None
     kinect_config: KinectConfig = field(default_factory=KinectConfig)
 
@@ -136,9 +143,17 @@ class Cell:
         return robot_mount_pose(self.config)
 
     @property
+    def rg2(self) -> ParallelGripper | None:
+        """The gripper on the arm (the name this attribute had when the RG2 was the only one)."""
+        return self.gripper
+
+    @property
     def frames(self) -> ur3.ArmFrames:
-        """The arm's fixed frames and its RG2's tool point (from the model's own FK)."""
-        return ur3.arm_frames(None, self.rg2.config if self.rg2 is not None else None)
+        """The arm's fixed frames and its gripper's tool point (from the model's own FK)."""
+        if self.gripper is None:
+            return ur3.arm_frames(None)
+        g = self.gripper
+        return ur3.arm_frames(str(g.urdf), g.config, g.description)
 
     def T_world_kinect_optical(self) -> Transform:
         """The Kinect's optical frame (+z viewing direction, +x right, +y down in the image)."""
@@ -186,7 +201,7 @@ class Cell:
         return self.T_world_baselink * self.frames.tcp_pose(q, width)
 
     def ik(self, T_world_tcp: Transform, width: float, reference: np.ndarray | None = None) -> ur3.IKResult:
-        """Closed-form IK for the RG2's TCP at ``T_world_tcp`` with opening ``width`` (m)."""
+        """Closed-form IK for the gripper's TCP at ``T_world_tcp`` with opening ``width`` (m)."""
         T_baselink_tcp = self.T_world_baselink.inverse() * T_world_tcp
         return self.frames.ik_tcp(T_baselink_tcp, width, limits=self.arm_limits(), reference=reference)
 
@@ -205,8 +220,10 @@ def build_cell(
     kinect: bool = True,
     gripper: GripperConfig | None = None,
     kinect_config: KinectConfig | None = None,
+    description: GripperDescription | str | None = None,
 ) -> Cell:
-    """Load the cell's table and, if asked, the UR3 + RG2 (its followers coupled) and the Kinect.
+    """Load the cell's table and, if asked, the UR3 with the gripper ``description`` (default the
+    RG2) on its flange (its followers coupled, configured by ``gripper``) and the Kinect.
 
     The arm is loaded without ``useFixedBase``: its URDF mounts itself (a massless ``world`` root).
     """
@@ -215,9 +232,10 @@ def build_cell(
     table = Body.load(client, table_urdf(config), table_pose(config))
     cell = Cell(world, config, table, table_top_of(table), kinect_config=kinect_config or KinectConfig())
     if robot:
-        urdf = paths.ur3_rg2_urdf()
+        described = load_gripper(description)
+        urdf = mounted_urdf(described)
         cell.robot = Body.load(client, urdf, robot_mount_pose(config), flags=ROBOT_FLAGS)
-        cell.rg2 = RG2(cell.robot, urdf, gripper or GripperConfig())
+        cell.gripper = ParallelGripper(cell.robot, described, gripper, urdf=urdf)
     if kinect:
         cell.kinect = Body.load(client, paths.kinect_urdf(), kinect_pose(config), fixed_base=True)
     log.debug("cell built: table top at z = %.4f m", cell.top.z)

@@ -1,6 +1,6 @@
 """The worker side of the job: one world per process, objects loaded on demand, spans labelled.
 
-A worker builds its world once (PyBullet DIRECT, floating RG2) and keeps it between spans; when a
+A worker builds its world once (PyBullet DIRECT, floating gripper) and keeps it between spans; when a
 span of a new object arrives it loads the object (the convex decomposition comes from the cache),
 samples its N candidates (the same on every worker: the Generator is keyed on seed and object id)
 and creates its body. Each candidate starts from a restored snapshot with no contact memory
@@ -31,6 +31,7 @@ import pandas as pd
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
+from annotator.grippers import GripperDescription, load_gripper
 from annotator.objects import (
     ObjectError,
     ObjectModel,
@@ -122,7 +123,8 @@ class SpanTask:
     others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
     exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
     doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
-    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper).
+    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper);
+    ``gripper``: the gripper simulated (None: the default, the RG2).
     """
 
     span: Span
@@ -136,6 +138,7 @@ class SpanTask:
     status_dir: str | None = None
     cache_dir: str | None = None
     cell: CellOptions | None = None
+    gripper: GripperDescription | None = None
 
 
 @dataclass(frozen=True)
@@ -229,7 +232,8 @@ class WorkerState:
         self.config: AnnotatorConfig | None = None
         self.cell_mode = False
         self.world = None  # annotator.sim.world.World
-        self.hand = None  # annotator.sim.hand.FloatingRG2
+        self.hand = None  # annotator.sim.hand.FloatingGripper
+        self.gripper_key: tuple[str, str] | None = None  # (name, digest) of the gripper in the world
         self.cell: CellWorlds | None = None  # the table and the arm world, --cell only
         self.obj: LoadedObject | None = None
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
@@ -241,16 +245,21 @@ class WorkerState:
 
     # --- the world ------------------------------------------------------------------------------
 
-    def world_for(self, config: AnnotatorConfig, cell: bool = False):
-        """The world and floating gripper for ``config`` (rebuilt only when the config or the mode
-        changes: a floating world never holds the table)."""
-        from annotator.sim.hand import FloatingRG2
+    def world_for(
+        self, config: AnnotatorConfig, cell: bool = False, gripper: GripperDescription | None = None
+    ):
+        """The world and floating gripper for ``config`` (rebuilt only when the config, the gripper
+        or the mode changes: a floating world never holds the table)."""
+        from annotator.sim.hand import FloatingGripper
         from annotator.sim.world import World
 
-        if self.config != config or self.cell_mode != cell or self.world is None:
+        gripper = load_gripper(gripper)
+        changed = self.config != config or self.gripper_key != gripper.key
+        if changed or self.cell_mode != cell or self.world is None:
             self.close()
             self.world = World(config.physics)
-            self.hand = FloatingRG2(self.world, config.gripper)
+            self.hand = FloatingGripper(self.world, config.gripper, gripper)
+            self.gripper_key = gripper.key
             if cell:
                 from annotator.cell.batch import CellWorlds
 
@@ -273,7 +282,7 @@ class WorkerState:
     def object_for(self, task: SpanTask) -> LoadedObject:
         """The span's object in this world (its body is created once per object); ObjectError."""
         span, config = task.span, task.config
-        world, _ = self.world_for(config, cell=task.cell is not None)
+        world, _ = self.world_for(config, cell=task.cell is not None, gripper=task.gripper)
         # Worker processes outlive a run (they are reused), so the key is the object's source as it
         # is now: its digest (a mesh behind an unchanged URDF included), else the file's stat.
         version = task.source_sha256
@@ -330,7 +339,7 @@ class WorkerState:
         if world.physics != physics:
             world.physics = physics
             world.configure()
-        hand.teleport(PARKED, hand.rg2.max_width)
+        hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
         if self.cell is None:
             world.set_gravity(False)
@@ -353,7 +362,7 @@ class WorkerState:
             if loaded.cell is not None:  # per placement, knowing the table
                 cands = loaded.cell.candidates(n, seed)
             else:
-                cands = object_candidates(loaded.model, n, seed, config, self.hand.rg2.max_width)
+                cands = object_candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
             loaded.candidates[(seed, n)] = cands
         return cands
 
@@ -529,7 +538,7 @@ def simulate(
                 "sim_steps": steps,
                 "slip": slip,
                 "object_mass": model.mass,
-                # the commanded grasp: the TCP pose the RG2 was placed at before closing (quaternion
+                # the commanded grasp: the TCP pose the gripper was placed at before closing (quaternion
                 # as simulated, not sign-canonicalised) and the expected chord the close started
                 # from; ``evaluate`` replays a label exactly from these
                 **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
@@ -562,10 +571,10 @@ def label_span(task: SpanTask) -> SpanResult:
     return worker_state().label(task)
 
 
-def max_width(config: AnnotatorConfig) -> float:
-    """The RG2 stroke from the model's FK (a throwaway DIRECT client)."""
-    from annotator.sim.hand import FloatingRG2
+def max_width(config: AnnotatorConfig, gripper: GripperDescription | str | None = None) -> float:
+    """The gripper's stroke from its model's FK (default the RG2; a throwaway DIRECT client)."""
+    from annotator.sim.hand import FloatingGripper
     from annotator.sim.world import World
 
     with World(config.physics) as world:
-        return FloatingRG2(world, config.gripper).rg2.max_width
+        return FloatingGripper(world, config.gripper, gripper).gripper.max_width

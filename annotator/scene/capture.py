@@ -4,7 +4,7 @@ The gripper pose is read from the arm in the scene, relative to the object (the 
 object given with ``--object``); the pads' expected chord is the object's extent along the closing
 axis through the TCP (a ray cast on its mesh), or the current opening when the TCP is not between
 two of its faces. The candidate then runs through :class:`annotator.trial.GraspTrial` exactly as
-in the batch job (its own DIRECT world with the floating RG2 and the object at the origin, the
+in the batch job (its own DIRECT world with the floating gripper and the object at the origin, the
 object loaded and weighed by ``annotator.objects``), and the row, in the label schema, is appended
 to the capture file (``grasp_id`` counts the object's captures; ``seed`` is 0: nothing is drawn).
 """
@@ -25,9 +25,9 @@ import trimesh
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome, pose_columns, validate_labels
 from annotator.geometry import Transform
+from annotator.grippers import GripperDescription, load_gripper
 from annotator.objects import ObjectModel, create_body, get_object_pose, load_object, physics_for
-from annotator.sim.hand import FloatingRG2
-from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
 
@@ -80,31 +80,43 @@ def expected_chord(mesh: trimesh.Trimesh, T_obj_tcp: Transform) -> float | None:
 
 def candidate_from_scene(scene, T_world_obj: Transform, mesh: trimesh.Trimesh) -> Candidate:
     """The scene's current gripper pose as a candidate on the object at ``T_world_obj``."""
-    T_world_base = scene.robot.link_pose(GRIPPER_BASE_LINK)
-    opening = scene.rg2.measured_width()
+    gripper = scene.gripper
+    T_world_base = gripper.base_pose()
+    opening = gripper.measured_width()
     T_obj_base = T_world_obj.inverse() * T_world_base
-    chord = expected_chord(mesh, T_obj_base * scene.rg2.T_base_tcp(opening))
+    chord = expected_chord(mesh, T_obj_base * gripper.T_base_tcp(opening))
     width = chord if chord is not None else opening
-    width = float(np.clip(width, 0.0, scene.rg2.max_width))
-    return Candidate(T_obj_base * scene.rg2.T_base_tcp(width), width, chord is not None)
+    width = float(np.clip(width, 0.0, gripper.max_width))
+    return Candidate(T_obj_base * gripper.T_base_tcp(width), width, chord is not None)
 
 
 class Capturer:
-    """Runs captured candidates through the batch protocol and appends their rows to ``out``."""
+    """Runs captured candidates through the batch protocol and appends their rows to ``out``.
 
-    def __init__(self, model: ObjectModel, config: AnnotatorConfig, out: Path) -> None:
+    ``gripper``: the gripper's description (a name or folder is loaded; default the RG2), the one
+    on the scene's arm.
+    """
+
+    def __init__(
+        self,
+        model: ObjectModel,
+        config: AnnotatorConfig,
+        out: Path,
+        gripper: GripperDescription | str | None = None,
+    ) -> None:
         self.model = model
         self.config = config
         self.out = Path(out)
+        self.gripper = load_gripper(gripper)
         self._trial: GraspTrial | None = None
         self._world: World | None = None
 
     def _ensure_trial(self) -> GraspTrial:
-        """The floating RG2 and the object in their own DIRECT world, set up as a batch worker does."""
+        """The floating gripper and the object in their own DIRECT world, set up as a batch worker does."""
         if self._trial is None:
             world = World(physics_for(self.model, self.config.physics))  # a light object: finer step
-            hand = FloatingRG2(world, self.config.gripper)
-            hand.teleport(PARKED, hand.rg2.max_width)
+            hand = FloatingGripper(world, self.config.gripper, self.gripper)
+            hand.teleport(PARKED, hand.gripper.max_width)
             uid = create_body(world.client, self.model)
             world.set_gravity(False)
             self._world, self._trial = world, GraspTrial(world, hand, uid, self.config)

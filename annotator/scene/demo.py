@@ -62,7 +62,7 @@ def demo_script(scene: Scene) -> Script:
     c = scene.config
     q0 = np.asarray(c.initial_arm)
     lower, upper = scene.gripper_range()
-    closed = scene.rg2.table.angle_of(0.0)  # commanding past the cube: the grip force limits it
+    closed = scene.gripper.table.angle_of(0.0)  # commanding past the cube: the grip force limits it
     sweep_a = q0 + np.array([0.8, 0.4, -0.6, 0.5, 0.0, 1.0])
     sweep_b = q0 + np.array([-0.8, 0.6, -1.2, -0.4, -0.5, -1.0])
     # Approach +x tilted 10 deg down, closing axis (gripper x) along world y.
@@ -115,4 +115,6 @@ def run_script(scene: Scene, script: Script, camera: Camera | None, n_frames: in
         scene.command_arm(arm)
         scene.command_gripper(angle)
         scene.world.step()
-    return Recording(frames, scene.arm_positions(), scene.rg2.measured_width(), scene.cube.base_pose().pos)
+    return Recording(
+        frames, scene.arm_positions(), scene.gripper.measured_width(), scene.cube.base_pose().pos
+    )

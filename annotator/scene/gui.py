@@ -80,7 +80,7 @@ def run_gui(
     """
     world = open_world(config, gui=True)
     client = world.client
-    # Every PyBullet call in GUI mode waits for the window thread; loading and RG2's FK table with
+    # Every PyBullet call in GUI mode waits for the window thread; loading and the gripper's FK table with
     # rendering on took ~40 s under software OpenGL, ~1-10 s with it off.
     pb.configureDebugVisualizer(pb.COV_ENABLE_RENDERING, 0, physicsClientId=client)
     scene = build_scene(world, config, obj)

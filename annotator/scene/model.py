@@ -1,4 +1,4 @@
-"""The seed scene's model: the cell (table, UR3 + RG2, Kinect) plus the seed's small cube.
+"""The seed scene's model: the cell (table, UR3 + gripper, Kinect) plus the seed's small cube.
 
 The cell's bodies and poses come from :mod:`annotator.cell` (defined once); this adds the cube,
 the seed's debug camera and slider start values, and arm/gripper commands by name.
@@ -18,10 +18,11 @@ from annotator.cell import Cell, build_cell
 from annotator.cell.placement import place, stable_poses
 from annotator.config import CellConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
+from annotator.grippers import GripperDescription
 from annotator.objects import ObjectModel, create_body
 from annotator.render import Camera, orbit_camera
 from annotator.sim.body import Body
-from annotator.sim.rg2 import RG2
+from annotator.sim.gripper import ParallelGripper
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,8 @@ class SceneConfig:
     initial_arm: tuple[float, ...] = (0.0, -math.pi / 2, 0.0, 0.0, math.pi / 2, 0.0)
     slider_range: float = math.pi
     gripper: GripperConfig = field(default_factory=GripperConfig)
+    # The gripper on the arm's flange: a description, a shipped name or a folder (None: the RG2).
+    description: GripperDescription | str | None = None
     # GUI loop rate (Hz): sliders are read and stepSimulation called once per frame, with
     # 240/gui_rate substeps of PhysicsConfig.time_step. Each call in GUI mode waits for the window
     # thread, so at 240 calls/s the loop fell behind real time under software OpenGL (Xvfb).
@@ -58,7 +61,7 @@ class SceneConfig:
 
 @dataclass
 class Scene:
-    """The loaded seed scene: the cell (arm, RG2, table, Kinect) and the cube (or a chosen object,
+    """The loaded seed scene: the cell (arm, gripper, table, Kinect) and the cube (or a chosen object,
     still called ``cube``)."""
 
     cell: Cell
@@ -81,9 +84,9 @@ class Scene:
         return self.cell.robot
 
     @property
-    def rg2(self) -> RG2:
-        assert self.cell.rg2 is not None
-        return self.cell.rg2
+    def gripper(self) -> ParallelGripper:
+        assert self.cell.gripper is not None
+        return self.cell.gripper
 
     @property
     def table(self) -> Body:
@@ -105,19 +108,19 @@ class Scene:
         self.cell.command_arm(q)
 
     def command_gripper(self, angle: float) -> None:
-        """Hold the driven gripper angle (rad) with the configured grip force."""
-        self.rg2.hold_position(angle, self.config.gripper.grip_force)
+        """Hold the drive position (rad or m) with the run's grip force."""
+        self.gripper.hold_position(angle, self.gripper.grip_force)
 
     def reset_pose(self, q: np.ndarray | tuple[float, ...], gripper_angle: float) -> None:
         """Teleport arm and gripper (set-up only) and command the same targets."""
         self.cell.reset_arm(q)
-        self.rg2.reset_angle(gripper_angle)
+        self.gripper.reset_angle(gripper_angle)
         self.command_arm(q)
         self.command_gripper(gripper_angle)
 
     def gripper_range(self) -> tuple[float, float]:
-        """The driven joint's URDF limits (rad)."""
-        j = self.robot.joints[self.rg2.driven]
+        """The driven joint's URDF limits (rad or m)."""
+        j = self.robot.joints[self.gripper.driven]
         return j.lower, j.upper
 
     def seed_camera(self, width: int, height: int, fov: float | None = None) -> Camera:
@@ -129,7 +132,7 @@ class Scene:
         )
 
     def solve_ik(self, T_world_tcp: Transform, width: float, start: np.ndarray | None = None) -> np.ndarray:
-        """Arm joints (6,) placing the RG2's TCP at ``T_world_tcp`` with the pads ``width`` apart.
+        """Arm joints (6,) placing the gripper's TCP at ``T_world_tcp`` with the pads ``width`` apart.
 
         The closed-form UR3 solution nearest to ``start`` (6,) (default the seed's initial pose);
         raises ``ValueError`` with the reason when the pose is out of reach.
@@ -156,7 +159,7 @@ def build_scene(world: World, config: SceneConfig | None = None, obj: ObjectMode
     of the arm, where it can be grasped from above; the seed's cube at 0.7 m only from the side).
     """
     config = config or SceneConfig()
-    cell = build_cell(world, config.cell, gripper=config.gripper)
+    cell = build_cell(world, config.cell, gripper=config.gripper, description=config.description)
     if obj is None:
         data = Path(pybullet_data.getDataPath())
         cube = Body.load(world.client, data / config.cube_urdf, Transform(config.cube_pos, [0, 0, 0, 1]))

@@ -1,4 +1,4 @@
-"""The floating RG2 (no arm), carried by a fixed constraint that is moved to approach, lift and shake."""
+"""The floating gripper (no arm), carried by a fixed constraint that is moved to approach, lift and shake."""
 
 from __future__ import annotations
 
@@ -8,29 +8,36 @@ from collections.abc import Callable
 import numpy as np
 import pybullet as pb
 
-from annotator import paths
 from annotator.config import GripperConfig
 from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
+from annotator.grippers import GripperDescription, load_gripper
 from annotator.sim.body import Body
-from annotator.sim.rg2 import BASE_LINK, RG2
+from annotator.sim.gripper import GRIPPER_LOAD_FLAGS, ParallelGripper
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
 
-# Self-collision on, minus parent/child pairs; the RG2 class filters the remaining in-finger pairs.
-RG2_LOAD_FLAGS = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
 
+class FloatingGripper:
+    """A gripper body in ``world`` whose base link follows a movable fixed constraint.
 
-class FloatingRG2:
-    """An RG2 body in ``world`` whose base link follows a movable fixed constraint."""
+    ``gripper``: its description (a name or folder is loaded; default the RG2).
+    """
 
-    def __init__(self, world: World, config: GripperConfig | None = None) -> None:
+    def __init__(
+        self,
+        world: World,
+        config: GripperConfig | None = None,
+        gripper: GripperDescription | str | None = None,
+    ) -> None:
         self.world = world
         self.client = world.client
         self.config = config or GripperConfig()
-        urdf = paths.rg2_urdf()
-        self.body = Body.load(self.client, urdf, flags=RG2_LOAD_FLAGS)
-        self.rg2 = RG2(self.body, urdf, self.config, passive_links=self.config.passive_links)
+        self.description = load_gripper(gripper)
+        self.body = Body.load(self.client, self.description.urdf, flags=GRIPPER_LOAD_FLAGS)
+        self.gripper = ParallelGripper(
+            self.body, self.description, self.config, passive_links=self.config.passive_links
+        )
         self._constraint = pb.createConstraint(
             self.body.uid,
             -1,
@@ -52,6 +59,16 @@ class FloatingRG2:
     def uid(self) -> int:
         return self.body.uid
 
+    @property
+    def rg2(self) -> ParallelGripper:
+        """The gripper (the name this attribute had when the RG2 was the only one)."""
+        return self.gripper
+
+    @property
+    def grip_force(self) -> float:
+        """The run's squeeze, N per pad (the description's default unless configured)."""
+        return self.gripper.grip_force
+
     def set_target(self, T_world_base: Transform) -> None:
         """Where the constraint pulls the gripper base link to (the motion is simulated)."""
         self.target = T_world_base
@@ -67,29 +84,34 @@ class FloatingRG2:
         """Put the base link at ``T_world_base`` with the fingers at ``width`` (no simulation)."""
         self.body.reset_base_pose(T_world_base)
         self.set_target(T_world_base)
-        self.rg2.reset_width(width)
+        self.gripper.reset_width(width)
         for j in self.body.movable_joints:
             pb.resetJointState(
                 self.uid, j.index, self.body.joint_position(j.name), 0.0, physicsClientId=self.client
             )
 
     def base_pose(self) -> Transform:
-        return self.body.link_pose(BASE_LINK)
+        return self.body.link_pose(self.description.base_link)
 
     def T_world_base_for_tcp(self, T_world_tcp: Transform, width: float) -> Transform:
         """Base pose that puts the pad-centre midpoint at ``T_world_tcp`` at opening ``width``."""
-        return T_world_tcp * self.rg2.T_base_tcp(width).inverse()
+        return T_world_tcp * self.gripper.T_base_tcp(width).inverse()
 
     # --- motion --------------------------------------------------------------------------------
 
-    def close(self, force: float, max_steps: int, on_step: Callable[[], None] | None = None) -> int:
-        """Close with squeeze ``force`` until the fingers stall or ``max_steps``; returns steps used."""
+    def close(self, force: float | None, max_steps: int, on_step: Callable[[], None] | None = None) -> int:
+        """Close with squeeze ``force`` (N; None: the run's grip force) until the fingers stall or
+        ``max_steps``; returns steps used."""
+        force = self.grip_force if force is None else force
         stalled = 0
-        stall_speed, stall_steps = self.config.stall_speed, self.config.stall_steps
-        uid, index, client = self.uid, self.body.joints[self.rg2.driven].index, self.client
+        gripper = self.gripper
+        velocity = gripper.close_velocity
+        stall_speed = self.config.stall_fraction * gripper.settings.close_speed
+        stall_steps = self.config.stall_steps
+        uid, index, client = self.uid, self.body.joints[gripper.driven].index, self.client
         angle = pb.getJointState(uid, index, physicsClientId=client)[0]
         for step in range(1, max_steps + 1):
-            self.rg2.command(-self.config.close_speed, force, angle)
+            gripper.command(velocity, force, angle)
             self.world.step()
             if on_step is not None:
                 on_step()
@@ -122,7 +144,7 @@ class FloatingRG2:
                 physicsClientId=client,
             )
             if i % update_every == 0:
-                self.rg2.command(-self.config.close_speed, force)
+                self.gripper.command(self.gripper.close_velocity, force)
             self.world.step()
             if on_step is not None and on_step(i + 1):
                 self.target = Transform(pos[i], quat[i])
@@ -172,7 +194,7 @@ class FloatingRG2:
         per = max(1, round(duration / motions / self.world.dt))
         phase = np.sin(2 * np.pi * cycles * np.arange(1, per + 1) / per)  # (per,)
         R = centre.rotation
-        pivot = centre.apply(self.rg2.T_base_tcp(0.0).pos)
+        pivot = centre.apply(self.gripper.T_base_tcp(0.0).pos)
         zero = np.zeros_like(phase)
         if paired:
             plan = [(axis, phase, phase) for axis in range(3)]  # (axis, translation, rotation)
@@ -188,6 +210,10 @@ class FloatingRG2:
         steps = self._follow(positions, matrix_to_quat(R_deltas @ R), force, on_step)
         self.set_target(centre)
         return steps
+
+
+# The name the floating gripper had when the RG2 was the only one.
+FloatingRG2 = FloatingGripper
 
 
 def _smoothstep(s: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """UR3 kinematics: standard-DH forward kinematics, the closed-form inverse (all eight branches), and
-the model's fixed frames (DH base, flange, RG2 tool point) read from its URDF.
+the model's fixed frames (DH base, flange, the gripper's tool point) read from its URDF.
 
 DH parameters: ros-industrial/universal_robot ``ur_description/config/ur3/physical_parameters.yaml``
 and UR's article "DH parameters for calculations of kinematics and dynamics" (UR3, CB3).
@@ -48,8 +48,9 @@ import pybullet as pb
 from annotator import paths
 from annotator.config import GripperConfig
 from annotator.geometry import Transform
+from annotator.grippers import GripperDescription, load_gripper
 from annotator.sim.body import Body
-from annotator.sim.rg2 import WidthTable, fk_table, read_mimic_table
+from annotator.sim.width_table import WidthTable, fk_table
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +66,6 @@ MOUNT_LINK = "world"  # the massless root the models are mounted by (assets/ur3/
 BASE_LINK = "base_link"  # ROS-Industrial base frame
 DH_BASE_LINK = "base"  # UR's DH base frame, a fixed child of base_link
 TOOL0_LINK = "tool0"  # the flange, +z out of the flange (DH frame {6})
-GRIPPER_BASE_LINK = "rg2_base_link"  # the RG2's base frame on the flange
 
 # Standard DH, metres and radians (sources in the module docstring).
 DH_D1 = 0.1519
@@ -401,11 +401,11 @@ def nearest_ik_along(
 
 @dataclass(frozen=True)
 class ArmFrames:
-    """Fixed transforms of a UR3 (+ RG2) model, read from its URDF by forward kinematics.
+    """Fixed transforms of a UR3 (+ gripper) model, read from its URDF by forward kinematics.
 
-    ``T_baselink_base``: UR's DH base in ``base_link``; ``T_tool0_gripper``: the RG2's base link on
-    the flange (None for the bare arm); ``gripper``: the RG2's FK table (pad-centre midpoint over
-    the opening), None for the bare arm.
+    ``T_baselink_base``: UR's DH base in ``base_link``; ``T_tool0_gripper``: the gripper's base link
+    on the flange (None for the bare arm); ``gripper``: the gripper's FK table (pad-centre midpoint
+    over the opening), None for the bare arm.
     """
 
     T_baselink_base: Transform
@@ -413,7 +413,7 @@ class ArmFrames:
     gripper: WidthTable | None
 
     def T_tool0_tcp(self, width: float) -> Transform:
-        """The RG2's tool point (pad-centre midpoint, ``tcp`` axes) at opening ``width`` (m), in tool0."""
+        """The gripper's tool point (pad-centre midpoint, TCP axes) at opening ``width`` (m), in tool0."""
         if self.T_tool0_gripper is None or self.gripper is None:
             raise ValueError("this arm model has no gripper")
         return self.T_tool0_gripper * self.gripper.T_base_tcp(width)
@@ -441,29 +441,39 @@ class ArmFrames:
 
 
 @functools.lru_cache(maxsize=4)
-def arm_frames(urdf: str | None = None, gripper_config: GripperConfig | None = None) -> ArmFrames:
+def arm_frames(
+    urdf: str | None = None,
+    gripper_config: GripperConfig | None = None,
+    gripper: GripperDescription | None = None,
+) -> ArmFrames:
     """Read :class:`ArmFrames` from a UR3 model (default: the UR3 + RG2) in a private DIRECT client.
 
-    ``gripper_config`` sets how finely the RG2's FK table is sampled (as :class:`RG2` does).
+    ``gripper``: the description of the gripper on its flange (default the RG2; its base link
+    absent from the model: the bare arm); ``gripper_config`` sets how finely the gripper's FK table
+    is sampled (as :class:`annotator.sim.gripper.ParallelGripper` does).
     """
     path = Path(urdf) if urdf is not None else paths.ur3_rg2_urdf()
+    gripper = load_gripper(gripper)
     client = pb.connect(pb.DIRECT)
     try:
         body = Body.load(client, path)
         T_world_baselink = body.link_pose(BASE_LINK)
         T_baselink_base = T_world_baselink.inverse() * body.link_pose(DH_BASE_LINK)
         T_tool0_gripper = None
-        if GRIPPER_BASE_LINK in body.links:
-            T_tool0_gripper = body.link_pose(TOOL0_LINK).inverse() * body.link_pose(GRIPPER_BASE_LINK)
+        if gripper.base_link in body.links:
+            T_tool0_gripper = body.link_pose(TOOL0_LINK).inverse() * body.link_pose(gripper.base_link)
         limits = {j.name: (j.lower, j.upper) for j in body.movable_joints}
     finally:
         pb.disconnect(physicsClientId=client)
-    gripper = None
+    table = None
     if T_tool0_gripper is not None:
-        driven = {m.driven for m in read_mimic_table(path).values()}.pop()
         samples = (gripper_config or GripperConfig()).width_table_samples
-        gripper = fk_table(str(path), *limits[driven], samples)
-    return ArmFrames(T_baselink_base, T_tool0_gripper, gripper)
+        thickness = None if gripper.pad_size is None else gripper.pad_size[0]
+        drive = gripper.drive_joint
+        table = fk_table(
+            str(path), drive, gripper.pad_links, gripper.base_link, thickness, *limits[drive], samples
+        )
+    return ArmFrames(T_baselink_base, T_tool0_gripper, table)
 
 
 def arm_limits(body: Body) -> np.ndarray:

@@ -247,6 +247,15 @@ def simulate_grid(
     return out
 
 
+def _gripper_settings(config: AnnotatorConfig):
+    """The grip force and pad friction ``config`` simulates the gripper (the RG2) with: its
+    description's unless the configuration sets them."""
+    from annotator.grippers import default_gripper
+    from annotator.sim.gripper import GripperSettings
+
+    return GripperSettings.resolve(default_gripper(), config.gripper)
+
+
 def _max_width(config: AnnotatorConfig) -> float:
     from annotator.pipeline.worker import max_width
 
@@ -266,12 +275,13 @@ def calibrate(
     simulated = simulate_grid(trials, settings, base, objects_dir, workers, seed)
     real = trials["real_success"].to_numpy(dtype=bool)
     records = []
+    labelled = _gripper_settings(base)
     for s in settings:
         a = agreement(real, simulated[s], bootstrap, seed)
         # nearness to the labelling configuration, for ties: log ratios of each parameter
-        near = abs(np.log(s.friction / base.gripper.pad_lateral_friction)) + abs(np.log(s.severity))
+        near = abs(np.log(s.friction / labelled.pad_lateral_friction)) + abs(np.log(s.severity))
         if s.force is not None:
-            near += abs(np.log(s.force / base.gripper.grip_force))
+            near += abs(np.log(s.force / labelled.grip_force))
         records.append(
             {
                 "friction": s.friction,

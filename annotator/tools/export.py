@@ -1,15 +1,18 @@
 """The labels in the formats existing grasp learners read: ACRONYM-style HDF5 and GraspGen JSON.
 
 Both formats give a grasp as the pose of the gripper's *base* frame in the object's mesh frame,
-not of the TCP. For the RG2 that frame is ``rg2_base_link``: origin on the tool flange, +z out
-along the tool axis (the approach), +x the closing direction (finger 1 towards finger 2) -- the
-same axes as our TCP, which sits on the tool axis between the pads. The fingertips move on arcs,
-so the TCP's depth below the flange depends on the opening (161 mm fully open ... 200 mm closed),
-and every grasp is exported as
+not of the TCP: its description's base link (``[base] link``, the frame convention in ``[base]
+frame``). For the RG2 that frame is ``rg2_base_link``: origin on the tool flange, +z out along the
+tool axis (the approach), +x the closing direction (finger 1 towards finger 2) -- the same axes as
+our TCP, which sits on the tool axis between the pads. The RG2's fingertips move on arcs, so the
+TCP's depth below the flange depends on the opening (161 mm fully open ... 200 mm closed); the
+Panda's fingers slide, its TCP stays put. Every grasp is exported as
 
     T_obj_base = T_obj_tcp * T_base_tcp(width)^-1,    T_base_tcp(width) = translation (0, 0, d(width))
 
-with ``d`` from the RG2 model's own forward kinematics (:meth:`annotator.sim.rg2.RG2.T_base_tcp`).
+with ``d`` from the gripper model's own forward kinematics
+(:meth:`annotator.sim.gripper.ParallelGripper.T_base_tcp`); ``gripper/type`` is the description's
+``export_type`` (``onrobot_rg2``, ``franka_panda``, ``robotiq_2f85``).
 The label's ``width`` is exported beside each transform, so ``T_obj_tcp`` is recovered exactly.
 Labels that record their commanded grasp (``cmd_*``) also give ``commanded_transforms``: the
 flange pose where the gripper was placed before closing (the same transform of the ``cmd`` pose
@@ -32,17 +35,20 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import poses_as_matrices
+from annotator.grippers import GripperDescription
 
 log = logging.getLogger(__name__)
 
 FORMATS = ("acronym", "graspgen")
-GRIPPER_TYPE = "onrobot_rg2"
-BASE_FRAME = "rg2_base_link"
-FRAME_NOTE = (
-    "grasps/transforms: rg2_base_link in the object mesh frame (origin on the tool flange, +z approach, "
-    "+x closing from finger 1 to finger 2). TCP (pad-centre midpoint, the rg2-annotator label pose) = "
-    "transform * translation(0, 0, tcp_depth); tcp_depth depends on the opening: see grasps/width"
-)
+
+
+def frame_note(description: GripperDescription) -> str:
+    """What ``grasps/transforms`` are, written into every exported file."""
+    return (
+        f"grasps/transforms: {description.base_link} in the object mesh frame ({description.base_frame}). "
+        "TCP (pad-centre midpoint, the rg2-annotator label pose) = transform * translation(0, 0, tcp_depth); "
+        f"tcp_depth from the {description.name} model's FK at the opening: see grasps/width"
+    )
 
 
 @dataclass(frozen=True)
@@ -53,31 +59,38 @@ class ExportResult:
 
 
 class TcpDepth:
-    """``T_base_tcp(width)`` of the RG2 model: the TCP below the flange, from the model's own FK.
+    """``T_base_tcp(width)`` of a gripper model (default the RG2): the TCP in its base frame, from
+    the model's own FK; ``config`` (a GripperConfig) resolves the run's grip force.
 
-    The model is loaded once in a private DIRECT client; :meth:`RG2.T_base_tcp` only reads the
-    FK table it tabulated, so it keeps working after the client is closed.
+    The model is loaded once in a private DIRECT client; :meth:`ParallelGripper.T_base_tcp` only
+    reads the FK table it tabulated, so it keeps working after the client is closed.
     """
 
-    def __init__(self) -> None:
-        from annotator import paths
+    def __init__(self, gripper: GripperDescription | str | None = None, config=None) -> None:
         from annotator.config import GripperConfig
+        from annotator.grippers import load_gripper
         from annotator.sim.body import Body
-        from annotator.sim.rg2 import RG2
+        from annotator.sim.gripper import ParallelGripper
         from annotator.sim.world import World
 
+        self.description = load_gripper(gripper)
         with World() as world:
-            urdf = paths.rg2_urdf()
-            self._rg2 = RG2(Body.load(world.client, urdf, fixed_base=True), urdf, GripperConfig())
+            body = Body.load(world.client, self.description.urdf, fixed_base=True)
+            self._gripper = ParallelGripper(body, self.description, config or GripperConfig())
 
     @property
     def max_width(self) -> float:
-        return self._rg2.max_width
+        return self._gripper.max_width
+
+    @property
+    def grip_force(self) -> float:
+        """The run's squeeze, N per pad."""
+        return self._gripper.grip_force
 
     def T_base_tcp(self, width: np.ndarray) -> np.ndarray:
         """(n, 4, 4) gripper-base-to-TCP transforms for openings ``width`` : (n,) m."""
         width = np.asarray(width, dtype=np.float64).reshape(-1)
-        return np.array([self._rg2.T_base_tcp(float(w)).as_matrix() for w in width]).reshape(-1, 4, 4)
+        return np.array([self._gripper.T_base_tcp(float(w)).as_matrix() for w in width]).reshape(-1, 4, 4)
 
 
 def base_poses(T_obj_tcp: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.ndarray:
@@ -201,7 +214,7 @@ def _write_acronym(
             if extra.get("commanded") is not None:
                 g.create_dataset("commanded_transforms", data=extra["commanded"])
                 g.create_dataset("commanded_width", data=rows["cmd_width"].to_numpy())
-            g.attrs["frame"] = FRAME_NOTE
+            g.attrs["frame"] = extra["frame_note"]
             o = f.create_group("object")
             o.create_dataset("file", data=mesh_file)
             o.create_dataset("scale", data=1.0)
@@ -211,8 +224,8 @@ def _write_acronym(
             o.create_dataset("mesh_sha256", data=extra["mesh_sha256"])
             o.create_dataset("label_scale", data=extra["label_scale"])
             gr = f.create_group("gripper")
-            gr.create_dataset("type", data=GRIPPER_TYPE)
-            gr.create_dataset("frame", data=BASE_FRAME)
+            gr.create_dataset("type", data=extra["gripper_type"])
+            gr.create_dataset("frame", data=extra["base_frame"])
             gr.create_dataset("force", data=extra["grip_force"])
 
     _write_atomically(path, write)
@@ -231,7 +244,11 @@ def _write_graspgen(
             "id": extra["object_id"],
             "mesh_sha256": extra["mesh_sha256"],
         },
-        "gripper": {"name": GRIPPER_TYPE, "frame": BASE_FRAME, "force": extra["grip_force"]},
+        "gripper": {
+            "name": extra["gripper_type"],
+            "frame": extra["base_frame"],
+            "force": extra["grip_force"],
+        },
         "grasps": {
             "transforms": T_obj_base.tolist(),
             "object_in_gripper": rows["success"].to_numpy(dtype=bool).tolist(),
@@ -247,7 +264,7 @@ def _write_graspgen(
                 if extra.get("commanded") is not None
                 else {}
             ),
-            "frame": FRAME_NOTE,
+            "frame": extra["frame_note"],
         },
     }
     text = json.dumps(data, allow_nan=True)
@@ -260,13 +277,15 @@ def export(
     out_dir: Path,
     objects_dir: Path | None = None,
     object_ids: tuple[str, ...] = (),
+    gripper: GripperDescription | str | None = None,
     *,
     overwrite: bool = False,
     partial: bool = False,
 ) -> ExportResult:
     """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
     its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
-    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0).
+    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0). ``gripper``: the
+    gripper the labels were made with (default the RG2).
 
     A folder holding an earlier export is refused unless ``overwrite`` (which removes what that
     export wrote, nothing else); labels of an unfinished run are refused unless ``partial``."""
@@ -289,10 +308,11 @@ def export(
     labels, manifest = run.labels, run.manifest
     ids = list(object_ids) or sorted(labels["object_id"].unique())
     config = labelling_config(labels_dir).config
-    friction, grip_force = config.objects.lateral_friction, config.gripper.grip_force
     folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
     out_dir = folder.path
-    depth = TcpDepth()
+    depth = TcpDepth(gripper, config.gripper)
+    description = depth.description
+    friction, grip_force = config.objects.lateral_friction, depth.grip_force
     files: list[Path] = []
     n = 0
     for oid in ids:
@@ -315,6 +335,9 @@ def export(
             "mesh_sha256": str(rows["mesh_sha256"].iloc[0]),
             "label_scale": float(rows["object_scale"].iloc[0]),
             "commanded": commanded,
+            "gripper_type": description.export_type,
+            "base_frame": description.base_link,
+            "frame_note": frame_note(description),
         }
         if fmt == "acronym":
             path = folder.target(f"{_stem(oid)}.h5")

@@ -1,4 +1,4 @@
-"""Replay one label on the UR3 + RG2 in the seed's cell: place, reach, approach, close, lift, judge.
+"""Replay one label on the UR3 + its gripper in the seed's cell: place, reach, approach, close, lift, judge.
 
 1. **Placement.** A label from ``annotate --cell`` carries the object's pose on the table
    (``obj_x obj_y obj_z obj_qx obj_qy obj_qz obj_qw``, the mesh frame in the world): it is used as
@@ -14,7 +14,7 @@
 2. **Motion.** The arm starts at the pregrasp (``approach_distance`` behind the grasp, gripper
    open to the label's width + 2 x the protocol's clearance) and follows the joint-space
    trajectory through the IK solutions of the straight approach (1 cm apart) to the grasp.
-3. **Close** with the RG2's grip force until the fingers stall, the arm holding still.
+3. **Close** with the gripper's grip force until the fingers stall, the arm holding still.
 4. **Lift** ``lift_height`` straight up (IK waypoints), keep squeezing, hold, and judge: the
    object *came up* when it rose at least ``LIFTED_SHARE`` of the lift; *moved in the hand* is its
    displacement in the gripper frame from the end of the close to the end.
@@ -43,7 +43,6 @@ from annotator.geometry import Transform
 from annotator.objects import ObjectModel, get_object_pose, physics_for, reset_object_pose
 from annotator.render import Camera, orbit_camera, render_rgb
 from annotator.sim import pb
-from annotator.sim.rg2 import BASE_LINK as GRIPPER_BASE_LINK
 from annotator.sim.world import World
 from annotator.tools.given import CMD_COLUMNS
 
@@ -100,7 +99,7 @@ def replay_world(model: ObjectModel, config: AnnotatorConfig, *, gui: bool = Fal
     """The world a label of ``model`` is replayed in, with the physics the batch job gave it: an
     object under ``[physics] light_object_mass`` at its finer time step
     (:func:`annotator.objects.physics_for`); at 1/240 s a light object's contacts can disagree with
-    its label. The arm's RG2 simulates its whole linkage, with the iterations that needs
+    its label. The arm's gripper simulates its whole linkage, with the iterations that needs
     (``PhysicsConfig.whole_linkage``)."""
     return World(physics_for(model, config.physics.whole_linkage()), gui=gui)
 
@@ -154,9 +153,10 @@ def plan_replay(cell: Cell, model: ObjectModel, obj: int, row: pd.Series, config
 
     Moves the object body ``obj`` to the chosen placement.
     """
-    assert cell.rg2 is not None
+    assert cell.gripper is not None
+    max_width = cell.gripper.max_width
     T_obj_tcp = Transform.from_matrix(poses_as_matrices(pd.DataFrame([row]))[0])
-    width, open_width = tcp_widths(row, config, cell.rg2.max_width)
+    width, open_width = tcp_widths(row, config, max_width)
     if all(c in row.index and pd.notna(row[c]) for c in PLACEMENT_COLUMNS):
         values = [float(row[c]) for c in PLACEMENT_COLUMNS]
         T_world_obj = Transform(values[:3], values[3:])
@@ -164,7 +164,7 @@ def plan_replay(cell: Cell, model: ObjectModel, obj: int, row: pd.Series, config
             cmd = [float(row[c]) for c in CMD_COLUMNS]
             T_obj_tcp = Transform.exact(cmd[:3], cmd[3:7])
             width = cmd[7]
-            open_width = min(cell.rg2.max_width, width + 2 * config.protocol.pregrasp_clearance)
+            open_width = min(max_width, width + 2 * config.protocol.pregrasp_clearance)
         reset_object_pose(cell.client, obj, T_world_obj)
         T_world_tcp = T_world_obj * T_obj_tcp
         reach = _reach(cell, obj, T_world_tcp, width, open_width, config)
@@ -256,19 +256,20 @@ def replay(
     """Execute ``plan`` in simulation (gravity on throughout) and measure; see the module docstring.
 
     ``frame_every``: steps per GIF frame (default: one frame per FRAME_SECONDS simulated)."""
-    robot, rg2 = cell.robot, cell.rg2
-    assert robot is not None and rg2 is not None
+    robot, gripper = cell.robot, cell.gripper
+    assert robot is not None and gripper is not None
     if not plan.reach.reachable:
         raise ValueError(f"the grasp is not reachable: {plan.reach.reason} ({plan.reach.detail})")
     g, p = config.gripper, config.protocol
+    force = gripper.grip_force
     every = frame_every if frame_every is not None else frames_every(cell.world.dt)
     rec = _Recorder(cell, camera, every, realtime)
     result = ReplayResult(plan)
     names = {index: name for name, index in robot.links.items()}
-    open_angle = rg2.table.angle_of(plan.open_width)
+    open_angle = gripper.table.angle_of(plan.open_width)
 
     def hold_open() -> None:
-        rg2.hold_position(open_angle, g.grip_force)
+        gripper.hold_position(open_angle, force)
 
     def watch_contacts() -> None:
         for body, what in ((obj, "the object"), (cell.table.uid, "the table")):
@@ -279,27 +280,28 @@ def replay(
 
     path = plan.reach.path
     cell.reset_arm(path[0])
-    rg2.reset_width(plan.open_width)
+    gripper.reset_width(plan.open_width)
     _follow(cell, path[:1], SETTLE_TIME, hold_open, rec)
     approach_seconds = p.approach_distance / APPROACH_SPEED
     _follow(cell, path, approach_seconds, lambda: (hold_open(), watch_contacts()), rec)
     _follow(cell, path[-1:], SETTLE_TIME, lambda: (hold_open(), watch_contacts()), rec)
 
-    # close: the arm holds the grasp, the RG2 squeezes until the fingers stall
-    driven = robot.joints[rg2.driven].index
+    # close: the arm holds the grasp, the gripper squeezes until the fingers stall
+    driven = robot.joints[gripper.driven].index
+    stall_speed = g.stall_fraction * gripper.settings.close_speed
     stalled = 0
     for _ in range(round(p.close_timeout / cell.world.dt)):
         cell.command_arm(path[-1])
-        rg2.command(-g.close_speed, g.grip_force)
+        gripper.squeeze(force)
         rec.step()
         speed = pb.getJointState(robot.uid, driven, physicsClientId=cell.client)[1]
-        stalled = stalled + 1 if abs(speed) < g.stall_speed else 0
+        stalled = stalled + 1 if abs(speed) < stall_speed else 0
         if stalled >= g.stall_steps:
             break
-    result.closed_width = rg2.measured_width()
-    result.pads_touching = sum(bool(c) for c in rg2.pad_contacts(obj))
+    result.closed_width = gripper.measured_width()
+    result.pads_touching = sum(bool(c) for c in gripper.pad_contacts(obj))
     z0 = get_object_pose(cell.client, obj).pos[2]
-    in_hand_0 = (robot.link_pose(GRIPPER_BASE_LINK).inverse() * get_object_pose(cell.client, obj)).pos
+    in_hand_0 = (gripper.base_pose().inverse() * get_object_pose(cell.client, obj)).pos
 
     # lift straight up through IK waypoints, squeezing
     lift = [path[-1]]
@@ -313,14 +315,14 @@ def replay(
             )
             break
         lift.append(q)
-    squeeze = lambda: rg2.command(-g.close_speed, g.grip_force)  # noqa: E731
+    squeeze = lambda: gripper.squeeze(force)  # noqa: E731
     _follow(cell, np.array(lift), LIFT_DURATION, squeeze, rec)
     _follow(cell, np.array(lift[-1:]), HOLD_TIME, squeeze, rec)
     T_world_obj = get_object_pose(cell.client, obj)
     result.rise = float(T_world_obj.pos[2] - z0)
-    in_hand = (robot.link_pose(GRIPPER_BASE_LINK).inverse() * T_world_obj).pos
+    in_hand = (gripper.base_pose().inverse() * T_world_obj).pos
     result.slip = float(np.linalg.norm(in_hand - in_hand_0))
-    result.pads_at_end = sum(bool(c) for c in rg2.pad_contacts(obj))
+    result.pads_at_end = sum(bool(c) for c in gripper.pad_contacts(obj))
     result.frames = rec.frames
     return result
 

@@ -1,6 +1,7 @@
-"""Pictures of labelled grasps: a sheet of RG2 poses around an object and an overview of every grasp.
+"""Pictures of labelled grasps: a sheet of gripper poses around an object and an overview of every grasp.
 
-* :func:`grasp_sheet`: for each chosen grasp the RG2 at the label's pose and width (posed with the
+* :func:`grasp_sheet`: for each chosen grasp the gripper (the one the labels were made with) at the
+  label's pose and width (posed with the
   model's own kinematics) around the object's mesh, seen from the front (along the TCP y axis:
   both fingers and the object between them) and from the side (along the closing axis, from
   above), titled with grasp id, outcome and width.
@@ -19,15 +20,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from annotator import paths
 from annotator.config import GripperConfig
 from annotator.dataset import OUTCOMES, poses_as_matrices
 from annotator.geometry import Transform
+from annotator.grippers import GripperDescription, load_gripper
 from annotator.render import Camera, Frame, look_at_camera, project, render_frame
 from annotator.rng import keyed_rng
 from annotator.sim import pb
 from annotator.sim.body import Body
-from annotator.sim.rg2 import RG2
+from annotator.sim.gripper import ParallelGripper
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -49,8 +50,8 @@ MAX_VISUAL_INDICES = 24_000
 VIEW_SIZE = 260  # pixels, each view of the sheet (square)
 TITLE_HEIGHT = 22  # pixels above each grasp's pair of views
 FOV = 40.0  # deg, vertical field of view of every picture
-# Glyph of a grasp in its TCP frame (m): fingers from the pad tips back to the palm, a stem behind.
-GLYPH_PAD_TIP = 0.015  # half the 29.8 mm pad length: the fingertips' end beyond the TCP
+# Glyph of a grasp in its TCP frame (m): fingers from the pad tips (half the gripper's pad length
+# beyond the TCP: the RG2's 29.8 mm pads reach 15 mm) back to the palm, a stem behind.
 GLYPH_PALM = -0.025  # the palm bar, behind the TCP along the approach
 GLYPH_STEM = -0.045  # end of the stem that points back towards the robot
 # Collisions are never simulated and often the majority: drawn thinner and lighter, under the rest.
@@ -87,18 +88,24 @@ def _visual_bodies(client: int, mesh, rgba=OBJECT_RGBA) -> list[int]:
 
 
 class GraspRenderer:
-    """A private DIRECT world with an object's mesh at the origin and the RG2, posed kinematically.
+    """A private DIRECT world with an object's mesh at the origin and the gripper, posed kinematically.
 
     ``mesh`` : trimesh.Trimesh in the object's mesh frame (m); label poses are in that frame.
+    ``description``: the gripper drawn (a name or folder is loaded; default the RG2).
     """
 
-    def __init__(self, mesh, gripper: GripperConfig | None = None) -> None:
+    def __init__(
+        self,
+        mesh,
+        gripper: GripperConfig | None = None,
+        description: GripperDescription | str | None = None,
+    ) -> None:
         self.world = World()
         self.client = self.world.client
         self.mesh = mesh
-        urdf = paths.rg2_urdf()
-        self.body = Body.load(self.client, urdf, fixed_base=True)
-        self.rg2 = RG2(self.body, urdf, gripper or GripperConfig())
+        self.description = load_gripper(description)
+        self.body = Body.load(self.client, self.description.urdf, fixed_base=True)
+        self.gripper = ParallelGripper(self.body, self.description, gripper or GripperConfig())
         self.object_uids = _visual_bodies(self.client, mesh)
         self.hide_gripper()
 
@@ -112,9 +119,14 @@ class GraspRenderer:
         self.close()
 
     def pose_gripper(self, T_obj_tcp: Transform, width: float) -> None:
-        """The RG2 with its TCP at ``T_obj_tcp`` and the pads ``width`` (m) apart (its own FK)."""
-        self.body.reset_base_pose(T_obj_tcp * self.rg2.T_base_tcp(width).inverse())
-        self.rg2.reset_width(width)
+        """The gripper with its TCP at ``T_obj_tcp`` and the pads ``width`` (m) apart (its own FK)."""
+        self.body.reset_base_pose(T_obj_tcp * self.gripper.T_base_tcp(width).inverse())
+        self.gripper.reset_width(width)
+
+    @property
+    def pad_tip(self) -> float:
+        """How far the fingertips reach beyond the TCP along the approach (m): half the pad length."""
+        return 0.5 * self.gripper.pad_face[1]
 
     def hide_gripper(self) -> None:
         self.body.reset_base_pose(Transform([0.0, 0.0, 50.0], [0, 0, 0, 1]))
@@ -237,11 +249,12 @@ def grasp_sheet(
     return np.asarray(sheet)
 
 
-def glyph_segments(T_obj_tcp: np.ndarray, width: np.ndarray) -> np.ndarray:
+def glyph_segments(T_obj_tcp: np.ndarray, width: np.ndarray, pad_tip: float = 0.015) -> np.ndarray:
     """Line segments of gripper glyphs, (n, 4, 2, 3) float in the object frame.
 
-    Per grasp: the two fingers (from the pad tips back to the palm, ``width`` apart along the
-    closing axis), the palm bar and the stem, all in the plane of the TCP's x and z axes.
+    Per grasp: the two fingers (from the pad tips, ``pad_tip`` m beyond the TCP, back to the palm,
+    ``width`` apart along the closing axis), the palm bar and the stem, all in the plane of the
+    TCP's x and z axes.
     """
     T = np.asarray(T_obj_tcp, dtype=float).reshape(-1, 4, 4)
     half = np.asarray(width, dtype=float).reshape(-1) / 2
@@ -249,7 +262,7 @@ def glyph_segments(T_obj_tcp: np.ndarray, width: np.ndarray) -> np.ndarray:
     local = np.zeros((n, 4, 2, 3))
     local[:, 0, :, 0] = -half[:, None]
     local[:, 1, :, 0] = half[:, None]
-    local[:, 0:2, 0, 2] = GLYPH_PAD_TIP
+    local[:, 0:2, 0, 2] = pad_tip
     local[:, 0:2, 1, 2] = GLYPH_PALM
     local[:, 2, 0, 0], local[:, 2, 1, 0] = -half, half
     local[:, 2, :, 2] = GLYPH_PALM
@@ -309,7 +322,7 @@ def overview(renderer: GraspRenderer, rows: pd.DataFrame, size: int = 2 * VIEW_S
     order = np.argsort([rank.get(o, 1) for o in rows["outcome"]], kind="stable")
     rows = rows.iloc[order].reset_index(drop=True)
     T = poses_as_matrices(rows)
-    segs = glyph_segments(T, rows["width"].to_numpy())
+    segs = glyph_segments(T, rows["width"].to_numpy(), renderer.pad_tip)
     samples = np.linspace(0.0, 1.0, 12)
     out = Overview([], [], [], [], rows["grasp_id"].to_numpy())
     for camera in overview_cameras(renderer.mesh, size):
@@ -368,9 +381,11 @@ def show(
     overview_png: Path | None = None,
     labels: pd.DataFrame | None = None,
     mesh=None,
+    gripper: GripperDescription | str | None = None,
 ) -> ShowResult:
     """Write the grasp sheet to ``png`` and the overview to ``overview_png`` (default
-    ``<png stem>-overview.png``). ``labels``/``mesh``: already loaded (the report passes them)."""
+    ``<png stem>-overview.png``). ``labels``/``mesh``: already loaded (the report passes them);
+    ``gripper``: the gripper the labels were made with (default the RG2)."""
     from PIL import Image
 
     from annotator.tools.common import ToolError, check_output_file, object_mesh, object_rows, read_labels
@@ -391,7 +406,7 @@ def show(
         have = ", ".join(f"{k} {v}" for k, v in rows["outcome"].value_counts().items())
         raise ToolError(f"{object_id} has no {'/'.join(outcomes)} grasps ({have})")
     mesh = object_mesh(labels_dir, object_id, objects_dir, rows) if mesh is None else mesh
-    with GraspRenderer(mesh) as renderer:
+    with GraspRenderer(mesh, description=gripper) as renderer:
         Image.fromarray(grasp_sheet(renderer, chosen)).save(png, format="PNG")
         pool = rows[rows["outcome"].isin(outcomes)] if outcomes else rows
         ov = overview(renderer, pool)

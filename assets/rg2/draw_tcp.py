@@ -12,9 +12,10 @@ import pybullet as pb
 
 from annotator import paths
 from annotator.geometry import Transform
+from annotator.grippers import default_gripper
 from annotator.render import orbit_camera, render_rgb, write_png
 from annotator.sim.body import Body
-from annotator.sim.rg2 import RG2
+from annotator.sim.gripper import ParallelGripper
 from annotator.sim.world import World
 
 WIDTH = 0.06  # m, the opening drawn
@@ -26,7 +27,7 @@ def main() -> None:
         c = world.client
         # approach (+z of the gripper) pointing down, as in a top grasp
         body = Body.load(c, paths.rg2_urdf(), Transform([0, 0, 0.3], [1.0, 0, 0, 0]), fixed_base=True)
-        rg2 = RG2(body, paths.rg2_urdf())
+        rg2 = ParallelGripper(body, default_gripper())
         rg2.reset_width(WIDTH)
         T_world_tcp = body.link_pose("rg2_base_link") * rg2.T_base_tcp(WIDTH)
         for axis, rgba in enumerate(([0.9, 0.1, 0.1, 1], [0.1, 0.8, 0.1, 1], [0.1, 0.2, 0.95, 1])):

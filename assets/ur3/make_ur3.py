@@ -22,7 +22,7 @@ from types import ModuleType
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-RG2_GENERATOR = HERE.parent / "rg2" / "make_rg2.py"
+RG2_GENERATOR = HERE.parent / "grippers" / "rg2" / "make_rg2.py"
 
 PI = math.pi
 
@@ -412,7 +412,7 @@ def robot(name: str, body: str) -> str:
 
 
 def load_rg2_generator() -> ModuleType | None:
-    """The RG2 generator module (assets/rg2/make_rg2.py), or None while it does not exist."""
+    """The RG2 generator module (assets/grippers/rg2/make_rg2.py), or None while it does not exist."""
     if not RG2_GENERATOR.exists():
         return None
     spec = importlib.util.spec_from_file_location("make_rg2", RG2_GENERATOR)

@@ -95,7 +95,7 @@ def test_success_glyphs_fall_on_the_object(labelled) -> None:
             renderer.body.link_pose(n).pos for n in ("gripper_finger1_pad_link", "gripper_finger2_pad_link")
         ]
         assert np.linalg.norm((pads[0] + pads[1]) / 2 - T.pos) < 1e-6
-        gap = abs(float(np.dot(pads[1] - pads[0], T.rotation[:, 0]))) - renderer.rg2.pad_thickness
+        gap = abs(float(np.dot(pads[1] - pads[0], T.rotation[:, 0]))) - renderer.gripper.pad_thickness
         assert gap == pytest.approx(float(grasp.width), abs=1e-4)
         for camera in sh.grasp_cameras(T, mesh):
             seg = renderer.render(camera).segmentation

@@ -1,18 +1,22 @@
 """Generate the OnRobot RG2 URDF from published numbers (see README.md beside this file).
 
-Run ``python assets/rg2/make_rg2.py`` to rewrite ``rg2.urdf``. The UR3 generator imports
+Run ``python assets/grippers/rg2/make_rg2.py`` to rewrite ``rg2.urdf``. The UR3 generator imports
 :func:`gripper_xml` to mount the same gripper on the arm's flange.
 
 Gripper frame (``rg2_base_link``): origin at the tool flange, +z out along the tool axis,
 +x the closing direction of finger 1 (finger 1 sits at -x, finger 2 at +x), +y = z x x.
-All lengths below are metres; each carries its source tag from ROBOT_FACTS.md:
-[V] read in a published source, [D] derived from [V] numbers, [C] our modelling choice.
+All lengths below are metres; each carries its source tag (README.md beside this file cites the
+sources): [V] read in a published source, [D] derived from [V] numbers, [C] our modelling choice.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import urdf_parts as parts  # noqa: E402  (assets/grippers/urdf_parts.py: the shared URDF writer)
 
 # --- linkage (OnRobot URCap script and ROS descriptions, three agree) -----------------------
 LINK_LENGTH = 0.055  # [V] outer link, pivot to finger pivot; w = 5 + 110 sin(phi) mm
@@ -61,7 +65,7 @@ LINK_THICKNESS = 0.006  # [C] link plate thickness (along x at phi = 0)
 LINK_WIDTH = 0.016  # [C] link plate width (along y)
 INNER_COLLISION_LENGTH = 0.035  # [C] see the passive link below
 
-# Mimic table: the seed's joint names and multipliers (ROBOT_FACTS.md, "Seed naming").
+# Mimic table: the seed scene's joint names and multipliers (its control loop finds the joints by them).
 DRIVEN_JOINT = "gripper_finger1_joint"
 MIMIC = {
     "gripper_finger2_joint": -1.0,
@@ -88,35 +92,6 @@ LIGHT = "0.8 0.8 0.82 1"
 BLACK = "0.1 0.1 0.1 1"
 
 
-def _box_inertia(m: float, sx: float, sy: float, sz: float) -> tuple[float, float, float]:
-    return (m * (sy**2 + sz**2) / 12, m * (sx**2 + sz**2) / 12, m * (sx**2 + sy**2) / 12)
-
-
-def _inertial(
-    m: float, xyz: tuple[float, float, float], size: tuple[float, float, float], armature: float = 0.0
-) -> str:
-    ixx, iyy, izz = _box_inertia(m, *size)
-    # the armature is added on every axis: URDF inertia must satisfy the triangle inequality
-    # (PyBullet zeroes a tensor with iyy > ixx + izz)
-    ixx, iyy, izz = ixx + armature, iyy + armature, izz + armature
-    return (
-        f'    <inertial><origin xyz="{xyz[0]:.6f} {xyz[1]:.6f} {xyz[2]:.6f}"/><mass value="{m:.6f}"/>'
-        f'<inertia ixx="{ixx:.4e}" ixy="0" ixz="0" iyy="{iyy:.4e}" iyz="0" izz="{izz:.4e}"/></inertial>\n'
-    )
-
-
-def _box(kind: str, xyz: tuple[float, float, float], size: tuple[float, float, float], rgba: str = "") -> str:
-    mat = f'<material name="rgba_{rgba.replace(" ", "_")}"><color rgba="{rgba}"/></material>' if rgba else ""
-    return (
-        f'    <{kind}><origin xyz="{xyz[0]:.6f} {xyz[1]:.6f} {xyz[2]:.6f}"/>'
-        f'<geometry><box size="{size[0]:.6f} {size[1]:.6f} {size[2]:.6f}"/></geometry>{mat}</{kind}>\n'
-    )
-
-
-def _link(name: str, body: str) -> str:
-    return f'  <link name="{name}">\n{body}  </link>\n'
-
-
 def _joint(
     name: str,
     kind: str,
@@ -127,16 +102,19 @@ def _joint(
     upper: float = 0.0,
     mimic: float | None = None,
 ) -> str:
-    s = f'  <joint name="{name}" type="{kind}">\n    <parent link="{parent}"/><child link="{child}"/>\n'
-    s += f'    <origin xyz="{xyz[0]:.6f} {xyz[1]:.6f} {xyz[2]:.6f}" rpy="0 0 0"/>\n'
-    if kind == "revolute":
-        effort = DRIVEN_EFFORT if mimic is None else follower_effort(mimic)
-        s += '    <axis xyz="0 -1 0"/>\n'
-        s += f'    <limit lower="{lower:.6f}" upper="{upper:.6f}" effort="{effort}" '
-        s += f'velocity="{DRIVEN_VELOCITY}"/>\n'
-        if mimic is not None:
-            s += f'    <mimic joint="{DRIVEN_JOINT}" multiplier="{mimic:g}" offset="0"/>\n'
-    return s + "  </joint>\n"
+    if kind != "revolute":
+        return parts.joint(name, kind, parent, child, xyz)
+    effort = DRIVEN_EFFORT if mimic is None else follower_effort(mimic)
+    return parts.joint(
+        name,
+        kind,
+        parent,
+        child,
+        xyz,
+        axis=(0.0, -1.0, 0.0),
+        limit=(lower, upper, effort, DRIVEN_VELOCITY),
+        mimic=None if mimic is None else (DRIVEN_JOINT, mimic),
+    )
 
 
 def _limits(multiplier: float) -> tuple[float, float]:
@@ -180,12 +158,12 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
     p = prefix
     m_base, z_base = base_mass_and_com_z()
     out = []
-    base = _inertial(m_base, (0, 0, z_base), (BODY_SIZE[0], BODY_SIZE[1], 0.145))
-    base += _box("visual", (0, 0, BASE_SIZE[2] / 2), BASE_SIZE, GREY)
-    base += _box("collision", (0, 0, BASE_SIZE[2] / 2), BASE_SIZE)
-    base += _box("visual", (0, 0, BODY_CENTRE_Z), BODY_SIZE, LIGHT)
-    base += _box("collision", (0, 0, BODY_CENTRE_Z), BODY_SIZE)
-    out.append(_link(f"{p}rg2_base_link", base))
+    base = parts.inertial(m_base, (0, 0, z_base), (BODY_SIZE[0], BODY_SIZE[1], 0.145))
+    base += parts.box("visual", (0, 0, BASE_SIZE[2] / 2), BASE_SIZE, GREY)
+    base += parts.box("collision", (0, 0, BASE_SIZE[2] / 2), BASE_SIZE)
+    base += parts.box("visual", (0, 0, BODY_CENTRE_Z), BODY_SIZE, LIGHT)
+    base += parts.box("collision", (0, 0, BODY_CENTRE_Z), BODY_SIZE)
+    out.append(parts.link(f"{p}rg2_base_link", base))
     if parent_link is not None:
         out.append(_joint(f"{p}rg2_mount_joint", "fixed", parent_link, f"{p}rg2_base_link", (0, 0, 0)))
 
@@ -196,10 +174,10 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
         mult_outer = 1.0 if i == 1 else MIMIC[outer]
         link_size = (LINK_THICKNESS, LINK_WIDTH, LINK_LENGTH)
         # outer (driven side) link
-        body = _inertial(OUTER_LINK_MASS, (0, 0, LINK_LENGTH / 2), link_size, ARMATURE)
-        body += _box("visual", (0, 0, LINK_LENGTH / 2), link_size, GREY)
-        body += _box("collision", (0, 0, LINK_LENGTH / 2), link_size)
-        out.append(_link(f"{p}gripper_finger{i}_knuckle_link", body))
+        body = parts.inertial(OUTER_LINK_MASS, (0, 0, LINK_LENGTH / 2), link_size, ARMATURE)
+        body += parts.box("visual", (0, 0, LINK_LENGTH / 2), link_size, GREY)
+        body += parts.box("collision", (0, 0, LINK_LENGTH / 2), link_size)
+        out.append(parts.link(f"{p}gripper_finger{i}_knuckle_link", body))
         lo, hi = _limits(mult_outer)
         out.append(
             _joint(
@@ -215,14 +193,14 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
         )
         # inner (passive) link: thinner, offset in y so it does not overlap the outer link's plate
         inner_size = (LINK_THICKNESS, LINK_WIDTH * 0.6, LINK_LENGTH)
-        body = _inertial(INNER_LINK_MASS, (0, 0, LINK_LENGTH / 2), inner_size, ARMATURE)
-        body += _box("visual", (0, 0, LINK_LENGTH / 2), inner_size, GREY)
+        body = parts.inertial(INNER_LINK_MASS, (0, 0, LINK_LENGTH / 2), inner_size, ARMATURE)
+        body += parts.box("visual", (0, 0, LINK_LENGTH / 2), inner_size, GREY)
         # [C] its collision stops short of the finger end: that end sits inside the finger on the
         # real gripper, and a full-length box would reach 2 mm behind the pad face and touch
         # objects that the pads hold.
         inner_col = (LINK_THICKNESS, LINK_WIDTH * 0.6, INNER_COLLISION_LENGTH)
-        body += _box("collision", (0, 0, INNER_COLLISION_LENGTH / 2), inner_col)
-        out.append(_link(f"{p}gripper_finger{i}_inner_knuckle_link", body))
+        body += parts.box("collision", (0, 0, INNER_COLLISION_LENGTH / 2), inner_col)
+        out.append(parts.link(f"{p}gripper_finger{i}_inner_knuckle_link", body))
         lo, hi = _limits(MIMIC[inner])
         out.append(
             _joint(
@@ -240,10 +218,10 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
         plate_top = -0.005  # [C] the plate reaches 5 mm above the finger pivot
         plate_size = (FINGER_PLATE_THICKNESS, PAD_WIDTH, FINGER_BELOW_PIVOT - plate_top)
         plate_xyz = (inward * FINGER_PLATE_THICKNESS / 2, 0, (FINGER_BELOW_PIVOT + plate_top) / 2)
-        body = _inertial(FINGER_MASS, plate_xyz, plate_size, ARMATURE)
-        body += _box("visual", plate_xyz, plate_size, GREY)
-        body += _box("collision", plate_xyz, plate_size)
-        out.append(_link(f"{p}gripper_finger{i}_finger_tip_link", body))
+        body = parts.inertial(FINGER_MASS, plate_xyz, plate_size, ARMATURE)
+        body += parts.box("visual", plate_xyz, plate_size, GREY)
+        body += parts.box("collision", plate_xyz, plate_size)
+        out.append(parts.link(f"{p}gripper_finger{i}_finger_tip_link", body))
         lo, hi = _limits(MIMIC[tip])
         out.append(
             _joint(
@@ -259,10 +237,10 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
         )
         # pad: its own link, frame at the pad centre, so contacts and FK name it directly
         pad_size = (PAD_THICKNESS, PAD_WIDTH, PAD_LENGTH)
-        body = _inertial(PAD_MASS, (0, 0, 0), pad_size)
-        body += _box("visual", (0, 0, 0), pad_size, BLACK)
-        body += _box("collision", (0, 0, 0), pad_size)
-        out.append(_link(f"{p}gripper_finger{i}_pad_link", body))
+        body = parts.inertial(PAD_MASS, (0, 0, 0), pad_size)
+        body += parts.box("visual", (0, 0, 0), pad_size, BLACK)
+        body += parts.box("collision", (0, 0, 0), pad_size)
+        out.append(parts.link(f"{p}gripper_finger{i}_pad_link", body))
         pad_x = inward * (FINGER_PLATE_THICKNESS + PAD_THICKNESS / 2)
         out.append(
             _joint(
@@ -273,20 +251,15 @@ def gripper_xml(parent_link: str | None, prefix: str = "") -> str:
                 (pad_x, 0, PAD_CENTRE_DZ),
             )
         )
-    # TCP: midway between the pad centres of the closed gripper (DESIGN.md TCP frame)
-    tcp = '    <inertial><mass value="0.0001"/>'
-    tcp += '<inertia ixx="1e-9" ixy="0" ixz="0" iyy="1e-9" iyz="0" izz="1e-9"/></inertial>\n'
-    out.append(_link(f"{p}tcp", tcp))
+    # TCP: midway between the pad centres of the closed gripper (the labels' TCP frame)
+    out.append(parts.frame_link(f"{p}tcp"))
     out.append(_joint(f"{p}tcp_joint", "fixed", f"{p}rg2_base_link", f"{p}tcp", (0, 0, tcp_z())))
     return "".join(out)
 
 
 def floating_urdf() -> str:
     """The floating RG2 used for annotation: root link ``rg2_base_link``."""
-    return (
-        '<?xml version="1.0"?>\n<!-- Generated by assets/rg2/make_rg2.py; do not edit by hand. -->\n'
-        f'<robot name="onrobot_rg2">\n{gripper_xml(None)}</robot>\n'
-    )
+    return parts.robot("onrobot_rg2", "assets/grippers/rg2/make_rg2.py", gripper_xml(None))
 
 
 def main() -> None:

@@ -1,0 +1,68 @@
+"""Candidates per CPU-second of each shipped gripper on the sample objects, as ratios to the RG2.
+
+    python bench/gripper_speed.py [--n 100] [--rounds 2] [--objects objects/]
+
+Labels every sample object's first N candidates (sampled for each gripper's own stroke) through the
+worker's entry point (``label_span``, one process, the default configuration), gripper after
+gripper, in ``--rounds`` rounds; a round's ratios compare runs made minutes apart on the same
+machine. Per gripper and round: candidates per CPU-second of the spans (loading, sampling and
+simulating, as ``annotate`` counts them), the share simulated (not ``collision``), simulated trials
+per CPU-second, and the ratio of candidates per second to the RG2's in that round.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from annotator.config import AnnotatorConfig
+from annotator.grippers import load_gripper
+from annotator.objects import discover_objects
+from annotator.pipeline import worker
+
+GRIPPERS = ("rg2", "panda", "robotiq_2f85")
+
+
+def label_all(sources, gripper, n: int, config: AnnotatorConfig) -> tuple[float, int, int]:
+    """(CPU seconds, candidates, simulated trials) of labelling every object's first ``n`` candidates."""
+    description = load_gripper(gripper)
+    cpu0 = time.process_time()
+    rows = simulated = 0
+    for source in sources:
+        span = worker.Span(source.object_id, source, None, 0, n)
+        result = worker.label_span(worker.SpanTask(span, config, 0, n, gripper=description))
+        if result.error is not None:
+            raise RuntimeError(f"{source.object_id}: {result.error}")
+        rows += len(result.rows)
+        simulated += int((result.rows["outcome"] != "collision").sum())
+    return time.process_time() - cpu0, rows, simulated
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=100, help="candidates per object")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--objects", type=Path, default=Path(__file__).resolve().parents[1] / "objects")
+    args = parser.parse_args()
+    sources = discover_objects(args.objects)
+    config = AnnotatorConfig()
+    label_all(sources, "rg2", 2, config)  # objects decomposed (cached) before any timing
+    print(f"{len(sources)} objects x {args.n} candidates, one process")
+    print(
+        f"{'round':>5} {'gripper':>13} {'cand/CPU-s':>10} {'simulated':>9} {'trials/CPU-s':>12} {'vs rg2':>7}"
+    )
+    for r in range(args.rounds):
+        rates = {}
+        for gripper in GRIPPERS:
+            seconds, rows, simulated = label_all(sources, gripper, args.n, config)
+            rates[gripper] = rows / seconds
+            print(
+                f"{r:>5} {gripper:>13} {rows / seconds:>10.1f} {simulated / rows:>9.1%} "
+                f"{simulated / seconds:>12.1f} {rates[gripper] / rates['rg2']:>7.2f}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,159 @@
+"""A gripper description that cannot be used is one line naming the file and the key, never a
+traceback from deep inside the simulation: each broken variant of the shipped RG2 folder below."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from annotator.config import ConfigError, GripperConfig
+from annotator.grippers import DescriptionError, gripper_dir, load_gripper
+from annotator.sim.gripper import GripperSettings
+
+
+@pytest.fixture
+def rg2(tmp_path) -> Path:
+    folder = tmp_path / "my_rg2"
+    shutil.copytree(gripper_dir("rg2"), folder, ignore=shutil.ignore_patterns("*.py", "*.md", "__pycache__"))
+    return folder
+
+
+def _edit(path: Path, old: str, new: str, count: int = 1) -> None:
+    text = path.read_text()
+    assert old in text, old
+    path.write_text(text.replace(old, new, count))
+
+
+def _error(folder: Path) -> str:
+    with pytest.raises(DescriptionError) as info:
+        load_gripper(folder)
+    message = str(info.value)
+    assert "\n" not in message and "Traceback" not in message
+    return message
+
+
+TOML_BREAKS = [
+    (
+        'joint = "gripper_finger1_joint"',
+        'joint = "gripper_finger1_joint"\nspeed = 1.0',
+        "unknown key [drive] speed",
+    ),
+    ("[collision]", "[fingers]\nlinks = []\n\n[collision]", "unknown table [fingers]"),
+    ("close_speed = 1.0", "", "missing [drive] close_speed"),
+    ("close_speed = 1.0", 'close_speed = "fast"', "[drive] close_speed: expected a number"),
+    ('link = "tcp"', 'link = "nope"', "[tcp] link 'nope' is not a link of rg2.urdf"),
+    ('link = "tcp"', 'link = "gripper_finger1_pad_link"', None),  # any link may be the TCP frame
+    ('link = "rg2_base_link"', 'link = "tcp"', "[base] link 'tcp' must be the root link of rg2.urdf"),
+    (
+        'joint = "gripper_finger1_joint"',
+        'joint = "nope"',
+        "[drive] joint 'nope' is not a revolute or prismatic",
+    ),
+    (
+        'joint = "gripper_finger1_joint"',
+        'joint = "gripper_finger2_joint"',
+        "itself mimics 'gripper_finger1_joint'",
+    ),
+    ('coupling = "gear"', 'coupling = "glue"', "[drive] coupling must be one of ['gear', 'position']"),
+    ("max = 0.110", "max = 0.150", "[stroke] max 0.15 m is beyond the model: it opens to 0.1100 m"),
+    ("min = 0.0\nmax = 0.110", "min = 0.02\nmax = 0.110", None),  # a stroke the model spans is fine
+    ("min = 0.0\nmax = 0.110", "min = 0.2\nmax = 0.110", "[stroke] needs 0 <= min < max"),
+    ("default = 40.0", "default = 50.0", "[force] needs 0 < min <= default <= max"),
+    ('name = "rg2"', 'name = "RG 2"', "name 'RG 2': use lower-case letters, digits and '_'"),
+    ("format = 1", "format = 2", "format 2 is not supported"),
+    (
+        '["gripper_finger1_pad_link", "gripper_finger2_pad_link"]',
+        '["rg2_base_link", "gripper_finger2_pad_link"]',
+        "[pads] link 'rg2_base_link' is not moved by the drive",
+    ),
+    (
+        '["gripper_finger1_pad_link", "gripper_finger2_pad_link"]',
+        '["gripper_finger2_pad_link", "gripper_finger1_pad_link"]',
+        "finger 1's pad must sit at -x of the base",
+    ),
+    (
+        '["gripper_finger1_inner_knuckle_link", "gripper_finger2_inner_knuckle_link"]',
+        '["gripper_finger1_finger_tip_link"]',
+        "kinematic link 'gripper_finger1_finger_tip_link' carries a pad",
+    ),
+    (
+        '["gripper_finger1_inner_knuckle_link", "gripper_finger2_inner_knuckle_link"]',
+        '["gripper_finger1_knuckle_link"]',
+        "kinematic link 'gripper_finger1_knuckle_link' is not the child of a <mimic> follower",
+    ),
+    ("lateral_friction = 1.0", "lateral_friction = -1.0", "[pads] lateral_friction must be >= 0"),
+    ("[pads]", "[pads]\nsize = [0.01, 0.02]", "[pads] size: expected three numbers"),
+]
+
+
+@pytest.mark.parametrize("old, new, fragment", TOML_BREAKS)
+def test_a_broken_toml_is_one_line_naming_the_key(rg2, old, new, fragment):
+    _edit(rg2 / "gripper.toml", old, new)
+    if fragment is None:
+        assert load_gripper(rg2).name == "rg2"
+        return
+    message = _error(rg2)
+    assert fragment in message, message
+    assert str(rg2 / "gripper.toml") in message
+
+
+def test_no_coupling_is_an_error(rg2):
+    urdf = rg2 / "rg2.urdf"
+    urdf.write_text(re.sub(r"\s*<mimic [^>]*/>", "", urdf.read_text()))
+    assert "no <mimic> tag in rg2.urdf: nothing couples the fingers" in _error(rg2)
+
+
+def test_a_movable_joint_nothing_moves_is_an_error(rg2):
+    urdf = rg2 / "rg2.urdf"
+    text = urdf.read_text()
+    urdf.write_text(
+        re.sub(r'\s*<mimic joint="gripper_finger1_joint" multiplier="-1" offset="0"/>', "", text, count=1)
+    )
+    assert "movable joint 'gripper_finger1_finger_tip_joint' neither is the drive nor mimics it" in _error(
+        rg2
+    )
+
+
+def test_a_follower_of_another_joint_is_an_error(rg2):
+    _edit(
+        rg2 / "rg2.urdf",
+        '<mimic joint="gripper_finger1_joint" multiplier="1"',
+        '<mimic joint="gripper_finger2_joint" multiplier="1"',
+    )
+    assert "mimics 'gripper_finger2_joint', not the drive 'gripper_finger1_joint'" in _error(rg2)
+
+
+def test_a_missing_mesh_or_urdf_or_toml_is_an_error(rg2, tmp_path):
+    _edit(
+        rg2 / "rg2.urdf",
+        '<geometry><box size="0.011450 0.020200 0.029800"/></geometry>',
+        '<geometry><mesh filename="pad.stl"/></geometry>',
+    )
+    assert "rg2.urdf references pad.stl, which does not exist" in _error(rg2)
+    (rg2 / "rg2.urdf").unlink()
+    assert "urdf: rg2.urdf does not exist beside gripper.toml" in _error(rg2)
+    (rg2 / "gripper.toml").write_text("[stroke\nmax = ")
+    assert "not TOML" in _error(rg2)
+    (rg2 / "gripper.toml").unlink()
+    assert "no gripper.toml" in _error(rg2)
+    with pytest.raises(DescriptionError, match="no gripper 'robotiq_3f'"):
+        load_gripper("robotiq_3f")
+
+
+def test_a_pad_without_a_box_needs_its_size_stated(rg2):
+    pad = '<geometry><box size="0.011450 0.020200 0.029800"/></geometry>'
+    _edit(rg2 / "rg2.urdf", f'<collision><origin xyz="0.000000 0.000000 0.000000"/>{pad}</collision>', "", 2)
+    assert "[pads] link 'gripper_finger1_pad_link' has no collision box: state [pads] size" in _error(rg2)
+
+
+def test_grip_force_override_is_checked_against_the_gripper():
+    rg2, panda = load_gripper("rg2"), load_gripper("panda")
+    assert GripperSettings.resolve(panda, GripperConfig()).grip_force == 70.0
+    assert GripperSettings.resolve(panda, GripperConfig(grip_force=120.0)).grip_force == 120.0
+    with pytest.raises(ConfigError, match=r"\[gripper\] grip_force: 120 N is outside the rg2's 3..40 N"):
+        GripperSettings.resolve(rg2, GripperConfig(grip_force=120.0))
+    resolved = GripperSettings.resolve(rg2, GripperConfig(pad_lateral_friction=0.5, coupling="position"))
+    assert (resolved.pad_lateral_friction, resolved.coupling, resolved.close_speed) == (0.5, "position", 1.0)
