@@ -275,6 +275,7 @@ class ParallelGripper:
 
     @property
     def max_width(self) -> float:
+        """The widest pad opening the model reaches (m)."""
         return self.table.max_width
 
     def follower_targets(self, angle: float) -> dict[str, float]:
@@ -372,6 +373,7 @@ class ParallelGripper:
         return out
 
     def driven_angle(self) -> float:
+        """The drive joint's position (rad, or m for a prismatic drive)."""
         return self.body.joint_position(self.driven)
 
     def measured_width(self) -> float:
