@@ -402,8 +402,10 @@ class KinectConfig(_Section):
 @dataclass(frozen=True)
 class SceneConfig(_Section):
     """Scenes of several objects settled on the seed's table (annotator/scenes): the workspace, the
-    three arrangements, settling and the views. Not yet a section of AnnotatorConfig: the scene
-    pipeline adds it (and binds it in the manifest) when ``annotate --scenes`` lands.
+    three arrangements, settling, the views, the trials among neighbours and clutter removal. A
+    section of AnnotatorConfig that a run's manifest binds only when it labels scenes
+    (``annotate --scenes``), so folders of object runs made before it existed still resume
+    (docs/decisions/0300-scenes-as-units-of-work.md).
 
     Sources: VGN (ethz-asl/vgn, branch corl2020, src/vgn/simulation.py and scripts/generate_data.py;
     branch devel for the packed region) and ACRONYM (NVlabs/acronym, acronym_tools/acronym.py).
@@ -456,6 +458,19 @@ class SceneConfig(_Section):
     view_radius_min: float = _field(0.8, gt=0.0)  # m
     view_radius_max: float = _field(1.2, gt=0.0)  # m
     view_max_polar: float = _field(45.0, ge=0.0, lt=90.0)  # deg (VGN: pi / 4)
+    # Trials among neighbours (annotator/scenes/labels.py): close, lift and shake as the protocol
+    # says, or close and lift only (VGN's trial: close, retreat 10 cm, judge).
+    shake: bool = True
+    # A neighbour "disturbed" by a trial moved at least this far (m, any corner of its bounding box)
+    # between the settled scene and the trial's end: the label's disturbed flag. Resting objects
+    # drift below 0.2 mm over a trial's second (tests/test_scene_labels.py); 5 mm is a visible push.
+    disturbance_threshold: float = _field(0.005, gt=0.0)  # m
+    # Clutter removal (annotator/scenes/clutter.py, VGN's clutter_removal.py): a round ends after
+    # this many failed grasps in a row (VGN: 2); the held object is lifted this far above its grasp
+    # before it counts as removed (VGN retreats 10 cm, then removes the body; here it must leave
+    # the workspace's top, 5 s/6 = 0.25 m above the table, with the UR3 holding it).
+    clutter_max_failures: int = _field(2, ge=1)
+    clutter_lift_height: float = _field(0.30, gt=0.0)  # m
 
 
 @dataclass(frozen=True)
@@ -470,6 +485,8 @@ class AnnotatorConfig:
     robust: RobustConfig = field(default_factory=RobustConfig)
     cell: CellConfig = field(default_factory=CellConfig)
     kinect: KinectConfig = field(default_factory=KinectConfig)
+    # Bound in a run's manifest only by scene runs (to_dict(scenes=True)).
+    scenes: SceneConfig = field(default_factory=SceneConfig)
 
     @classmethod
     def thorough(cls, base: AnnotatorConfig | None = None) -> AnnotatorConfig:
@@ -507,8 +524,13 @@ class AnnotatorConfig:
             ),
         )
 
-    def to_dict(self) -> dict[str, dict[str, Any]]:
-        return dataclasses.asdict(self)
+    def to_dict(self, *, scenes: bool = False) -> dict[str, dict[str, Any]]:
+        """Every section as ``{section: {field: value}}``; ``[scenes]`` only with ``scenes`` (a
+        scene run binds it, an object run does not: its labels do not depend on it)."""
+        data = dataclasses.asdict(self)
+        if not scenes:
+            data.pop("scenes")
+        return data
 
     @classmethod
     def from_dict(cls, data: Any) -> AnnotatorConfig:
