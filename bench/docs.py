@@ -69,7 +69,7 @@ def _spread(entry: Mapping[str, Any]) -> str:
 
 
 def _loads(values: Iterable[float]) -> str:
-    return " / ".join(f"{v:.2f}" for v in values)
+    return " / ".join(fmt(v) for v in values)
 
 
 def _table(head: list[str], rows: list[list[Any]]) -> list[str]:
@@ -162,8 +162,8 @@ def render(records: Mapping[str, Mapping[str, Any]]) -> str:
             f"[{r['benchmark']}](#{r['benchmark']})",
             r["about"],
             r["date"][:10],
-            r["commit"][:7] + (" (changed)" if r["dirty"] else ""),
-            f"{r['load']['before'][0]:.2f} / {r['load']['after'][0]:.2f}",
+            f"`{r['commit'][:7]}`" + (" (changed)" if r["dirty"] else ""),
+            f"{fmt(r['load']['before'][0])} / {fmt(r['load']['after'][0])}",
         ]
         for r in records_in_order
     ]

@@ -131,17 +131,19 @@ def duck_mesh(subdivisions: int = 4) -> trimesh.Trimesh:
     return mesh
 
 
-def bench_objects(folder: Path) -> list[ObjectSource]:
-    """The three bench objects written as meshes into ``folder``."""
-    meshes = {
-        "cube40": trimesh.creation.box((0.04, 0.04, 0.04)),
-        "cylinder66x120": trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48),
-        "duck": duck_mesh(),
-    }
+BENCH_OBJECTS = {
+    "cube40": lambda: trimesh.creation.box((0.04, 0.04, 0.04)),
+    "cylinder66x120": lambda: trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48),
+    "duck": duck_mesh,
+}
+
+
+def bench_objects(folder: Path, names: tuple[str, ...] = tuple(BENCH_OBJECTS)) -> list[ObjectSource]:
+    """The bench objects ``names`` (all three by default) written as meshes into ``folder``."""
     out = []
-    for name, mesh in meshes.items():
+    for name in names:
         path = folder / f"{name}.obj"
-        mesh.export(path)
+        BENCH_OBJECTS[name]().export(path)
         out.append(ObjectSource(name, path))
     return out
 
