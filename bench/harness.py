@@ -170,16 +170,17 @@ def _about() -> str:
 
 
 def _plain(value: Any) -> Any:
-    """``value`` as JSON data: numpy scalars and arrays, paths, tuples, dataclasses; NaN and
-    infinities as None."""
+    """``value`` as JSON data: numpy scalars and arrays, paths (relative to the repository when in
+    it), tuples, dataclasses; NaN and infinities as None."""
     if isinstance(value, Mapping):
         return {str(k): _plain(v) for k, v in value.items()}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return _plain(dataclasses.asdict(value))
     if isinstance(value, (str, bool)) or value is None:
         return value
-    if isinstance(value, Path):
-        return str(value)
+    if isinstance(value, Path):  # inside the repository: relative, so the digest is the checkout's own
+        path = value.resolve()
+        return path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else str(value)
     if hasattr(value, "tolist"):  # numpy scalar or array
         return _plain(value.tolist())
     if isinstance(value, int):

@@ -25,7 +25,11 @@ HELPERS = {"__init__", "__main__", "_variants", "harness", "docs", "reference"}
 def run_demo(results: Path, **kwargs) -> dict:
     """A run of a made-up benchmark into ``results``; its record as read back."""
     with Run(
-        "demo", config={"n": 3, "objects": Path("objects")}, results=results, command="demo --n 3", **kwargs
+        "demo",
+        config={"n": 3, "objects": ROOT / "objects", "out": Path("/elsewhere/x")},
+        results=results,
+        command="demo --n 3",
+        **kwargs,
     ) as run:
         run.figure("candidates_per_s", 12.5, "1/s", note="wall")
         run.ratio("ours_over_peer", 0.93, note="ms per candidate", spread=(0.9, 0.95))
@@ -44,7 +48,8 @@ def test_a_run_writes_one_record_with_what_the_figures_rest_on(tmp_path):
     assert re.fullmatch(r"[0-9a-f]{40}", record["commit"])  # the tests run in a git checkout
     assert isinstance(record["dirty"], bool)
     assert record["command"] == "demo --n 3"
-    assert record["config"]["arguments"] == {"n": 3, "objects": "objects"}
+    # a path in the repository is recorded relative to it: the digest is the same in any checkout
+    assert record["config"]["arguments"] == {"n": 3, "objects": "objects", "out": "/elsewhere/x"}
     machine = record["machine"]
     assert machine["cores"] >= 1 and machine["memory_gib"] > 0 and machine["cpu"] and machine["python"]
     assert {"pybullet", "numpy", "trimesh", "coacd"} <= set(record["libraries"])
