@@ -69,10 +69,6 @@ class GitState:
     changed: tuple[str, ...]  # paths relative to the repository, GENERATED excluded
 
     @property
-    def short(self) -> str:
-        return self.commit[:7]
-
-    @property
     def dirty(self) -> bool:
         return bool(self.changed)
 

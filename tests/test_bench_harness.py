@@ -221,3 +221,11 @@ def test_values_the_page_cannot_show_are_said_so():
         "7",
         "yes",
     )
+
+
+def test_a_file_that_is_not_a_record_stops_the_page_with_one_line(tmp_path, capsys):
+    (tmp_path / "demo").mkdir()
+    (tmp_path / "demo" / "x.json").write_text('{"schema": 1, "benchmark": "other"}')
+    assert docs.main(["--results", str(tmp_path), "--out", str(tmp_path / "p.md")]) == 2
+    assert "x.json: not a schema-1 record of 'demo'" in capsys.readouterr().err
+    assert not (tmp_path / "p.md").exists()
