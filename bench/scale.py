@@ -103,7 +103,12 @@ def folder(args) -> None:
     from annotator.objects import discover_objects, source_digest
 
     with (
-        Run("scale_folder", config=vars(args)) as run,
+        Run(
+            "scale_folder",
+            config=vars(args),
+            about="A folder of thousands of objects: discovery, digests and peak memory of the main process "
+            "before any work starts (and annotate --n 1 on some of them with --run).",
+        ) as run,
         tempfile.TemporaryDirectory(prefix="rg2-scale-") as tmp,
     ):
         root = Path(tmp) / "objects"
@@ -168,7 +173,12 @@ def big_mesh(args) -> None:
     from annotator.objects import load_object, read_object_mesh
 
     with (
-        Run("scale_big_mesh", config=vars(args)) as run,
+        Run(
+            "scale_big_mesh",
+            config=vars(args),
+            about="A 2,000,000-face ring end to end: read, clean and simplify, decompose, annotate --n 20, "
+            "each step's time and peak memory.",
+        ) as run,
         tempfile.TemporaryDirectory(prefix="rg2-big-") as tmp,
     ):
         objects = Path(tmp) / "objects"
