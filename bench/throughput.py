@@ -27,13 +27,13 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import resource
 import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -97,46 +97,54 @@ def load() -> str:
     return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
 
 
-def children_cpu() -> float:
-    """User + system CPU seconds of this process's finished children (and their reaped children)."""
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
+@dataclass(frozen=True)
+class MainCommand:
+    """One run of the main command: seconds from the launch to the first label file and to the exit,
+    CPU seconds of the command and its workers, the summary's last line."""
+
+    first_label_s: float
+    exit_s: float
+    cpu_s: float
+    last_line: str
 
 
-def main_command(
-    objects: Path, n: int, workers: int | None, config_file: Path | None = None
-) -> tuple[float, float, float, str]:
+def main_command(objects: Path, n: int, workers: int | None, config_file: Path | None = None) -> MainCommand:
     """The README's ``annotate --objects objects/ --n N`` as a subprocess (all cores by default).
 
-    Returns (seconds to the first label file, seconds to exit, both from the launch; CPU seconds of
-    the command and its workers; the summary's last line).
+    Its CPU time is what ``os.wait4`` reports for that process: its own and that of the workers it
+    waited for, nothing else. (This process's children-wide counter would also collect, whenever
+    they end, the workers of the in-process runs before it, which joblib keeps for reuse.)
     """
     exe = shutil.which("annotate", path=str(Path(sys.executable).parent)) or shutil.which("annotate")
     if exe is None:
         raise SystemExit("the annotate command is not installed (pip install -e .)")
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile("w+") as log:
         out = Path(tmp) / "labels"
         extra = ["--workers", str(workers)] if workers else []
         extra += ["--config", str(config_file)] if config_file else []
-        cpu0 = children_cpu()
         t0 = time.perf_counter()
         proc = subprocess.Popen(
             [exe, "--objects", str(objects), "--n", str(n), "--out", str(out), "--quiet", *extra],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
+            stdout=log,
+            stderr=subprocess.STDOUT,
             text=True,
         )
         first = None
-        while proc.poll() is None:
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
             if first is None and out.is_dir() and any(out.glob("*.parquet")):
                 first = time.perf_counter() - t0
             time.sleep(0.01)
         total = time.perf_counter() - t0
-        stdout, stderr = proc.communicate()
-        cpu = children_cpu() - cpu0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        log.seek(0)
+        text = log.read()
         if proc.returncode != 0:
-            raise SystemExit(f"annotate exited {proc.returncode}:\n{stderr[-2000:]}")
-        return (first if first is not None else total), total, cpu, stdout.splitlines()[-1]
+            raise SystemExit(f"annotate exited {proc.returncode}:\n{text[-2000:]}")
+        cpu = usage.ru_utime + usage.ru_stime
+        return MainCommand(first if first is not None else total, total, cpu, text.strip().splitlines()[-1])
 
 
 def main() -> None:
@@ -272,7 +280,8 @@ def main_command_runs(args: argparse.Namespace, record: Run, references: list[Fr
             before, load0 = load(), os.getloadavg()[0]
             ref = free_step(base)
             references.append(ref)
-            first, total, cpu, last = main_command(args.objects, args.main_n, args.workers, config_file)
+            result = main_command(args.objects, args.main_n, args.workers, config_file)
+            first, total, cpu, last = result.first_label_s, result.exit_s, result.cpu_s, result.last_line
             per_core[label].append(total_n / total / cores)
             per_cpu[label].append(total_n / cpu)
             free_steps[label].append(cpu / total_n / ref.cpu)
