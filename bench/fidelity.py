@@ -77,9 +77,9 @@ def settings(config: AnnotatorConfig) -> dict:
 
 
 def code_digest() -> str:
-    """Digest of the simulation code and robot model: cached labels of other code are not reused."""
+    """Digest of the simulation code and robot models: cached labels of other code are not reused."""
     h = hashlib.sha256()
-    for path in sorted((ROOT / "annotator").rglob("*.py")) + [ROOT / "assets" / "rg2" / "rg2.urdf"]:
+    for path in sorted((ROOT / "annotator").rglob("*.py")) + sorted((ROOT / "assets").rglob("*.urdf")):
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
