@@ -14,6 +14,7 @@ import numpy as np
 from annotator import paths
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
+from annotator.grippers import default_gripper
 from annotator.sim import pb
 from annotator.sim.body import Body
 from annotator.sim.hand import FloatingRG2
@@ -56,8 +57,8 @@ def width_errors() -> np.ndarray:
     """|measured - commanded| pad separation (mm) for 23 widths over the stroke, in free air."""
     with World(PhysicsConfig().whole_linkage()) as world:
         world.set_gravity(False)
-        body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
-        rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+        body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
+        rg2 = RG2(body, default_gripper().urdf, GripperConfig())
         out = []
         for width in np.linspace(0.0, 0.110, 23):
             for _ in range(240):
@@ -117,8 +118,8 @@ def main() -> None:
         )
         run.figure("width_error_mean", float(errs.mean()), "mm")
         with World(PhysicsConfig()) as world:
-            body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
-            rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+            body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
+            rg2 = RG2(body, default_gripper().urdf, GripperConfig())
             print(f"stroke from FK: {rg2.table.min_width * 1000:.2f} .. {rg2.max_width * 1000:.2f} mm")
             run.figure("stroke_min", rg2.table.min_width * 1000, "mm", note="pad separation from FK")
             run.figure("stroke_max", rg2.max_width * 1000, "mm")
