@@ -461,16 +461,17 @@ class SceneConfig(_Section):
     # Trials among neighbours (annotator/scenes/labels.py): close, lift and shake as the protocol
     # says, or close and lift only (VGN's trial: close, retreat 10 cm, judge).
     shake: bool = True
+    # The world's step during a trial: the target's (its light-object substeps, [physics]
+    # light_object_mass), or the lightest object's in the scene; docs/decisions/0302-scene-substeps.md.
+    substeps: str = _field("target", choices=("target", "lightest"))
     # A neighbour "disturbed" by a trial moved at least this far (m, any corner of its bounding box)
     # between the settled scene and the trial's end: the label's disturbed flag. Resting objects
     # drift below 0.2 mm over a trial's second (tests/test_scene_labels.py); 5 mm is a visible push.
     disturbance_threshold: float = _field(0.005, gt=0.0)  # m
-    # Clutter removal (annotator/scenes/clutter.py, VGN's clutter_removal.py): a round ends after
-    # this many failed grasps in a row (VGN: 2); the held object is lifted this far above its grasp
-    # before it counts as removed (VGN retreats 10 cm, then removes the body; here it must leave
-    # the workspace's top, 5 s/6 = 0.25 m above the table, with the UR3 holding it).
+    # Clutter removal (annotator/scenes/clutter.py): a round ends after this many failed grasps in
+    # a row (VGN: 2); a held object is lifted this far straight up before it counts (VGN: 10 cm).
     clutter_max_failures: int = _field(2, ge=1)
-    clutter_lift_height: float = _field(0.30, gt=0.0)  # m
+    clutter_lift_height: float = _field(0.10, gt=0.0)  # m; docs/decisions/0303-clutter-removal.md
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,8 @@ Per scene (:class:`SceneTrials`):
   the settled scene and the end of the trial).
 * **light objects**: the world is simulated at the step the *target* needs
   (:func:`annotator.objects.physics_for`: ``[physics] light_object_mass``), set before each trial;
-  docs/decisions/0302-scene-substeps.md measures the alternative (the lightest object in the scene).
+  ``[scenes] substeps = "lightest"`` uses the lightest object's in the scene instead
+  (docs/decisions/0302-scene-substeps.md measures both).
 
 A row depends on (seed, scene, grasp id) only: never on the worker, the span or the order.
 """
@@ -99,20 +100,23 @@ def scene_candidates(
     seed: int,
     config: AnnotatorConfig,
     sides: Mapping[int, TableSide],
+    attempt: int | None = None,
 ) -> SceneCandidates:
     """Exactly ``n`` candidates over the kept instances of ``record`` (module docstring); ``sides``:
-    each kept instance's :class:`TableSide` (its pose, the table, the fingers)."""
+    each kept instance's :class:`TableSide` (its pose, the table, the fingers). ``attempt``: a
+    further key (clutter removal draws new candidates for each attempt on the same scene)."""
+    more = () if attempt is None else ("attempt", int(attempt))
     kept = record.kept
     if not kept:
         raise ValueError(f"scene {record.scene_id} has no object left on the table")
     counts = allocate(n, [1.0] * len(kept), "even")
     parts, instances = [], []
     for inst, count in zip(kept, counts, strict=True):
-        rng = keyed_rng("scene-candidates", int(seed), int(record.scene_id), inst.instance_id)
+        rng = keyed_rng("scene-candidates", int(seed), int(record.scene_id), inst.instance_id, *more)
         mesh = models[inst.object_id].mesh
         parts.append(sample_placement(mesh, int(count), rng, config, sides[inst.instance_id]))
         instances.append(np.full(int(count), inst.instance_id, dtype=np.int64))
-    order = keyed_rng("scene-order", int(seed), int(record.scene_id)).permutation(n)
+    order = keyed_rng("scene-order", int(seed), int(record.scene_id), *more).permutation(n)
     return SceneCandidates(
         T_obj_tcp=np.concatenate([c.T_obj_tcp for c in parts])[order],
         width_expected=np.concatenate([c.width_expected for c in parts])[order],
@@ -199,9 +203,9 @@ class SceneTrials:
         first = next(iter(self.trials.values()))
         self.world.restore_state(first.state)
 
-    def candidates(self, n: int, seed: int) -> SceneCandidates:
+    def candidates(self, n: int, seed: int, attempt: int | None = None) -> SceneCandidates:
         """The scene's N candidates (:func:`scene_candidates`)."""
-        return scene_candidates(self.record, self.models, n, seed, self.config, self.table_sides())
+        return scene_candidates(self.record, self.models, n, seed, self.config, self.table_sides(), attempt)
 
     def close(self) -> None:
         """Free the snapshots and the world."""
@@ -219,8 +223,12 @@ class SceneTrials:
     # --- one trial ------------------------------------------------------------------------------
 
     def _use_physics_of(self, instance_id: int) -> None:
-        """The world's step for a trial on ``instance_id``: the target's (light objects substep)."""
-        model = self.models[self.record.instance(instance_id).object_id]
+        """The world's step for a trial on ``instance_id``: the target's (light objects substep), or
+        the lightest object's in the scene (``[scenes] substeps``)."""
+        if self.config.scenes.substeps == "lightest":
+            model = min((self.models[i.object_id] for i in self.record.kept), key=lambda m: m.mass)
+        else:
+            model = self.models[self.record.instance(instance_id).object_id]
         physics = physics_for(model, self.config.physics)
         if self.world.physics != physics:
             self.world.physics = physics
