@@ -461,6 +461,9 @@ class SceneConfig(_Section):
     # Trials among neighbours (annotator/scenes/labels.py): close, lift and shake as the protocol
     # says, or close and lift only (VGN's trial: close, retreat 10 cm, judge).
     shake: bool = True
+    # m: closer than this to a neighbour or the table is a collision in the kinematic check (Bullet's
+    # convex queries erred by 0.7 mm); docs/decisions/0301-labels-among-neighbours.md.
+    neighbour_clearance: float = _field(0.001, ge=0.0)
     # The world's step during a trial: the target's (its light-object substeps, [physics]
     # light_object_mass), or the lightest object's in the scene; docs/decisions/0302-scene-substeps.md.
     substeps: str = _field("target", choices=("target", "lightest"))

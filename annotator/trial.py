@@ -93,7 +93,9 @@ class GraspTrial:
     ``obstacles``: bodies the gripper must not touch at all in the kinematic checks (the table);
     ``resting``: the object rests on one of them, so gravity stays on while the gripper closes;
     ``shake``: False ends the trial after the lift (judged as after a shake: both pads on the
-    object, moved less than ``max_slip`` in the hand), as VGN's trials end.
+    object, moved less than ``max_slip`` in the hand), as VGN's trials end; ``obstacle_margin``
+    (m): how close the gripper may come to an obstacle in the kinematic checks (default the
+    protocol's ``collision_margin``).
     """
 
     def __init__(
@@ -106,6 +108,7 @@ class GraspTrial:
         obstacles: Sequence[int] = (),
         resting: bool = False,
         shake: bool = True,
+        obstacle_margin: float | None = None,
     ) -> None:
         self.world = world
         self.hand = hand
@@ -114,6 +117,7 @@ class GraspTrial:
         self.obstacles = tuple(obstacles)
         self.resting = resting
         self.shake = shake
+        self.obstacle_margin = obstacle_margin
         self.client = world.client
         info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
         self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
@@ -137,7 +141,9 @@ class GraspTrial:
 
     def _obstacle_touched(self) -> int | None:
         """The first obstacle any link of the gripper (pads included) touches, or None."""
-        margin = self.config.protocol.collision_margin
+        margin = (
+            self.config.protocol.collision_margin if self.obstacle_margin is None else self.obstacle_margin
+        )
         for body in self.obstacles:
             if touching(closest_points(self.client, self.hand.uid, body, margin), margin):
                 return body

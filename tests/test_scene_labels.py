@@ -150,3 +150,24 @@ def test_candidates_depend_on_the_scene_and_seed_only(models):
         inst = record.instance(int(a.instance_id[k]))
         approach = (inst.T_table_obj * Transform.from_matrix(a.T_obj_tcp[k])).rotation[:, 2]
         assert approach[2] <= -np.cos(np.radians(config.cell.approach_cone)) + 1e-9
+
+
+def test_with_the_arm_rows_say_whether_the_ur3_reaches_the_grasp(models, table):
+    """``--cell``: the top-down grasp on the box at the workspace's centre (mid-reach) is reachable,
+    with the arm's joints; a grasp from below the table is not."""
+    from annotator.scenes.labels import SceneArm
+
+    record = box_and_can(models, table, 0.05)
+    arm = SceneArm(record, models, AnnotatorConfig())
+    try:
+        top = arm.columns(0, TOP_DOWN, 0.06, "test")
+        assert top["reachable"] and top["unreachable_reason"] == ""
+        q = np.array([top[f"q_grasp_{i}"] for i in range(6)])
+        assert np.isfinite(q).all()
+        T_world_tcp = arm.scene.cell.tcp_pose(q, 0.06)
+        np.testing.assert_allclose(T_world_tcp.pos, record.T_world_obj(0).apply(TOP_DOWN.pos), atol=1e-6)
+        upwards = Transform([0.0, 0.0, 0.06], [0.0, 0.0, 0.0, 1.0])  # TCP z (the approach) along +z
+        up = arm.columns(0, upwards, 0.06, "test")  # from under the table
+        assert not up["reachable"] and up["unreachable_reason"]
+    finally:
+        arm.close()

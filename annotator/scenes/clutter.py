@@ -58,10 +58,13 @@ from annotator.sim.world import World
 log = logging.getLogger(__name__)
 
 POLICIES = ("labels", "random")
-# Candidates labelled (or tried) per look of the ``labels`` and ``random`` policies at the current
-# scene, and per batch before the search may stop: VGN's 120 per scene in batches of 20.
+# Candidates drawn per look of the ``labels`` and ``random`` policies at the scene as it is (VGN's
+# 120 per scene), labelled in batches of 20 before the search may stop, and drawn anew up to
+# POLICY_DRAWS times while none is found: on a pile the cell's sampler gives some objects (a mug, a
+# bowl upside down) few grasps that miss the object itself, and 120 left graspable objects behind.
 POLICY_CANDIDATES = 120
 POLICY_BATCH = 20
+POLICY_DRAWS = 5
 PREDICTION_COLUMNS = ("round", "x", "y", "z", "qx", "qy", "qz", "qw", "width", "score")
 Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
 
@@ -394,15 +397,8 @@ class Round:
 Policy = Callable[[Round, int, set[int]], Proposal | None]
 
 
-def _candidates(
-    round_: Round, now: SceneRecord, attempt: int, seed: int
-) -> tuple[SceneTrials, SceneCandidates]:
-    trials = SceneTrials(now, round_.models, round_.config, round_.gripper)
-    try:
-        return trials, trials.candidates(POLICY_CANDIDATES, seed, attempt=attempt)
-    except BaseException:
-        trials.close()
-        raise
+def _trials(round_: Round, now: SceneRecord) -> SceneTrials:
+    return SceneTrials(now, round_.models, round_.config, round_.gripper)
 
 
 def labels_policy(seed: int, trials_per_grasp: int = 1) -> Policy:
@@ -410,30 +406,45 @@ def labels_policy(seed: int, trials_per_grasp: int = 1) -> Policy:
 
     def propose(round_: Round, attempt: int, tried: set[int]) -> Proposal | None:
         now = round_.now()
-        trials, cands = _candidates(round_, now, attempt, seed)
+        trials = _trials(round_, now)
         best: Proposal | None = None
         try:
-            for start in range(0, len(cands), POLICY_BATCH):
-                stop = min(len(cands), start + POLICY_BATCH)
-                rows = label_scene(trials, cands, start, stop, seed, trials_per_grasp)
-                for row in (
-                    rows[rows["success"]]
-                    .sort_values(["score", "grasp_id"], ascending=[False, True])
-                    .itertuples()
-                ):
-                    if best is not None and row.score <= best.score:
-                        break
-                    proposal = _reachable(round_, now, row)
-                    if proposal is not None:
-                        best = proposal
-                        break
-                if best is not None and best.score >= 1.0:
+            for draw in range(POLICY_DRAWS):
+                cands = trials.candidates(POLICY_CANDIDATES, seed, attempt=attempt, draw=draw)
+                best = _best_reachable(round_, now, trials, cands, (seed, trials_per_grasp), best)
+                if best is not None:
                     break
         finally:
             trials.close()
         return best
 
     return propose
+
+
+def _best_reachable(
+    round_: Round,
+    now: SceneRecord,
+    trials: SceneTrials,
+    cands: SceneCandidates,
+    labelling: tuple[int, int],
+    best: Proposal | None,
+) -> Proposal | None:
+    """The best-scored reachable success of ``cands`` (or ``best`` if none beats it), labelled in
+    batches (``labelling``: seed, trials per grasp) until one has the highest possible score."""
+    seed, k = labelling
+    for start in range(0, len(cands), POLICY_BATCH):
+        rows = label_scene(trials, cands, start, min(len(cands), start + POLICY_BATCH), seed, k)
+        held = rows[rows["success"]].sort_values(["score", "grasp_id"], ascending=[False, True])
+        for row in held.itertuples():
+            if best is not None and row.score <= best.score:
+                break
+            proposal = _reachable(round_, now, row)
+            if proposal is not None:
+                best = proposal
+                break
+        if best is not None and best.score >= 1.0:
+            return best
+    return best
 
 
 def _reachable(round_: Round, now: SceneRecord, row) -> Proposal | None:
@@ -455,31 +466,44 @@ def random_policy(seed: int) -> Policy:
 
     def propose(round_: Round, attempt: int, tried: set[int]) -> Proposal | None:
         now = round_.now()
-        trials, cands = _candidates(round_, now, attempt, seed)
+        trials = _trials(round_, now)
         try:
-            order = keyed_rng("clutter-random", int(seed), now.scene_id, attempt).permutation(len(cands))
-            for k in order:
-                if not cands.antipodal[k]:
-                    continue
-                instance_id = int(cands.instance_id[k])
-                T_obj_tcp = Transform.from_matrix(cands.T_obj_tcp[k])
-                width = float(cands.width_expected[k])
-                trials.reset()
-                trial = trials.trials[instance_id]
-                trials._use_physics_of(instance_id)
-                if trial.collides(T_obj_tcp, width).collided:
-                    continue
-                inst = now.instance(instance_id)
-                assert inst.T_table_obj is not None
-                T_table_tcp = inst.T_table_obj * T_obj_tcp
-                reach = round_.reach(T_table_tcp, width, instance_id)
-                if reach.reachable:
-                    return Proposal(instance_id, T_table_tcp, width, 0.0, reach)
+            for draw in range(POLICY_DRAWS):
+                cands = trials.candidates(POLICY_CANDIDATES, seed, attempt=attempt, draw=draw)
+                order = keyed_rng("clutter-random", int(seed), now.scene_id, attempt, draw).permutation(
+                    len(cands)
+                )
+                proposal = _first_free(round_, now, trials, cands, order)
+                if proposal is not None:
+                    return proposal
         finally:
             trials.close()
         return None
 
     return propose
+
+
+def _first_free(
+    round_: Round, now: SceneRecord, trials: SceneTrials, cands: SceneCandidates, order: np.ndarray
+) -> Proposal | None:
+    """The first antipodal candidate in ``order`` that the kinematic check lets through (the scene as
+    it is) and the arm reaches."""
+    for k in order:
+        if not cands.antipodal[k]:
+            continue
+        instance_id = int(cands.instance_id[k])
+        T_obj_tcp = Transform.from_matrix(cands.T_obj_tcp[k])
+        width = float(cands.width_expected[k])
+        trials.reset()
+        if trials.trials[instance_id].collides(T_obj_tcp, width).collided:
+            continue
+        inst = now.instance(instance_id)
+        assert inst.T_table_obj is not None
+        T_table_tcp = inst.T_table_obj * T_obj_tcp
+        reach = round_.reach(T_table_tcp, width, instance_id)
+        if reach.reachable:
+            return Proposal(instance_id, T_table_tcp, width, 0.0, reach)
+    return None
 
 
 def file_policy(predictions: pd.DataFrame) -> Policy:

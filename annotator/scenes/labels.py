@@ -101,11 +101,14 @@ def scene_candidates(
     config: AnnotatorConfig,
     sides: Mapping[int, TableSide],
     attempt: int | None = None,
+    draw: int = 0,
 ) -> SceneCandidates:
     """Exactly ``n`` candidates over the kept instances of ``record`` (module docstring); ``sides``:
-    each kept instance's :class:`TableSide` (its pose, the table, the fingers). ``attempt``: a
-    further key (clutter removal draws new candidates for each attempt on the same scene)."""
+    each kept instance's :class:`TableSide` (its pose, the table, the fingers). ``attempt`` and
+    ``draw``: further keys (clutter removal draws new candidates for each attempt on a scene, and
+    more of them while it finds no grasp)."""
     more = () if attempt is None else ("attempt", int(attempt))
+    more += ("draw", int(draw)) if draw else ()
     kept = record.kept
     if not kept:
         raise ValueError(f"scene {record.scene_id} has no object left on the table")
@@ -179,6 +182,7 @@ class SceneTrials:
                     obstacles=(table, *others),
                     resting=True,
                     shake=config.scenes.shake,
+                    obstacle_margin=config.scenes.neighbour_clearance,
                 )
         except BaseException:
             self.world.close()
@@ -203,9 +207,10 @@ class SceneTrials:
         first = next(iter(self.trials.values()))
         self.world.restore_state(first.state)
 
-    def candidates(self, n: int, seed: int, attempt: int | None = None) -> SceneCandidates:
+    def candidates(self, n: int, seed: int, attempt: int | None = None, draw: int = 0) -> SceneCandidates:
         """The scene's N candidates (:func:`scene_candidates`)."""
-        return scene_candidates(self.record, self.models, n, seed, self.config, self.table_sides(), attempt)
+        sides = self.table_sides()
+        return scene_candidates(self.record, self.models, n, seed, self.config, sides, attempt, draw)
 
     def close(self) -> None:
         """Free the snapshots and the world."""

@@ -57,7 +57,7 @@ def scene_cameras(record: SceneRecord, size: int = VIEW_SIZE) -> tuple[Camera, C
     workspace's centre on the table, framing the workspace cube."""
     T = record.T_world_table
     centre = T.apply(np.array([record.workspace.center[0], record.workspace.center[1], 0.05]))
-    dist = 0.9 * record.workspace.size / np.tan(np.radians(FOV / 2)) + 0.1
+    dist = 0.6 * record.workspace.size / np.tan(np.radians(FOV / 2)) + 0.1
     up_world = T.rotation[:, 2]
     elev = np.radians(40.0)
     oblique_dir = T.rotation @ np.array([np.cos(elev), 0.0, np.sin(elev)])  # the table's +x side
