@@ -19,7 +19,7 @@ and clutter removal on the UR3 with the labels policy and the random baseline.
   recorded collision error, so intersections are reported with their depth.
 - ``clutter``: ``annotator clutter-removal`` rounds (piles of 5) with the ``labels`` policy and the
   ``random`` baseline, on the sample objects and on those the RG2 can take from a table (without the
-  130 mm ball, wider than its 110 mm stroke, and the 8 mm plate, which lies flat), with 95 %
+  160 mm ball, wider than its 110 mm stroke, and the 8 mm plate, which lies flat), with 95 %
   Wilson intervals.
 """
 

@@ -33,7 +33,7 @@ from annotator.cli.common import CONFIG_OPTION, CONTEXT, SEED, VERBOSE_OPTION, l
     default="labels",
     show_default=True,
     metavar="labels|random|FILE",
-    help="labels: the best-scored reachable label of the scene as it is (an upper bound); random: a "
+    help="labels: the best-scored reachable label of the scene as it is (an oracle); random: a "
     "random collision-free reachable antipodal grasp (a baseline); FILE: a learner's predictions, a "
     "CSV or Parquet file with columns round, x, y, z, qx, qy, qz, qw (TCP in the table frame), width, score.",
 )

@@ -15,11 +15,12 @@ ends when the policy proposes nothing. Every attempt starts from a snapshot of t
 
 Policies (each proposes for the scene as it is now):
 
-- ``labels`` (an upper bound): the scene is labelled on the fly among its neighbours
-  (:mod:`annotator.scenes.labels`, the floating gripper, candidates drawn anew per attempt) and the
-  best-scored success the arm can reach is executed (ties: the lowest grasp id). Candidates are
-  labelled in grasp-id order and the search stops at the first reachable success whose score is
-  the highest possible, which picks the same grasp as labelling all of them.
+- ``labels`` (an oracle: the best a learner of the labels can do): the scene is labelled on the fly
+  among its neighbours (:mod:`annotator.scenes.labels`, the floating gripper, candidates drawn anew
+  per attempt) and the best-scored success the arm can reach is executed (ties: the lowest grasp
+  id). Candidates are labelled in grasp-id order and the search stops at the first reachable
+  success whose score is the highest possible, which picks the same grasp as labelling all of them;
+  120 more are drawn (up to 5 x 120) while none is found.
 - ``random`` (a baseline): the same candidates, antipodal ones only, in a random order; the first
   that the kinematic check lets through (no gripper collision with anything, along the approach or
   closed) and the arm can reach is executed. No physics decides it.
