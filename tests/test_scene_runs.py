@@ -194,3 +194,21 @@ def test_a_run_interrupted_mid_scene_resumes_bit_for_bit(concave, tmp_path):
     pd.testing.assert_frame_equal(resumed, _labels(fresh), check_exact=True)
     assert _artifacts(out) == _artifacts(fresh)
     assert np.isfinite(resumed["disturbance"]).all()
+
+
+@pytest.mark.slow
+@pytest.mark.cluster
+def test_scene_labels_on_a_dask_cluster_equal_local_ones(concave, tmp_path):
+    """The same scenes on a Dask cluster (workers with no status folder, the default cache) as
+    with one local worker, bit for bit."""
+    distributed = pytest.importorskip("dask.distributed")
+    args = ["--scenes", 1, "--per-scene", 3, "--n", N, "--quiet"]
+    run_annotate("--objects", concave, "--out", tmp_path / "local", "--workers", 1, *args)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as c:
+        run_annotate(
+            "--objects", concave, "--out", tmp_path / "dask", "--scheduler", c.scheduler_address, *args
+        )
+    pd.testing.assert_frame_equal(_labels(tmp_path / "dask"), _labels(tmp_path / "local"), check_exact=True)
+    assert _artifacts(tmp_path / "dask") == _artifacts(tmp_path / "local")
