@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-
 # A repair may change the surface area by this share at most: filling holes and removing a fin or
 # a self-intersection changes it a little (a 50 mm box with a 35 mm fin: 6 %), while a repair that
 # lost half of the object (MeshFix's clean on the box with its fin: a wedge, -31 %) is rejected.
