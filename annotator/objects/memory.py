@@ -6,7 +6,7 @@ by the system (which the run can only report as "a worker process died twice").
 
 Face counts come from the file's header where the format has one (binary STL, PLY, OFF, glTF's
 accessors) and from a streaming count of face lines otherwise (OBJ, ASCII STL), a URDF's as the
-sum of its meshes'. The estimate is linear in the faces, measured by ``bench/memory.py`` (peak RSS
+sum of its meshes'. The estimate is piecewise linear in the faces, measured by ``bench/memory.py`` (peak RSS
 of a child process loading a sphere of 20 k, 200 k and 2 M faces; docs/decisions/0102-memory.md).
 """
 
@@ -20,11 +20,13 @@ from pathlib import Path
 from annotator.config import ObjectConfig
 from annotator.objects.errors import ObjectError
 
-# MB of a worker's peak while loading, per face of the file and fixed (bench/memory.py): reading
-# and cleaning hold several copies of the triangles; above ObjectConfig.max_faces the mesh is
-# simplified, so what follows (mass, collision error, decomposition input) no longer grows.
-MB_PER_FACE = 0.0011
-MB_FIXED = 150.0
+# A load's peak RSS (MB), from bench/memory.py (binary STL UV spheres, the format that costs most
+# per face; OBJ cost less: 1,709 MB at 2 M faces): 20,160 faces 243 MB, 202,496 faces 532 MB,
+# 1,999,392 faces 2,358 MB. Up to ObjectConfig.max_faces a face costs the whole load (cleaning,
+# mass, collision error, decomposition input); above it only reading, cleaning and simplifying.
+MB_FIXED = 210.0  # the interpreter with trimesh, SciPy and PyBullet, and small arrays
+MB_PER_FACE = 0.0017
+MB_PER_FACE_ABOVE = 0.00102
 _CHUNK = 1 << 24  # bytes read at a time when counting lines
 _PLY_FACES = re.compile(rb"^element\s+face\s+(\d+)", re.MULTILINE)
 
@@ -117,9 +119,10 @@ def count_faces(path: Path) -> int:
         return 0
 
 
-def estimate_mb(faces: int) -> float:
-    """Peak MB a worker needs to load an object of ``faces`` file faces (see :data:`MB_PER_FACE`)."""
-    return MB_FIXED + MB_PER_FACE * faces
+def estimate_mb(faces: int, max_faces: int = ObjectConfig.max_faces) -> float:
+    """Peak MB a process needs to load an object of ``faces`` file faces that is simplified to
+    ``max_faces`` (see :data:`MB_PER_FACE`)."""
+    return MB_FIXED + MB_PER_FACE * min(faces, max_faces) + MB_PER_FACE_ABOVE * max(0, faces - max_faces)
 
 
 def check(source, config: ObjectConfig) -> None:
@@ -135,7 +138,7 @@ def check(source, config: ObjectConfig) -> None:
     else:
         paths = [source.path]
     faces = sum(count_faces(p) for p in paths)
-    need = estimate_mb(faces)
+    need = estimate_mb(faces, config.max_faces)
     if need > config.memory_budget:
         raise ObjectError(
             f"{source.object_id}: needs about {need:,.0f} MB to load ({faces:,} faces), above the memory "
