@@ -6,8 +6,9 @@ by the system (which the run can only report as "a worker process died twice").
 
 Face counts come from the file's header where the format has one (binary STL, PLY, OFF, glTF's
 accessors) and from a streaming count of face lines otherwise (OBJ, ASCII STL), a URDF's as the
-sum of its meshes'. The estimate is piecewise linear in the faces, measured by ``bench/memory.py`` (peak RSS
-of a child process loading a sphere of 20 k, 200 k and 2 M faces; docs/decisions/0102-memory.md).
+sum of its meshes'. The estimate is piecewise linear in the faces, measured by ``bench/memory.py``
+(peak RSS of a child process loading spheres of 20 k, 200 k and 2 M faces;
+docs/decisions/0102-memory.md).
 """
 
 from __future__ import annotations
