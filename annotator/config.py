@@ -265,15 +265,15 @@ class ObjectConfig(_Section):
     decomposition_min_threshold: float = _field(0.02, gt=0.0, le=1.0)
     # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
     # the full mesh (0101-collision-ladder).
-    decomposition_max_faces: int = _field(20_000, ge=4)
+    decomposition_max_faces: int = _field(5_000, ge=4)
     # CPU seconds per object for the whole decomposition ladder (CoACD, V-HACD, hull), 1-3600
     # (0101-collision-ladder); CoACD leaves vhacd_reserve of it for V-HACD.
     decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
-    vhacd_reserve: float = _field(10.0, ge=0.0)  # CPU-s
+    vhacd_reserve: float = _field(6.0, ge=0.0)  # CPU-s
     vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)
-    # Wall seconds after which a decomposition process that is not using its CPU budget (a hang)
-    # is stopped like one over budget.
-    decomposition_timeout: float = _field(300.0, gt=0.0)  # s
+    # Seconds a decomposition process may use no CPU at all (a hang, not work) before it is stopped
+    # like one over budget; a loaded machine slows a decomposition down, it does not stop it.
+    decomposition_timeout: float = _field(120.0, gt=0.0)  # s
     # Collision error targets: distance between collision shape and mesh surface (mean, max); an
     # object beyond them is reported approximate with its figures.
     collision_mean_limit: float = _field(0.0005, gt=0.0)  # m

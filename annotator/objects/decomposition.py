@@ -420,7 +420,7 @@ class ChildRun:
     returncode: int
     cpu_seconds: float
     over_cpu: bool
-    over_wall: bool
+    stalled: bool  # stopped after using no CPU for the stall limit (a hang, not work)
     stderr: str = ""
 
 
@@ -434,24 +434,38 @@ def _limit_cpu(pid: int, seconds: float) -> None:
     resource.prlimit(pid, resource.RLIMIT_CPU, (soft, soft + 1))
 
 
-def run_limited(cmd: list[str], cpu_seconds: float, wall_seconds: float, cwd: Path) -> ChildRun:
-    """Run ``cmd`` with at most ``cpu_seconds`` of CPU time and ``wall_seconds`` of wall time (a
-    child that hangs without using CPU), one OpenMP thread; returns how it ended."""
+def _cpu_ticks(pid: int) -> int | None:
+    """CPU clock ticks (user + system) process ``pid`` has used so far; None where /proc cannot say."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            fields = fh.read().rsplit(b")", 1)[1].split()
+        return int(fields[11]) + int(fields[12])  # utime, stime: fields 14 and 15 of stat(5)
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def run_limited(cmd: list[str], cpu_seconds: float, stall_seconds: float, cwd: Path) -> ChildRun:
+    """Run ``cmd`` with at most ``cpu_seconds`` of CPU time, stopped too when it uses no CPU for
+    ``stall_seconds`` (a hang; where /proc cannot tell, after ``stall_seconds`` of wall time), one
+    OpenMP thread; returns how it ended. A loaded machine slows it down but does not stop it."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     with open(cwd / "stderr.txt", "w+b") as err:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, env=env)
         try:
             _limit_cpu(proc.pid, cpu_seconds)
-        except (AttributeError, OSError, ValueError):  # pragma: no cover - no prlimit: wall time only
+        except (AttributeError, OSError, ValueError):  # pragma: no cover - no prlimit: the child's own
             pass
-        deadline = time.monotonic() + wall_seconds
-        over_wall = False
+        last_ticks, progress = None, time.monotonic()
+        stalled = False
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
             if pid:
                 break
-            if time.monotonic() > deadline:
-                over_wall = True
+            ticks, now = _cpu_ticks(proc.pid), time.monotonic()
+            if ticks is not None and ticks != last_ticks:
+                last_ticks, progress = ticks, now
+            if now - progress > stall_seconds:
+                stalled = True
                 proc.kill()
                 pid, status, usage = os.wait4(proc.pid, 0)
                 break
@@ -461,8 +475,8 @@ def run_limited(cmd: list[str], cpu_seconds: float, wall_seconds: float, cwd: Pa
         tail = err.read().decode(errors="replace").strip().splitlines()[-1:]
     cpu = usage.ru_utime + usage.ru_stime
     killed = proc.returncode in (-signal.SIGXCPU, -signal.SIGKILL)
-    over_cpu = killed and not over_wall and cpu >= max(1, math.ceil(cpu_seconds)) - 0.05
-    return ChildRun(proc.returncode, cpu, over_cpu, over_wall, tail[0][:160] if tail else "")
+    over_cpu = killed and not stalled and cpu >= max(1, math.ceil(cpu_seconds)) - 0.05
+    return ChildRun(proc.returncode, cpu, over_cpu, stalled, tail[0][:160] if tail else "")
 
 
 def _describe_exit(code: int) -> str:
@@ -505,8 +519,8 @@ def _child_rung(mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_li
             geometry, done = None, False
     if run.over_cpu:
         outcome, detail = "over budget", f"stopped at {cpu_limit:.0f} CPU-s"
-    elif run.over_wall:
-        outcome, detail = "over budget", f"stopped after {config.decomposition_timeout:g} s wall time"
+    elif run.stalled:
+        outcome, detail = "over budget", f"stopped after {config.decomposition_timeout:g} s without using CPU"
     elif run.returncode != 0:
         outcome = "crashed"
         detail = _describe_exit(run.returncode) + (f": {run.stderr}" if run.stderr else "")
