@@ -479,8 +479,11 @@ def run_limited(cmd: list[str], cpu_seconds: float, stall_seconds: float, cwd: P
         err.seek(0)
         tail = err.read().decode(errors="replace").strip().splitlines()[-1:]
     cpu = usage.ru_utime + usage.ru_stime
-    killed = proc.returncode in (-signal.SIGXCPU, -signal.SIGKILL)
-    over_cpu = killed and not stalled and cpu >= max(1, math.ceil(cpu_seconds)) - 0.05
+    # SIGXCPU comes from the CPU limit alone; SIGKILL from its hard limit a second later, or from
+    # this function after a stall. rusage's user + system time is sampled and can read a second
+    # short of the limit the kernel enforced.
+    hard_limit = proc.returncode == -signal.SIGKILL and cpu >= max(1, math.ceil(cpu_seconds)) - 1.5
+    over_cpu = not stalled and (proc.returncode == -signal.SIGXCPU or hard_limit)
     return ChildRun(proc.returncode, cpu, over_cpu, stalled, tail[0][:160] if tail else "")
 
 
