@@ -259,10 +259,10 @@ class ObjectConfig(_Section):
     collision_margin: float = _field(0.0, ge=0.0)  # m
     # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
-    # CoACD concavity thresholds, the first down to the last, x 0.6 each (0.05, 0.03, 0.018, 0.01),
-    # until the collision error is within its limits or the budget is spent (0101-collision-ladder).
+    # CoACD concavity thresholds, the first down to the last, x 0.6 each (0.05, 0.03, 0.02), until
+    # the collision error is within its limits or the budget is spent (0101-collision-ladder).
     decomposition_threshold: float = _field(0.05, gt=0.0, le=1.0)
-    decomposition_min_threshold: float = _field(0.01, gt=0.0, le=1.0)
+    decomposition_min_threshold: float = _field(0.02, gt=0.0, le=1.0)
     # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
     # the full mesh (0101-collision-ladder).
     decomposition_max_faces: int = _field(5_000, ge=4)
