@@ -11,9 +11,9 @@ model and mass, the collision method, parts and final CoACD threshold, the error
 (mm) against the limits, and the load time (s; with an empty cache it is mostly the
 decomposition: each run uses a fresh cache unless --cache is given).
 
-"before" (with --before, the default for the sample objects): what the annotator simulated until
-issue 9, CoACD once at threshold 0.05 with its default preprocessing ("auto"), or the hull of a
-convex object, measured on the same cleaned mesh.
+"before" (with --before, the default for the sample objects): what the annotator simulated before
+the collision-error refinement, CoACD once at threshold 0.05 with its default preprocessing
+("auto"), or the hull of a convex object, measured on the same cleaned mesh.
 """
 
 from __future__ import annotations
