@@ -230,17 +230,22 @@ def _write_entries(path: str, tag: float, barrier, rounds: int) -> None:
         cache.save_arrays(Path(path), arrays)
 
 
-def _read_entries(path: str, barrier, rounds: int, out) -> None:
-    seen, corrupt = set(), 0
+def _read_entries(path: str, barrier, done, out) -> None:
+    """Read the entry until the writers are done, then once more; count what was seen."""
+    seen, corrupt, reads = set(), 0, 0
     barrier.wait()
-    for _ in range(rounds):
+    while True:
+        finished = done.is_set()
         try:
             seen.add(float(cache.load_arrays(Path(path))["vertices"][0, 0]))
         except FileNotFoundError:
             pass
         except cache.CorruptEntry:
             corrupt += 1
-    out.put((sorted(seen), corrupt))
+        reads += 1
+        if finished:
+            break
+    out.put((sorted(seen), corrupt, reads))
 
 
 @pytest.mark.slow
@@ -251,16 +256,20 @@ def test_two_processes_writing_the_same_entry_at_once_leave_a_valid_entry_and_re
     three processes, started together; every read is one writer's whole entry."""
     ctx = multiprocessing.get_context("spawn")
     path = str(tmp_path / "entry.npz")
-    barrier, out = ctx.Barrier(3), ctx.Queue()
-    procs = [ctx.Process(target=_write_entries, args=(path, tag, barrier, 40)) for tag in (1.0, 2.0)]
-    procs.append(ctx.Process(target=_read_entries, args=(path, barrier, 400, out)))
-    for p in procs:
+    barrier, done, out = ctx.Barrier(3), ctx.Event(), ctx.Queue()
+    writers = [ctx.Process(target=_write_entries, args=(path, tag, barrier, 40)) for tag in (1.0, 2.0)]
+    reader = ctx.Process(target=_read_entries, args=(path, barrier, done, out))
+    for p in [*writers, reader]:
         p.start()
-    seen, corrupt = out.get(timeout=120)
-    for p in procs:
-        p.join(timeout=120)
+    for p in writers:
+        p.join(timeout=300)
         assert p.exitcode == 0
-    assert corrupt == 0 and set(seen) <= {1.0, 2.0} and seen
+    done.set()
+    seen, corrupt, reads = out.get(timeout=300)
+    reader.join(timeout=60)
+    assert reader.exitcode == 0
+    assert corrupt == 0, f"{corrupt} of {reads} reads saw a half-written entry"
+    assert seen and set(seen) <= {1.0, 2.0}
     assert float(cache.load_arrays(Path(path))["vertices"][0, 0]) in (1.0, 2.0)
     assert [p.name for p in tmp_path.iterdir()] == ["entry.npz"]  # no temporary file left
 
