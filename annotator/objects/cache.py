@@ -21,12 +21,12 @@ waits for it (to save the work, not for correctness); where locking fails it is 
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import logging
 import os
 import tempfile
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,7 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "rg2-annotator"
 
 
+@functools.cache
 def library_versions() -> dict[str, str]:
     """The installed versions of :data:`LIBRARIES` (``"none"`` for one that is missing)."""
     from importlib import metadata
@@ -128,13 +129,6 @@ def load_arrays(path: Path) -> dict[str, np.ndarray]:
     return arrays
 
 
-@dataclass(frozen=True)
-class ObjFile:
-    """A multi-part ``.obj`` in the cache, named by the hash of its text."""
-
-    path: Path
-
-
 def write_obj(folder: Path, key: str, text: str) -> Path:
     """``text`` at ``folder/<key>.<hash of text>.obj`` unless that file already holds it."""
     data = text.encode()
@@ -159,7 +153,7 @@ def advisory_lock(path: Path) -> Iterator[bool]:
         import fcntl
 
         path.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(path, "a+b")  # noqa: SIM115 - closed in finally
+        fh = open(path, "a+b")  # closed in the finally below
     except (ImportError, OSError):
         yield False
         return

@@ -24,15 +24,8 @@ meshes) with one OpenMP thread (workers already run one per core; CoACD's parts 
 1 and 2 threads). Precision: parts are stored as float64; fresh and cached parts are both read
 back from that entry, so a first run and later runs simulate identical geometry.
 
-Measured on the concave sample objects (objects/, one core, fresh cache; "extra" is volume the
-parts fill that the mesh does not, e.g. a mug's cavity):
-  object   CoACD 1.0.14 (threshold 0.05)     PyBullet V-HACD (pybullet.vhacd defaults)
-  mug      23 parts 13 s  extra 20 cm^3      21 parts 19 s  extra 40 cm^3
-  bowl     39 parts 15 s  extra 29 cm^3      55 parts 35 s  extra 49 cm^3
-  banana    2 parts  1 s  extra  6 cm^3       2 parts  3 s  extra 13 cm^3
-  ring     12 parts  4 s  extra  3 cm^3      12 parts 22 s  extra  6 cm^3
-CoACD is faster and about twice as tight (it cuts along concave edges rather than voxelising)
-and deterministic given a seed, so it is the first rung; see docs/decisions/0101-collision-ladder.md.
+CoACD is the first rung because it was faster and about twice as tight as V-HACD on the concave
+sample objects; measurements and reasons in docs/decisions/0101-collision-ladder.md.
 """
 
 from __future__ import annotations
