@@ -282,10 +282,31 @@ def decomposition_input(
 Found = Callable[[list[trimesh.Trimesh], CollisionError, float], None]
 
 
+def next_threshold(
+    todo: tuple[float, ...], threshold: float, error: CollisionError, config: ObjectConfig
+) -> int:
+    """Index in ``todo`` (the finer thresholds left, coarse to fine) of the one to try after
+    ``threshold`` gave ``error``: the coarsest at or below ``threshold`` x (limit / error) for the
+    worse of mean and max, the finest when none is.
+
+    CoACD's threshold bounds each part's concavity relative to the mesh's size, so the error
+    shrinks about in proportion to it: a threshold that the error says cannot be enough is skipped
+    (the YCB power drill at 0.05, 4.65 mm max: straight to 0.02, not 0.03 first). The sample
+    objects that refine (banana 3.12 mm, bowl 3.15 mm, mug 2.69 mm at 0.05) still go to 0.03.
+    """
+    ratio = min(
+        config.collision_mean_limit / max(error.mean, 1e-300),
+        config.collision_max_limit / max(error.max, 1e-300),
+    )
+    enough = threshold * ratio * (1 + 1e-9)
+    return next((i for i, t in enumerate(todo) if t <= enough), len(todo) - 1)
+
+
 def refine_coacd(
     vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig, found: Found | None = None
 ) -> tuple[list[trimesh.Trimesh], CollisionError, float]:
-    """CoACD at each threshold until within the error limits; the best (lowest max) otherwise.
+    """CoACD at thresholds coarse to fine (:func:`thresholds`, skipping those :func:`next_threshold`
+    finds too coarse) until within the error limits; the best (lowest max) otherwise.
 
     Returns (parts, error, threshold); ``found(parts, error, threshold)`` is called each time the
     best so far improves (the child saves it, so a refinement stopped by the budget keeps it).
@@ -296,7 +317,9 @@ def refine_coacd(
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     coacd_vertices, coacd_faces = decomposition_input(vertices, faces, config.decomposition_max_faces)
     best: tuple[list[trimesh.Trimesh], CollisionError, float] | None = None
-    for threshold in thresholds(config):
+    todo = thresholds(config)
+    while todo:
+        threshold, todo = todo[0], todo[1:]
         result = coacd.run_coacd(
             coacd.Mesh(coacd_vertices, coacd_faces),
             threshold=float(threshold),
@@ -313,8 +336,9 @@ def refine_coacd(
             best = (parts, error, float(threshold))
             if found is not None:
                 found(*best)
-        if error.within(config.collision_mean_limit, config.collision_max_limit):
+        if error.within(config.collision_mean_limit, config.collision_max_limit) or not todo:
             break
+        todo = todo[next_threshold(todo, threshold, error, config) :]
     if best is None:
         raise RuntimeError("convex decomposition produced no parts")
     return best
