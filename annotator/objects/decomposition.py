@@ -575,7 +575,7 @@ def _ladder(
             found = _Found(Rung("hull", "kept", time.process_time() - start, 0.0, error), parts, error)
         else:
             reserve = config.vhacd_reserve if method == "coacd" else 0.0
-            limit = max(1.0, budget - used - reserve)
+            limit = max(1.0, math.floor(budget - used - reserve))  # whole seconds, within the budget
             found = _child_rung(mesh, config, method, limit)
         rungs.append(found.rung)
         used += found.rung.cpu_seconds
