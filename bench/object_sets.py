@@ -4,6 +4,7 @@ cache) and warm (the same cache filled), per object and in total.
     python bench/object_sets.py --ycb DIR                       # YCB meshes (*.stl or *.stl.gz)
     python bench/object_sets.py --ycb DIR --pybullet-data --samples --json out.jsonl
     python bench/object_sets.py --samples --only 'samples/mug'
+    python bench/object_sets.py --compare before.jsonl after.jsonl   # a markdown table of two runs
 
 Sets (each optional; the data folders are arguments, nothing is copied into the project):
 
@@ -38,7 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,6 +110,13 @@ class Load:
     wall_s: float = 0.0
     peak_rss_mb: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    ladder: str = ""  # the decomposition rungs tried (builds that have them)
+
+    @classmethod
+    def from_json(cls, data: dict) -> Load:
+        """A record of any build's JSON line (unknown keys ignored, missing ones defaulted)."""
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in known})
 
 
 # --------------------------------------------------------------------------------------------------
@@ -149,6 +157,7 @@ def child(folder: Path, object_id: str, cache: Path, set_name: str, phase: str) 
         out.threshold = float(model.collision_threshold)
         out.decomposition_seconds = float(model.decomposition_seconds)
         out.warnings = list(getattr(model, "warnings", []))
+        out.ladder = str(getattr(model, "collision_ladder", ""))
     out.cpu_s = _cpu() - c0
     out.wall_s = time.perf_counter() - t0
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
@@ -169,7 +178,7 @@ def run_child(folder: Path, object_id: str, cache: Path, set_name: str, phase: s
         out = Load(set_name, object_id, phase, reason=f"bench child exit {done.returncode}: {tail}")
         out.wall_s = time.perf_counter() - t0
         return out
-    return Load(**json.loads(lines[-1]))
+    return Load.from_json(json.loads(lines[-1]))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -237,8 +246,40 @@ def _row(r: Load) -> str:
     return (
         f"  {r.object_id:<26} {r.phase:<4} {r.method:<8} {r.parts:3d} parts {r.faces:7d} faces "
         f"err {r.error_mean_mm:6.2f} / {r.error_max_mm:6.2f} mm  {r.cpu_s:7.1f} CPU-s {r.wall_s:7.1f} s "
-        f"{r.peak_rss_mb:6.0f} MB{flag}"
+        f"{r.peak_rss_mb:6.0f} MB{flag}" + (f"\n      {r.ladder}" if r.ladder and r.phase == "cold" else "")
     )
+
+
+def _cell(r: Load | None) -> str:
+    if r is None:
+        return "–"
+    if not r.ok:
+        return f"failed: {r.reason[:60]}"
+    return f"{r.method} {r.parts}, {r.error_mean_mm:.2f} / {r.error_max_mm:.2f} mm, {r.cpu_s:.1f} CPU-s"
+
+
+def compare(before: Path, after: Path) -> list[str]:
+    """A markdown table, cold loads, per object of both runs: method and parts, collision error mean /
+    max (mm), CPU-s of the load; then the totals of each set."""
+    runs = []
+    for path in (before, after):
+        rows = [Load.from_json(json.loads(line)) for line in path.read_text().splitlines() if line.strip()]
+        runs.append({(r.set, r.object_id): r for r in rows if r.phase == "cold"})
+    keys = sorted(set(runs[0]) | set(runs[1]))
+    out = ["| set | object | before | after |", "|---|---|---|---|"]
+    out += [f"| {s} | {o} | {_cell(runs[0].get((s, o)))} | {_cell(runs[1].get((s, o)))} |" for s, o in keys]
+    out.append("")
+    for name in dict.fromkeys(s for s, _ in keys):
+        for label, run in zip(("before", "after"), runs, strict=True):
+            sel = [r for (s, _), r in run.items() if s == name]
+            if sel:
+                far = sum(1 for r in sel if r.ok and r.error_max_mm > MAX_ERROR * 1e3)
+                failed, cpu = sum(not r.ok for r in sel), [r.cpu_s for r in sel]
+                out.append(
+                    f"{name} {label}: {len(sel)} objects, {failed} failed, {far} beyond 2 mm, "
+                    f"{sum(cpu):.0f} CPU-s in all, the slowest {max(cpu):.1f}"
+                )
+    return out
 
 
 def totals(rows: list[Load]) -> list[str]:
@@ -268,6 +309,9 @@ def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         folder, object_id, cache, set_name, phase = sys.argv[2:7]
         child(Path(folder), object_id, Path(cache), set_name, phase)
+        return
+    if len(sys.argv) == 4 and sys.argv[1] == "--compare":
+        print("\n".join(compare(Path(sys.argv[2]), Path(sys.argv[3]))))
         return
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ycb", type=Path, help="folder of YCB meshes (*.stl, *.stl.gz)")
