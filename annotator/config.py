@@ -269,7 +269,7 @@ class ObjectConfig(_Section):
     # CPU seconds per object for the whole decomposition ladder (CoACD, V-HACD, hull), 1-3600
     # (0101-collision-ladder); CoACD leaves vhacd_reserve of it for V-HACD.
     decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
-    vhacd_reserve: float = _field(6.0, ge=0.0)  # CPU-s
+    vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s
     vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)
     # Seconds a decomposition process may use no CPU at all (a hang, not work) before it is stopped
     # like one over budget; a loaded machine slows a decomposition down, it does not stop it.
