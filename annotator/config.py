@@ -267,7 +267,7 @@ class ObjectConfig(_Section):
     # the full mesh (0101-collision-ladder).
     decomposition_max_faces: int = _field(5_000, ge=4)
     # CPU seconds per object for the whole decomposition ladder (CoACD, V-HACD, hull), 1-3600
-    # (0101-collision-ladder); CoACD leaves vhacd_reserve of it for V-HACD.
+    # (0101-collision-ladder); CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
     decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
     vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s
     vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)

@@ -6,8 +6,9 @@ The ladder (a concave object), inside ``ObjectConfig.decomposition_budget`` CPU 
 
 1. CoACD at each of :func:`thresholds` (coarse to fine) until the collision error is within
    ``collision_mean_limit`` / ``collision_max_limit``, the best so far kept (CoACD 1.0's default
-   search settings, seed 0, in a child process limited to the budget less the V-HACD reserve);
-   the budget stops it, and a stopped refinement keeps the best threshold it finished;
+   search settings, seed 0, in a child process limited to the budget; stopped at the budget less
+   ``vhacd_reserve`` if it has finished no threshold by then); a refinement stopped by the budget
+   keeps the best threshold it finished;
 2. V-HACD (pybullet.vhacd, bullet3's V-HACD 2.2) when CoACD finished no threshold, in a child
    process limited to what is left;
 3. the convex hull, in this process, when neither gave parts.
@@ -466,28 +467,60 @@ def _cpu_ticks(pid: int) -> int | None:
         return None
 
 
-def run_limited(cmd: list[str], cpu_seconds: float, stall_seconds: float, cwd: Path) -> ChildRun:
-    """Run ``cmd`` with at most ``cpu_seconds`` of CPU time, stopped too when it uses no CPU for
-    ``stall_seconds`` (a hang; where /proc cannot tell, after ``stall_seconds`` of wall time), one
-    OpenMP thread; returns how it ended. A loaded machine slows it down but does not stop it."""
+@dataclass(frozen=True)
+class Checkpoint:
+    """Stop a child at ``seconds`` of CPU unless ``keep_going()`` says it has earned the rest of
+    its limit (CoACD: it has finished a threshold, so V-HACD's reserve is no longer needed)."""
+
+    seconds: float
+    keep_going: Callable[[], bool]
+
+
+@dataclass
+class _Watch:
+    """The parent's view of a running child: its CPU ticks, when they last moved, and why it was
+    stopped (a checkpoint it had not earned, or a stall)."""
+
+    stall_seconds: float
+    checkpoint: Checkpoint | None
+    tick: float
+    last_ticks: int | None = None
+    progress: float = field(default_factory=time.monotonic)
+    stopped: bool = False
+    stalled: bool = False
+
+    def must_stop(self, pid: int) -> bool:
+        ticks, now = _cpu_ticks(pid), time.monotonic()
+        if ticks is not None and ticks != self.last_ticks:
+            self.last_ticks, self.progress = ticks, now
+        if self.checkpoint is not None and ticks is not None and ticks / self.tick >= self.checkpoint.seconds:
+            self.stopped = not self.checkpoint.keep_going()
+            self.checkpoint = None  # earned, or stopped now: decided once
+        self.stalled = now - self.progress > self.stall_seconds
+        return self.stopped or self.stalled
+
+
+def run_limited(
+    cmd: list[str], cpu_seconds: float, stall_seconds: float, cwd: Path, checkpoint: Checkpoint | None = None
+) -> ChildRun:
+    """Run ``cmd`` with at most ``cpu_seconds`` of CPU time (and at most ``checkpoint.seconds``
+    unless it has earned more), stopped too when it uses no CPU for ``stall_seconds`` (a hang;
+    where /proc cannot tell, after ``stall_seconds`` of wall time), one OpenMP thread; returns how it
+    ended. A loaded machine slows it down but does not stop it."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     with open(cwd / "stderr.txt", "w+b") as err:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, env=env)
+        watched = _cpu_ticks(proc.pid) is not None  # /proc tells its CPU: the checkpoint can be kept
         try:
-            _limit_cpu(proc.pid, cpu_seconds)
+            _limit_cpu(proc.pid, cpu_seconds if watched or checkpoint is None else checkpoint.seconds)
         except (AttributeError, OSError, ValueError):  # pragma: no cover - no prlimit: the child's own
             pass
-        last_ticks, progress = None, time.monotonic()
-        stalled = False
+        watch = _Watch(stall_seconds, checkpoint, float(os.sysconf("SC_CLK_TCK")))
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
             if pid:
                 break
-            ticks, now = _cpu_ticks(proc.pid), time.monotonic()
-            if ticks is not None and ticks != last_ticks:
-                last_ticks, progress = ticks, now
-            if now - progress > stall_seconds:
-                stalled = True
+            if watch.must_stop(proc.pid):
                 proc.kill()
                 pid, status, usage = os.wait4(proc.pid, 0)
                 break
@@ -497,11 +530,11 @@ def run_limited(cmd: list[str], cpu_seconds: float, stall_seconds: float, cwd: P
         tail = err.read().decode(errors="replace").strip().splitlines()[-1:]
     cpu = usage.ru_utime + usage.ru_stime
     # SIGXCPU comes from the CPU limit alone; SIGKILL from its hard limit a second later, or from
-    # this function after a stall. rusage's user + system time is sampled and can read a second
-    # short of the limit the kernel enforced.
+    # this function at the checkpoint or after a stall. rusage's user + system time is sampled and
+    # can read a second short of the limit the kernel enforced.
     hard_limit = proc.returncode == -signal.SIGKILL and cpu >= max(1, math.ceil(cpu_seconds)) - 1.5
-    over_cpu = not stalled and (proc.returncode == -signal.SIGXCPU or hard_limit)
-    return ChildRun(proc.returncode, cpu, over_cpu, stalled, tail[0][:160] if tail else "")
+    over_cpu = watch.stopped or (not watch.stalled and (proc.returncode == -signal.SIGXCPU or hard_limit))
+    return ChildRun(proc.returncode, cpu, over_cpu, watch.stalled, tail[0][:160] if tail else "")
 
 
 def _describe_exit(code: int) -> str:
@@ -523,8 +556,12 @@ class _Found:
     threshold: float = 0.0
 
 
-def _child_rung(mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_limit: float) -> _Found:
-    """One rung (coacd or vhacd) in a limited child process; whatever it gave within the limit."""
+def _child_rung(
+    mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_limit: float, reserve: float = 0.0
+) -> _Found:
+    """One rung (coacd or vhacd) in a limited child process; whatever it gave within the limit.
+    With a ``reserve``, it is stopped ``reserve`` CPU-s before its limit unless it has parts by then
+    (the next rung needs that reserve only if this one gives nothing)."""
     with tempfile.TemporaryDirectory(prefix="rg2-decompose-") as tmp:
         job = Path(tmp)
         np.savez(
@@ -535,7 +572,10 @@ def _child_rung(mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_li
             rung=np.array(method),
             cpu_limit=np.array(cpu_limit),
         )
-        run = run_limited(child_command(job), cpu_limit, config.decomposition_timeout, job)
+        checkpoint = None
+        if reserve > 0:
+            checkpoint = Checkpoint(max(1.0, cpu_limit - reserve), (job / "out.npz").is_file)
+        run = run_limited(child_command(job), cpu_limit, config.decomposition_timeout, job, checkpoint)
         try:
             out = cache.load_arrays(job / "out.npz")
             geometry = _geometry(out, job)
@@ -543,7 +583,7 @@ def _child_rung(mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_li
         except (FileNotFoundError, cache.CorruptEntry, ValueError, KeyError):
             geometry, done = None, False
     if run.over_cpu:
-        outcome, detail = "over budget", f"stopped at {cpu_limit:.0f} CPU-s"
+        outcome, detail = "over budget", f"stopped at {run.cpu_seconds:.0f} CPU-s"
     elif run.stalled:
         outcome, detail = "over budget", f"stopped after {config.decomposition_timeout:g} s without using CPU"
     elif run.returncode != 0:
@@ -574,9 +614,10 @@ def _ladder(
             error = collision_error(mesh, parts, config.collision_error_samples)
             found = _Found(Rung("hull", "kept", time.process_time() - start, 0.0, error), parts, error)
         else:
+            # CoACD may use the whole budget once it has parts; until then it leaves V-HACD its reserve
             reserve = config.vhacd_reserve if method == "coacd" else 0.0
-            limit = max(1.0, math.floor(budget - used - reserve))  # whole seconds, within the budget
-            found = _child_rung(mesh, config, method, limit)
+            limit = max(1.0, math.floor(budget - used))  # whole seconds, within the budget
+            found = _child_rung(mesh, config, method, limit, reserve)
         rungs.append(found.rung)
         used += found.rung.cpu_seconds
         if found.parts:
