@@ -36,7 +36,6 @@ from annotator.objects import (
     ObjectError,
     ObjectModel,
     ObjectSource,
-    add_progress_hook,
     create_body,
     load_object,
     physics_for,
@@ -314,15 +313,18 @@ class WorkerState:
         span, config = task.span, task.config
         status.write(task.status_dir, f"loading {span.object_id}")
         status_dir = task.status_dir
-        remove_hook = add_progress_hook(lambda oid, message: status.write(status_dir, f"{oid}: {message}"))
         try:
             cache = Path(task.cache_dir) if task.cache_dir is not None else None
-            return load_object(span.source, config.objects, scale=span.scale, cache_dir=cache)
+            return load_object(
+                span.source,
+                config.objects,
+                scale=span.scale,
+                cache_dir=cache,
+                progress=lambda oid, message: status.write(status_dir, f"{oid}: {message}"),
+            )
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
-        finally:
-            remove_hook()
 
     def _keep(self, loaded: LoadedObject) -> None:
         """Remember the object a worker leaves (its model and candidates) within the memory budget."""
