@@ -392,8 +392,10 @@ class KinectConfig(_Section):
 @dataclass(frozen=True)
 class SceneConfig(_Section):
     """Scenes of several objects settled on the seed's table (annotator/scenes): the workspace, the
-    three arrangements, settling and the views. Not yet a section of AnnotatorConfig: the scene
-    pipeline adds it (and binds it in the manifest) when ``annotate --scenes`` lands.
+    three arrangements, settling, the views, the trials among neighbours and clutter removal. A
+    section of AnnotatorConfig that a run's manifest binds only when it labels scenes
+    (``annotate --scenes``), so folders of object runs made before it existed still resume
+    (docs/decisions/0300-scenes-as-units-of-work.md).
 
     Sources: VGN (ethz-asl/vgn, branch corl2020, src/vgn/simulation.py and scripts/generate_data.py;
     branch devel for the packed region) and ACRONYM (NVlabs/acronym, acronym_tools/acronym.py).
@@ -446,6 +448,23 @@ class SceneConfig(_Section):
     view_radius_min: float = _field(0.8, gt=0.0)  # m
     view_radius_max: float = _field(1.2, gt=0.0)  # m
     view_max_polar: float = _field(45.0, ge=0.0, lt=90.0)  # deg (VGN: pi / 4)
+    # Trials among neighbours (annotator/scenes/labels.py): close, lift and shake as the protocol
+    # says, or close and lift only (VGN's trial: close, retreat 10 cm, judge).
+    shake: bool = True
+    # m: closer than this to a neighbour or the table is a collision in the kinematic check (Bullet's
+    # convex queries erred by 0.7 mm); docs/decisions/0301-labels-among-neighbours.md.
+    neighbour_clearance: float = _field(0.001, ge=0.0)
+    # The world's step during a trial: the target's (its light-object substeps, [physics]
+    # light_object_mass), or the lightest object's in the scene; docs/decisions/0302-scene-substeps.md.
+    substeps: str = _field("target", choices=("target", "lightest"))
+    # A neighbour "disturbed" by a trial moved at least this far (m, any corner of its bounding box)
+    # between the settled scene and the trial's end: the label's disturbed flag. Resting objects
+    # drift below 0.2 mm over a trial's second (tests/test_scene_labels.py); 5 mm is a visible push.
+    disturbance_threshold: float = _field(0.005, gt=0.0)  # m
+    # Clutter removal (annotator/scenes/clutter.py): a round ends after this many failed grasps in
+    # a row (VGN: 2); a held object is lifted this far straight up before it counts (VGN: 10 cm).
+    clutter_max_failures: int = _field(2, ge=1)
+    clutter_lift_height: float = _field(0.10, gt=0.0)  # m; docs/decisions/0303-clutter-removal.md
 
 
 @dataclass(frozen=True)
@@ -460,6 +479,8 @@ class AnnotatorConfig:
     robust: RobustConfig = field(default_factory=RobustConfig)
     cell: CellConfig = field(default_factory=CellConfig)
     kinect: KinectConfig = field(default_factory=KinectConfig)
+    # Bound in a run's manifest only by scene runs (to_dict(scenes=True)).
+    scenes: SceneConfig = field(default_factory=SceneConfig)
 
     @classmethod
     def thorough(cls, base: AnnotatorConfig | None = None) -> AnnotatorConfig:
@@ -497,8 +518,13 @@ class AnnotatorConfig:
             ),
         )
 
-    def to_dict(self) -> dict[str, dict[str, Any]]:
-        return dataclasses.asdict(self)
+    def to_dict(self, *, scenes: bool = False) -> dict[str, dict[str, Any]]:
+        """Every section as ``{section: {field: value}}``; ``[scenes]`` only with ``scenes`` (a
+        scene run binds it, an object run does not: its labels do not depend on it)."""
+        data = dataclasses.asdict(self)
+        if not scenes:
+            data.pop("scenes")
+        return data
 
     @classmethod
     def from_dict(cls, data: Any) -> AnnotatorConfig:

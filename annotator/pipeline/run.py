@@ -88,7 +88,12 @@ class RunOptions:
     repair: bool = False
     quiet: bool = False
     cell: bool = False  # objects rest on the seed's table; UR3 reachability columns
-    views: int = 0  # Kinect views per placement (--cell only)
+    views: int = 0  # Kinect views per placement (--cell only), per scene with --scenes
+    # annotate --scenes N: N scenes of per_scene (min, max) objects in the arrangement, n grasps
+    # per scene (annotator.scenes.run)
+    scenes: int = 0
+    per_scene: tuple[int, int] = (5, 5)
+    arrangement: str = "pile"
 
     def cell_options(self) -> CellOptions | None:
         return CellOptions(self.views) if self.cell else None
@@ -347,6 +352,12 @@ def run(
     ``candidates``: where the candidates come from, by default ``options.n`` sampled per object
     (``annotate``); :class:`GivenCandidates` simulates given poses instead (``evaluate``).
     """
+    if options.scenes:  # scenes are their own units of work (annotator.scenes.run)
+        if candidates is not None:
+            raise UsageError("--scenes labels sampled candidates only")
+        from annotator.scenes.run import run_scenes
+
+        return run_scenes(options, config)
     summary = Summary()
     candidates = candidates or SampledCandidates(options.n)
     if not 1 <= options.n <= MAX_N:

@@ -53,6 +53,7 @@ class Summary:
     first_label_seconds: float | None = None  # from start to the first label file written
     peak_rss_mb: dict[int, float] = field(default_factory=dict)  # per worker pid
     started: float = field(default_factory=time.perf_counter)
+    unit: str = "object"  # what a row of the table is: an object, or a scene (annotate --scenes)
 
     @property
     def skipped(self) -> list[str]:
@@ -68,7 +69,7 @@ def format_summary(summary: Summary) -> str:
     rows = sorted([(o, s) for o, s in summary.done.items()] + [(o, s) for o, s in summary.resumed.items()])
     cell = any(st.reachable_successes is not None for _, st in rows)
     head = (
-        f"{'object':<{name_w}} {'n':>6} {'rate':>6} {'score':>6} "
+        f"{summary.unit:<{name_w}} {'n':>6} {'rate':>6} {'score':>6} "
         + " ".join(f"{c:>{w}}" for c, w in zip(cols, widths, strict=True))
         + (f" {'reachable':>9}" if cell else "")
         + f" {'time':>7}"
@@ -91,7 +92,7 @@ def format_summary(summary: Summary) -> str:
         lines.append(f"STOPPED: {summary.stopped}")
     rate = summary.candidates / summary.seconds if summary.seconds else 0.0
     lines.append(
-        f"{len(summary.done)} objects labelled, {len(summary.resumed)} done earlier, "
+        f"{len(summary.done)} {summary.unit}s labelled, {len(summary.resumed)} done earlier, "
         f"{len(summary.failed)} failed; {summary.candidates} candidates simulated in "
         f"{summary.seconds:.1f} s ({rate:.1f} candidates/s, {summary.physics_trials} physics trials)"
     )
