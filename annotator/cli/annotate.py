@@ -8,6 +8,7 @@ import click
 
 from annotator import __version__
 from annotator.cli.common import (
+    CACHE_OPTION,
     CONFIG_OPTION,
     CONTEXT,
     SEED,
@@ -99,6 +100,7 @@ from annotator.cli.common import (
     "object): depth/colour/segmentation PNGs and camera tables in OUT/_views/.",
 )
 @CONFIG_OPTION
+@CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
 @click.version_option(__version__, prog_name="annotate")
@@ -116,6 +118,7 @@ def annotate_command(
     cell: bool,
     views: int,
     config_file: Path | None,
+    cache_dir: Path | None,
     quiet: bool,
     verbose: bool,
 ) -> None:
@@ -127,6 +130,10 @@ def annotate_command(
       annotate --objects objects/ --n 500
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
       annotate --objects objects/ --n 500 --cell --views 3 --out cell_labels/
+
+    \b
+    Each object's convex decomposition runs first, in a worker, once per --cache (shared by
+    runs and machines); labelling starts as soon as an object is ready.
 
     \b
     Labels are written every 10 candidates; re-running the same command resumes (finished
@@ -165,5 +172,6 @@ def annotate_command(
         quiet=quiet,
         cell=cell,
         views=views,
+        cache_dir=cache_dir,
         config=config,
     )
