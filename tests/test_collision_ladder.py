@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from helpers import write_l
 
 from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.objects import cache, decomposition, discover_objects, load_object
@@ -31,15 +32,6 @@ def write_two_boxes(path: Path) -> Path:
     b.apply_translation((0.06, 0.0, 0.0))
     path.parent.mkdir(parents=True, exist_ok=True)
     trimesh.util.concatenate([a, b]).export(path)
-    return path
-
-
-def write_l(path: Path) -> Path:
-    """A concave L-shaped block, 60 x 20 x 50 mm (CoACD splits it in two within a second)."""
-    outline = np.array([(-0.03, 0), (0.03, 0), (0.03, 0.02), (-0.01, 0.02), (-0.01, 0.05), (-0.03, 0.05)])
-    fan = np.array([(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 5)])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    trimesh.creation.extrude_triangulation(outline, fan, 0.02).export(path)
     return path
 
 

@@ -8,6 +8,7 @@ import click
 
 from annotator import __version__
 from annotator.cli.common import (
+    CACHE_OPTION,
     CONFIG_OPTION,
     CONTEXT,
     SEED,
@@ -128,6 +129,7 @@ SCENE_GRASPS = 120
     help="With --scenes: dropped in a pile, packed upright (VGN), or spread on the table (ACRONYM).",
 )
 @CONFIG_OPTION
+@CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
 @click.version_option(__version__, prog_name="annotate")
@@ -148,6 +150,7 @@ def annotate_command(
     per_scene: tuple[int, int],
     arrangement: str,
     config_file: Path | None,
+    cache_dir: Path | None,
     quiet: bool,
     verbose: bool,
 ) -> None:
@@ -160,6 +163,10 @@ def annotate_command(
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
       annotate --objects objects/ --n 500 --cell --views 3 --out cell_labels/
       annotate --objects objects/ --scenes 100 --per-scene 3-8 --views 2 --out scene_labels/
+
+    \b
+    Each object's convex decomposition runs first, in a worker, once per --cache (shared by
+    runs and machines); labelling starts as soon as an object is ready.
 
     \b
     Labels are written every 10 candidates; re-running the same command resumes (finished
@@ -203,6 +210,7 @@ def annotate_command(
         quiet=quiet,
         cell=cell,
         views=views,
+        cache_dir=cache_dir,
         config=config,
         **scene_options,
     )

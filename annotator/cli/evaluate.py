@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from annotator.cli.common import (
+    CACHE_OPTION,
     CONTEXT,
     SEED,
     VERBOSE_OPTION,
@@ -57,6 +58,7 @@ from annotator.cli.common import (
     help="TOML file overriding constants, as for annotate [default: the configuration recorded "
     "beside GRASPS when it is a labels folder or file of this tool, else the defaults].",
 )
+@CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
 def evaluate_command(
@@ -70,6 +72,7 @@ def evaluate_command(
     scale,
     overwrite,
     config_file,
+    cache_dir,
     quiet,
     verbose,
 ):
@@ -116,6 +119,7 @@ def evaluate_command(
         overwrite=overwrite,
         repair=False,
         quiet=quiet,
+        cache_dir=cache_dir,
         config=config,
         candidates=candidates,
     )

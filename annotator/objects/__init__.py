@@ -15,13 +15,15 @@ from annotator.objects.bodies import create_body, get_object_pose, quiet_c_outpu
 from annotator.objects.cache import default_cache_dir
 from annotator.objects.decomposition import Progress
 from annotator.objects.discovery import MESH_SUFFIXES, URDF_SUFFIX, ObjectSource, discover_objects
-from annotator.objects.errors import ObjectDiscoveryError, ObjectError
+from annotator.objects.errors import NotDecomposed, ObjectDiscoveryError, ObjectError
 from annotator.objects.fidelity import CollisionError
 from annotator.objects.model import (
+    ObjectMesh,
     ObjectModel,
     contact_substeps,
     load_object,
     physics_for,
+    read_object,
     read_object_mesh,
     source_digest,
 )
@@ -31,8 +33,10 @@ __all__ = [
     "MESH_SUFFIXES",
     "URDF_SUFFIX",
     "CollisionError",
+    "NotDecomposed",
     "ObjectDiscoveryError",
     "ObjectError",
+    "ObjectMesh",
     "ObjectModel",
     "ObjectProperties",
     "ObjectSource",
@@ -45,6 +49,7 @@ __all__ = [
     "load_object",
     "physics_for",
     "quiet_c_output",
+    "read_object",
     "read_object_mesh",
     "reset_object_pose",
     "source_digest",

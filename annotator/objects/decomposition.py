@@ -51,6 +51,7 @@ import trimesh
 from annotator.config import ObjectConfig
 from annotator.objects import cache
 from annotator.objects.cache import default_cache_dir
+from annotator.objects.errors import NotDecomposed
 from annotator.objects.fidelity import CollisionError, collision_error
 
 log = logging.getLogger(__name__)
@@ -661,6 +662,7 @@ def collision_geometry(
     object_id: str = "",
     shells: list[trimesh.Trimesh] = (),
     progress: Progress | None = None,
+    decompose: bool = True,
 ) -> CollisionGeometry:
     """The object's collision geometry by ``method``, cached: ``hull`` (the convex hull),
     ``shells`` (the hulls of the mesh's own convex ``shells``: a file written as convex parts,
@@ -670,6 +672,8 @@ def collision_geometry(
     ``cache_dir``: the cache folder (None: :func:`default_cache_dir`). ``progress(object_id,
     message)`` hears when a decomposition starts, moves down the ladder and ends. Never raises for
     a decomposition that crashes or runs over its budget: the next rung's shape is the result.
+    ``decompose=False``: :class:`NotDecomposed` instead of running the ladder when the cache does
+    not hold its result (a hull or shells are still made here: they take a fraction of a second).
     """
     if method not in ("hull", "shells", METHOD):
         raise ValueError(f"unknown collision method {method!r}")
@@ -679,6 +683,8 @@ def collision_geometry(
     geometry = _read_entry(path, label)
     if geometry is not None:
         return geometry
+    if not decompose and method == METHOD:
+        raise NotDecomposed(f"{label}: its decomposition is not in the cache {root}")
     with cache.advisory_lock(path.with_suffix(".lock")):
         geometry = _read_entry(path, label)  # another process may have made it while this one waited
         if geometry is not None:

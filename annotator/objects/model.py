@@ -375,12 +375,29 @@ def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _R
     return _Read(mesh, hull, watertight, user_scale, sha, inertial, report, shells, warnings)
 
 
+@dataclass(frozen=True)
+class ObjectMesh:
+    """An object's mesh as its poses see it (trimesh.Trimesh, metres, pose frame) and the SHA-256
+    of the bytes it was read from (the labels' ``mesh_sha256``)."""
+
+    mesh: trimesh.Trimesh
+    mesh_sha256: str
+
+
+def read_object(
+    source: ObjectSource | Path, config: ObjectConfig | None = None, scale: float | None = None
+) -> ObjectMesh:
+    """The object's mesh exactly as its poses see it (scaled, cleaned, in the pose frame) and its
+    file's hash, without weighing or decomposing it. Raises ObjectError like :func:`load_object`."""
+    read = _read(_as_source(source), config or ObjectConfig(), scale)
+    return ObjectMesh(read.mesh, read.mesh_sha256)
+
+
 def read_object_mesh(
     source: ObjectSource | Path, config: ObjectConfig | None = None, scale: float | None = None
 ) -> trimesh.Trimesh:
-    """The object's mesh exactly as its poses see it (scaled, cleaned, in the pose frame), without
-    weighing or decomposing it. Raises ObjectError like :func:`load_object`."""
-    return _read(_as_source(source), config or ObjectConfig(), scale).mesh
+    """The mesh of :func:`read_object`."""
+    return read_object(source, config, scale).mesh
 
 
 def _weigh(read: _Read, props, config: ObjectConfig) -> mass_model.MassProperties:
@@ -431,6 +448,7 @@ def load_object(
     scale: float | None = None,
     cache_dir: Path | None = None,
     progress: Progress | None = None,
+    decompose: bool = True,
 ) -> ObjectModel:
     """Load, clean, validate, weigh and give collision geometry to one object.
 
@@ -446,6 +464,8 @@ def load_object(
     ``progress(object_id, message)``: told when a decomposition starts, changes rung and ends.
     Raises :class:`ObjectError` with a one-line reason for unusable input; a decomposition that
     crashes or runs over its budget is not one (the next rung's shape is used and reported).
+    ``decompose=False``: raise :class:`NotDecomposed` rather than decompose a concave object whose
+    decomposition the cache does not hold (a process that leaves decompositions to its workers).
     """
     source = _as_source(source)
     props = source.properties
@@ -453,7 +473,9 @@ def load_object(
     read = _read(source, config, scale)
     weighed = _weigh(read, props, config)
     method, convex = _collision_method(read, config)
-    geometry = collision_geometry(read.mesh, method, config, cache_dir, name, read.shells, progress)
+    geometry = collision_geometry(
+        read.mesh, method, config, cache_dir, name, read.shells, progress, decompose=decompose
+    )
     warnings = read.warnings + _geometry_warnings(geometry, config)
     for warning in warnings:
         log.debug("%s: %s", name, warning)

@@ -267,7 +267,9 @@ class _SceneRun:
         workers = Workers(options, self.status_dir)
         progress = Progress(total, len(todo), quiet=options.quiet)
         versions = self.store.spec.versions
-        cache_dir = default_cache_dir()  # read here, not in reused workers started under another env
+        # read here, not in reused workers started under another env; a cluster's workers use
+        # --cache when given (a shared filesystem), else their own default folder
+        cache_dir = options.cache_dir or (default_cache_dir() if workers.client is None else None)
 
         def make_task(span: SceneSpan) -> SceneTask:
             local = workers.client is None
@@ -279,7 +281,7 @@ class _SceneRun:
                 versions=versions,
                 parent_pid=workers.parent_pid,
                 status_dir=self.status_dir if local else None,
-                cache_dir=str(cache_dir) if local else None,
+                cache_dir=None if cache_dir is None else str(cache_dir),
             )
 
         def on_tick() -> None:

@@ -10,7 +10,9 @@ A grasp is executed as a sampled candidate whose expected chord is ``width``: th
 that its TCP at that opening is at the pose, opened ``2 x pregrasp_clearance`` wider, checked along
 the approach and closed from ``width + 2 x preclose_gap``. Without a ``width`` column the chord is
 measured on the mesh: the two pads, fully open, are moved towards the TCP along the closing axis
-until they meet the surface (:func:`expected_width`); 0 when they meet nothing.
+until they meet the surface (:func:`expected_width`); 0 when they meet nothing. The mesh is read
+and cleaned here, as the workers see it, but never decomposed: the decompositions are the
+workers' (:mod:`annotator.pipeline.schedule`).
 """
 
 from __future__ import annotations
@@ -179,13 +181,13 @@ def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: flo
     ids given so); otherwise they are numbered 0..k-1 in the order of the file. Rows of a label
     table (an ``outcome`` column) are replayed (:func:`annotator.tools.given.replay_grasps`: their
     commanded grasps bit for bit, so their outcomes are reproduced exactly). Missing widths are
-    measured on the mesh (:func:`expected_width`).
+    measured on the mesh (:func:`expected_width`; read, not decomposed: :func:`read_object_mesh`).
     Returns ``(candidates, renumbered object ids)``.
     """
     import hashlib
 
     from annotator.dataset import poses_as_matrices
-    from annotator.objects import ObjectError, discover_objects, load_object
+    from annotator.objects import ObjectError, discover_objects, read_object_mesh
     from annotator.pipeline.source import GivenCandidates
     from annotator.pipeline.worker import GivenGrasps
     from annotator.tools.common import ToolError
@@ -210,7 +212,7 @@ def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: flo
         todo = ~np.isfinite(width)
         if todo.any() and oid in sources:
             try:
-                mesh = load_object(sources[oid], config.objects, scale=scale).mesh
+                mesh = read_object_mesh(sources[oid], config.objects, scale=scale)
             except ObjectError as exc:
                 raise ToolError(f"{oid}: {exc}") from None
             width[todo] = expected_width(mesh, T[todo], max_width)
