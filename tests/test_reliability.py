@@ -527,3 +527,19 @@ def test_planning_is_lazy(objs):
     assert [(s.object_id, s.start) for s in spans] == [("box", 0), ("box", 500), ("box", 1000)]
     assert peak < 1_000_000, peak  # bytes: nothing of size N
     assert isinstance(spans[0], Span)
+
+
+def test_an_exit_after_an_interrupt_ends_even_when_an_exit_handler_never_returns():
+    """The interrupted run's exit waits on joblib's pool shutdown; a pool that never winds down
+    (here: an exit handler that blocks forever) must not keep the process alive: the watchdog ends
+    it with the interrupt's exit code and says why."""
+    code = (
+        "import atexit, threading\n"
+        "from annotator.cli import common\n"
+        "common.EXIT_GRACE_SECONDS = 0.5\n"
+        "atexit.register(threading.Event().wait)\n"
+        "common._exit_soon('annotate', 130)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.strip() == "annotate: worker processes did not stop in time; exiting"

@@ -3,12 +3,14 @@ running the labelling pipeline with the documented exit codes."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
 import sys
+import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import click
 
@@ -88,6 +90,29 @@ def load_config(config_file: Path | None):
         raise click.UsageError(f"--config {config_file}: {exc}") from exc
 
 
+# After an interrupt everything finished is on disk; if the interpreter's exit then waits longer
+# than this (s) on a worker pool that does not wind down (a worker still starting on a machine
+# short of CPU), the process ends anyway, with the same exit code.
+EXIT_GRACE_SECONDS = 15.0
+
+
+def _exit_soon(command: str, code: int) -> NoReturn:
+    """``sys.exit(code)``, with a watchdog that ends the process ``EXIT_GRACE_SECONDS`` later if
+    the exit handlers (joblib's pool shutdown) have not returned by then."""
+
+    def force() -> None:
+        with contextlib.suppress(Exception):
+            sys.stderr.write(f"{command}: worker processes did not stop in time; exiting\n")
+            sys.stderr.flush()
+            sys.stdout.flush()
+        os._exit(code)
+
+    watchdog = threading.Timer(EXIT_GRACE_SECONDS, force)
+    watchdog.daemon = True
+    watchdog.start()
+    sys.exit(code)
+
+
 def run_pipeline(
     command: str, *, config: Any, candidates: Any = None, workers: int | None, **options: Any
 ) -> None:
@@ -111,8 +136,8 @@ def run_pipeline(
         # Ctrl-C: finished work is on disk; exit 130 (128 + SIGINT), not click's "Aborted!" + 1,
         # which would read as "some objects failed".
         click.echo(f"{command}: interrupted; re-run the same command to resume", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        _exit_soon(command, EXIT_INTERRUPTED)
     except Terminated:
         click.echo(f"{command}: terminated; re-run the same command to resume", err=True)
-        sys.exit(EXIT_TERMINATED)
+        _exit_soon(command, EXIT_TERMINATED)
     sys.exit(EXIT_OK if not summary.failed else EXIT_SOME_FAILED)
