@@ -10,6 +10,7 @@ from annotator import __version__
 from annotator.cli.common import (
     CONFIG_OPTION,
     CONTEXT,
+    GRIPPER_OPTION,
     SEED,
     VERBOSE_OPTION,
     load_config,
@@ -98,6 +99,7 @@ from annotator.cli.common import (
     help="With --cell: K Kinect v2 views per placement (the seed's mount, then K-1 around the "
     "object): depth/colour/segmentation PNGs and camera tables in OUT/_views/.",
 )
+@GRIPPER_OPTION
 @CONFIG_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
@@ -115,25 +117,28 @@ def annotate_command(
     repair: bool,
     cell: bool,
     views: int,
+    gripper: str | None,
     config_file: Path | None,
     quiet: bool,
     verbose: bool,
 ) -> None:
-    """Sample N gripper poses around every object, simulate the RG2 grasping each one
-    (close, lift, shake) and write one label row per candidate to Parquet.
+    """Sample N gripper poses around every object, simulate the gripper (the RG2 unless
+    --gripper) grasping each one (close, lift, shake) and write one label row per candidate to
+    Parquet.
 
     \b
     Example:
       annotate --objects objects/ --n 500
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
       annotate --objects objects/ --n 500 --cell --views 3 --out cell_labels/
+      annotate --objects objects/ --n 500 --gripper panda --out panda_labels/
 
     \b
     Labels are written every 10 candidates; re-running the same command resumes (finished
     objects and chunks are skipped, every file is checked against its checksum first), so
-    Ctrl-C loses almost nothing. One run per --out at a time. A changed seed, N, trials, scale,
-    configuration or version is refused (use --overwrite or another --out); an object whose
-    file changed is redone alone.
+    Ctrl-C loses almost nothing. One run per --out at a time. A changed gripper, seed, N,
+    trials, scale, configuration or version is refused (use --overwrite or another --out); an
+    object whose file changed is redone alone.
 
     \b
     Exit codes:
@@ -165,5 +170,6 @@ def annotate_command(
         quiet=quiet,
         cell=cell,
         views=views,
+        gripper=gripper,
         config=config,
     )

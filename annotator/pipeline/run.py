@@ -27,6 +27,14 @@ from pathlib import Path
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
+from annotator.grippers import (
+    DescriptionError,
+    GripperDescription,
+    GripperFiles,
+    gripper_record,
+    is_shipped,
+    load_gripper,
+)
 from annotator.objects import (
     ObjectDiscoveryError,
     ObjectError,
@@ -89,6 +97,9 @@ class RunOptions:
     quiet: bool = False
     cell: bool = False  # objects rest on the seed's table; UR3 reachability columns
     views: int = 0  # Kinect views per placement (--cell only)
+    # the gripper simulated: a description, a shipped name or a folder (None: the RG2)
+    gripper: GripperDescription | str | None = None
+    resting: bool = False  # given grasps on objects resting on the table (evaluate --resting)
 
     def cell_options(self) -> CellOptions | None:
         return CellOptions(self.views) if self.cell else None
@@ -357,6 +368,14 @@ def run(
         raise UsageError(f"--views must be 0 or more, got {options.views}")
     if options.cell and not isinstance(candidates, SampledCandidates):
         raise UsageError("--cell labels sampled candidates only")
+    if options.resting and not isinstance(candidates, GivenCandidates):
+        raise UsageError("--resting simulates given grasps only (annotator evaluate)")
+    if options.resting and options.cell:
+        raise UsageError("--resting and --cell exclude each other")
+    try:
+        gripper = load_gripper(options.gripper)
+    except DescriptionError as exc:
+        raise UsageError(f"--gripper: {exc}") from exc
     _check_workers(options)
     try:
         sources = discover_objects(options.objects_dir, config.objects)
@@ -380,6 +399,7 @@ def run(
         chunk,
         config.to_dict(),
         inputs=_inputs(options, candidates),
+        gripper=gripper_record(gripper),
     )
     store = Store(options.out_dir, spec)
     try:
@@ -396,7 +416,7 @@ def run(
     with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
         signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates)
+        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates, gripper)
     except (OutputError, SchedulerLost) as exc:
         summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
         raise
@@ -420,7 +440,16 @@ def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates
     cell = options.cell_options()
     if cell is not None:
         inputs["cell"] = cell.to_json()
+    if options.resting:
+        inputs["resting"] = True
     return inputs
+
+
+def _gripper_files(gripper: GripperDescription) -> GripperFiles:
+    try:
+        return GripperFiles.of(gripper)
+    except DescriptionError as exc:
+        raise UsageError(f"--gripper: {exc}") from exc
 
 
 def _raise_terminated(signum, frame) -> None:
@@ -428,10 +457,20 @@ def _raise_terminated(signum, frame) -> None:
 
 
 def _run(
-    options, config, summary: Summary, store: Store, resume, sources, digests, status_dir: str, candidates
+    options,
+    config,
+    summary: Summary,
+    store: Store,
+    resume,
+    sources,
+    digests,
+    status_dir: str,
+    candidates,
+    gripper: GripperDescription,
 ) -> None:
     """The body of :func:`run` once the folder is open and matched to the objects (``resume``)."""
     store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
+    store.manifest.gripper_folder = None if is_shipped(gripper) else str(gripper.folder.resolve())
     for oid, error in summary.failed.items():
         store.fail_object(oid, error)
     live = [s for s in sources if s.object_id in digests]
@@ -472,6 +511,8 @@ def _run(
     versions = store.spec.versions
     cell = options.cell_options()
     cache_dir = default_cache_dir()  # read here, not in reused workers started under another env
+    # a cluster's workers may not see the gripper's folder: they get its files (GripperFiles)
+    sent = gripper if workers.client is None else _gripper_files(gripper)
 
     def make_task(span: Span) -> SpanTask:
         return SpanTask(
@@ -486,6 +527,8 @@ def _run(
             status_dir=status_dir if workers.client is None else None,
             cache_dir=str(cache_dir) if workers.client is None else None,
             cell=cell,
+            gripper=sent,
+            resting=options.resting,
         )
 
     def on_result(result: SpanResult) -> None:
