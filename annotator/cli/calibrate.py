@@ -158,11 +158,11 @@ def calibrate_command(
     frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
     check_output_file(config_out, "--write-config")  # before the simulation, not after it
     source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file)
+    trials = cal.read_real_trials(real_csv, source.grasps)  # a bad file is one line, before anything else
     click.echo(source.config_line)
     click.echo(source.gripper_line)
     if source.resting:
         click.echo("resting: each object on the table in its given orientation")
-    trials = cal.read_real_trials(real_csv, source.grasps)
     base = source.config
     forces = _floats(force) if force is not None else cal.default_forces(source.gripper)
     settings = cal.grid(frictions, forces, severities, real_force="grip_force" in trials.columns)
