@@ -40,6 +40,7 @@ class Outcome(enum.IntEnum):
 
     @classmethod
     def from_label(cls, label: str) -> Outcome:
+        """The :class:`Outcome` stored as ``label`` in the ``outcome`` column; ValueError if unknown."""
         try:
             return cls[label.upper()]
         except KeyError:

@@ -146,6 +146,7 @@ class Transform:
 
     @classmethod
     def identity(cls) -> Transform:
+        """The identity transform (no translation, quaternion (0, 0, 0, 1))."""
         return cls(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
     @classmethod
@@ -165,6 +166,7 @@ class Transform:
         return cls(pose[0], pose[1])
 
     def to_pybullet(self) -> tuple[list[float], list[float]]:
+        """``(position (3,) list, quaternion xyzw (4,) list)``, as PyBullet takes a pose."""
         return self.pos.tolist(), self.quat.tolist()
 
     @property
@@ -182,6 +184,7 @@ class Transform:
         return T
 
     def inverse(self) -> Transform:
+        """``T_b_a`` for this ``T_a_b``."""
         x, y, z, w = self.quat
         q_inv = np.array([-x, -y, -z, w])
         R_t = self.rotation.T

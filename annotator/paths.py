@@ -16,11 +16,6 @@ def grippers_dir() -> Path:
     return assets_dir() / "grippers"
 
 
-def rg2_urdf() -> Path:
-    """The floating OnRobot RG2 used for annotation (the default gripper's URDF)."""
-    return grippers_dir() / "rg2" / "rg2.urdf"
-
-
 def ur3_rg2_urdf() -> Path:
     """The UR3 arm with the RG2 on its flange (the seed scene's file name)."""
     return assets_dir() / "ur3" / "ur3_visual_grabbing_with_rg2.urdf"

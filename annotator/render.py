@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from annotator.geometry import Transform
 from annotator.sim import pb
 
 
@@ -38,24 +37,6 @@ def orbit_camera(
     """
     view = pb.computeViewMatrixFromYawPitchRoll(
         cameraTargetPosition=list(target), distance=distance, yaw=yaw, pitch=pitch, roll=0.0, upAxisIndex=2
-    )
-    projection = pb.computeProjectionMatrixFOV(fov=fov, aspect=width / height, nearVal=near, farVal=far)
-    return Camera(tuple(view), tuple(projection), width, height)
-
-
-def optical_camera(
-    T_world_optical: Transform, fov: float, width: int, height: int, near: float, far: float
-) -> Camera:
-    """A camera at an optical frame (ROS convention: +z forward, +x right, +y down).
-
-    ``fov`` is the vertical field of view in degrees (``computeProjectionMatrixFOV`` takes the vertical).
-    """
-    R = T_world_optical.rotation
-    eye = T_world_optical.pos
-    view = pb.computeViewMatrix(
-        cameraEyePosition=eye.tolist(),
-        cameraTargetPosition=(eye + R[:, 2]).tolist(),
-        cameraUpVector=(-R[:, 1]).tolist(),
     )
     projection = pb.computeProjectionMatrixFOV(fov=fov, aspect=width / height, nearVal=near, farVal=far)
     return Camera(tuple(view), tuple(projection), width, height)

@@ -26,6 +26,7 @@ from annotator.dataset import Outcome
 from annotator.geometry import Transform, axis_angle_to_matrix
 from annotator.rng import trial_rng  # noqa: F401  (re-exported)
 from annotator.sim import pb
+from annotator.sim.contacts import closest_points, touching
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 
@@ -54,6 +55,22 @@ class Perturbation:
         friction = rng.uniform(-robust.friction_delta, robust.friction_delta)
         mass = rng.uniform(1.0 - robust.mass_delta, 1.0 + robust.mass_delta)
         return cls(Transform.from_rotation(R, pos), float(friction), float(mass))
+
+
+@dataclass(frozen=True)
+class CollisionCheck:
+    """The kinematic collision check of one grasp.
+
+    ``collided``: the open gripper along the approach, or the gripper closed on the expected
+    chord with a link other than its pads, touches the object or an obstacle; ``open_width``: the
+    opening the approach was checked at (m; the row's ``width`` for a collision); ``stage``:
+    ``"approach"`` or ``"closed"`` where it collided; ``hit``: the body touched (PyBullet id).
+    """
+
+    collided: bool
+    open_width: float
+    stage: str | None = None
+    hit: int | None = None
 
 
 @dataclass(frozen=True)
@@ -110,18 +127,16 @@ class GraspTrial:
     def _intersects(self, skip_pads: bool = False) -> bool:
         """Does the gripper (without its pads, if ``skip_pads``) intersect the object?"""
         margin = self.config.protocol.collision_margin
-        pts = pb.getClosestPoints(self.hand.uid, self.obj, margin, physicsClientId=self.client)
-        pads = self.hand.gripper.pads if skip_pads else ()
-        return any(p[8] < margin and p[3] not in pads for p in pts)
+        pts = closest_points(self.client, self.hand.uid, self.obj, margin)
+        return touching(pts, margin, except_links_a=self.hand.gripper.pads if skip_pads else ())
 
-    def _touches_obstacle(self) -> bool:
-        """Does any link of the gripper (pads included) touch an obstacle?"""
+    def _obstacle_touched(self) -> int | None:
+        """The first obstacle any link of the gripper (pads included) touches, or None."""
         margin = self.config.protocol.collision_margin
         for body in self.obstacles:
-            pts = pb.getClosestPoints(self.hand.uid, body, margin, physicsClientId=self.client)
-            if any(p[8] < margin for p in pts):
-                return True
-        return False
+            if touching(closest_points(self.client, self.hand.uid, body, margin), margin):
+                return body
+        return None
 
     def _both_pads_touch(self) -> bool:
         a, b = self.hand.gripper.pad_contacts(self.obj)
@@ -129,7 +144,7 @@ class GraspTrial:
 
     # --- the protocol --------------------------------------------------------------------------
 
-    def collides(self, T_obj_tcp: Transform, width: float) -> tuple[bool, float]:
+    def collides(self, T_obj_tcp: Transform, width: float) -> CollisionCheck:
         """Kinematic checks: the open gripper at the grasp pose and back along the approach; the
         gripper closed on the expected chord touching the object with its pads only; no obstacle
         touched anywhere."""
@@ -143,15 +158,23 @@ class GraspTrial:
         for k in range(n_checks + 1):  # from the grasp pose backwards
             back = Transform(T_world_base.pos - approach * k * p.approach_step, T_world_base.quat)
             self.hand.body.reset_base_pose(back)
-            if self._intersects() or self._touches_obstacle():
-                return True, open_width
+            hit = self._what_is_hit(skip_pads=False)
+            if hit is not None:
+                return CollisionCheck(True, open_width, "approach", hit)
         # closed on the expected chord, only the pads may touch: a finger link that reaches the
         # object first (e.g. a can's rim under a tilted grasp) would stop the close on it
         self.hand.body.reset_base_pose(T_world_base)
         self.hand.gripper.reset_width(width)
-        if self._intersects(skip_pads=True) or self._touches_obstacle():
-            return True, open_width
-        return False, open_width
+        hit = self._what_is_hit(skip_pads=True)
+        if hit is not None:
+            return CollisionCheck(True, open_width, "closed", hit)
+        return CollisionCheck(False, open_width)
+
+    def _what_is_hit(self, skip_pads: bool) -> int | None:
+        """The body the gripper as posed touches: the object first, then any obstacle; None."""
+        if self._intersects(skip_pads=skip_pads):
+            return self.obj
+        return self._obstacle_touched()
 
     def _apply(self, perturbation: Perturbation) -> None:
         """Object friction and mass for this trial (restoreState does not reset dynamics)."""
@@ -179,8 +202,9 @@ class GraspTrial:
         T_obj_tcp = T_obj_tcp * perturbation.T_tcp_tcp
         steps0 = self.world.steps
         cfg, force = self.config.protocol, self.hand.grip_force
-        collided, open_width = self.collides(T_obj_tcp, width_expected)
-        if collided:
+        check = self.collides(T_obj_tcp, width_expected)
+        open_width = check.open_width
+        if check.collided:
             return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"))
 
         # 2. close (gravity off on a free object, on for a resting one). The fingers' travel

@@ -1,8 +1,9 @@
-"""Configuration variants for the bench scripts: ``"physics.solver_iterations=100,shake_early_exit=true"``.
+"""Configuration variants for the benchmarks: ``"it100:physics.solver_iterations=100,shake_paired=false"``.
 
 A variant is a comma-separated list of ``section.field=value`` (or ``field=value`` when the field
 name is unique across sections) applied to the default configuration; values are TOML literals
-(``100``, ``0.5``, ``true``, ``"lean"``). An optional ``name:`` prefix labels it in the output.
+(``100``, ``0.5``, ``false``, ``"simulated"``). An optional ``name:`` prefix labels it in the output.
+Used by ``bench.fidelity --variant``, ``bench.peers --variant`` and ``bench.light_threshold --set``.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""Label the same candidates with the default and the thorough protocol; print their agreement.
+"""Fidelity: the default protocol's labels against a thorough reference's on the same candidates.
 
-    python bench/fidelity.py                    # >= 1,000 candidates over the sample objects
-    python bench/fidelity.py --per-object 20    # a quick look
-    python bench/fidelity.py --variant "it100:physics.solver_iterations=100"   # a changed model
+    python -m bench.fidelity                    # >= 1,000 candidates over the sample objects
+    python -m bench.fidelity --per-object 20    # a quick look
+    python -m bench.fidelity --variant "it100:physics.solver_iterations=100"   # a changed model
 
 The thorough protocol (AnnotatorConfig.thorough): time step 1/1000 s, 300 solver iterations, the
 whole RG2 linkage simulated, a shake three times as long with 1.5x the amplitudes. Candidates rejected by the
@@ -19,6 +19,9 @@ The default's and the reference's labels are cached under ``--cache`` keyed by c
 candidates per object and the objects' files (a cache made by other simulation code is reported);
 ``--fresh`` recomputes the default; the reference (outcomes, widths and closed poses) is keyed by
 the rows it simulates, so a new default that rejects the same candidates reuses it.
+
+The agreements are ratios of labels, not of times: no machine moves them. A record
+(bench/harness.py) keeps them with the widths, the tables and the times of what was not cached.
 """
 
 from __future__ import annotations
@@ -27,18 +30,20 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import time
 from pathlib import Path
 
 import joblib
 import numpy as np
 import pandas as pd
-from _variants import parse_variant
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectError, default_cache_dir, discover_objects, load_object
 from annotator.pipeline.plan import CHUNK_SIZE
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span, max_width, object_candidates
+from bench._variants import parse_variant
+from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY = ["object_id", "grasp_id"]
@@ -72,9 +77,9 @@ def settings(config: AnnotatorConfig) -> dict:
 
 
 def code_digest() -> str:
-    """Digest of the simulation code and robot model: cached labels of other code are not reused."""
+    """Digest of the simulation code and robot models: cached labels of other code are not reused."""
     h = hashlib.sha256()
-    for path in sorted((ROOT / "annotator").rglob("*.py")) + [ROOT / "assets" / "rg2" / "rg2.urdf"]:
+    for path in sorted((ROOT / "annotator").rglob("*.py")) + sorted((ROOT / "assets").rglob("*.urdf")):
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
@@ -216,10 +221,13 @@ def main() -> None:
     )
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} (1 min)")
-
     default = parse_variant(args.baseline)[1] if args.baseline else AnnotatorConfig()
-    thorough = AnnotatorConfig.thorough(default)
-    variants = [parse_variant(spec) for spec in args.variant]
+    with Run("fidelity", config=vars(args), annotator=default) as run:
+        measure(args, default, run)
+
+
+def candidate_chunks(args: argparse.Namespace, default: AnnotatorConfig) -> tuple[list[Span], list]:
+    """The sampled candidates of every object in spans of CHUNK_SIZE; [object id, mesh digest] pairs."""
     stroke = max_width(default)
     chunks = []
     files = []
@@ -234,8 +242,16 @@ def main() -> None:
         for s in range(0, args.per_object, CHUNK_SIZE):
             e = min(args.per_object, s + CHUNK_SIZE)
             chunks.append(chunk(source, s, cands.T_obj_tcp[s:e], cands.width_expected[s:e]))
+    return chunks, files
+
+
+def measure(args: argparse.Namespace, default: AnnotatorConfig, run: Run) -> None:
+    thorough = AnnotatorConfig.thorough(default)
+    variants = [parse_variant(spec) for spec in args.variant]
+    chunks, files = candidate_chunks(args, default)
     n = sum(c.size for c in chunks)
     print(f"{n} candidates on {len({c.object_id for c in chunks})} objects, seed {args.seed}")
+    run.figure("candidates", n, note=f"{len(files)} objects, seed {args.seed}")
     cache = LabelCache(None if args.no_cache else args.cache)
     key = {"seed": args.seed, "per_object": args.per_object, "objects": files}
 
@@ -256,37 +272,27 @@ def main() -> None:
     rows_digest = hashlib.sha256(np.packbits(simulated.to_numpy()).tobytes()).hexdigest()
     ref_key = {**key, "simulated_rows": rows_digest, "reference": "outcome, success, width, pose"}
 
-    def reference() -> pd.DataFrame:
-        # collisions are decided kinematically, identically under both protocols: only simulate the rest
-        sim_chunks = []
-        for c in chunks:
-            rows = a[(a.object_id == c.object_id) & a.grasp_id.between(c.start, c.stop - 1)]
-            keep = (rows["outcome"] != "collision").to_numpy()
-            g = c.given
-            for k in np.flatnonzero(keep):
-                sim_chunks.append(chunk(c.source, c.start + k, g.T_obj_tcp[k : k + 1], g.width[k : k + 1]))
-        b_sim = label(sim_chunks, thorough, args.seed, args.workers)
-        b = a.copy().set_index(KEY)
-        cols = ["outcome", "success", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
-        b.loc[b_sim.set_index(KEY).index, cols] = b_sim.set_index(KEY)[cols]
-        return b.reset_index()
-
     b = cache.get("thorough", thorough, ref_key)
     hit_b = b is not None
     if not hit_b and args.no_reference:
         b = None
     elif not hit_b:
-        b = reference()
+        b = reference(chunks, a, thorough, args)
         cache.put("thorough", thorough, ref_key, b)
     t2 = time.perf_counter()
-    sim = simulated.to_numpy()
+    run.figure("simulated", int(simulated.sum()), note="candidates the default did not reject kinematically")
+    run.figure("default_steps_per_candidate", float(a.sim_steps.mean()))
+    if not hit:
+        run.figure("default_s", t1 - t0, "s", note="labelling with the default protocol, wall")
     if b is None:
         print(f"default protocol: {t1 - t0:.0f} s{' (cached)' if hit else ''}; no thorough reference")
         for name, config in variants:
             print(f"\n== variant {name} == (load average {os.getloadavg()[0]:.2f})")
-            compare(name, label(chunks, config, args.seed, args.workers), a, "variant", "default")
+            t3 = time.perf_counter()
+            v = label(chunks, config, args.seed, args.workers)
+            record_compare(run, name, compare(name, v, a, "variant", "default"))
+            timing(run, name, time.perf_counter() - t3, None if hit else t1 - t0)
         return
-
     print(
         f"default protocol: {t1 - t0:.0f} s{' (cached)' if hit else ''}, "
         f"mean {a.sim_steps.mean():.0f} steps/candidate"
@@ -295,6 +301,48 @@ def main() -> None:
         f"thorough protocol: {t2 - t1:.0f} s{' (cached)' if hit_b else ''} "
         f"on the {int(simulated.sum())} simulated candidates"
     )
+    if not hit_b:
+        run.figure(
+            "thorough_s", t2 - t1, "s", note="the thorough reference on the simulated candidates, wall"
+        )
+        if not hit:
+            run.ratio("thorough_vs_default_time", (t2 - t1) / (t1 - t0), note="wall, thorough / default")
+    agree_sim = against_reference(run, a, b, n)
+    for name, config in variants:
+        print(f"\n== variant {name} == (load average {os.getloadavg()[0]:.2f})")
+        t3 = time.perf_counter()
+        v = label(chunks, config, args.seed, args.workers)
+        t4 = time.perf_counter()
+        sim_v = v["sim_steps"][v["outcome"] != "collision"]
+        print(
+            f"{name}: {t4 - t3:.0f} s, mean {v.sim_steps.mean():.0f} steps/candidate, "
+            f"{sim_v.mean():.0f} per simulated trial (default {a.sim_steps[simulated].mean():.0f})"
+        )
+        timing(run, name, t4 - t3, None if hit else t1 - t0)
+        record_compare(run, name, compare(name, v, a, "variant", "default"))
+        variant_against_reference(run, name, v, a, b, agree_sim)
+
+
+def reference(chunks: list[Span], a: pd.DataFrame, thorough: AnnotatorConfig, args) -> pd.DataFrame:
+    """The thorough protocol's labels: collisions are decided kinematically, identically under both
+    protocols, so only the rest of ``a``'s rows are simulated."""
+    sim_chunks = []
+    for c in chunks:
+        rows = a[(a.object_id == c.object_id) & a.grasp_id.between(c.start, c.stop - 1)]
+        keep = (rows["outcome"] != "collision").to_numpy()
+        g = c.given
+        for k in np.flatnonzero(keep):
+            sim_chunks.append(chunk(c.source, c.start + k, g.T_obj_tcp[k : k + 1], g.width[k : k + 1]))
+    b_sim = label(sim_chunks, thorough, args.seed, args.workers)
+    b = a.copy().set_index(KEY)
+    cols = ["outcome", "success", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
+    b.loc[b_sim.set_index(KEY).index, cols] = b_sim.set_index(KEY)[cols]
+    return b.reset_index()
+
+
+def against_reference(run: Run, a: pd.DataFrame, b: pd.DataFrame, n: int) -> float:
+    """Print and record the default against the thorough reference; the agreement over the simulated."""
+    sim = (a["outcome"] != "collision").to_numpy()
     cm = pd.crosstab(a["success"].rename("default"), b["success"].rename("thorough"), margins=True)
     print("\nsuccess confusion matrix (rows: default, columns: thorough)\n" + cm.to_string())
     agree_all = float((a["success"].to_numpy() == b["success"].to_numpy()).mean())
@@ -313,37 +361,92 @@ def main() -> None:
     )
     print("\nsuccess rate per object\n" + per.to_string(float_format=lambda x: f"{x:.1%}"))
     print(f"\nwidths, default vs thorough reference where both succeed: {width_spread(a, b)}")
+    run.ratio("success_agrees_with_reference", agree_all, note=f"share of all {n} candidates")
+    run.ratio(
+        "success_agrees_with_reference_simulated", agree_sim, note=f"share of the {int(sim.sum())} simulated"
+    )
+    record_widths(run, "widths_vs_reference", width_differences(a, b))
+    run.table(
+        "outcomes",
+        [{"default": str(i), **{str(c): int(oc.loc[i, c]) for c in oc.columns}} for i in oc.index],
+        note="rows: the default's outcome; columns: the thorough reference's",
+    )
+    run.table(
+        "success_per_object",
+        [{"object": o, "default": r.default, "thorough": r.thorough} for o, r in per.iterrows()],
+        note="success rates",
+    )
+    return agree_sim
 
-    for name, config in variants:
-        print(f"\n== variant {name} == (load average {os.getloadavg()[0]:.2f})")
-        t3 = time.perf_counter()
-        v = label(chunks, config, args.seed, args.workers)
-        t4 = time.perf_counter()
-        sim_v = v["sim_steps"][v["outcome"] != "collision"]
-        print(
-            f"{name}: {t4 - t3:.0f} s, mean {v.sim_steps.mean():.0f} steps/candidate, "
-            f"{sim_v.mean():.0f} per simulated trial (default {a.sim_steps[simulated].mean():.0f})"
+
+def record_widths(run: Run, name: str, dw: np.ndarray) -> None:
+    """Width differences (mm) over the rows both succeed: median, 99th percentile, max, over 0.2 mm."""
+    if not dw.size:
+        return
+    run.figure(f"{name}_median", float(np.median(dw)), "mm", note="|width difference| where both succeed")
+    run.figure(f"{name}_p99", float(np.percentile(dw, 99)), "mm")
+    run.figure(f"{name}_max", float(dw.max()), "mm")
+    run.figure(f"{name}_over_0p2mm", int((dw > 0.2).sum()), note=f"of {dw.size} successes both")
+
+
+def record_compare(run: Run, name: str, figures: dict[str, float]) -> None:
+    """A variant's agreement with the default (``compare``'s figures)."""
+    key = f"variant_{slug(name)}"
+    run.ratio(
+        f"{key}_success_agrees", figures["agree_all"], note=f"variant {name} vs the default, all candidates"
+    )
+    run.ratio(
+        f"{key}_success_agrees_simulated", figures["agree_sim"], note=f"of the {figures['n_sim']} simulated"
+    )
+    run.ratio(f"{key}_outcome_agrees", figures["outcome_agree"], note="outcome, all candidates")
+    run.figure(f"{key}_flips", figures["flips"], note="success differs from the default")
+    run.figure(f"{key}_width_max", figures["width_max_mm"], "mm", note="vs the default, where both succeed")
+    run.figure(
+        f"{key}_width_over_0p2mm", figures["width_over_0p2"], note="vs the default, where both succeed"
+    )
+
+
+def timing(run: Run, name: str, seconds: float, default_seconds: float | None) -> None:
+    key = f"variant_{slug(name)}"
+    if default_seconds is not None:
+        run.ratio(
+            f"{key}_time_vs_default", seconds / default_seconds, note="wall, variant / default, this run"
         )
-        compare(name, v, a, "variant", "default")
-        # the reference is the default's thorough protocol; its agreement over the default's simulated set
-        same = v["success"].to_numpy() == b["success"].to_numpy()
-        print(
-            f"{name}: variant vs thorough reference: {same.mean():.1%} of all, "
-            f"{same[sim].mean():.1%} of the {int(sim.sum())} simulated (default {agree_sim:.1%})"
+    run.figure(f"{key}_s", seconds, "s", note=f"labelling with variant {name}, wall")
+
+
+def variant_against_reference(
+    run: Run, name: str, v: pd.DataFrame, a: pd.DataFrame, b: pd.DataFrame, agree_sim: float
+) -> None:
+    """A variant against the thorough reference (always the default's), and its flips."""
+    sim = (a["outcome"] != "collision").to_numpy()
+    same = v["success"].to_numpy() == b["success"].to_numpy()
+    print(
+        f"{name}: variant vs thorough reference: {same.mean():.1%} of all, "
+        f"{same[sim].mean():.1%} of the {int(sim.sum())} simulated (default {agree_sim:.1%})"
+    )
+    print(f"{name}: widths vs thorough reference where both succeed: {width_spread(v, b)}")
+    key = f"variant_{slug(name)}"
+    run.ratio(f"{key}_agrees_with_reference", float(same.mean()), note="success, all candidates")
+    run.ratio(f"{key}_agrees_with_reference_simulated", float(same[sim].mean()), note="success, simulated")
+    record_widths(run, f"{key}_widths_vs_reference", width_differences(v, b))
+    flips = v[v["success"].to_numpy() != a["success"].to_numpy()]
+    if len(flips):
+        moved = pd.DataFrame(
+            {
+                "object_id": flips["object_id"],
+                "grasp_id": flips["grasp_id"],
+                "default": a.loc[flips.index, "outcome"],
+                "variant": flips["outcome"],
+                "thorough": b.loc[flips.index, "outcome"],
+            }
         )
-        print(f"{name}: widths vs thorough reference where both succeed: {width_spread(v, b)}")
-        flips = v[v["success"].to_numpy() != a["success"].to_numpy()]
-        if len(flips):
-            moved = pd.DataFrame(
-                {
-                    "object_id": flips["object_id"],
-                    "grasp_id": flips["grasp_id"],
-                    "default": a.loc[flips.index, "outcome"],
-                    "variant": flips["outcome"],
-                    "thorough": b.loc[flips.index, "outcome"],
-                }
-            )
-            print("flips (outcomes)\n" + moved.to_string(index=False))
+        print("flips (outcomes)\n" + moved.to_string(index=False))
+
+
+def slug(name: str) -> str:
+    """A variant's name as part of a figure's name."""
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_") or "unnamed"
 
 
 if __name__ == "__main__":

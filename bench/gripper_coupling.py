@@ -1,6 +1,6 @@
 """What each gripper's coupling holds under its squeeze, lifted and shaken (gear vs position control).
 
-    python bench/gripper_coupling.py [rg2 panda robotiq_2f85] [--force N] [--mass KG]
+    python -m bench.gripper_coupling [rg2 panda robotiq_2f85] [--force N] [--mass KG]
         [--non-contact-iterations K] [--solver-iterations K]
 
 For each gripper, coupling ("gear", "position") and passive-link mode ("kinematic": the annotation
@@ -25,6 +25,7 @@ from annotator.config import AnnotatorConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
+from bench.harness import Run
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # TCP +z pointing down: a top grasp
 SIZE = 0.04  # m, the box's edge
@@ -37,7 +38,10 @@ def box(world: World, mass: float) -> int:
     return uid
 
 
-def run(name: str, coupling: str, passive: str, force: float | None, mass: float, base: PhysicsConfig) -> str:
+def run(
+    name: str, coupling: str, passive: str, force: float | None, mass: float, base: PhysicsConfig
+) -> dict[str, float | str]:
+    """One gripper, coupling and passive-link mode squeezing, lifting and shaking the box: a row."""
     physics = base if passive == "kinematic" else base.whole_linkage()
     protocol = AnnotatorConfig().protocol
     with World(physics) as world:
@@ -71,12 +75,19 @@ def run(name: str, coupling: str, passive: str, force: float | None, mass: float
         in_hand = (hand.base_pose().inverse() * Transform(pos, [0, 0, 0, 1])).pos
         slip = np.linalg.norm(in_hand - g.T_base_tcp(SIZE).pos)
         revolute = hand.description.drive_kind == "revolute"
-        error = f"{np.degrees(max(errors)):.3f} deg" if revolute else f"{1000 * max(errors):.3f} mm"
-        return (
-            f"{name:13s} {coupling:8s} {passive:9s} {force:6.1f} N  close {steps:3d} steps  width "
-            f"{width * 1000:6.2f} mm  pads {forces[0]:6.1f} {forces[1]:6.1f} N  follower {error}  "
-            f"box moved {slip * 1000:.1f} mm"
-        )
+        return {
+            "gripper": name,
+            "coupling": coupling,
+            "passive_links": passive,
+            "force_n": float(force),
+            "close_steps": int(steps),
+            "width_mm": float(width * 1000),
+            "pad1_n": float(forces[0]),
+            "pad2_n": float(forces[1]),
+            "follower_error": float(np.degrees(max(errors)) if revolute else 1000 * max(errors)),
+            "follower_unit": "deg" if revolute else "mm",
+            "box_moved_mm": float(slip * 1000),
+        }
 
 
 def main() -> None:
@@ -92,10 +103,21 @@ def main() -> None:
         physics = dataclasses.replace(physics, non_contact_iterations=args.non_contact_iterations)
     if args.solver_iterations is not None:
         physics = dataclasses.replace(physics, solver_iterations=args.solver_iterations)
-    for name in args.grippers:
-        for coupling in ("gear", "position"):
-            for passive in ("kinematic", "simulated"):
-                print(run(name, coupling, passive, args.force, args.mass, physics), flush=True)
+    with Run("gripper_coupling", config=vars(args)) as record:
+        rows = []
+        for name in args.grippers:
+            for coupling in ("gear", "position"):
+                for passive in ("kinematic", "simulated"):
+                    row = run(name, coupling, passive, args.force, args.mass, physics)
+                    rows.append(row)
+                    print(
+                        f"{name:13s} {coupling:8s} {passive:9s} {row['force_n']:6.1f} N  close "
+                        f"{row['close_steps']:3d} steps  width {row['width_mm']:6.2f} mm  pads "
+                        f"{row['pad1_n']:6.1f} {row['pad2_n']:6.1f} N  follower {row['follower_error']:.3f} "
+                        f"{row['follower_unit']}  box moved {row['box_moved_mm']:.1f} mm",
+                        flush=True,
+                    )
+        record.table("couplings", rows, note="a 40 mm box squeezed 120 steps, lifted and shaken")
 
 
 if __name__ == "__main__":

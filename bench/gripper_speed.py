@@ -1,6 +1,6 @@
 """Candidates per CPU-second of each shipped gripper on the sample objects, as ratios to the RG2.
 
-    python bench/gripper_speed.py [--n 100] [--rounds 2] [--objects objects/]
+    python -m bench.gripper_speed [--n 100] [--rounds 2] [--objects objects/]
 
 Labels every sample object's first N candidates (sampled for each gripper's own stroke) through the
 worker's entry point (``label_span``, one process, the default configuration), gripper after
@@ -20,6 +20,7 @@ from annotator.config import AnnotatorConfig
 from annotator.grippers import load_gripper
 from annotator.objects import discover_objects
 from annotator.pipeline import worker
+from bench.harness import Run
 
 GRIPPERS = ("rg2", "panda", "robotiq_2f85")
 
@@ -52,16 +53,38 @@ def main() -> None:
     print(
         f"{'round':>5} {'gripper':>13} {'cand/CPU-s':>10} {'simulated':>9} {'trials/CPU-s':>12} {'vs rg2':>7}"
     )
-    for r in range(args.rounds):
-        rates = {}
-        for gripper in GRIPPERS:
-            seconds, rows, simulated = label_all(sources, gripper, args.n, config)
-            rates[gripper] = rows / seconds
-            print(
-                f"{r:>5} {gripper:>13} {rows / seconds:>10.1f} {simulated / rows:>9.1%} "
-                f"{simulated / seconds:>12.1f} {rates[gripper] / rates['rg2']:>7.2f}",
-                flush=True,
+    with Run("gripper_speed", config=vars(args), annotator=config) as record:
+        table, ratios = [], {g: [] for g in GRIPPERS}
+        for r in range(args.rounds):
+            rates = {}
+            for gripper in GRIPPERS:
+                seconds, rows, simulated = label_all(sources, gripper, args.n, config)
+                rates[gripper] = rows / seconds
+                ratios[gripper].append(rates[gripper] / rates["rg2"])
+                table.append(
+                    {
+                        "round": r,
+                        "gripper": gripper,
+                        "candidates_per_cpu_s": rows / seconds,
+                        "simulated_share": simulated / rows,
+                        "trials_per_cpu_s": simulated / seconds,
+                        "vs_rg2": rates[gripper] / rates["rg2"],
+                    }
+                )
+                print(
+                    f"{r:>5} {gripper:>13} {rows / seconds:>10.1f} {simulated / rows:>9.1%} "
+                    f"{simulated / seconds:>12.1f} {rates[gripper] / rates['rg2']:>7.2f}",
+                    flush=True,
+                )
+        for gripper in GRIPPERS[1:]:
+            values = sorted(ratios[gripper])
+            record.ratio(
+                f"{gripper}_vs_rg2_candidates_per_cpu_s",
+                values[len(values) // 2],
+                spread=(values[0], values[-1]),
+                note="same objects, candidates and process, rounds alternating; target >= 0.5",
             )
+        record.table("rounds", table)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,13 @@
 """Face-to-face grasps on a light, thin plate: how many hold and how deep the pads end, per object
 mass and simulation time step (the measurement behind PhysicsConfig.light_object_mass).
 
-    python bench/light_objects.py                         # 4 g and 40 g, 1/240 s and as simulated
-    python bench/light_objects.py --grams 4 14 27 --hz 240 480 760 1000
+    python -m bench.light_objects                         # 4 g and 40 g, 1/240 s and as simulated
+    python -m bench.light_objects --grams 4 14 27 --hz 240 480 760 1000
 
 The plate is 48 x 24 x 6.35 mm (a domino); its candidates come from the sampler (seed 0) and only
 those closing across the 6.35 mm faces that pass the collision check are simulated. "as
-simulated" is the step the annotator uses for that mass (time_step / contact_substeps).
+simulated" is the step the annotator uses for that mass (time_step / contact_substeps). Prints a
+line per mass and step and writes a record (bench/harness.py).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from annotator.sampler import object_rng, sample_candidates
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
+from bench.harness import Run
 
 EXTENTS = (0.048, 0.024, 0.00635)
 
@@ -67,24 +69,53 @@ def simulated_trials(
                 yield r
 
 
-def measure(grams: float, hz: float, n: int, folder: Path) -> str:
+@dataclasses.dataclass(frozen=True)
+class Held:
+    """Face-to-face grasps on the plate at one mass and step: how many held, the pads' depth (mm)."""
+
+    grams: float
+    hz: float
+    held: int
+    simulated: int
+    mean_depth_mm: float | None
+    max_depth_mm: float | None
+
+    def line(self) -> str:
+        deep = (
+            f"pads {self.mean_depth_mm:.2f} mm deep on average, {self.max_depth_mm:.2f} max"
+            if self.held
+            else "no success"
+        )
+        return (
+            f"{self.grams:5.1f} g at 1/{self.hz:.0f} s: {self.held:2d} of {self.simulated} "
+            f"face-to-face grasps held, {deep}"
+        )
+
+
+def across_thin_faces(T: Transform) -> bool:
+    """The closing axis along the plate's thickness."""
+    return abs(T.rotation[2, 0]) >= 0.95
+
+
+def measure(grams: float, hz: float, n: int, folder: Path) -> Held:
     config = AnnotatorConfig()
     config = dataclasses.replace(config, physics=dataclasses.replace(config.physics, time_step=1.0 / hz))
     outcomes, depths = [], []
-
-    def across_thin_faces(T: Transform) -> bool:
-        return abs(T.rotation[2, 0]) >= 0.95  # the closing axis along the plate's thickness
-
     for r in simulated_trials(
         trimesh.creation.box(EXTENTS), "domino", grams, 0, n, config, folder, across_thin_faces
     ):
         outcomes.append(r.outcome)
         if r.outcome == Outcome.SUCCESS:
             depths.append(EXTENTS[2] - r.width)
-    held = sum(o == Outcome.SUCCESS for o in outcomes)
     d = np.array(depths) * 1e3
-    deep = f"pads {d.mean():.2f} mm deep on average, {d.max():.2f} max" if len(d) else "no success"
-    return f"{grams:5.1f} g at 1/{hz:.0f} s: {held:2d} of {len(outcomes)} face-to-face grasps held, {deep}"
+    return Held(
+        grams,
+        hz,
+        sum(o == Outcome.SUCCESS for o in outcomes),
+        len(outcomes),
+        float(d.mean()) if len(d) else None,
+        float(d.max()) if len(d) else None,
+    )
 
 
 def main() -> None:
@@ -96,13 +127,17 @@ def main() -> None:
     ap.add_argument("--candidates", type=int, default=90)
     args = ap.parse_args()
     physics = AnnotatorConfig().physics
-    with tempfile.TemporaryDirectory() as tmp:
+    with Run("light_objects", config=vars(args)) as run, tempfile.TemporaryDirectory() as tmp:
+        rows = []
         for grams in args.grams:
             rates = args.hz or sorted(
                 {1.0 / physics.time_step, contact_substeps(grams / 1000.0, physics) / physics.time_step}
             )
             for hz in rates:
-                print(measure(grams, hz, args.candidates, Path(tmp)), flush=True)
+                held = measure(grams, hz, args.candidates, Path(tmp))
+                print(held.line(), flush=True)
+                rows.append(dataclasses.asdict(held))
+        run.table("held", rows, note="face-to-face grasps of a 48 x 24 x 6.35 mm plate, seed 0")
 
 
 if __name__ == "__main__":

@@ -1,9 +1,9 @@
 """Where a light object stops needing a finer time step: labels at 1/240 s against a fine step,
 per object mass, over several shapes and seeds (the derivation of PhysicsConfig.light_object_mass).
 
-    python bench/light_threshold.py                               # the default grid, 2 processes
-    python bench/light_threshold.py --grams 24 32 40 --seeds 0 --shapes domino cube40
-    python bench/light_threshold.py --grams 40 80 --set physics.contact_breaking_threshold=0.01
+    python -m bench.light_threshold                               # the default grid, 2 processes
+    python -m bench.light_threshold --grams 24 32 40 --seeds 0 --shapes domino cube40
+    python -m bench.light_threshold --grams 40 80 --set physics.contact_breaking_threshold=0.01
 
 For every (shape, mass, seed) the object's sampled candidates that pass the kinematic collision
 check are simulated twice with the current default gripper and protocol: at ``time_step`` (one
@@ -13,11 +13,12 @@ between the two, and how many successes' widths differ by more than 0.2 mm. A he
 default) is in the grid as the control: 1/240 s against the fine step disagrees there too, because
 a grasp that is decided by a hair flips with any change of step. A mass needs no finer step when
 its agreement is within the control's. ``--set FIELD=VALUE[,...]`` changes the configuration of
-both runs (as bench/fidelity.py's ``--variant``). Prints figures; asserts nothing.
+both runs (as bench.fidelity's ``--variant``). Prints the rows and the totals per mass and writes a
+record (bench/harness.py); asserts nothing.
 
 Shapes (the first four are the default set; ``--shapes all`` adds eleven more):
   domino   48 x 24 x 6.35 mm plate (thin faces: the case that sank at 1/240 s)
-  cube40   40 mm cube (bench/peers.py's cube)
+  cube40   40 mm cube (bench.peers' cube)
   rod      cylinder 12 mm across, 80 mm long
   disc     cylinder 60 mm across, 5 mm thick
   card     85 x 54 x 3 mm plate          slab10   80 x 60 x 10 mm plate
@@ -26,7 +27,7 @@ Shapes (the first four are the default set; ``--shapes all`` adds eleven more):
   sphere40 sphere 40 mm across           stick    100 x 15 x 8 mm bar
   mug, banana   the sample objects' meshes (objects/), at the masses of the grid
 
-    python bench/light_threshold.py --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
+    python -m bench.light_threshold --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
 """
 
 from __future__ import annotations
@@ -39,11 +40,12 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from _variants import parse_variant
-from light_objects import simulated_trials
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
+from bench._variants import parse_variant
+from bench.harness import Run
+from bench.light_objects import simulated_trials
 
 OBJECTS = Path(__file__).resolve().parents[1] / "objects"
 box, cylinder = trimesh.creation.box, trimesh.creation.cylinder
@@ -65,7 +67,7 @@ SHAPES = {
     "banana": lambda: trimesh.load(OBJECTS / "banana.obj", force="mesh"),
 }
 DEFAULT_SHAPES = ("domino", "cube40", "rod", "disc")
-WIDTH_TOLERANCE = 0.0002  # m, the width agreement of issue 12
+WIDTH_TOLERANCE = 0.0002  # m: a width beyond this from the fine step's counts as moved (as bench.fidelity)
 WIDTHS = (8, 5, 4, 4, 6, 7, 6, 7)  # printed column widths
 
 
@@ -105,7 +107,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--set", default="", help="FIELD=VALUE[,FIELD=VALUE] for both runs")
     args = ap.parse_args()
-    parse_variant(args.set)  # an unknown field exits here, not in a worker
+    config = parse_variant(args.set)[1]  # an unknown field exits here, not in a worker
     if "all" in args.shapes:
         args.shapes = list(SHAPES)
     grid = [
@@ -122,21 +124,49 @@ def main() -> None:
             f"{h:8s}" if k == 0 else f"{h:>{w}s}" for k, (h, w) in enumerate(zip(header, WIDTHS, strict=True))
         )
     )
-    with ProcessPoolExecutor(args.jobs) as pool:
-        for shape, grams, seed, sim, ok1, okf, agree, wide in pool.map(row, grid):
+    with Run("light_threshold", config=vars(args), annotator=config) as run:
+        rows = []
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for shape, grams, seed, sim, ok1, okf, agree, wide in pool.map(row, grid):
+                print(
+                    f"{shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} {wide:7d}",
+                    flush=True,
+                )
+                totals.setdefault(grams, np.zeros(5, int))
+                totals[grams] += (sim, ok1, okf, agree, wide)
+                rows.append(
+                    {
+                        "shape": shape,
+                        "grams": grams,
+                        "seed": seed,
+                        "simulated": sim,
+                        "success_240": ok1,
+                        "success_fine": okf,
+                        "agree": agree,
+                        "widths_over_0p2mm": wide,
+                    }
+                )
+        print("\nper mass, all shapes and seeds:")
+        per_mass = []
+        for grams in sorted(totals):
+            sim, ok1, okf, agree, wide = (int(v) for v in totals[grams])
             print(
-                f"{shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} {wide:7d}",
-                flush=True,
+                f"{grams:5.1f} g: {agree} of {sim} agree ({100.0 * agree / max(sim, 1):.1f} %), "
+                f"successes {ok1} at 1/240 s vs {okf} fine, {wide} widths beyond 0.2 mm"
             )
-            totals.setdefault(grams, np.zeros(5, int))
-            totals[grams] += (sim, ok1, okf, agree, wide)
-    print("\nper mass, all shapes and seeds:")
-    for grams in sorted(totals):
-        sim, ok1, okf, agree, wide = totals[grams]
-        print(
-            f"{grams:5.1f} g: {agree} of {sim} agree ({100.0 * agree / max(sim, 1):.1f} %), "
-            f"successes {ok1} at 1/240 s vs {okf} fine, {wide} widths beyond 0.2 mm"
-        )
+            per_mass.append(
+                {
+                    "grams": grams,
+                    "simulated": sim,
+                    "agree": agree,
+                    "agree_pct": 100.0 * agree / max(sim, 1),
+                    "success_240": ok1,
+                    "success_fine": okf,
+                    "widths_over_0p2mm": wide,
+                }
+            )
+        run.table("per_mass", per_mass, note=f"all shapes and seeds; 1/240 s against 1/{240 * args.fine} s")
+        run.table("rows", rows, note="per shape, mass and seed")
 
 
 if __name__ == "__main__":

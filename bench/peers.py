@@ -1,8 +1,9 @@
-"""Our grasp trial against two peers' trials on the same candidates, taking turns; prints figures.
+"""Our grasp trial against two peers' trials on the same candidates, taking turns: CPU time per
+candidate, per trial and per step, steps per trial and agreement on success.
 
-    python bench/peers.py                          # 3 objects x 100 candidates, 2 rounds
-    python bench/peers.py --per-object 40 --rounds 1
-    python bench/peers.py --variant solver_iterations=100   # also time a changed configuration of ours
+    python -m bench.peers                          # 3 objects x 100 candidates, 2 rounds
+    python -m bench.peers --per-object 40 --rounds 1
+    python -m bench.peers --variant solver_iterations=100   # also time a changed configuration of ours
 
 Every tool runs in its own PyBullet DIRECT client in this one process, on the product's own object
 bodies (``annotator.objects.load_object`` + ``create_body``: same mass, inertia, friction, convex
@@ -12,7 +13,10 @@ per candidate), so machine load hits all of them alike. Printed per tool: ms per
 ``stepSimulation`` only), and the agreement of ``success`` with ours; per object, and over the
 objects at or above ``physics.light_object_mass`` apart from the light ones ours substeps.
 ``os.getloadavg()`` is printed with every timing; ``--rounds R`` repeats the whole set and prints
-the spread.
+the spread. After each round the free step of our gripper (bench/reference.py) is timed: a
+candidate's cost in free steps is the figure a slower machine does not move. The record
+(bench/harness.py) holds the ratios (median and range over rounds), each tool's figures, and the
+rounds' tables.
 
 Objects: a 40 mm cube, a 66 x 120 mm cylinder and a generated duck (a star-shaped union of
 ellipsoids: body, head, beak, tail; concave at the neck and under the tail; several convex parts).
@@ -69,6 +73,7 @@ import argparse
 import logging
 import math
 import os
+import re
 import statistics
 import tempfile
 import time
@@ -77,18 +82,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 import trimesh
-from _variants import parse_variant
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
 from annotator.pipeline.worker import object_candidates
+from annotator.sampler import Candidates
+from annotator.sim import pb
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
 from annotator.trial import GraspTrial
+from bench._variants import parse_variant
+from bench.harness import Run
+from bench.reference import FreeStep, free_step
 
 DOWN = np.array([0.0, 0.0, -1.0])
 
@@ -123,17 +131,19 @@ def duck_mesh(subdivisions: int = 4) -> trimesh.Trimesh:
     return mesh
 
 
-def bench_objects(folder: Path) -> list[ObjectSource]:
-    """The three bench objects written as meshes into ``folder``."""
-    meshes = {
-        "cube40": trimesh.creation.box((0.04, 0.04, 0.04)),
-        "cylinder66x120": trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48),
-        "duck": duck_mesh(),
-    }
+BENCH_OBJECTS = {
+    "cube40": lambda: trimesh.creation.box((0.04, 0.04, 0.04)),
+    "cylinder66x120": lambda: trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48),
+    "duck": duck_mesh,
+}
+
+
+def bench_objects(folder: Path, names: tuple[str, ...] = tuple(BENCH_OBJECTS)) -> list[ObjectSource]:
+    """The bench objects ``names`` (all three by default) written as meshes into ``folder``."""
     out = []
-    for name, mesh in meshes.items():
+    for name in names:
         path = folder / f"{name}.obj"
-        mesh.export(path)
+        BENCH_OBJECTS[name]().export(path)
         out.append(ObjectSource(name, path))
     return out
 
@@ -693,7 +703,7 @@ class Tally:
 
     def figures(self) -> dict[str, float]:
         sim = [r.simulated for r in self.results]
-        n_sim = max(1, sum(sim))
+        n_sim = sum(sim)
         steps = sum(r.steps for r in self.results)
         trial_seconds = sum(s for s, k in zip(self.seconds, sim, strict=True) if k)
         trial_steps = sum(r.steps for r in self.results if r.simulated)
@@ -702,9 +712,9 @@ class Tally:
             "simulated": sum(sim),
             "successes": sum(r.success for r in self.results),
             "ms_candidate": 1e3 * sum(self.seconds) / max(1, len(self.seconds)),
-            "ms_trial": 1e3 * trial_seconds / n_sim,
-            "ms_reject": 1e3 * (sum(self.seconds) - trial_seconds) / max(1, len(sim) - sum(sim)),
-            "steps_trial": trial_steps / n_sim,
+            "ms_trial": over(1e3 * trial_seconds, n_sim),  # NaN: no trial simulated
+            "ms_reject": over(1e3 * (sum(self.seconds) - trial_seconds), len(sim) - n_sim),
+            "steps_trial": over(trial_steps, n_sim),
             "ms_step": 1e3 * sum(r.step_seconds for r in self.results) / max(1, steps),
             "outside_step": 1.0 - sum(r.step_seconds for r in self.results) / max(1e-12, sum(self.seconds)),
             "wall_ms_candidate": 1e3 * sum(self.wall) / max(1, len(self.wall)),
@@ -714,6 +724,44 @@ class Tally:
 def load(label: str) -> str:
     one, five, _ = os.getloadavg()
     return f"{label} load average {one:.2f} (1 min) {five:.2f} (5 min)"
+
+
+Work = list[tuple[ObjectModel, Candidates]]
+
+
+@dataclass
+class Round:
+    """One pass of every tool over every candidate, and the free step measured right after it."""
+
+    tallies: dict[str, Tally]  # per tool
+    by_object: dict[tuple[str, str], Tally]  # per (object id, tool)
+    free_step: FreeStep
+
+
+def take_turns(tools: list[Tool], work: Work) -> tuple[dict[str, Tally], dict[tuple[str, str], Tally]]:
+    """Every tool runs every candidate of ``work``, taking turns per candidate (the order rotates
+    by one each candidate, so load hits all tools alike); CPU and wall time are taken around
+    ``Tool.run``. Returns the tallies per tool and per (object id, tool)."""
+    tallies = {t.name: Tally() for t in tools}
+    by_object: dict[tuple[str, str], Tally] = {}
+    for model, cands in work:
+        for t in tools:
+            t.enter()
+            t.load(model)
+        for k in range(len(cands)):
+            T = Transform.from_matrix(cands.T_obj_tcp[k])
+            w = float(cands.width_expected[k])
+            for i in range(len(tools)):
+                t = tools[(i + k) % len(tools)]
+                t.enter()
+                t0, c0 = time.perf_counter(), time.process_time()
+                res = t.run(T, w)
+                cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+                tallies[t.name].add(cpu, wall, res)
+                by_object.setdefault((model.object_id, t.name), Tally()).add(cpu, wall, res)
+        for t in tools:
+            t.unload()
+    return tallies, by_object
 
 
 def main() -> None:
@@ -731,8 +779,7 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     config = AnnotatorConfig()
-
-    with tempfile.TemporaryDirectory() as tmp:
+    with Run("peers", config=vars(args), annotator=config) as run, tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         tools: list[Tool] = [Ours(config)]
         for spec in args.variant:
@@ -741,7 +788,7 @@ def main() -> None:
         if not args.no_peers:
             tools += [VGN(folder), AdaGrasp(folder)]
         max_width = tools[0].hand.rg2.max_width
-        work = []
+        work: Work = []
         for source in bench_objects(folder):
             model = load_object(source, config.objects)
             cands = object_candidates(model, args.per_object, args.seed, config, max_width)
@@ -750,41 +797,137 @@ def main() -> None:
         print(f"{sum(len(c) for _, c in work)} candidates; tools take turns per candidate")
 
         light = {m.object_id for m, _ in work if m.substeps(config.physics) > 1}
-        rounds: list[dict[str, Tally]] = []
+        boundary = config.physics.light_object_mass
+        rounds: list[Round] = []
         for r in range(args.rounds):
             print(load(f"\nround {r + 1}: start,"))
-            tallies = {t.name: Tally() for t in tools}
-            by_object: dict[tuple[str, str], Tally] = {}
-            for model, cands in work:
-                for t in tools:
-                    t.enter()
-                    t.load(model)
-                for k in range(len(cands)):
-                    T = Transform.from_matrix(cands.T_obj_tcp[k])
-                    w = float(cands.width_expected[k])
-                    for i in range(len(tools)):
-                        t = tools[(i + k) % len(tools)]
-                        t.enter()
-                        t0, c0 = time.perf_counter(), time.process_time()
-                        res = t.run(T, w)
-                        cpu, wall = time.process_time() - c0, time.perf_counter() - t0
-                        tallies[t.name].add(cpu, wall, res)
-                        by_object.setdefault((model.object_id, t.name), Tally()).add(cpu, wall, res)
-                for t in tools:
-                    t.unload()
+            tallies, by_object = take_turns(tools, work)
+            rounds.append(Round(tallies, by_object, free_step(config)))
             print(load(f"round {r + 1}: end,"))
-            report(tallies, tools[0].name)
+            report(tallies, tools[0].name, rounds[-1].free_step)
             per_object(by_object, tools[0].name)
-            by_light_boundary(by_object, tools[0].name, light, config.physics.light_object_mass)
-            rounds.append(tallies)
+            for label, group in light_groups(by_object, light, boundary):
+                by_light_boundary(by_object, tools[0].name, label, group)
         if args.rounds > 1:
-            spread(rounds)
+            spread([r.tallies for r in rounds])
+        record(run, rounds, tools[0].name, light, boundary)
         for t in tools:
             t.close()
 
 
-def report(tallies: dict[str, Tally], reference: str) -> None:
-    """The table of one round: CPU milliseconds (``time.process_time``), agreement with ``reference``."""
+def slug(name: str) -> str:
+    """A tool's name as part of a figure's name: ``ours[it100]`` -> ``ours_it100``."""
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+
+
+def over(a: float, b: float) -> float:
+    """a / b; NaN when b is 0 (a tool that simulated none of a group's candidates)."""
+    return a / b if b else float("nan")
+
+
+def median_spread(values: list[float]) -> tuple[float, tuple[float, float] | None]:
+    """Median and (min, max) of the values that are numbers; NaN and no range if none is."""
+    values = [v for v in values if not math.isnan(v)]
+    if not values:
+        return float("nan"), None
+    return statistics.median(values), (min(values), max(values))
+
+
+def record(run: Run, rounds: list[Round], reference: str, light: set[str], boundary: float) -> None:
+    """The rounds as a record: ratios of ours to each tool and of each tool to the free step
+    (medians over rounds, with their range), each tool's figures, the per-round tables."""
+    names = list(rounds[0].tallies)
+    figs = [{n: r.tallies[n].figures() for n in names} for r in rounds]
+    n = len(rounds)
+    for name in names:
+        if name == reference:
+            continue
+        for key, what in (("ms_candidate", "candidate"), ("ms_trial", "trial"), ("ms_step", "step")):
+            value, range_ = median_spread([over(f[reference][key], f[name][key]) for f in figs])
+            run.ratio(
+                f"{slug(reference)}_over_{slug(name)}_per_{what}",
+                value,
+                spread=range_,
+                note=f"CPU ms per {what}, {reference} / {name}; median of {n} rounds",
+            )
+        for label, group in light_groups(rounds[0].by_object, light, boundary):
+            key = "light" if group[0] in light else "heavy"
+            for fig, what in (("ms_candidate", "candidate"), ("ms_trial", "trial")):
+                ratios = []
+                for r in rounds:
+                    ref = merged([r.by_object[(o, reference)] for o in group]).figures()
+                    other = merged([r.by_object[(o, name)] for o in group]).figures()
+                    ratios.append(over(ref[fig], other[fig]))
+                value, range_ = median_spread(ratios)
+                run.ratio(
+                    f"{slug(reference)}_over_{slug(name)}_per_{what}_{key}",
+                    value,
+                    spread=range_,
+                    note=f"as above, objects {label}: {', '.join(group)}",
+                )
+    for name in names:
+        for key, what in (("ms_candidate", "candidate"), ("ms_trial", "simulated trial")):
+            value, range_ = median_spread(
+                [over(f[name][key], r.free_step.cpu_ms) for f, r in zip(figs, rounds, strict=True)]
+            )
+            run.ratio(
+                f"{slug(name)}_free_steps_per_{what.split()[-1]}",
+                value,
+                spread=range_,
+                note=f"{name}: CPU time per {what} / CPU time of a free step measured after the round",
+            )
+    for name in names:
+        for key, unit, what in (
+            ("ms_candidate", "ms", "CPU ms per candidate"),
+            ("ms_trial", "ms", "CPU ms per simulated trial"),
+            ("ms_step", "ms", "CPU ms per step, inside stepSimulation"),
+            ("steps_trial", "", "steps per simulated trial"),
+        ):
+            value, range_ = median_spread([f[name][key] for f in figs])
+            run.figure(f"{slug(name)}_{key}", value, unit, spread=range_, note=f"{name}: {what}")
+        agree_all, agree_sim = agreement(rounds[0].tallies[name], rounds[0].tallies[reference])
+        if name != reference:
+            run.figure(
+                f"{slug(name)}_agree_sim",
+                100 * agree_sim,
+                "%",
+                note=f"success as {reference}, both simulated",
+            )
+    value, range_ = median_spread([r.free_step.cpu_ms for r in rounds])
+    run.figure("free_step_cpu_ms", value, "ms", spread=range_, note="the reference, after each round")
+    run.table(
+        "rounds",
+        [
+            {"round": k + 1, "tool": name, **{key: f[name][key] for key in TABLE_KEYS}}
+            for k, f in enumerate(figs)
+            for name in names
+        ],
+        note="CPU ms; outside_step: share of a candidate's CPU time outside stepSimulation",
+    )
+    run.table(
+        "per_object",
+        [
+            {"round": k + 1, "object": o, "tool": name, **{key: t.figures()[key] for key in TABLE_KEYS}}
+            for k, r in enumerate(rounds)
+            for (o, name), t in r.by_object.items()
+        ],
+    )
+
+
+TABLE_KEYS = ("candidates", "simulated", "successes", "ms_candidate", "ms_trial", "steps_trial", "ms_step")
+
+
+def agreement(tally: Tally, ref: Tally) -> tuple[float, float]:
+    """Share of candidates whose success is ``ref``'s: all, and those both simulated (NaN if none)."""
+    a = np.array([x.success for x in tally.results])
+    b = np.array([x.success for x in ref.results])
+    both = np.array([x.simulated and y.simulated for x, y in zip(tally.results, ref.results, strict=True)])
+    return float((a == b).mean()), float((a[both] == b[both]).mean()) if both.any() else float("nan")
+
+
+def report(tallies: dict[str, Tally], reference: str, step: FreeStep) -> None:
+    """The table of one round: CPU milliseconds (``time.process_time``), agreement with ``reference``,
+    and the cost of a candidate in free steps (``step``)."""
     ref = tallies[reference]
     ref_fig = ref.figures()
     head = (
@@ -799,27 +942,27 @@ def report(tallies: dict[str, Tally], reference: str) -> None:
     print(head + "\n" + "-" * len(head))
     for name, tally in tallies.items():
         f = tally.figures()
-        a = np.array([x.success for x in tally.results])
-        b = np.array([x.success for x in ref.results])
-        both = np.array(
-            [x.simulated and y.simulated for x, y in zip(tally.results, ref.results, strict=True)]
-        )
-        agree_sim = (a[both] == b[both]).mean() if both.any() else float("nan")
+        agree_all, agree_sim = agreement(tally, ref)
         print(
             f"{name:<34} {f['ms_candidate']:8.1f} {f['ms_trial']:9.1f} {f['ms_reject']:9.1f} "
             f"{f['steps_trial']:11.0f} "
             f"{f['ms_step']:8.3f} {f['outside_step']:8.1%} {f['simulated']:9d} {f['successes']:7d} "
-            f"{(a == b).mean():9.1%} {agree_sim:9.1%}"
+            f"{agree_all:9.1%} {agree_sim:9.1%}"
         )
+    print(
+        f"free step (bench/reference.py) {step.cpu_ms:.3f} CPU ms: a candidate costs "
+        + ", ".join(f"{name} {t.figures()['ms_candidate'] / step.cpu_ms:.0f}" for name, t in tallies.items())
+        + " free steps"
+    )
     for name, tally in tallies.items():
         if name == reference:
             continue
         f = tally.figures()
         print(
-            f"{reference} / {name}: per candidate {ref_fig['ms_candidate'] / f['ms_candidate']:.2f} "
-            f"(wall {ref_fig['wall_ms_candidate'] / f['wall_ms_candidate']:.2f}), "
-            f"per trial {ref_fig['ms_trial'] / f['ms_trial']:.2f}, "
-            f"per step {ref_fig['ms_step'] / f['ms_step']:.2f}"
+            f"{reference} / {name}: per candidate {over(ref_fig['ms_candidate'], f['ms_candidate']):.2f} "
+            f"(wall {over(ref_fig['wall_ms_candidate'], f['wall_ms_candidate']):.2f}), "
+            f"per trial {over(ref_fig['ms_trial'], f['ms_trial']):.2f}, "
+            f"per step {over(ref_fig['ms_step'], f['ms_step']):.2f}"
         )
 
 
@@ -832,7 +975,7 @@ def per_object(by_object: dict[tuple[str, str], Tally], reference: str) -> None:
         for (o, name), tally in by_object.items():
             if o == obj:
                 f = tally.figures()
-                ratio = "" if name == reference else f" x{ref['ms_trial'] / f['ms_trial']:.2f}"
+                ratio = "" if name == reference else f" x{over(ref['ms_trial'], f['ms_trial']):.2f}"
                 cells.append(f"{name} {f['ms_trial']:.1f} ({f['steps_trial']:.0f}){ratio}")
         print(f"  {obj:<16} " + ", ".join(cells))
 
@@ -846,29 +989,34 @@ def merged(tallies: list[Tally]) -> Tally:
     return out
 
 
-def by_light_boundary(
-    by_object: dict[tuple[str, str], Tally], reference: str, light: set[str], boundary: float
-) -> None:
-    """Ours / each tool per candidate and per trial over the objects ours simulates at time_step
-    (at or above ``boundary``) and over the light ones it substeps (PhysicsConfig.light_object_mass)."""
+def light_groups(
+    by_object: dict[tuple[str, str], Tally], light: set[str], boundary: float
+) -> list[tuple[str, list[str]]]:
+    """(label, object ids) of the objects ours simulates at time_step (at or above ``boundary``,
+    PhysicsConfig.light_object_mass) and of the light ones it substeps; empty groups left out."""
     objects = list(dict.fromkeys(o for o, _ in by_object))
-    tools = list(dict.fromkeys(n for _, n in by_object))
-    for label, group in (
+    groups = [
         (f"at or above {boundary * 1000:.0f} g", [o for o in objects if o not in light]),
         (f"below {boundary * 1000:.0f} g (substepped)", [o for o in objects if o in light]),
-    ):
-        if not group:
-            continue
-        ref = merged([by_object[(o, reference)] for o in group]).figures()
-        cells = []
-        for name in tools:
-            if name != reference:
-                f = merged([by_object[(o, name)] for o in group]).figures()
-                cells.append(
-                    f"/ {name} per candidate {ref['ms_candidate'] / f['ms_candidate']:.2f}, "
-                    f"per trial {ref['ms_trial'] / f['ms_trial']:.2f}"
-                )
-        print(f"  objects {label} ({', '.join(group)}): {reference} " + "; ".join(cells))
+    ]
+    return [(label, group) for label, group in groups if group]
+
+
+def by_light_boundary(
+    by_object: dict[tuple[str, str], Tally], reference: str, label: str, group: list[str]
+) -> None:
+    """Ours / each tool per candidate and per trial over the objects of ``group``."""
+    tools = list(dict.fromkeys(n for _, n in by_object))
+    ref = merged([by_object[(o, reference)] for o in group]).figures()
+    cells = []
+    for name in tools:
+        if name != reference:
+            f = merged([by_object[(o, name)] for o in group]).figures()
+            cells.append(
+                f"/ {name} per candidate {over(ref['ms_candidate'], f['ms_candidate']):.2f}, "
+                f"per trial {over(ref['ms_trial'], f['ms_trial']):.2f}"
+            )
+    print(f"  objects {label} ({', '.join(group)}): {reference} " + "; ".join(cells))
 
 
 def spread(rounds: list[dict[str, Tally]]) -> None:
@@ -884,7 +1032,7 @@ def spread(rounds: list[dict[str, Tally]]) -> None:
     for name in list(rounds[0])[1:]:
         cells = []
         for key in ("ms_candidate", "ms_trial"):
-            v = [r[reference].figures()[key] / r[name].figures()[key] for r in rounds]
+            v = [over(r[reference].figures()[key], r[name].figures()[key]) for r in rounds]
             cells.append(f"per {key[3:]} {min(v):.2f} / {statistics.median(v):.2f} / {max(v):.2f}")
         print(f"{reference} / {name:<26} " + ", ".join(cells))
 

@@ -1,7 +1,7 @@
-"""Where a worker's time goes: py-spy samples the README's command; prints figures, asserts nothing.
+"""Where a worker's time goes: py-spy samples the README's command, stepSimulation against the rest.
 
-    python bench/profile_worker.py                 # annotate --objects objects/ --n 100, 2 workers, twice
-    python bench/profile_worker.py --n 50 --repeat 1 --top 20
+    python -m bench.profile_worker                 # annotate --objects objects/ --n 100, 2 workers, twice
+    python -m bench.profile_worker --n 50 --repeat 1 --top 20
 
 ``py-spy record --subprocesses --nonblocking`` samples every process of ``annotate`` (the main
 process and its loky workers) at ``--rate`` Hz without pausing them. A sample of a worker is "in
@@ -13,13 +13,15 @@ Printed per run: samples and the share outside per worker, over all workers, the
 before and after, and where a span's time outside stepSimulation goes (by phase: loading, sampling,
 each step of a trial; and by innermost function, as shares of the spans' samples); with
 ``--repeat`` the spread of the share. Decompositions are cached (RG2_CACHE_DIR): run it twice on a
-fresh machine and read the second.
+fresh machine and read the second. The shares are ratios of samples of the same run, so they need
+no reference; they go into a record (bench/harness.py) with the spread over runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import inspect
 import os
 import re
@@ -28,9 +30,11 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from annotator.sim.world import World
+from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
 SPAN = "WorkerState.label (annotator/pipeline/worker.py"  # py-spy's frame of a span's work
@@ -98,6 +102,50 @@ def is_worker(label: str, counter: collections.Counter) -> bool:
     return "popen_loky" in label or any(f.startswith(SPAN) for s in counter for f in s)
 
 
+@dataclasses.dataclass
+class Shares:
+    """One run's worker samples: all, in stepSimulation, inside spans; per scope [samples, outside];
+    outside stepSimulation inside spans by innermost project function and by phase."""
+
+    total: int = 0
+    inside: int = 0
+    in_span: int = 0
+    per: dict[str, list[int]] = dataclasses.field(
+        default_factory=lambda: {"simulate": [0, 0], "GraspTrial.run": [0, 0]}
+    )
+    outside: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    phases: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+
+    def add_worker(self, counter: collections.Counter, in_step: Callable[[tuple[str, ...]], bool]) -> None:
+        n_all = sum(counter.values())
+        self.total += n_all
+        self.inside += sum(c for s, c in counter.items() if in_step(s))
+        for s, c in counter.items():
+            if not any(f.startswith(SPAN) for f in s):
+                continue
+            self.in_span += c
+            names = {FRAME.sub(r"\g<func>", f) for f in s}
+            for scope, counts in self.per.items():
+                if scope in names:
+                    counts[0] += c
+                    counts[1] += 0 if in_step(s) else c
+            if not in_step(s):
+                self.outside[owner(s)] += c
+                self.phases[phase(s)] += c
+
+    def share(self, scope: str) -> float:
+        n_scope, n_out = self.per[scope]
+        return n_out / max(1, n_scope)
+
+    @property
+    def outside_share(self) -> float:
+        return 1 - self.inside / max(1, self.total)
+
+    @property
+    def span_outside_share(self) -> float:
+        return 1 - self.inside / max(1, self.in_span)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", type=Path, default=ROOT / "objects")
@@ -113,62 +161,97 @@ def main() -> None:
         m = FRAME.match(stack[-1]) if stack else None
         return bool(m and m["file"].endswith(step_file) and int(m["line"]) == step_no)
 
-    shares = []
-    for r in range(args.repeat):
-        print(f"\n== run {r + 1}: annotate --objects objects/ --n {args.n} --workers {args.workers} ==")
-        print(f"before: {load()}")
-        stacks = profile(args.n, args.workers, args.rate, args.objects)
-        print(f"after:  {load()}")
-        total = inside = in_span = 0
-        per: dict[str, list[int]] = {"simulate": [0, 0], "GraspTrial.run": [0, 0]}  # [samples, outside]
-        outside: collections.Counter = collections.Counter()  # in a span, by innermost function
-        phases: collections.Counter = collections.Counter()  # in a span, by phase
-        for label, counter in sorted(stacks.items()):
-            n_all = sum(counter.values())
-            n_in = sum(c for s, c in counter.items() if in_step(s))
-            worker = is_worker(label, counter)
-            kind = "worker" if worker else "other "
-            share = 1 - n_in / n_all
-            print(f"{kind} {label[:60]:<60} {n_all:7d} samples, outside stepSimulation {share:6.1%}")
-            if worker:
-                total, inside = total + n_all, inside + n_in
-                for s, c in counter.items():
-                    if not any(f.startswith(SPAN) for f in s):
-                        continue
-                    in_span += c
-                    names = {FRAME.sub(r"\g<func>", f) for f in s}
-                    for scope, counts in per.items():
-                        if scope in names:
-                            counts[0] += c
-                            counts[1] += 0 if in_step(s) else c
-                    if not in_step(s):
-                        outside[owner(s)] += c
-                        phases[phase(s)] += c
-        if not total:
-            raise SystemExit("no worker process was sampled")
-        shares.append(1 - inside / total)
-        print(f"all workers: {total} samples, {inside} in stepSimulation; share outside {shares[-1]:.1%}")
+    with Run("profile_worker", config=vars(args)) as run:
+        runs: list[Shares] = []
+        for r in range(args.repeat):
+            print(f"\n== run {r + 1}: annotate --objects objects/ --n {args.n} --workers {args.workers} ==")
+            print(f"before: {load()}")
+            stacks = profile(args.n, args.workers, args.rate, args.objects)
+            print(f"after:  {load()}")
+            runs.append(tally(stacks, in_step, args.top))
+        record(run, runs)
+
+
+def tally(
+    stacks: dict[str, collections.Counter], in_step: Callable[[tuple[str, ...]], bool], top: int
+) -> Shares:
+    """Count one run's samples and print its shares."""
+    shares = Shares()
+    for label, counter in sorted(stacks.items()):
+        n_all = sum(counter.values())
+        n_in = sum(c for s, c in counter.items() if in_step(s))
+        worker = is_worker(label, counter)
+        kind = "worker" if worker else "other "
+        print(f"{kind} {label[:60]:<60} {n_all:7d} samples, outside stepSimulation {1 - n_in / n_all:6.1%}")
+        if worker:
+            shares.add_worker(counter, in_step)
+    if not shares.total:
+        raise SystemExit("no worker process was sampled")
+    print(
+        f"all workers: {shares.total} samples, {shares.inside} in stepSimulation; "
+        f"share outside {shares.outside_share:.1%}"
+    )
+    print(
+        f"of which inside a span (WorkerState.label: loading, sampling, trials): {shares.in_span} samples, "
+        f"share outside stepSimulation {shares.span_outside_share:.1%}"
+    )
+    for scope, what in (
+        ("simulate", "per candidate (simulate: trials and label rows)"),
+        ("GraspTrial.run", "per trial (GraspTrial.run)"),
+    ):
         print(
-            f"of which inside a span (WorkerState.label: loading, sampling, trials): {in_span} samples, "
-            f"share outside stepSimulation {1 - inside / max(1, in_span):.1%}"
+            f"{what}: {shares.per[scope][0]} samples, share outside stepSimulation {shares.share(scope):.1%}"
         )
-        for scope, what in (
-            ("simulate", "per candidate (simulate: trials and label rows)"),
-            ("GraspTrial.run", "per trial (GraspTrial.run)"),
-        ):
-            n_scope, n_out = per[scope]
-            print(f"{what}: {n_scope} samples, share outside stepSimulation {n_out / max(1, n_scope):.1%}")
-        print("outside stepSimulation inside spans, by phase (share of the spans' samples):")
-        for where, c in phases.most_common():
-            print(f"  {c / max(1, in_span):6.1%}  {where}")
-        print(f"outside stepSimulation inside spans, by innermost project function, top {args.top}:")
-        for where, c in outside.most_common(args.top):
-            print(f"  {c / max(1, in_span):6.1%}  {where}")
-    if len(shares) > 1:
+    print("outside stepSimulation inside spans, by phase (share of the spans' samples):")
+    for where, c in shares.phases.most_common():
+        print(f"  {c / max(1, shares.in_span):6.1%}  {where}")
+    print(f"outside stepSimulation inside spans, by innermost project function, top {top}:")
+    for where, c in shares.outside.most_common(top):
+        print(f"  {c / max(1, shares.in_span):6.1%}  {where}")
+    return shares
+
+
+def record(run: Run, runs: list[Shares]) -> None:
+    """The shares as ratios (median over runs, with their range) and the phases of all runs."""
+    for name, what, values in (
+        (
+            "outside_step_in_spans",
+            "inside spans (loading, sampling, trials)",
+            [s.span_outside_share for s in runs],
+        ),
+        ("outside_step_per_candidate", "per candidate (simulate)", [s.share("simulate") for s in runs]),
+        ("outside_step_per_trial", "per trial (GraspTrial.run)", [s.share("GraspTrial.run") for s in runs]),
+        ("outside_step_all", "all the workers' samples, start-up included", [s.outside_share for s in runs]),
+    ):
+        run.ratio(
+            name,
+            statistics.median(values),
+            spread=(min(values), max(values)),
+            note=f"share of the workers' samples outside stepSimulation, {what}; median of {len(runs)} runs",
+        )
+    if len(runs) > 1:
+        shares = [s.outside_share for s in runs]
         print(
             f"\nshare outside stepSimulation over {len(shares)} runs: min {min(shares):.1%} / median "
             f"{statistics.median(shares):.1%} / max {max(shares):.1%}"
         )
+    in_span = sum(s.in_span for s in runs)
+    phases = sum((s.phases for s in runs), collections.Counter())
+    run.table(
+        "phases",
+        [{"phase": where, "share_of_spans": c / max(1, in_span)} for where, c in phases.most_common()],
+        note="samples outside stepSimulation inside spans, by phase, over all runs",
+    )
+    functions = sum((s.outside for s in runs), collections.Counter())
+    run.table(
+        "functions",
+        [
+            {"function": where, "share_of_spans": c / max(1, in_span)}
+            for where, c in functions.most_common(20)
+        ],
+        note="samples outside stepSimulation inside spans, by innermost project function (top 20, all runs)",
+    )
+    run.figure("worker_samples", sum(s.total for s in runs), note="all runs")
 
 
 if __name__ == "__main__":

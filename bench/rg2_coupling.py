@@ -1,22 +1,27 @@
-"""Measure the RG2 model: follower error under a 40 N squeeze (gear vs per-step position coupling),
-width error over the stroke, squeeze force, and UR3 FK error. Prints figures; never a test.
+"""The RG2 model: follower error under a 40 N squeeze (gear vs per-step position coupling), width
+error over the stroke, squeeze force, and the UR3's FK error.
 
-    python bench/rg2_coupling.py
+    python -m bench.rg2_coupling
+
+Prints figures and writes a record (bench/harness.py); never a test. No timing: nothing here moves
+with the machine's speed.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import pybullet as pb
 
 from annotator import paths
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
+from annotator.grippers import default_gripper
+from annotator.sim import pb
 from annotator.sim.body import Body
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.rg2 import RG2
 from annotator.sim.ur3 import JOINT_NAMES, dh_forward_kinematics
 from annotator.sim.world import World
+from bench.harness import Run
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -52,8 +57,8 @@ def width_errors() -> np.ndarray:
     """|measured - commanded| pad separation (mm) for 23 widths over the stroke, in free air."""
     with World(PhysicsConfig().whole_linkage()) as world:
         world.set_gravity(False)
-        body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
-        rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
+        body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
+        rg2 = RG2(body, default_gripper().urdf, GripperConfig())
         out = []
         for width in np.linspace(0.0, 0.110, 23):
             for _ in range(240):
@@ -80,24 +85,47 @@ def ur3_fk_error(n: int = 200) -> float:
 
 def main() -> None:
     physics = PhysicsConfig()
-    for coupling, passive in (("gear", "simulated"), ("position", "simulated"), ("gear", "kinematic")):
-        err, forces, drift = squeeze(coupling, passive)
-        its = physics.solver_iterations if passive == "kinematic" else physics.linkage_solver_iterations
+    with Run("rg2_coupling") as run:
+        rows = []
+        for coupling, passive in (("gear", "simulated"), ("position", "simulated"), ("gear", "kinematic")):
+            err, forces, drift = squeeze(coupling, passive)
+            its = physics.solver_iterations if passive == "kinematic" else physics.linkage_solver_iterations
+            print(
+                f"coupling={coupling:8s} passive links {passive:9s} ({its} iterations) 40 N squeeze on a "
+                f"40 mm box: max follower error {err:6.3f} deg, "
+                f"pad forces {forces[0]:5.1f} / {forces[1]:5.1f} N, "
+                f"box drift {drift:5.1f} mm"
+            )
+            rows.append(
+                {
+                    "coupling": coupling,
+                    "passive_links": passive,
+                    "solver_iterations": its,
+                    "max_follower_error_deg": err,
+                    "pad_force_1_n": float(forces[0]),
+                    "pad_force_2_n": float(forces[1]),
+                    "box_drift_mm": drift,
+                }
+            )
+        run.table("squeeze", rows, note="1 s of a 40 N squeeze on a 40 mm, 50 g box, gravity off")
+        errs = width_errors()
         print(
-            f"coupling={coupling:8s} passive links {passive:9s} ({its} iterations) 40 N squeeze on a "
-            f"40 mm box: max follower error {err:6.3f} deg, "
-            f"pad forces {forces[0]:5.1f} / {forces[1]:5.1f} N, "
-            f"box drift {drift:5.1f} mm"
+            f"width command over 0..110 mm (23 widths): max error {errs.max():.3f} mm, "
+            f"mean {errs.mean():.3f} mm"
         )
-    errs = width_errors()
-    print(
-        f"width command over 0..110 mm (23 widths): max error {errs.max():.3f} mm, mean {errs.mean():.3f} mm"
-    )
-    with World(PhysicsConfig()) as world:
-        body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
-        rg2 = RG2(body, paths.rg2_urdf(), GripperConfig())
-        print(f"stroke from FK: {rg2.table.min_width * 1000:.2f} .. {rg2.max_width * 1000:.2f} mm")
-    print(f"UR3 tool0 vs DH FK, 200 random q: max error {ur3_fk_error():.5f} mm")
+        run.figure(
+            "width_error_max", float(errs.max()), "mm", note="|measured - commanded|, 23 widths in free air"
+        )
+        run.figure("width_error_mean", float(errs.mean()), "mm")
+        with World(PhysicsConfig()) as world:
+            body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
+            rg2 = RG2(body, default_gripper().urdf, GripperConfig())
+            print(f"stroke from FK: {rg2.table.min_width * 1000:.2f} .. {rg2.max_width * 1000:.2f} mm")
+            run.figure("stroke_min", rg2.table.min_width * 1000, "mm", note="pad separation from FK")
+            run.figure("stroke_max", rg2.max_width * 1000, "mm")
+        fk = ur3_fk_error()
+        print(f"UR3 tool0 vs DH FK, 200 random q: max error {fk:.5f} mm")
+        run.figure("ur3_fk_error_max", fk, "mm", note="tool0 in PyBullet vs the DH FK, 200 random q")
 
 
 if __name__ == "__main__":

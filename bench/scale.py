@@ -1,8 +1,8 @@
 """Scale: a folder with thousands of objects, and a mesh with millions of faces.
 
-    python bench/scale.py folder                  # 2,000 objects: discovery, digests, peak memory
-    python bench/scale.py folder --run 200        # ... and `annotate --n 1` on the first 200 ids
-    python bench/scale.py big-mesh                # a 2,000,000-face ring, end to end
+    python -m bench.scale folder                  # 2,000 objects: discovery, digests, peak memory
+    python -m bench.scale folder --run 200        # ... and `annotate --n 1` on the first 200 ids
+    python -m bench.scale big-mesh                # a 2,000,000-face ring, end to end
 
 ``folder`` writes, in a temporary folder, pybullet_data's 1,000 random_urdfs (a URDF and its mesh
 each) and copies of the sample objects (every format, the URDF with its two meshes) until there
@@ -13,6 +13,8 @@ discovering the objects and hashing every source (the manifest's digests), with 
 reads and simplifies it to the face budget (ObjectConfig.max_faces), decomposes it (CoACD on a
 copy of at most ObjectConfig.decomposition_max_faces) and runs ``annotate --n 20`` on it in a fresh
 process with that decomposition cached, printing each step's time and peak memory.
+
+Each writes a record (bench/harness.py): ``scale_folder`` and ``scale_big_mesh``.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
+from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,13 +57,16 @@ def _run_measured(cmd: list[str], env: dict) -> tuple[int, float, str]:
         return proc.returncode, usage.ru_maxrss / 1024.0, out.read()
 
 
-def _annotate_measured(cmd: list[str], tmp: Path, what: str) -> tuple[int, str]:
+def _annotate_measured(cmd: list[str], tmp: Path, what: str, run: Run) -> tuple[int, str]:
     """Run an ``annotate`` command with its decomposition cache in ``tmp``; print ``what``, its exit
-    code, wall time and peak RSS; return the exit code and the output."""
+    code, wall time and peak RSS and record the last two; return the exit code and the output."""
     env = {**os.environ, "RG2_CACHE_DIR": str(tmp / "cache")}
     t0 = time.perf_counter()
     code, rss, text = _run_measured(cmd, env)
-    print(f"{what}: exit {code} in {time.perf_counter() - t0:.0f} s, peak RSS of its processes {rss:.0f} MB")
+    seconds = time.perf_counter() - t0
+    print(f"{what}: exit {code} in {seconds:.0f} s, peak RSS of its processes {rss:.0f} MB")
+    run.figure("annotate_s", seconds, "s", note=f"{what}, wall, exit {code}")
+    run.figure("annotate_peak_rss", rss, "MB", note="the largest of its processes")
     return code, text
 
 
@@ -95,7 +102,15 @@ def make_folder(dest: Path, count: int) -> int:
 def folder(args) -> None:
     from annotator.objects import discover_objects, source_digest
 
-    with tempfile.TemporaryDirectory(prefix="rg2-scale-") as tmp:
+    with (
+        Run(
+            "scale_folder",
+            config=vars(args),
+            about="A folder of thousands of objects: discovery, digests and peak memory of the main process "
+            "before any work starts (and annotate --n 1 on some of them with --run).",
+        ) as run,
+        tempfile.TemporaryDirectory(prefix="rg2-scale-") as tmp,
+    ):
         root = Path(tmp) / "objects"
         t0 = time.perf_counter()
         made = make_folder(root, args.objects)
@@ -113,6 +128,11 @@ def folder(args) -> None:
             f"discovery: {len(sources)} objects in {t1 - t0:.2f} s; digests: {len(digests)} in "
             f"{t2 - t1:.2f} s; Python peak {peak / 2**20:.1f} MB, process peak RSS {_rss_mb():.0f} MB"
         )
+        run.figure("objects", len(sources), note=f"{files} files written")
+        run.figure("discovery_ms_per_object", (t1 - t0) / len(sources) * 1e3, "ms")
+        run.figure("digest_ms_per_object", (t2 - t1) / len(sources) * 1e3, "ms")
+        run.figure("python_peak", peak / 2**20, "MB", note="tracemalloc, discovery and digests")
+        run.figure("peak_rss", _rss_mb(), "MB", note="this process")
         if args.run:
             keep = {s.object_id for s in sources[: args.run]}
             for s in sources[args.run :]:  # the run's folder: the first --run objects only
@@ -120,7 +140,7 @@ def folder(args) -> None:
                     f.unlink(missing_ok=True)
             out = Path(tmp) / "labels"
             cmd = ["annotate", "--objects", str(root), "--n", "1", "--out", str(out), "--quiet"]
-            code, text = _annotate_measured(cmd, Path(tmp), f"annotate --n 1 on {len(keep)} objects")
+            code, text = _annotate_measured(cmd, Path(tmp), f"annotate --n 1 on {len(keep)} objects", run)
             if args.log:
                 args.log.write_text(text)
             lines = [ln for ln in text.splitlines() if "failed" in ln or "labelled" in ln]
@@ -152,14 +172,24 @@ def big_mesh(args) -> None:
     from annotator.config import ObjectConfig
     from annotator.objects import load_object, read_object_mesh
 
-    with tempfile.TemporaryDirectory(prefix="rg2-big-") as tmp:
+    with (
+        Run(
+            "scale_big_mesh",
+            config=vars(args),
+            about="A 2,000,000-face ring end to end: read, clean and simplify, decompose, annotate --n 20, "
+            "each step's time and peak memory.",
+        ) as run,
+        tempfile.TemporaryDirectory(prefix="rg2-big-") as tmp,
+    ):
         objects = Path(tmp) / "objects"
         objects.mkdir()
         t0 = time.perf_counter()
         path = objects / "ring.ply"
         # written by a child process, so this process's peak memory is the reading's
         sizes = [f"--major={args.major}", f"--minor={args.minor}"]
-        subprocess.run([sys.executable, __file__, "write-torus", str(path), *sizes], check=True)
+        subprocess.run(
+            [sys.executable, "-m", "bench.scale", "write-torus", str(path), *sizes], check=True, cwd=ROOT
+        )
         seconds = time.perf_counter() - t0
         size = path.stat().st_size / 2**20
         print(
@@ -170,16 +200,25 @@ def big_mesh(args) -> None:
         before = _rss_mb()
         t0 = time.perf_counter()
         mesh = read_object_mesh(path, config)
+        seconds = time.perf_counter() - t0
         print(
             f"read + clean + simplify to {len(mesh.faces):,} faces (budget {config.max_faces:,}): "
-            f"{time.perf_counter() - t0:.1f} s, peak RSS {_rss_mb():.0f} MB (from {before:.0f})"
+            f"{seconds:.1f} s, peak RSS {_rss_mb():.0f} MB (from {before:.0f})"
         )
+        run.figure("faces", 2 * args.major * args.minor, note="written")
+        run.figure("read_s", seconds, "s", note=f"read, clean, simplify to {len(mesh.faces)} faces")
+        run.figure("read_peak_rss", _rss_mb(), "MB", note="this process")
         del mesh
         t0 = time.perf_counter()
         model = load_object(path, config, cache_dir=Path(tmp) / "cache")
         err = model.collision_error
+        seconds = time.perf_counter() - t0
+        run.figure("load_s", seconds, "s", note="load_object: read again, weigh, decompose")
+        run.figure("decomposition_s", model.decomposition_seconds, "s", note=model.collision_method)
+        run.figure("collision_error_max", err.max * 1e3, "mm")
+        run.figure("load_peak_rss", _rss_mb(), "MB", note="this process")
         print(
-            f"load_object (read again, weigh, decompose): {time.perf_counter() - t0:.1f} s, of which "
+            f"load_object (read again, weigh, decompose): {seconds:.1f} s, of which "
             f"decomposition {model.decomposition_seconds:.1f} s (CoACD on at most "
             f"{config.decomposition_max_faces:,} faces, in a child process): {model.collision_method} "
             f"{len(model.parts)} parts, threshold "
@@ -199,7 +238,8 @@ def big_mesh(args) -> None:
             "--workers",
             "2",
         ]
-        code, text = _annotate_measured(cmd, Path(tmp), "annotate --n 20 --workers 2 (decomposition cached)")
+        what = "annotate --n 20 --workers 2 (decomposition cached)"
+        code, text = _annotate_measured(cmd, Path(tmp), what, run)
         print("\n".join(text.strip().splitlines()[-8:]))
 
 

@@ -1,22 +1,25 @@
-"""Throughput of the annotation job on the sample objects; prints figures, asserts nothing.
+"""Throughput of the annotation job on the sample objects, as ratios to a free step of the gripper.
 
-    python bench/throughput.py            # --n 200 on all cores, the 1- vs 2-worker scaling,
-                                          # then the README's main command as a user runs it, 3 times
-    python bench/throughput.py --n 50 --main-n 0    # quicker, without the main command
-    python bench/throughput.py --n 0 --scaling-n 0 --repeat 5   # only the main command, 5 times
-    python bench/throughput.py --n 0 --scaling-n 0 --versus other.toml   # runs alternate: default, other
-    python bench/throughput.py --modes-only         # floating vs --cell vs --cell --views 1
+    python -m bench.throughput            # --n 200 on all cores, the 1- vs 2-worker scaling, the
+                                          # modes, then the README's main command, 3 times
+    python -m bench.throughput --n 50 --main-n 0    # quicker, without the main command
+    python -m bench.throughput --n 0 --scaling-n 0 --modes-n 0 --repeat 5   # only the main command
+    python -m bench.throughput --n 0 --scaling-n 0 --modes-n 0 --versus bench/before_speed.toml
+                                          # main command runs alternate: default, the model before
+    python -m bench.throughput --modes-only         # floating vs --cell vs --cell --views 1
 
-The modes are run alternately, --repeat times each, with the load average printed before each run:
-a figure is only comparable with one taken under the same load.
+Every throughput figure comes first as a ratio to a reference measured in the same run
+(bench/reference.py): the cost of a candidate in free steps, one free step being
+``stepSimulation`` of the gripper squeezing the sample box, timed before each part and each run
+of the main command. A slower or busier machine makes both dearer, so the ratio stays where
+candidates per second do not. ``--versus`` adds the ratio to the model before.
 
+The modes are run alternately, --repeat times each, with the load average printed before each run.
+The main command also reports candidates per CPU-second (user + system time of the command and its
+workers), what one core delivers when it is not shared, and is repeated for its spread.
 Convex decompositions are cached (RG2_CACHE_DIR or ~/.cache/rg2-annotator); the first run on a
-fresh machine pays for them, so run it twice and read the second.
-
-Every timing is printed with the machine's load average. This machine is shared: wall-clock
-candidates/s per core fall when other processes want the cores, so the main command also reports
-candidates per CPU-second (user + system time of the command and its workers), which is what one
-core delivers when it is not shared; the main command is repeated and its spread printed.
+fresh machine pays for them, so run it twice and read the second. Prints figures and writes a
+record (bench/harness.py); asserts nothing.
 """
 
 from __future__ import annotations
@@ -24,44 +27,24 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import resource
 import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 
 from annotator.config import AnnotatorConfig
-from annotator.geometry import Transform
-from annotator.objects import create_body, discover_objects, load_object
+from annotator.objects import discover_objects
 from annotator.pipeline.run import RunOptions, run
-from annotator.sim.hand import FloatingRG2
-from annotator.sim.world import World
+from bench.harness import Run
+from bench.reference import FreeStep, free_step, median_step
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def raw_step_cost(objects: Path, config: AnnotatorConfig, steps: int = 480) -> float:
-    """Seconds per stepSimulation of the RG2 squeezing the sample box (no Python in the loop)."""
-    with World(config.physics) as world:
-        hand = FloatingRG2(world, config.gripper)
-        model = load_object(objects / "box.obj", config.objects)
-        uid = create_body(world.client, model)
-        world.set_gravity(False)
-        top = model.mesh.bounds[1][2] - 0.015  # pads on the top 30 mm, closing along the 60 mm side
-        T_world_tcp = Transform([*model.center_mass[:2], top], np.array([1.0, 0.0, 0.0, 0.0]))
-        hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, 0.06), 0.08)
-        hand.close(config.gripper.grip_force, 240)
-        assert all(hand.rg2.pad_contacts(uid)), "the bench grasp does not touch the box"
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            pb.stepSimulation(physicsClientId=world.client)
-        return (time.perf_counter() - t0) / steps
 
 
 def timed_run(
@@ -77,9 +60,12 @@ def timed_run(
 
 
 MODES = {"floating": {}, "--cell": {"cell": True}, "--cell --views 1": {"cell": True, "views": 1}}
+MODE_KEYS = {"floating": "floating", "--cell": "cell", "--cell --views 1": "cell_views"}
 
 
-def compare_modes(objects: Path, n: int, workers: int, config: AnnotatorConfig, repeat: int) -> None:
+def compare_modes(
+    objects: Path, n: int, workers: int, config: AnnotatorConfig, repeat: int, record: Run
+) -> None:
     """Wall time of the same job floating, in the cell, and in the cell with one view per placement."""
     print(f"\n== modes: --n {n}, {workers} workers, each run {repeat} times, alternating ==")
     walls: dict[str, list[float]] = {m: [] for m in MODES}
@@ -96,6 +82,14 @@ def compare_modes(objects: Path, n: int, workers: int, config: AnnotatorConfig, 
     for mode, times in walls.items():
         wall = float(np.median(times))
         print(f"median {mode:<17} {wall:7.1f} s  x{wall / base:4.2f} of floating")
+        key = MODE_KEYS[mode]
+        if mode != "floating":
+            record.ratio(
+                f"modes_{key}_vs_floating", wall / base, note=f"wall, {mode} / floating, medians of {repeat}"
+            )
+        record.figure(
+            f"modes_{key}_s", wall, "s", spread=(min(times), max(times)), note=f"{mode}, --n {n}, wall"
+        )
 
 
 def load() -> str:
@@ -103,46 +97,54 @@ def load() -> str:
     return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
 
 
-def children_cpu() -> float:
-    """User + system CPU seconds of this process's finished children (and their reaped children)."""
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
+@dataclass(frozen=True)
+class MainCommand:
+    """One run of the main command: seconds from the launch to the first label file and to the exit,
+    CPU seconds of the command and its workers, the summary's last line."""
+
+    first_label_s: float
+    exit_s: float
+    cpu_s: float
+    last_line: str
 
 
-def main_command(
-    objects: Path, n: int, workers: int | None, config_file: Path | None = None
-) -> tuple[float, float, float, str]:
+def main_command(objects: Path, n: int, workers: int | None, config_file: Path | None = None) -> MainCommand:
     """The README's ``annotate --objects objects/ --n N`` as a subprocess (all cores by default).
 
-    Returns (seconds to the first label file, seconds to exit, both from the launch; CPU seconds of
-    the command and its workers; the summary's last line).
+    Its CPU time is what ``os.wait4`` reports for that process: its own and that of the workers it
+    waited for, nothing else. (This process's children-wide counter would also collect, whenever
+    they end, the workers of the in-process runs before it, which joblib keeps for reuse.)
     """
     exe = shutil.which("annotate", path=str(Path(sys.executable).parent)) or shutil.which("annotate")
     if exe is None:
         raise SystemExit("the annotate command is not installed (pip install -e .)")
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile("w+") as log:
         out = Path(tmp) / "labels"
         extra = ["--workers", str(workers)] if workers else []
         extra += ["--config", str(config_file)] if config_file else []
-        cpu0 = children_cpu()
         t0 = time.perf_counter()
         proc = subprocess.Popen(
             [exe, "--objects", str(objects), "--n", str(n), "--out", str(out), "--quiet", *extra],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
+            stdout=log,
+            stderr=subprocess.STDOUT,
             text=True,
         )
         first = None
-        while proc.poll() is None:
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
             if first is None and out.is_dir() and any(out.glob("*.parquet")):
                 first = time.perf_counter() - t0
             time.sleep(0.01)
         total = time.perf_counter() - t0
-        stdout, stderr = proc.communicate()
-        cpu = children_cpu() - cpu0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        log.seek(0)
+        text = log.read()
         if proc.returncode != 0:
-            raise SystemExit(f"annotate exited {proc.returncode}:\n{stderr[-2000:]}")
-        return (first if first is not None else total), total, cpu, stdout.splitlines()[-1]
+            raise SystemExit(f"annotate exited {proc.returncode}:\n{text[-2000:]}")
+        cpu = usage.ru_utime + usage.ru_stime
+        return MainCommand(first if first is not None else total, total, cpu, text.strip().splitlines()[-1])
 
 
 def main() -> None:
@@ -160,86 +162,198 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
-    cores = min(args.workers, os.cpu_count() or 1)
     if args.modes_only:
-        compare_modes(args.objects, args.modes_n, args.workers, config, args.repeat)
-        return
+        args.n = args.scaling_n = args.main_n = 0
+    with Run("throughput", config=vars(args), annotator=config) as record:
+        references = [free_step(config)]
+        if args.n:
+            in_process(args, config, record, references)
+        if args.scaling_n:
+            scaling(args, config, record)
+        if args.modes_n:
+            compare_modes(args.objects, args.modes_n, args.workers, config, args.repeat, record)
+        if args.main_n:
+            main_command_runs(args, record, references)
+        references.append(free_step(config))
+        ref = median_step(references)
+        cpu = [r.cpu_ms for r in references]
+        record.figure(
+            "free_step_cpu_ms",
+            ref.cpu_ms,
+            "ms",
+            spread=(min(cpu), max(cpu)),
+            note=f"the reference: CPU ms per free step, median of {len(references)} measured over the run",
+        )
 
+
+def in_process(
+    args: argparse.Namespace, config: AnnotatorConfig, record: Run, references: list[FreeStep]
+) -> None:
+    """``annotate --n N`` in this process: rates, steps, the share outside stepSimulation."""
+    cores = min(args.workers, os.cpu_count() or 1)
     n_objects = len(discover_objects(args.objects))
-    if args.n:
-        print(f"\n== annotate --n {args.n} on {n_objects} sample objects, {args.workers} workers ==")
-        print(f"before: {load()}")
-        summary, wall = timed_run(args.objects, args.n, args.workers, config)
-        print(f"after:  {load()}")
-        outside = 1.0 - summary.step_seconds / summary.worker_seconds
-        print(f"wall time                      {wall:8.1f} s")
-        print(f"candidates/s                   {summary.candidates / wall:8.2f}")
-        print(f"candidates/s per core          {summary.candidates / wall / cores:8.2f}   ({cores} cores)")
-        print(
-            f"physics trials/s               {summary.physics_trials / wall:8.2f}   "
-            f"({summary.physics_trials} of {summary.candidates} candidates simulated)"
-        )
-        print(f"mean simulated steps/candidate {summary.sim_steps / summary.candidates:8.1f}")
-        print(f"time to first label file       {summary.first_label_seconds:8.1f} s (from the run's start)")
-        print(
-            f"worker time in stepSimulation  {summary.step_seconds:8.1f} s of {summary.worker_seconds:.1f} s"
-        )
-        print(f"share outside stepSimulation   {outside:8.1%}")
-        step_ms = summary.step_seconds / max(summary.sim_steps, 1) * 1e3
-        print(f"mean cost of one step in runs  {step_ms:8.3f} ms")
-        print(f"raw stepSimulation, RG2 + box  {raw_step_cost(args.objects, config) * 1e3:8.3f} ms")
-        rss = list(summary.peak_rss_mb.values())
-        print(
-            f"peak memory per worker         {max(rss):8.0f} MB "
-            f"(workers: {', '.join(f'{r:.0f}' for r in rss)})"
-        )
+    print(f"\n== annotate --n {args.n} on {n_objects} sample objects, {args.workers} workers ==")
+    print(f"before: {load()}")
+    summary, wall = timed_run(args.objects, args.n, args.workers, config)
+    print(f"after:  {load()}")
+    ref = free_step(config)
+    references.append(ref)
+    outside = 1.0 - summary.step_seconds / summary.worker_seconds
+    step_ms = summary.step_seconds / max(summary.sim_steps, 1) * 1e3
+    core_ms = wall * cores / summary.candidates * 1e3  # core-wall ms per candidate
+    print(f"wall time                      {wall:8.1f} s")
+    print(f"candidates/s                   {summary.candidates / wall:8.2f}")
+    print(f"candidates/s per core          {summary.candidates / wall / cores:8.2f}   ({cores} cores)")
+    print(
+        f"physics trials/s               {summary.physics_trials / wall:8.2f}   "
+        f"({summary.physics_trials} of {summary.candidates} candidates simulated)"
+    )
+    print(f"mean simulated steps/candidate {summary.sim_steps / summary.candidates:8.1f}")
+    print(f"time to first label file       {summary.first_label_seconds:8.1f} s (from the run's start)")
+    print(f"worker time in stepSimulation  {summary.step_seconds:8.1f} s of {summary.worker_seconds:.1f} s")
+    print(f"share outside stepSimulation   {outside:8.1%}")
+    print(f"mean cost of one step in runs  {step_ms:8.3f} ms")
+    print(f"free step, RG2 + box           {ref.wall_ms:8.3f} ms (bench/reference.py)")
+    print(f"one candidate costs            {core_ms / ref.wall_ms:8.1f} free steps (core-wall)")
+    rss = list(summary.peak_rss_mb.values())
+    print(
+        f"peak memory per worker         {max(rss):8.0f} MB (workers: {', '.join(f'{r:.0f}' for r in rss)})"
+    )
+    record.ratio(
+        "free_steps_per_candidate",
+        core_ms / ref.wall_ms,
+        note=f"annotate --n {args.n} in-process: core-wall time per candidate / wall time of a free step",
+    )
+    record.ratio(
+        "mean_step_vs_free_step",
+        step_ms / ref.wall_ms,
+        note="a step inside the run's trials / a free step (contacts and constraints of the trials)",
+    )
+    record.ratio("outside_step_share", outside, note="share of the workers' span time outside stepSimulation")
+    record.figure(
+        "candidates_per_s_per_core", summary.candidates / wall / cores, "1/s", note=f"{cores} cores"
+    )
+    record.figure(
+        "candidates_per_s", summary.candidates / wall, "1/s", note=f"annotate --n {args.n}, in-process"
+    )
+    record.figure("wall_s", wall, "s")
+    record.figure("physics_trials_per_s", summary.physics_trials / wall, "1/s")
+    record.figure("steps_per_candidate", summary.sim_steps / summary.candidates)
+    record.figure("first_label_s", summary.first_label_seconds, "s", note="from the run's start")
+    record.figure("mean_step_ms", step_ms, "ms", note="wall, inside the trials")
+    record.figure("free_step_wall_ms", ref.wall_ms, "ms", note="wall, right after the run")
+    record.figure("peak_rss_per_worker", max(rss), "MB", note="the largest worker")
 
-    if args.scaling_n:
-        print(f"\n== scaling: --n {args.scaling_n}, 1 vs 2 workers == ({load()})")
-        s1, w1 = timed_run(args.objects, args.scaling_n, 1, config)
-        s2, w2 = timed_run(args.objects, args.scaling_n, 2, config)
-        print(
-            f"1 worker {w1:6.1f} s, 2 workers {w2:6.1f} s: speed-up {w1 / w2:.2f}, "
-            f"efficiency {w1 / (2 * w2):.1%} ({load()})"
-        )
 
-    if args.modes_n:
-        compare_modes(args.objects, args.modes_n, args.workers, config, args.repeat)
+def scaling(args: argparse.Namespace, config: AnnotatorConfig, record: Run) -> None:
+    """The same job on 1 and on 2 workers."""
+    print(f"\n== scaling: --n {args.scaling_n}, 1 vs 2 workers == ({load()})")
+    s1, w1 = timed_run(args.objects, args.scaling_n, 1, config)
+    s2, w2 = timed_run(args.objects, args.scaling_n, 2, config)
+    print(
+        f"1 worker {w1:6.1f} s, 2 workers {w2:6.1f} s: speed-up {w1 / w2:.2f}, "
+        f"efficiency {w1 / (2 * w2):.1%} ({load()})"
+    )
+    record.ratio("scaling_speedup", w1 / w2, note=f"--n {args.scaling_n}: wall with 1 worker / with 2")
+    record.ratio("scaling_efficiency", w1 / (2 * w2), note="the speed-up / 2")
 
-    if args.main_n:
-        total_n = args.main_n * n_objects
-        configs = [("", args.config)] + ([("versus ", args.versus)] if args.versus else [])
-        print(
-            f"\n== README main command: annotate --objects objects/ --n {args.main_n} "
-            f"({args.workers} workers), {args.repeat} runs"
-            + (f", alternating with --config {args.versus}" if args.versus else "")
-            + " =="
-        )
-        per_core: dict[str, list[float]] = {label: [] for label, _ in configs}
-        per_cpu: dict[str, list[float]] = {label: [] for label, _ in configs}
-        for r in range(args.repeat):
-            for label, config_file in configs:
-                before = load()
-                first, total, cpu, last = main_command(args.objects, args.main_n, args.workers, config_file)
-                per_core[label].append(total_n / total / cores)
-                per_cpu[label].append(total_n / cpu)
-                print(
-                    f"{label}run {r + 1}: first label file {first:5.1f} s, finished {total:6.1f} s after "
-                    f"launch: {total_n / total:5.1f} candidates/s, {per_core[label][-1]:5.1f} per core; "
-                    f"{cpu:6.1f} CPU-s, {per_cpu[label][-1]:5.1f} candidates per CPU-second"
-                )
-                print(f"       {before} before, {load()} after")
-                print(f"       {last}")
-        for label, _ in configs:
-            a, b = per_core[label], per_cpu[label]
+
+def main_command_runs(args: argparse.Namespace, record: Run, references: list[FreeStep]) -> None:
+    """The README's main command as a user runs it, ``--repeat`` times (alternating with ``--versus``)."""
+    cores = min(args.workers, os.cpu_count() or 1)
+    total_n = args.main_n * len(discover_objects(args.objects))
+    configs = [("", args.config)] + ([("versus ", args.versus)] if args.versus else [])
+    print(
+        f"\n== README main command: annotate --objects objects/ --n {args.main_n} "
+        f"({args.workers} workers), {args.repeat} runs"
+        + (f", alternating with --config {args.versus}" if args.versus else "")
+        + " =="
+    )
+    per_core: dict[str, list[float]] = {label: [] for label, _ in configs}
+    per_cpu: dict[str, list[float]] = {label: [] for label, _ in configs}
+    free_steps: dict[str, list[float]] = {label: [] for label, _ in configs}
+    rows = []
+    # one reference for both configurations: the ratio of their free steps per candidate is theirs
+    base = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
+    for r in range(args.repeat):
+        for label, config_file in configs:
+            before, load0 = load(), os.getloadavg()[0]
+            ref = free_step(base)
+            references.append(ref)
+            result = main_command(args.objects, args.main_n, args.workers, config_file)
+            first, total, cpu, last = result.first_label_s, result.exit_s, result.cpu_s, result.last_line
+            per_core[label].append(total_n / total / cores)
+            per_cpu[label].append(total_n / cpu)
+            free_steps[label].append(cpu / total_n / ref.cpu)
             print(
-                f"{label or 'base '}candidates/s per core (wall): min {min(a):.1f} / median "
-                f"{statistics.median(a):.1f} / max {max(a):.1f}; per CPU-second: min {min(b):.1f} / "
-                f"median {statistics.median(b):.1f} / max {max(b):.1f}"
+                f"{label}run {r + 1}: first label file {first:5.1f} s, finished {total:6.1f} s after "
+                f"launch: {total_n / total:5.1f} candidates/s, {per_core[label][-1]:5.1f} per core; "
+                f"{cpu:6.1f} CPU-s, {per_cpu[label][-1]:5.1f} candidates per CPU-second, "
+                f"{free_steps[label][-1]:5.1f} free steps per candidate"
             )
-        if args.versus:
-            ratio = statistics.median(per_cpu["versus "]) / statistics.median(per_cpu[""])
-            print(f"versus / base, median candidates per CPU-second: {ratio:.2f}")
+            print(f"       {before} before, {load()} after")
+            print(f"       {last}")
+            rows.append(
+                {
+                    "run": r + 1,
+                    "config": str(config_file or "default"),
+                    "first_label_s": first,
+                    "exit_s": total,
+                    "cpu_s": cpu,
+                    "candidates_per_cpu_s": per_cpu[label][-1],
+                    "free_steps_per_candidate": free_steps[label][-1],
+                    "free_step_cpu_ms": ref.cpu_ms,
+                    "load_before": load0,
+                }
+            )
+    for label, _ in configs:
+        a, b = per_core[label], per_cpu[label]
+        print(
+            f"{label or 'base '}candidates/s per core (wall): min {min(a):.1f} / median "
+            f"{statistics.median(a):.1f} / max {max(a):.1f}; per CPU-second: min {min(b):.1f} / "
+            f"median {statistics.median(b):.1f} / max {max(b):.1f}"
+        )
+    what = f"annotate --objects objects/ --n {args.main_n}, {total_n} candidates"
+    steps = free_steps[""]
+    record.ratio(
+        "main_free_steps_per_candidate",
+        statistics.median(steps),
+        spread=(min(steps), max(steps)),
+        note=f"{what}: CPU time per candidate / CPU time of a free step measured just before; "
+        f"median of {args.repeat} runs",
+    )
+    if args.versus:
+        ratio = statistics.median(per_cpu["versus "]) / statistics.median(per_cpu[""])
+        print(f"versus / base, median candidates per CPU-second: {ratio:.2f}")
+        record.ratio(
+            "main_versus_vs_base",
+            ratio,
+            note=f"candidates per CPU-second, --config {args.versus} / the default (medians; runs alternate)",
+        )
+        vs = free_steps["versus "]
+        record.ratio(
+            "main_versus_free_steps_per_candidate",
+            statistics.median(vs),
+            spread=(min(vs), max(vs)),
+            note=f"as main_free_steps_per_candidate, with --config {args.versus}",
+        )
+    b = per_cpu[""]
+    record.figure(
+        "main_candidates_per_cpu_s",
+        statistics.median(b),
+        "1/s",
+        spread=(min(b), max(b)),
+        note=f"{what}: candidates per CPU-second of the command and its workers",
+    )
+    a = per_core[""]
+    record.figure(
+        "main_candidates_per_s_per_core",
+        statistics.median(a),
+        "1/s",
+        spread=(min(a), max(a)),
+        note=f"launch to exit, {cores} cores",
+    )
+    record.table("main_command", rows, note=what)
 
 
 if __name__ == "__main__":

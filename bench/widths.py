@@ -1,9 +1,9 @@
 """Do the widths of successful grasps match the mesh? Per object, label N candidates as `annotate`
 does and compare each success's width with the opening the mesh implies for the RG2's flat pads.
 
-    python bench/widths.py                                 # bowl, mug and banana of objects/
-    python bench/widths.py --objects DIR --only mug --n 400
-    python bench/widths.py --coarse                        # CoACD once at 0.05, as before issue 9
+    python -m bench.widths                                 # bowl, mug and banana of objects/
+    python -m bench.widths --objects DIR --only mug --n 400
+    python -m bench.widths --coarse          # CoACD once at 0.05, as before the threshold ladder
 
 Three columns per object, in mm, over its successes (mean and max of |difference| or signed range):
 
@@ -15,6 +15,8 @@ Three columns per object, in mm, over its successes (mean and max of |difference
 - ``width - chord``: against the chord of the mesh along the closing axis through the TCP (as
   tests/test_protocol.py measures convex boxes and cans): on concave walls a flat pad rests on its
   edges, so this is geometry, not error.
+
+The table goes into a record (bench/harness.py).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from annotator.pipeline.worker import Span, SpanTask, label_span
 from annotator.sampler import _first_hits, pad_opening
 from annotator.sim.hand import FloatingRG2
 from annotator.sim.world import World
+from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,37 +76,58 @@ def main() -> None:
     print(
         head + "\n" + " " * 34 + "mean|d| max|d|        min    max            min    max\n" + "-" * len(head)
     )
-    for source in sources:
-        model = load_object(source, config.objects)
-        tasks = [
-            SpanTask(Span(source.object_id, source, None, a, min(args.n, a + 25)), config, args.seed, args.n)
-            for a in range(0, args.n, 25)
-        ]
-        t0 = time.perf_counter()
-        rows = pd.concat(
-            [
-                r.rows
-                for r in joblib.Parallel(n_jobs=args.workers)(joblib.delayed(label_span)(t) for t in tasks)
-            ]
+    with Run("widths", config=vars(args), annotator=config) as run:
+        rows = [measure(source, args, config, pad_face) for source in sources]
+        run.table(
+            "objects",
+            rows,
+            note="over each object's successes, mm: width - pads on the mesh (|d|), "
+            "- pads on the parts, - chord",
         )
-        wins = rows[rows["success"]]
-        mesh_tri = np.asarray(model.mesh.triangles)
-        part_tri = np.concatenate([np.asarray(p.triangles) for p in model.parts])
-        d_mesh, d_parts, d_chord = [], [], []
-        for T, r in zip(poses_as_matrices(wins), wins.itertuples(), strict=True):
-            d_mesh.append(r.width - pad_opening(mesh_tri, T, r.width, pad_face))
-            d_parts.append(r.width - pad_opening(part_tri, T, r.width, pad_face))
-            d_chord.append(r.width - chord(mesh_tri, T, r.width / 2 + 0.01))
-        if not d_mesh:
-            print(f"{source.object_id:<20} {len(model.parts):>5} {0:>5}  no successes")
-            continue
-        dm, dp, dc = (np.array(d) * 1e3 for d in (d_mesh, d_parts, d_chord))
-        print(
-            f"{source.object_id:<20} {len(model.parts):>5} {len(dm):>5}"
-            f"  {np.abs(dm).mean():7.2f} {np.abs(dm).max():6.2f}  {dp.min():9.2f} {dp.max():6.2f}"
-            f"  {dc.min():9.2f} {dc.max():6.2f}  {int((np.abs(dm) > 2).sum()):>5}"
-            f"   ({time.perf_counter() - t0:.0f} s)"
-        )
+
+
+def measure(source, args: argparse.Namespace, config: AnnotatorConfig, pad_face) -> dict:
+    """Label ``source``'s candidates, print its line; its table row."""
+    model = load_object(source, config.objects)
+    tasks = [
+        SpanTask(Span(source.object_id, source, None, a, min(args.n, a + 25)), config, args.seed, args.n)
+        for a in range(0, args.n, 25)
+    ]
+    t0 = time.perf_counter()
+    rows = pd.concat(
+        [r.rows for r in joblib.Parallel(n_jobs=args.workers)(joblib.delayed(label_span)(t) for t in tasks)]
+    )
+    wins = rows[rows["success"]]
+    mesh_tri = np.asarray(model.mesh.triangles)
+    part_tri = np.concatenate([np.asarray(p.triangles) for p in model.parts])
+    d_mesh, d_parts, d_chord = [], [], []
+    for T, r in zip(poses_as_matrices(wins), wins.itertuples(), strict=True):
+        d_mesh.append(r.width - pad_opening(mesh_tri, T, r.width, pad_face))
+        d_parts.append(r.width - pad_opening(part_tri, T, r.width, pad_face))
+        d_chord.append(r.width - chord(mesh_tri, T, r.width / 2 + 0.01))
+    if not d_mesh:
+        print(f"{source.object_id:<20} {len(model.parts):>5} {0:>5}  no successes")
+        return {"object": source.object_id, "parts": len(model.parts), "successes": 0}
+    dm, dp, dc = (np.array(d) * 1e3 for d in (d_mesh, d_parts, d_chord))
+    print(
+        f"{source.object_id:<20} {len(model.parts):>5} {len(dm):>5}"
+        f"  {np.abs(dm).mean():7.2f} {np.abs(dm).max():6.2f}  {dp.min():9.2f} {dp.max():6.2f}"
+        f"  {dc.min():9.2f} {dc.max():6.2f}  {int((np.abs(dm) > 2).sum()):>5}"
+        f"   ({time.perf_counter() - t0:.0f} s)"
+    )
+    return {
+        "object": source.object_id,
+        "parts": len(model.parts),
+        "successes": len(dm),
+        "mesh_mean_abs": float(np.abs(dm).mean()),
+        "mesh_max_abs": float(np.abs(dm).max()),
+        "parts_min": float(dp.min()),
+        "parts_max": float(dp.max()),
+        "chord_min": float(dc.min()),
+        "chord_max": float(dc.max()),
+        "over_2mm": int((np.abs(dm) > 2).sum()),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 if __name__ == "__main__":

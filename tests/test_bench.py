@@ -4,43 +4,27 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import re
 import sys
 from pathlib import Path
 
-import pytest
-
 from annotator.config import AnnotatorConfig
 from annotator.sim.world import World
-
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-
-
-@pytest.fixture(scope="module")
-def bench():
-    sys.path.insert(0, str(BENCH))
-    try:
-        import fidelity
-        import profile_worker
-
-        yield fidelity, profile_worker
-    finally:
-        sys.path.remove(str(BENCH))
+from bench import _variants, fidelity, profile_worker
 
 
-def test_profiler_finds_the_line_that_steps_the_world(bench):
+def test_profiler_finds_the_line_that_steps_the_world():
     """profile_worker counts a sample as physics when its innermost frame is World.step's call of
     stepSimulation: if World.step changed, every sample would silently count as outside."""
-    _, profile_worker = bench
     suffix, line = profile_worker.step_line()
     source = Path(sys.modules[World.__module__].__file__).read_text().splitlines()
     assert suffix == "annotator/sim/world.py"
     assert "pb.stepSimulation(" in source[line - 1]
 
 
-def test_profiler_attributes_samples_to_the_innermost_process(bench, tmp_path, monkeypatch):
+def test_profiler_attributes_samples_to_the_innermost_process(tmp_path, monkeypatch):
     """py-spy nests a worker's stack under its parent's "process" frame; the worker's samples
     must be the worker's, and a worker sample in stepSimulation counts as physics."""
-    _, profile_worker = bench
     suffix, line = profile_worker.step_line()
     parent = 'process 10:"python annotate --objects objects"'
     worker = 'process 11:"python -m joblib.externals.loky.backend.popen_loky_posix --pipe 3"'
@@ -84,12 +68,17 @@ def test_profiler_attributes_samples_to_the_innermost_process(bench, tmp_path, m
     assert profile_worker.owner(("a (lib.py:1)", "_first_hits (annotator/sampler.py:90)", "b (np.py:2)")) == (
         "_first_hits (annotator/sampler.py)"
     )
+    # the shares the record keeps: 7 of the worker's 9 samples in stepSimulation, all 9 in a span
+    shares = profile_worker.Shares()
+    shares.add_worker(counter, lambda s: s[-1].startswith("step ("))
+    assert (shares.total, shares.inside, shares.in_span) == (9, 7, 9)
+    assert shares.outside_share == shares.span_outside_share == 2 / 9
+    assert shares.phases == {"_first_hits": 2}
 
 
-def test_fidelity_cache_key_keeps_cell_settings_out_but_not_physics(bench):
+def test_fidelity_cache_key_keeps_cell_settings_out_but_not_physics():
     """Cached floating labels survive a change to [cell] or [kinect] (which they never read), and
     never survive a change to the gripper, the objects, the physics or the protocol."""
-    fidelity, _ = bench
     cache = fidelity.LabelCache(Path("/nonexistent"))
     base = AnnotatorConfig()
     key = {"seed": 0}
@@ -103,3 +92,13 @@ def test_fidelity_cache_key_keeps_cell_settings_out_but_not_physics(bench):
         dataclasses.replace(base, physics=dataclasses.replace(base.physics, solver_iterations=200)),
     ):
         assert cache._path("default", changed, key) != path
+
+
+def test_variant_documented_in_the_module_parses_to_what_it_says():
+    """The variant _variants' docstring shows names fields that exist, and sets them."""
+    (example,) = re.findall(r'``"([^"]+)"``', _variants.__doc__.splitlines()[0])
+    label, config = _variants.parse_variant(example)
+    assert label == "it100"
+    assert config.physics.solver_iterations == 100
+    assert config.protocol.shake_paired is False
+    assert config.to_dict() != AnnotatorConfig().to_dict()

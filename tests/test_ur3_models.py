@@ -17,7 +17,7 @@ from annotator.sim import ur3
 from annotator.sim.body import Body
 
 FLAGS = p.URDF_USE_INERTIA_FROM_FILE
-# ROBOT_FACTS.md: masses (kg) of the UR3 links
+# docs/robots.md: masses (kg) of the UR3 links
 UR3_MASSES = {
     "base_link": 2.0,
     "shoulder_link": 2.0,
@@ -28,7 +28,7 @@ UR3_MASSES = {
     "wrist_3_link": 0.35,
 }
 FRAME_LINKS = ("base", "tool0")  # massless frames (explicit tiny inertial)
-EFFORTS = [56.0, 56.0, 28.0, 12.0, 12.0, 12.0]  # N m, ROBOT_FACTS.md joint limits
+EFFORTS = [56.0, 56.0, 28.0, 12.0, 12.0, 12.0]  # N m, docs/robots.md joint limits
 MOUNT_ROOT = "world"  # PyBullet makes an inertial-less root static only under this name
 HOME = np.array([0.0, -math.pi / 2, 0.0, 0.0, math.pi / 2, 0.0])  # the seed scene's start
 
@@ -158,7 +158,7 @@ def test_bare_arm_total_mass_and_limits(client: int) -> None:
     body = _load(client, paths.ur3_urdf(), fixed=False)
     total = sum(_mass(body, name) for name in body.links)
     assert total == pytest.approx(sum(UR3_MASSES.values()), abs=1e-3)  # 10.63 kg
-    expected = {  # (upper limit, velocity, effort), ROBOT_FACTS.md
+    expected = {  # (upper limit, velocity, effort), docs/robots.md
         "shoulder_pan_joint": (2 * math.pi, math.pi, 56),
         "shoulder_lift_joint": (2 * math.pi, math.pi, 56),
         "elbow_joint": (math.pi, math.pi, 28),

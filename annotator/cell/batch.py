@@ -49,6 +49,7 @@ from annotator.objects import ObjectError, ObjectModel, create_body, get_object_
 from annotator.rng import keyed_rng
 from annotator.sampler import Candidates
 from annotator.sim import pb
+from annotator.sim.contacts import closest_points
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.store.names import artifact_relpath
@@ -90,10 +91,10 @@ def _zero_velocity(client: int, uid: int) -> None:
 def _touching(client: int, uid: int, table: int, T_world_obj: Transform) -> Transform:
     """``T_world_obj`` moved vertically until the body's collision shape touches ``table``."""
     reset_object_pose(client, uid, T_world_obj)
-    pts = pb.getClosestPoints(uid, table, TOUCH_SEARCH, physicsClientId=client)
+    pts = closest_points(client, uid, table, TOUCH_SEARCH)
     if not pts:
         return T_world_obj
-    gap = min(p[8] for p in pts)
+    gap = min(p.distance for p in pts)
     return Transform(T_world_obj.pos - np.array([0.0, 0.0, gap]), T_world_obj.quat)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from annotator.cell.world import Cell
 from annotator.geometry import Transform
 from annotator.sim import pb, ur3
+from annotator.sim.contacts import closest_points, contact_points
 
 log = logging.getLogger(__name__)
 
@@ -95,16 +96,17 @@ def arm_collision(cell: Cell, obj: int | None, margin: float) -> tuple[str, str]
             if names[link] not in gripper_links:
                 return ARM_OBJECT, f"{names[link]} touches the object ({distance * 1000:.1f} mm)"
     pb.performCollisionDetection(physicsClientId=client)
-    for c in pb.getContactPoints(robot.uid, robot.uid, physicsClientId=client):
-        if c[8] < -1e-4 and not (names[c[3]] in gripper_links and names[c[4]] in gripper_links):
-            return SELF, f"{names[c[3]]} touches {names[c[4]]}"
+    for c in contact_points(client, robot.uid, robot.uid):
+        a, b = names[c.link_a], names[c.link_b]
+        if c.distance < -1e-4 and not (a in gripper_links and b in gripper_links):
+            return SELF, f"{a} touches {b}"
     return "", ""
 
 
 def _closest(client: int, a: int, b: int, margin: float) -> list[tuple[int, float]]:
     """(link of ``a``, signed distance) of every pair closer than ``margin``, nearest first."""
-    pts = pb.getClosestPoints(a, b, margin, physicsClientId=client)
-    return sorted(((p[3], p[8]) for p in pts if p[8] < margin), key=lambda x: x[1])
+    pts = closest_points(client, a, b, margin)
+    return sorted(((p.link_a, p.distance) for p in pts if p.distance < margin), key=lambda x: x[1])
 
 
 def check_reach(

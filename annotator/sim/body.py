@@ -34,6 +34,7 @@ class Joint:
 
     @property
     def movable(self) -> bool:
+        """A revolute or prismatic joint (one degree of freedom)."""
         return self.kind in ("revolute", "prismatic")
 
 
@@ -90,6 +91,7 @@ class Body:
 
     @property
     def movable_joints(self) -> list[Joint]:
+        """The joints with one degree of freedom, in index order."""
         return [j for j in self.joints.values() if j.movable]
 
     def joint_positions(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
@@ -99,6 +101,7 @@ class Body:
         return np.array([s[0] for s in states])
 
     def joint_position(self, name: str) -> float:
+        """The position of joint ``name`` (rad or m)."""
         return float(pb.getJointState(self.uid, self.joints[name].index, physicsClientId=self.client)[0])
 
     def reset_joints(self, positions: dict[str, float]) -> None:

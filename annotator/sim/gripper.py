@@ -29,6 +29,7 @@ from annotator.config import ConfigError, GripperConfig
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, default_gripper
 from annotator.sim.body import Body
+from annotator.sim.contacts import Contact, contact_points
 from annotator.sim.width_table import WidthTable, fk_table
 
 log = logging.getLogger(__name__)
@@ -274,6 +275,7 @@ class ParallelGripper:
 
     @property
     def max_width(self) -> float:
+        """The widest pad opening the model reaches (m)."""
         return self.table.max_width
 
     def follower_targets(self, angle: float) -> dict[str, float]:
@@ -371,6 +373,7 @@ class ParallelGripper:
         return out
 
     def driven_angle(self) -> float:
+        """The drive joint's position (rad, or m for a prismatic drive)."""
         return self.body.joint_position(self.driven)
 
     def measured_width(self) -> float:
@@ -439,12 +442,11 @@ class ParallelGripper:
 
     # --- contacts --------------------------------------------------------------------------------
 
-    def pad_contacts(self, other: int) -> tuple[list, list]:
-        """Contact points of pad 1 and pad 2 with body ``other``."""
-        return tuple(
-            pb.getContactPoints(self.body.uid, other, linkIndexA=link, physicsClientId=self.client)
-            for link in self.pads
-        )
+    def pad_contacts(self, other: int) -> tuple[list[Contact], list[Contact]]:
+        """Contact points (:class:`annotator.sim.contacts.Contact`) of pad 1 and pad 2 with body
+        ``other`` after the last step."""
+        first, second = (contact_points(self.client, self.body.uid, other, link_a=link) for link in self.pads)
+        return first, second
 
     def touches(self, other: int) -> bool:
         """Does either pad touch body ``other``? (one contact query per pad at most)"""
@@ -455,4 +457,4 @@ class ParallelGripper:
 
     def pad_normal_forces(self, other: int) -> np.ndarray:
         """Sum of normal forces (N) on each pad from body ``other``, (2,)."""
-        return np.array([sum(c[9] for c in pts) for pts in self.pad_contacts(other)])
+        return np.array([sum(c.normal_force for c in pts) for pts in self.pad_contacts(other)])

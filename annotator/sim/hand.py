@@ -57,6 +57,7 @@ class FloatingGripper:
 
     @property
     def uid(self) -> int:
+        """The gripper body's PyBullet id."""
         return self.body.uid
 
     @property
@@ -91,6 +92,7 @@ class FloatingGripper:
             )
 
     def base_pose(self) -> Transform:
+        """``T_world_base``: the gripper base link's pose in the world."""
         return self.body.link_pose(self.description.base_link)
 
     def T_world_base_for_tcp(self, T_world_tcp: Transform, width: float) -> Transform:

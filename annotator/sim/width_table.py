@@ -53,9 +53,11 @@ class WidthTable:
         return 1.0 if self.width[-1] > self.width[0] else -1.0
 
     def angle_of(self, width: float) -> float:
+        """The drive position (rad or m) at pad opening ``width`` (m), interpolated."""
         return float(np.interp(width, self._w, self._w_angle))
 
     def width_of(self, angle: float) -> float:
+        """The pad opening (m) at drive position ``angle``, interpolated."""
         return float(np.interp(angle, self.angle, self.width))
 
     def dwidth_dangle(self, angle: float) -> float:
@@ -96,10 +98,12 @@ class WidthTable:
 
     @property
     def max_width(self) -> float:
+        """The widest opening in the table (m)."""
         return float(self._w[-1])
 
     @property
     def min_width(self) -> float:
+        """The narrowest opening in the table (m)."""
         return float(self._w[0])
 
 

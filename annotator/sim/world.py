@@ -46,12 +46,15 @@ class World:
 
     @property
     def dt(self) -> float:
+        """The time step (s) of one ``step()``."""
         return self.physics.time_step
 
     def set_gravity(self, on: bool) -> None:
+        """Gravity along world -z (``physics.gravity``, m/s^2) when ``on``, none otherwise."""
         pb.setGravity(0, 0, self.physics.gravity if on else 0.0, physicsClientId=self.client)
 
     def step(self, n: int = 1) -> None:
+        """Advance the simulation ``n`` steps of ``dt`` seconds; the wall time inside is counted."""
         t0 = time.perf_counter()
         for _ in range(n):
             pb.stepSimulation(physicsClientId=self.client)
@@ -59,6 +62,7 @@ class World:
         self.steps += n
 
     def save_state(self) -> int:
+        """Snapshot every body of the world; returns the id :meth:`restore_state` takes."""
         return pb.saveState(physicsClientId=self.client)
 
     def restore_state(self, state_id: int) -> None:
@@ -88,12 +92,15 @@ class World:
         pb.restoreState(stateId=state_id, physicsClientId=client)
 
     def remove_state(self, state_id: int) -> None:
+        """Forget snapshot ``state_id``."""
         pb.removeState(state_id, physicsClientId=self.client)
 
     def remove_body(self, uid: int) -> None:
+        """Remove body ``uid`` from the world."""
         pb.removeBody(uid, physicsClientId=self.client)
 
     def close(self) -> None:
+        """Disconnect the PyBullet client (idempotent)."""
         if self.client >= 0 and pb.isConnected(physicsClientId=self.client):
             pb.disconnect(physicsClientId=self.client)
         self.client = -1

@@ -85,6 +85,7 @@ class LabelsRun:
 
     @property
     def finished(self) -> bool:
+        """Every planned object done or failed, and no run writing now."""
         return not self.unfinished and not self.running
 
     def state(self) -> str:
@@ -221,6 +222,7 @@ class LabellingConfig:
     source: str
 
     def line(self) -> str:
+        """One line saying which configuration is used."""
         return f"configuration: {self.source}"
 
 

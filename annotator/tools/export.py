@@ -53,6 +53,8 @@ def frame_note(description: GripperDescription) -> str:
 
 @dataclass(frozen=True)
 class ExportResult:
+    """What ``export`` wrote: the folder, one file per object, the number of grasps."""
+
     out_dir: Path
     files: list[Path]
     n_grasps: int
@@ -80,6 +82,7 @@ class TcpDepth:
 
     @property
     def max_width(self) -> float:
+        """The gripper's widest opening (m)."""
         return self._gripper.max_width
 
     @property

@@ -64,6 +64,8 @@ window.addEventListener('load', function () {
 
 @dataclass(frozen=True)
 class ReportResult:
+    """What ``report`` wrote: the page, its counts, and the state of the labels' run."""
+
     path: Path
     n_objects: int
     n_grasps: int

@@ -110,6 +110,7 @@ class GraspRenderer:
         self.hide_gripper()
 
     def close(self) -> None:
+        """Disconnect the renderer's private PyBullet client."""
         self.world.close()
 
     def __enter__(self) -> GraspRenderer:
@@ -129,9 +130,11 @@ class GraspRenderer:
         return 0.5 * self.gripper.pad_face[1]
 
     def hide_gripper(self) -> None:
+        """Move the gripper out of view (the overview draws the object alone)."""
         self.body.reset_base_pose(Transform([0.0, 0.0, 50.0], [0, 0, 0, 1]))
 
     def render(self, camera: Camera) -> Frame:
+        """One :class:`annotator.render.Frame` from ``camera``: RGB, depth and segmentation."""
         return render_frame(self.client, camera)
 
     def object_mask(self, frame: Frame) -> np.ndarray:
@@ -216,6 +219,7 @@ def _font(size: int):
 
 
 def grasp_title(row) -> str:
+    """A sheet cell's title: grasp id, outcome and width (mm)."""
     return f"grasp {int(row.grasp_id)} · {row.outcome} · {1000 * float(row.width):.1f} mm"
 
 
@@ -364,6 +368,8 @@ def overview(renderer: GraspRenderer, rows: pd.DataFrame, size: int = 2 * VIEW_S
 
 @dataclass(frozen=True)
 class ShowResult:
+    """What ``show`` wrote: the sheet, how many grasps, the overview."""
+
     sheet: Path
     overview: Path
     n_grasps: int

@@ -1,12 +1,15 @@
-"""How often does the arm's replay agree with the floating label? Prints figures; never a test.
+"""Floating verdicts against the UR3 arm: how often the arm's replay holds what the label says.
 
 For each object, up to K labels that reached the physics (every outcome but ``collision``) are
 replayed on the UR3 + RG2 in the cell (annotator.tools.replay: the placement that makes the grasp
 come most from above while reachable); the floating ``success`` is compared with the replay's
 *held*. Unreachable labels are counted apart, with their reasons.
 
-    python bench/replay_agreement.py                      # labels objects/ with --n 40 first
-    python bench/replay_agreement.py --labels labels/ --objects objects/ --per-object 8
+    python -m bench.arm_agreement                      # labels objects/ with --n 40 first
+    python -m bench.arm_agreement --labels labels/ --objects objects/ --per-object 8
+
+Prints figures and writes a record (bench/harness.py); never a test. (Replaying labels through
+``annotator evaluate`` bit for bit is ``bench.evaluate_replay``.)
 """
 
 from __future__ import annotations
@@ -23,18 +26,26 @@ from annotator.dataset import load_labels
 from annotator.objects import create_body, discover_objects, load_object
 from annotator.pipeline.run import RunOptions, run
 from annotator.tools.replay import plan_replay, replay, replay_world
+from bench.harness import Run
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--labels", type=Path)
     parser.add_argument("--objects", type=Path, default=REPO / "objects")
     parser.add_argument("--per-object", type=int, default=6)
     parser.add_argument("--n", type=int, default=40, help="candidates per object when labelling first")
     args = parser.parse_args()
     config = AnnotatorConfig()
+    with Run("arm_agreement", config=vars(args), annotator=config) as record:
+        measure(args, config, record)
+
+
+def measure(args: argparse.Namespace, config: AnnotatorConfig, record: Run) -> None:
     labels_dir = args.labels
     if labels_dir is None:
         labels_dir = Path(tempfile.mkdtemp()) / "labels"
@@ -43,6 +54,7 @@ def main() -> None:
     sources = {s.object_id: s for s in discover_objects(args.objects)}
     totals = collections.Counter()
     reasons = collections.Counter()
+    per_object = []
     t0 = time.perf_counter()
     for object_id, rows in labels[labels.outcome != "collision"].groupby("object_id"):
         rows = rows.head(args.per_object)
@@ -63,6 +75,7 @@ def main() -> None:
             floating = "success" if row["success"] else "failure"
             counts[f"floating {floating} -> arm {'held' if held else 'not held'}"] += 1
         totals.update(counts)
+        per_object.append({"object": object_id} | {str(k): v for k, v in sorted(counts.items())})
         print(f"{object_id:24s} " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
     compared = totals["agree"] + totals["disagree"]
     print(
@@ -72,6 +85,20 @@ def main() -> None:
     for key in sorted(k for k in totals if isinstance(k, str) and k.startswith("floating")):
         print(f"  {key}: {totals[key]}")
     print(f"unreachable in every placement tried: {totals['unreachable']} " + str(dict(reasons)))
+    record.ratio(
+        "agreement",
+        totals["agree"] / max(1, compared),
+        note="floating success == the arm held, over the reachable labels replayed",
+    )
+    record.figure("replayed", compared, note="reachable labels replayed on the arm")
+    record.figure("unreachable", totals["unreachable"], note="labels no placement tried could reach")
+    record.figure("seconds", time.perf_counter() - t0, "s", note="the replays, wall")
+    for key in sorted(k for k in totals if isinstance(k, str) and k.startswith("floating")):
+        record.figure(key.replace(" -> ", "_").replace(" ", "_"), totals[key], note=key)
+    record.table(
+        "objects", per_object, note=f"up to {args.per_object} labels per object that reached the physics"
+    )
+    record.table("unreachable_reasons", [{"reason": k, "labels": v} for k, v in sorted(reasons.items())])
 
 
 if __name__ == "__main__":

@@ -1,0 +1,200 @@
+"""Write docs/performance.md from the newest record of each benchmark in bench/results/.
+
+    python -m bench.docs              # (re)write docs/performance.md
+    python -m bench.docs --check      # exit 1 if docs/performance.md is not what the records make
+
+Nothing in the page is typed by hand: every number comes from a record (bench/harness.py), with
+the command, commit, date, machine and load of the run that measured it; ratios come first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from bench.harness import RESULTS, ROOT, newest, read_records
+
+OUT = ROOT / "docs" / "performance.md"
+COMMAND = "python -m bench.docs"
+# the page's order; benchmarks not named here follow in alphabetical order
+ORDER = (
+    "throughput",
+    "peers",
+    "fidelity",
+    "profile_worker",
+    "object_sets",
+    "cold_start",
+    "collision_error",
+    "light_threshold",
+    "light_objects",
+    "widths",
+    "rg2_coupling",
+    "ur3_ik",
+    "scale_folder",
+    "scale_big_mesh",
+    "evaluate_replay",
+    "arm_agreement",
+)
+MAX_ROWS = 40  # rows of a table shown; the record keeps them all
+
+
+def fmt(value: Any) -> str:
+    """A recorded value as the page shows it: four significant digits, whole numbers from 1000."""
+    if value is None:
+        return "n/a"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return "n/a"
+        if abs(value) >= 1000:
+            return f"{value:.0f}"
+        return f"{value:.4g}"
+    return str(value)
+
+
+def cell(value: Any) -> str:
+    """``fmt(value)`` made safe inside a Markdown table."""
+    return fmt(value).replace("|", "\\|").replace("\n", " ")
+
+
+def _spread(entry: Mapping[str, Any]) -> str:
+    return f"{fmt(entry['min'])} – {fmt(entry['max'])}" if "min" in entry else ""
+
+
+def _loads(values: Iterable[float]) -> str:
+    return " / ".join(fmt(v) for v in values)
+
+
+def _table(head: list[str], rows: list[list[Any]]) -> list[str]:
+    return [
+        "| " + " | ".join(head) + " |",
+        "|" + "|".join("---" for _ in head) + "|",
+        *("| " + " | ".join(cell(v) for v in row) + " |" for row in rows),
+    ]
+
+
+def provenance(record: Mapping[str, Any]) -> list[str]:
+    """Where a benchmark's figures come from: command, commit, date, machine, load, configuration."""
+    m, config = record["machine"], record["config"]
+    state = "with changes to " + ", ".join(record["changed_files"]) if record["dirty"] else "clean"
+    libs = ", ".join(f"{k} {v}" for k, v in record["libraries"].items() if v is not None)
+    changed = config["annotator_changes"]
+    settings = (
+        "; ".join(f"{s}.{k} = {fmt(v)}" for s, fields in changed.items() for k, v in fields.items())
+        if changed
+        else "the default"
+    )
+    date = record["date"].replace("T", " ").replace("Z", " UTC")
+    return [
+        f"- Command: `{record['command']}`",
+        f"- Commit `{record['commit'][:7]}` (working tree {state}); started {date}, took "
+        f"{fmt(record['seconds'])} s",
+        f"- Machine: {m['cpu']}, {m['cores']} cores ({m['usable_cores']} usable), "
+        f"{fmt(m['memory_gib'])} GiB, Python {m['python']}, {m['platform']}",
+        f"- Load average (one, five and fifteen minutes): {_loads(record['load']['before'])} before, "
+        f"{_loads(record['load']['after'])} after",
+        f"- Libraries: {libs}",
+        f"- Configuration: `{config['digest']}` (arguments and AnnotatorConfig); AnnotatorConfig "
+        f"`{config['annotator_digest']}`: {settings}",
+    ]
+
+
+def section(record: Mapping[str, Any]) -> list[str]:
+    """One benchmark's part of the page: provenance, ratios, figures, tables."""
+    lines = [f"## {record['benchmark']}", ""]
+    if record["about"]:
+        lines += [record["about"], ""]
+    lines += [*provenance(record), ""]
+    if record["ratios"]:
+        rows = [[r["name"], r["value"], _spread(r), r["note"]] for r in record["ratios"]]
+        lines += [
+            "Ratios (both sides measured in this run):",
+            "",
+            *_table(["ratio", "value", "range", "what"], rows),
+        ]
+        lines.append("")
+    if record["figures"]:
+        rows = [[f["name"], f["value"], f["unit"], _spread(f), f["note"]] for f in record["figures"]]
+        lines += ["Figures:", "", *_table(["figure", "value", "unit", "range", "what"], rows), ""]
+    for table in record["tables"]:
+        shown = table["rows"][:MAX_ROWS]
+        more = len(table["rows"]) - len(shown)
+        title = f"Table `{table['name']}`" + (f": {table['note']}" if table["note"] else "")
+        if more:
+            title += f" (the first {len(shown)} of {len(table['rows'])} rows; the record has all)"
+        lines += [title, "", *_table(table["columns"], shown), ""]
+    return lines
+
+
+def ordered(records: Mapping[str, Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    known = [records[name] for name in ORDER if name in records]
+    return known + [records[name] for name in sorted(records) if name not in ORDER]
+
+
+def render(records: Mapping[str, Mapping[str, Any]]) -> str:
+    """The page for ``{benchmark: newest record}``."""
+    lines = [
+        f"<!-- Generated by `{COMMAND}` from bench/results/; do not edit: re-run the benchmark, then "
+        "the command. -->",
+        "",
+        "# Performance",
+        "",
+        f"Generated by `{COMMAND}` from the newest record of each benchmark in `bench/results/`, which "
+        "the benchmark wrote itself (`bench/harness.py`); no figure here is typed by hand. How to run "
+        "the benchmarks: `bench/README.md`.",
+        "",
+        "Ratios come first: each compares two things measured in the same run (ours against a peer, a "
+        "candidate against a free step of the gripper, the model against the model before), so a slower "
+        "or busier machine moves them little. Absolute times depend on the machine and on its load, "
+        "given with every run.",
+        "",
+    ]
+    records_in_order = ordered(records)
+    rows = [
+        [
+            f"[{r['benchmark']}](#{r['benchmark']})",
+            r["about"],
+            r["date"][:10],
+            f"`{r['commit'][:7]}`" + (" (changed)" if r["dirty"] else ""),
+            f"{fmt(r['load']['before'][0])} / {fmt(r['load']['after'][0])}",
+        ]
+        for r in records_in_order
+    ]
+    lines += _table(["benchmark", "measures", "date", "commit", "load before / after"], rows) + [""]
+    for record in records_in_order:
+        lines += section(record)
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--results", type=Path, default=RESULTS, help="the records' folder")
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--check", action="store_true", help="compare with --out instead of writing it")
+    args = ap.parse_args(argv)
+    try:
+        text = render(newest(read_records(args.results)))
+    except ValueError as exc:
+        print(f"bench.docs: {exc}", file=sys.stderr)
+        return 2
+    if args.check:
+        current = args.out.read_text() if args.out.is_file() else ""
+        if current != text:
+            print(f"{args.out} is not what the records make: run {COMMAND}", file=sys.stderr)
+            return 1
+        return 0
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
