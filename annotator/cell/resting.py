@@ -41,6 +41,23 @@ from annotator.trial import GraspTrial
 
 log = logging.getLogger(__name__)
 
+# How the grasps relate to a settling object: "object", they move with it (the default); "table",
+# they stay where they were given in the table frame, as a robot executing them in its own frame
+# does when the object comes to rest elsewhere than it was believed to lie.
+RESTING_MODES = ("object", "table")
+
+
+def resting_mode(value: bool | str | None) -> str | None:
+    """``--resting`` as a mode: None (floating) for False/None, ``"object"`` for True."""
+    if value is None or value is False:
+        return None
+    if value is True:
+        return "object"
+    if value not in RESTING_MODES:
+        raise ValueError(f"resting {value!r}: choose from {', '.join(RESTING_MODES)}")
+    return str(value)
+
+
 # Where the floating gripper waits while no trial runs: 2 m above the world origin, as in the cell.
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 UPRIGHT = (0.0, 0.0, 0.0, 1.0)  # the mesh frame's own orientation: +z up
@@ -62,10 +79,13 @@ class RestingWorld:
     """A worker's table for ``--resting``: the seed's table in the trial world (beside the floating
     gripper), built once per configuration."""
 
-    def __init__(self, world: World, hand: FloatingGripper, config: AnnotatorConfig) -> None:
+    def __init__(
+        self, world: World, hand: FloatingGripper, config: AnnotatorConfig, grasps: str = "object"
+    ) -> None:
         self.world = world
         self.hand = hand
         self.config = config
+        self.grasps = grasps  # RESTING_MODES: do the grasps move with the settling object?
         self.table_cell = build_cell(world, config.cell, robot=False, kinect=False)
 
     @property
@@ -85,10 +105,11 @@ class RestingObject:
         self.model = model
         self.uid = uid
         self.corners = np.array(np.meshgrid(*model.mesh.bounds.T, indexing="ij")).reshape(3, -1).T
-        self.placed: dict[tuple[float, ...], tuple[GraspTrial, Transform, float]] = {}
+        # orientation key -> (trial, settled T_world_obj, drift m, T_world_obj before settling)
+        self.placed: dict[tuple[float, ...], tuple[GraspTrial, Transform, float, Transform]] = {}
 
     def close(self) -> None:
-        for trial, _, _ in self.placed.values():
+        for trial, *_ in self.placed.values():
             trial.close()
         self.placed = {}
 
@@ -113,8 +134,9 @@ class RestingObject:
         T = Transform.from_rotation(R_world, pos)
         return _touching(self.worlds.world.client, self.uid, self.worlds.table, T)
 
-    def trial_for(self, quat_table_obj: np.ndarray) -> tuple[GraspTrial, Transform, float]:
-        """The trial of the object resting in this orientation, its settled ``T_world_obj`` and drift (m)."""
+    def trial_for(self, quat_table_obj: np.ndarray) -> tuple[GraspTrial, Transform, float, Transform]:
+        """The trial of the object resting in this orientation, its settled ``T_world_obj``, its
+        drift (m) and ``T_world_obj`` as it was put down, before settling."""
         key = orientation_key(quat_table_obj)
         if key not in self.placed:
             world, hand, uid = self.worlds.world, self.worlds.hand, self.uid
@@ -135,13 +157,22 @@ class RestingObject:
             trial = GraspTrial(
                 world, hand, uid, self.worlds.config, obstacles=(self.worlds.table,), resting=True
             )
-            self.placed[key] = (trial, T_settled, drift)
+            self.placed[key] = (trial, T_settled, drift, T_start)
         return self.placed[key]
+
+    def grasp(self, quat_table_obj: np.ndarray, T_obj_tcp: Transform) -> Transform:
+        """The grasp to run, in the settled object's frame: ``T_obj_tcp`` itself when the grasps move
+        with the object; else the pose that keeps it where it was given in the table frame,
+        ``T_settled^-1 · T_start · T_obj_tcp``."""
+        if self.worlds.grasps == "object":
+            return T_obj_tcp
+        _, T_settled, _, T_start = self.trial_for(quat_table_obj)
+        return T_settled.inverse() * T_start * T_obj_tcp
 
     def columns(self, quat_table_obj: np.ndarray) -> dict[str, float]:
         """The resting columns of a row: the orientation given (as given, so the row replays
         exactly), the settled object pose in the world and its drift."""
-        _, T, drift = self.trial_for(quat_table_obj)
+        _, T, drift, _ = self.trial_for(quat_table_obj)
         q = T.quat if T.quat[3] >= 0 else -T.quat
         pose = [*T.pos.tolist(), *q.tolist()]
         given = [float(v) for v in np.asarray(quat_table_obj, dtype=np.float64).reshape(4)]

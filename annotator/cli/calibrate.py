@@ -17,7 +17,7 @@ from annotator.cli.common import (
     positive_finite,
     setup_logging,
 )
-from annotator.cli.evaluate import FRAME_OPTION
+from annotator.cli.evaluate import FRAME_OPTION, RESTING_GRASPS_OPTION
 from annotator.tools import calibrate as cal
 
 
@@ -85,6 +85,14 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     type=click.Path(path_type=Path, dir_okay=False),
     help="Where to write the best setting as a TOML file for annotate --config.",
 )
+@click.option(
+    "--outcomes",
+    "outcomes_out",
+    default=None,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Also write every simulated outcome of the grid here (Parquet: object_id, grasp_id, "
+    "real_success, friction, force, severity, sim_success), for analyses of your own.",
+)
 @LABELS_GRIPPER_OPTION
 @FRAME_OPTION
 @click.option(
@@ -93,6 +101,7 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     help="Simulate each grasp on its object resting on the table, as evaluate --resting [default: as "
     "the labels were simulated; a grasp table: floating].",
 )
+@RESTING_GRASPS_OPTION
 @click.option(
     "--scale",
     type=float,
@@ -123,9 +132,11 @@ def calibrate_command(
     objective,
     folds,
     config_out,
+    outcomes_out,
     gripper,
     frame,
     resting,
+    resting_grasps,
     scale,
     config_file,
     workers,
@@ -157,12 +168,15 @@ def calibrate_command(
 
     frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
     check_output_file(config_out, "--write-config")  # before the simulation, not after it
+    if outcomes_out is not None:
+        check_output_file(outcomes_out, "--outcomes")
+    resting = resting_grasps or ("object" if resting else None)
     source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file)
     trials = cal.read_real_trials(real_csv, source.grasps)  # a bad file is one line, before anything else
     click.echo(source.config_line)
     click.echo(source.gripper_line)
     if source.resting:
-        click.echo("resting: each object on the table in its given orientation")
+        click.echo(f"resting: each object on the table as given, grasps in the {source.resting}'s frame")
     base = source.config
     forces = _floats(force) if force is not None else cal.default_forces(source.gripper)
     settings = cal.grid(frictions, forces, severities, real_force="grip_force" in trials.columns)
@@ -201,3 +215,6 @@ def calibrate_command(
     )
     config_out.write_text(cal.config_toml(result.config, header), encoding="utf-8")
     click.echo(f"wrote {config_out}")
+    if outcomes_out is not None:
+        cal.outcomes_table(trials, result.simulated).to_parquet(outcomes_out, index=False)
+        click.echo(f"wrote {outcomes_out}")

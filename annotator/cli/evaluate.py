@@ -17,6 +17,15 @@ from annotator.cli.common import (
     setup_logging,
 )
 
+RESTING_GRASPS_OPTION = click.option(
+    "--resting-grasps",
+    "resting_grasps",
+    type=click.Choice(["object", "table"]),
+    default=None,
+    help="With --resting (implied): whether the grasps move with the object as it settles "
+    "(object, the default) or stay where they were given in the table frame (table: as a robot "
+    "executes them in its own frame when the object came to rest elsewhere than it was believed).",
+)
 FRAME_OPTION = click.option(
     "--frame",
     type=click.Choice(["tcp", "base"]),
@@ -76,6 +85,7 @@ FRAME_OPTION = click.option(
     "of its mesh frame (z up), or the one GRASPS gives (rest_qx rest_qy rest_qz rest_qw), settles, and "
     "the grasps move with it; the gripper closes with gravity on [default: floating, gravity off].",
 )
+@RESTING_GRASPS_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
 def evaluate_command(
@@ -92,6 +102,7 @@ def evaluate_command(
     gripper,
     frame,
     resting,
+    resting_grasps,
     quiet,
     verbose,
 ):
@@ -125,9 +136,13 @@ def evaluate_command(
     click.echo(chosen.line(), err=True)
     hand = labelling_gripper(grasps_file, gripper)
     click.echo(hand.line(), err=True)
-    if not resting and labels_resting(grasps_file):
-        resting = True
-        click.echo("resting: on the table, as the labels were simulated", err=True)
+    resting = resting_grasps or ("object" if resting else None)
+    recorded = labels_resting(grasps_file)
+    if resting is None and recorded is not None:
+        resting = recorded
+        click.echo(
+            f"resting: on the table, grasps in the {recorded}'s frame, as the labels were simulated", err=True
+        )
     if not Path(objects_dir).is_dir():
         raise click.UsageError(f"objects folder not found: {objects_dir}")
     stroke = max_width(config, hand.description)

@@ -99,7 +99,9 @@ class RunOptions:
     views: int = 0  # Kinect views per placement (--cell only)
     # the gripper simulated: a description, a shipped name or a folder (None: the RG2)
     gripper: GripperDescription | str | None = None
-    resting: bool = False  # given grasps on objects resting on the table (evaluate --resting)
+    # given grasps on objects resting on the table (evaluate --resting): False, True / "object" (the
+    # grasps move with the settling object) or "table" (they stay in the table frame)
+    resting: bool | str = False
 
     def cell_options(self) -> CellOptions | None:
         return CellOptions(self.views) if self.cell else None
@@ -441,7 +443,10 @@ def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates
     if cell is not None:
         inputs["cell"] = cell.to_json()
     if options.resting:
-        inputs["resting"] = True
+        from annotator.cell.resting import resting_mode
+
+        mode = resting_mode(options.resting)
+        inputs["resting"] = True if mode == "object" else mode  # True: as folders before "table" existed
     return inputs
 
 

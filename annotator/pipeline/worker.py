@@ -143,7 +143,8 @@ class SpanTask:
     ``gripper``: the gripper simulated (None: the default, the RG2), or its files
     (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache);
     ``resting``: the object rests on the cell's table while the given grasps close (``evaluate
-    --resting``, :mod:`annotator.cell.resting`).
+    --resting``, :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it
+    settles; ``"table"``, they stay where they were given in the table frame.
     """
 
     span: Span
@@ -158,7 +159,7 @@ class SpanTask:
     cache_dir: str | None = None
     cell: CellOptions | None = None
     gripper: GripperDescription | GripperFiles | None = None
-    resting: bool = False
+    resting: bool | str = False
 
 
 @dataclass(frozen=True)
@@ -255,7 +256,7 @@ class WorkerState:
 
     def __init__(self) -> None:
         self.config: AnnotatorConfig | None = None
-        self.mode: tuple[bool, bool] = (False, False)  # (cell, resting) of the world built
+        self.mode: tuple[bool, str | None] = (False, None)  # (cell, resting mode) of the world built
         self.world = None  # annotator.sim.world.World
         self.hand = None  # annotator.sim.hand.FloatingGripper
         self.gripper_key: tuple[str, str] | None = None  # (name, digest) of the gripper in the world
@@ -277,12 +278,15 @@ class WorkerState:
         cell: bool = False,
         gripper: GripperDescription | GripperFiles | None = None,
         cache_dir: str | None = None,
-        resting: bool = False,
+        resting: bool | str = False,
     ):
         """The world and floating gripper for ``config`` (rebuilt only when the config, the gripper
         or the mode changes: a floating world never holds the table)."""
+        from annotator.cell.resting import resting_mode
         from annotator.sim.hand import FloatingGripper
         from annotator.sim.world import World
+
+        resting = resting_mode(resting)
 
         if isinstance(gripper, GripperFiles) and self.hand is not None and gripper.key == self.gripper_key:
             gripper = self.hand.description  # unpacked already
@@ -290,6 +294,15 @@ class WorkerState:
             gripper = resolve_gripper(gripper, cache_dir)
         changed = self.config != config or self.gripper_key != gripper.key
         if changed or self.mode != (cell, resting) or self.world is None:
+            # loaded models and candidates depend on these only: a calibration grid, which changes
+            # the gripper's or the protocol's numbers from task to task, keeps them
+            kept = (config.objects, config.sampler, config.cell, gripper.key, cell, resting)
+            previous = None
+            if self.config is not None:
+                previous = (self.config.objects, self.config.sampler, self.config.cell, self.gripper_key)
+                previous += self.mode
+            if previous == kept and self.obj is not None:
+                self._keep(self.obj)  # its model and candidates serve the new world too
             self.close()
             self.world = World(config.physics)
             self.hand = FloatingGripper(self.world, config.gripper, gripper)
@@ -301,11 +314,12 @@ class WorkerState:
             elif resting:
                 from annotator.cell.resting import RestingWorld
 
-                self.resting = RestingWorld(self.world, self.hand, config)
+                self.resting = RestingWorld(self.world, self.hand, config, resting)
             self.config = config
             self.mode = (cell, resting)
-            self.failed = {}
-            self.recent.clear()  # the keys do not hold the configuration
+            if previous != kept:  # the keys do not hold the configuration
+                self.failed = {}
+                self.recent.clear()
         return self.world, self.hand
 
     def close(self) -> None:
@@ -561,7 +575,8 @@ def simulate(
         width_expected = float(widths[k])
         rest = None if loaded.resting is None else (UPRIGHT if rest_quats is None else rest_quats[k])
         trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
-        result = _run_trials(trial, T, width_expected, config, seed, trials, object_id, grasp_id)
+        run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
+        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
         rows.append(_row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials))
         if loaded.cell is not None:  # placement, object pose on the table, reachability
             rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))

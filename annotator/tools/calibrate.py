@@ -168,7 +168,7 @@ class CalibrationGrasps:
     config_line: str
     gripper: object  # annotator.grippers.GripperDescription
     gripper_line: str
-    resting: bool
+    resting: str | None  # None: floating; "object" or "table" (annotator.cell.resting)
 
 
 def _is_label_table(path: Path) -> bool:
@@ -193,7 +193,7 @@ def calibration_grasps(
     objects_dir: Path,
     gripper=None,
     frame: str = "tcp",
-    resting: bool = False,
+    resting: bool | str = False,
     scale: float | None = None,
     config_file: Path | None = None,
 ) -> CalibrationGrasps:
@@ -201,6 +201,7 @@ def calibration_grasps(
     configuration and resting mode recorded with it unless given), or a grasp table read as
     ``evaluate`` reads it (:func:`annotator.tools.evaluate.read_grasps`, ``frame``) and turned
     into the commanded grasps a run would simulate."""
+    from annotator.cell.resting import resting_mode
     from annotator.tools.common import labelling_config, labelling_gripper, labels_resting, read_labels
     from annotator.tools.evaluate import commanded_table, read_grasps
 
@@ -219,7 +220,7 @@ def calibration_grasps(
             chosen.line(),
             hand.description,
             hand.line(),
-            resting or labels_resting(labels),
+            resting_mode(resting) or labels_resting(labels),
         )
     hand = labelling_gripper(None, gripper)
     grasps = read_grasps(labels, frame)
@@ -227,7 +228,9 @@ def calibration_grasps(
     table = commanded_table(
         grasps, objects_dir, chosen.config, scale, stroke, gripper=hand.description, frame=frame
     )
-    return CalibrationGrasps(table, chosen.config, chosen.line(), hand.description, hand.line(), resting)
+    return CalibrationGrasps(
+        table, chosen.config, chosen.line(), hand.description, hand.line(), resting_mode(resting)
+    )
 
 
 def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
@@ -318,7 +321,7 @@ def simulate_grid(
     workers: int = 1,
     seed: int = 0,
     gripper=None,
-    resting: bool = False,
+    resting: bool | str | None = False,
 ) -> dict[Setting, np.ndarray]:
     """Simulated success of every trial (row order of ``trials``) under every setting, with
     ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's ``rest_q*``)."""
@@ -339,7 +342,7 @@ def simulate_grid(
     groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
     stroke = _max_width(base, gripper)
     rest_columns = ["rest_qx", "rest_qy", "rest_qz", "rest_qw"]
-    tasks, where = [], {}
+    spans, where = [], {}
     for key, idx in groups.indices.items():
         key = key if isinstance(key, tuple) else (key,)
         oid, force = str(key[0]), (float(key[1]) if has_force else None)
@@ -360,8 +363,14 @@ def simulate_grid(
             rest,
         )
         where[(oid, force)] = idx
-        for setting in settings:
-            tasks.append(joblib.delayed(_simulate_task)(setting, base, span, force, seed, gripper, resting))
+        spans.append((span, force))
+    # setting after setting: a worker rebuilds its world when the configuration changes, and keeps
+    # the objects it had while it does not (annotator.pipeline.worker.WorkerState)
+    tasks = [
+        joblib.delayed(_simulate_task)(setting, base, span, force, seed, gripper, resting)
+        for setting in settings
+        for span, force in spans
+    ]
     out = {s: np.zeros(len(trials), dtype=bool) for s in settings}
     for setting, oid, force, rows, error in joblib.Parallel(n_jobs=workers, return_as="generator_unordered")(
         tasks
@@ -450,7 +459,7 @@ def calibrate(
     *,
     objective: str = "balanced",
     gripper=None,
-    resting: bool = False,
+    resting: bool | str | None = False,
     simulated: dict[Setting, np.ndarray] | None = None,
 ) -> CalibrationResult:
     """Simulate ``trials`` (from :func:`read_real_trials`) under every setting and rank them by
@@ -541,6 +550,23 @@ def cross_validate(
         held_agreement = agreement(real[held_rows], simulated[best][held_rows], bootstrap, seed)
         out.append(Fold(f, tuple(held_out), fitted_on, best, best_row["_agreement"], held_agreement))
     return CrossValidation(tuple(out), predicted, agreement(real, predicted, bootstrap, seed))
+
+
+def outcomes_table(trials: pd.DataFrame, simulated: dict[Setting, np.ndarray]) -> pd.DataFrame:
+    """Every simulated outcome of the grid, one row per (setting, trial): ``object_id``,
+    ``grasp_id``, ``real_success``, ``friction``, ``force`` (NaN: each trial's own), ``severity``,
+    ``sim_success``."""
+    import pandas as pd
+
+    parts = []
+    for s, sim in simulated.items():
+        part = trials[["object_id", "grasp_id", "real_success"]].reset_index(drop=True).copy()
+        part["friction"] = s.friction
+        part["force"] = np.nan if s.force is None else s.force
+        part["severity"] = s.severity
+        part["sim_success"] = np.asarray(sim, dtype=bool)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
 
 
 # ------------------------------------------------------------------------------------ output

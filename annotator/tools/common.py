@@ -342,11 +342,15 @@ def _resolve_recorded(record: dict[str, str | None], where: str) -> LabellingGri
     return LabellingGripper(description, source)
 
 
-def labels_resting(labels: str | Path | None) -> bool:
-    """Were these labels simulated on objects resting on the table (``evaluate --resting``)?"""
+def labels_resting(labels: str | Path | None) -> str | None:
+    """How these labels' objects rested on the table (``evaluate --resting``): ``"object"`` (the
+    grasps moved with them), ``"table"`` (the grasps stayed in the table frame) or None (floating)."""
     if labels is None or not Path(labels).exists():
-        return False
-    return bool((run_settings(read_manifest(labels)).get("inputs") or {}).get("resting"))
+        return None
+    value = (run_settings(read_manifest(labels)).get("inputs") or {}).get("resting")
+    if not value:
+        return None
+    return "object" if value is True else str(value)
 
 
 def object_info(manifest: dict | None, object_id: str) -> dict:

@@ -316,11 +316,12 @@ def _object_grasps(oid: str, rows: pd.DataFrame, sources: dict, config, scale, m
 
 
 def _mesh(oid: str, sources: dict, config, scale):
-    from annotator.objects import ObjectError, load_object
+    """The object's mesh as the poses see it; not weighed nor decomposed (the workers do that)."""
+    from annotator.objects import ObjectError, read_object_mesh
     from annotator.tools.common import ToolError
 
     try:
-        return load_object(sources[oid], config.objects, scale=scale).mesh
+        return read_object_mesh(sources[oid], config.objects, scale=scale)
     except ObjectError as exc:
         raise ToolError(f"{oid}: {exc}") from None
 

@@ -81,12 +81,13 @@ def simulate_given(
     seed: int = 0,
     trials: int = 1,
     gripper=None,
-    resting: bool = False,
+    resting: bool | str = False,
 ):
     """Label rows (the job's columns) for the given grasps of one object; runs in a worker.
 
     ``gripper``: the gripper simulated (a description, name or folder; None: the RG2); ``resting``:
-    the object rests on the table (:mod:`annotator.cell.resting`) in ``span.rest_quat``.
+    the object rests on the table (:mod:`annotator.cell.resting`) in ``span.rest_quat``, the
+    grasps moving with it (True, ``"object"``) or staying in the table frame (``"table"``).
     Returns ``(rows, error)``: rows with ``grasp_id`` from the span, or ``(None, reason)`` when the
     object cannot be loaded. The worker's world is the job's (:mod:`annotator.pipeline.worker`).
     """
