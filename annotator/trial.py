@@ -33,6 +33,11 @@ from annotator.sim.world import World
 log = logging.getLogger(__name__)
 
 
+# s the carrier keeps pulling at the end of a simulated approach, so that an unhindered gripper
+# reaches the grasp pose (its lag behind the moving target closes) before it is held there.
+APPROACH_HOLD = 0.1
+
+
 @dataclass(frozen=True)
 class Perturbation:
     """Changes of one robust trial: TCP pose offset (in the TCP frame), friction and mass."""
@@ -193,7 +198,8 @@ class GraspTrial:
             return CollisionCheck(True, open_width, "pregrasp", hit)
         self.world.set_gravity(self.resting)
         steps = max(1, round(p.approach_distance / p.approach_speed / self.world.dt))
-        hand.approach(T_world_base, steps, p.approach_force, hand.gripper.table.angle_of(open_width))
+        hold = round(APPROACH_HOLD / self.world.dt)
+        hand.approach(T_world_base, steps, p.approach_force, hand.gripper.table.angle_of(open_width), hold)
         return CollisionCheck(False, open_width)
 
     def _what_is_hit(self, skip_pads: bool) -> int | None:

@@ -251,3 +251,33 @@ def test_a_users_gripper_on_a_dask_cluster_gives_the_local_labels(panda_run, tmp
         check_exact=True,
     )
     assert json.loads((out / MANIFEST_NAME).read_text())["gripper_folder"] == str(mine.resolve())
+
+
+@pytest.mark.slow
+def test_a_worker_keeps_its_objects_across_configurations_with_the_same_labels(tmp_path: Path) -> None:
+    """A calibration grid changes the gripper's and the protocol's numbers from task to task; a
+    worker keeps the objects it loaded, and its rows are those of a fresh worker."""
+    from annotator.objects import discover_objects
+    from annotator.pipeline import worker
+
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    shutil.copy(REPO / "objects" / "box.obj", folder)
+    (source,) = discover_objects(folder)
+    base = AnnotatorConfig()
+    other = AnnotatorConfig.from_dict(
+        {"gripper": {"pad_lateral_friction": 0.4}, "protocol": {"shake_angle": 0.5}}
+    )
+
+    def task(config):
+        return worker.SpanTask(
+            worker.Span("box", source, None, 0, 6), config, 0, 6, gripper=load_gripper("panda")
+        )
+
+    reused = worker.WorkerState()
+    reused.label(task(base))
+    model = reused.obj.model
+    second = reused.label(task(other))
+    assert reused.obj.model is model  # not loaded again
+    fresh = worker.WorkerState().label(task(other))
+    pd.testing.assert_frame_equal(second.rows, fresh.rows, check_exact=True)

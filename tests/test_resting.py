@@ -104,17 +104,24 @@ def test_evaluate_resting_from_the_command_line(box, tmp_path: Path) -> None:
 
     grasps = pd.DataFrame(
         [
-            {"object_id": "box", "x": 0.0, "y": 0.0, "z": z, **dict(zip(["qx", "qy", "qz", "qw"], q)), **rest}
+            {
+                "object_id": "box",
+                "x": 0.0,
+                "y": 0.0,
+                "z": z,
+                **{f"q{a}": v for a, v in zip("xyzw", q, strict=True)},
+                **rest,
+            }
             for z, q, rest in (
                 (
                     0.10,
                     matrix_to_quat(FROM_TOP),
-                    dict(zip(["rest_qx", "rest_qy", "rest_qz", "rest_qw"], UPRIGHT)),
+                    dict(zip(["rest_qx", "rest_qy", "rest_qz", "rest_qw"], UPRIGHT, strict=False)),
                 ),
                 (
                     0.02,
                     matrix_to_quat(FROM_BOTTOM),
-                    dict(zip(["rest_qx", "rest_qy", "rest_qz", "rest_qw"], UPSIDE_DOWN)),
+                    dict(zip(["rest_qx", "rest_qy", "rest_qz", "rest_qw"], UPSIDE_DOWN, strict=False)),
                 ),
             )
         ]
@@ -131,3 +138,81 @@ def test_evaluate_resting_from_the_command_line(box, tmp_path: Path) -> None:
     # floating, the same grasps are another run: the folder refuses it
     again = CliRunner().invoke(main, [*args, "--workers", "1", "-q"])
     assert again.exit_code == 2 and "resting True in the folder, None now" in again.output
+
+
+# --- the approach as a robot executes it ----------------------------------------------------------
+
+SIMULATED = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated", "approach_speed": 0.1}})
+
+
+def _with(config: AnnotatorConfig, box, poses, rests, width=0.040, resting="object") -> pd.DataFrame:
+    T = np.array(poses)
+    span = GivenSpan(
+        "box", box, None, T, np.full(len(T), width), np.arange(len(T)), None, np.array(rests, float)
+    )
+    rows, error = simulate_given(span, config, gripper="panda", resting=resting)
+    assert error is None, error
+    return rows
+
+
+@pytest.mark.slow
+def test_a_simulated_approach_pushes_what_a_kinematic_check_calls_a_collision(tmp_path) -> None:
+    # a 60 mm ball, the fully open Panda (80 mm) centred 12 mm off it: a finger overlaps the ball by
+    # 2 mm. The kinematic check calls it a collision; a robot's finger meets the ball's flank on
+    # the way down and rolls it between the fingers, which close on it. (A finger 10 mm over lands
+    # on the ball and stops the hand above it, as a real arm's would: no grasp then.)
+    import trimesh
+
+    folder = tmp_path / "ball"
+    folder.mkdir()
+    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
+        folder / "ball.obj"
+    )
+    (ball,) = discover_objects(folder)
+    pose = _pose(FROM_TOP, 0.030)  # at its equator
+    pose[1, 3] = 0.012  # along the closing axis (the TCP's x is the mesh's y)
+
+    def run(config):
+        span = GivenSpan(
+            "ball", ball, None, pose[None], np.array([0.080]), np.arange(1), None, np.array([UPRIGHT])
+        )
+        rows, error = simulate_given(span, config, gripper="panda", resting=True)
+        assert error is None, error
+        return rows.iloc[0]
+
+    kinematic, simulated = run(AnnotatorConfig()), run(SIMULATED)
+    assert kinematic["outcome"] == "collision"
+    assert simulated["outcome"] == "success", simulated.to_dict()
+    assert simulated["width"] == pytest.approx(0.060, abs=2e-3)
+    # the label's pose is where the pads closed: on the ball's centre, not 12 mm off it
+    assert abs(simulated["y"]) < 0.003
+
+
+@pytest.mark.slow
+def test_a_simulated_approach_stops_at_the_table(box) -> None:
+    # a grasp whose fingertips would end 15 mm below the table top: the kinematic check refuses it;
+    # simulated, the table stops the hand and it closes higher on the box
+    pose = _pose(FROM_TOP, 0.005)
+    kinematic = _with(AnnotatorConfig(), box, [pose], [UPRIGHT]).iloc[0]
+    simulated = _with(SIMULATED, box, [pose], [UPRIGHT]).iloc[0]
+    assert kinematic["outcome"] == "collision"
+    assert simulated["outcome"] == "success", simulated.to_dict()
+    assert (
+        simulated["z"] > 0.005 + 0.005
+    )  # it closed above where it was sent (the label's pose: where it closed)
+
+
+@pytest.mark.slow
+def test_grasps_stay_in_the_table_frame_when_told(box) -> None:
+    # given tilted 10 deg about x, the box falls back onto its base: grasps that move with it find its
+    # top; grasps that stay where they were given in the table frame are 17 mm and 10 deg off it
+    half = np.radians(10.0) / 2
+    tilted = (float(np.sin(half)), 0.0, 0.0, float(np.cos(half)))
+    moving = _with(AnnotatorConfig(), box, [_pose(FROM_TOP, 0.10)], [tilted], resting="object").iloc[0]
+    staying = _with(AnnotatorConfig(), box, [_pose(FROM_TOP, 0.10)], [tilted], resting="table").iloc[0]
+    assert moving["settle_drift"] > 0.02 and staying["settle_drift"] == moving["settle_drift"]
+    assert moving["outcome"] == "success", moving.to_dict()
+    assert staying["outcome"] != "success"
+    # the row records the grasp as given; replaying it in the same mode gives the same row
+    again = _with(AnnotatorConfig(), box, [_pose(FROM_TOP, 0.10)], [tilted], resting="table").iloc[0]
+    assert again.to_dict() == pytest.approx(staying.to_dict(), nan_ok=True) or again.equals(staying)
