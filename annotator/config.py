@@ -163,72 +163,62 @@ class GripperConfig(_Section):
 
 @dataclass(frozen=True)
 class ObjectConfig(_Section):
-    """How object meshes are loaded, weighed and given collision shapes (annotator/objects/).
-
-    A sidecar ``objects.toml`` in the objects folder overrides mass, density, friction, scale and
-    the mass model per object (annotator/objects/properties.py).
+    """How object meshes are loaded, weighed and given collision shapes (annotator/objects/,
+    docs/objects.md). A sidecar ``objects.toml`` overrides mass, density, friction, scale and the
+    mass model per object. Reasons and measurements: docs/decisions/01xx-*.md.
     """
 
-    # Solid objects: real ones are hollow or partly filled, ~ 0.5 g/cm^3 over the enclosed volume is
-    # a middle ground (a 40 mm cube 32 g, the 66 x 115 mm can 196 g, a 60 x 40 x 120 mm box 144 g),
-    # within the RG2's 2 kg friction payload.
+    # Solid objects: ~ 0.5 g/cm^3 over the enclosed volume (real ones are hollow or partly filled).
     density: float = _field(500.0, gt=0.0)  # kg/m^3
-    # Thin-walled objects (the "shell" mass model): a closed mesh whose walls are modelled (a mug,
-    # a bowl, a pot) is weighed at the wall material's density, household plastics 900-1400 kg/m^3
-    # (PP, PET, ABS; ceramics ~2300 go in the sidecar): the sample mug 130 g, the bowl 96 g (a real
-    # plastic mug ~120 g, YCB's plastic bowl 147 g). At 500 kg/m^3 they weighed half that.
+    # Thin-walled objects (the "shell" mass model): household plastics 900-1400 kg/m^3 (PP, PET, ABS).
     shell_density: float = _field(1000.0, gt=0.0)  # kg/m^3
-    # An open sheet (a surface with no thickness, e.g. a scanned pot) is given this wall thickness.
-    shell_thickness: float = _field(0.002, gt=0.0)  # m, a moulded plastic or thin ceramic wall
-    # "auto" picks "shell" for a closed mesh whose mean wall (2 x volume / area) is at most
-    # shell_max_wall and whose material fills at most shell_max_fill of its convex hull: the sample
-    # mug (4.2 mm, 26 %) and bowl are shells; the 8 mm plate (fills 100 %), the ring (9 mm tube)
-    # and the banana (~15 mm) are solid.
+    shell_thickness: float = _field(0.002, gt=0.0)  # m, given to an open sheet: a moulded plastic wall
+    # "auto" picks "shell" for a closed mesh with a mean wall (2 x volume / area) at most
+    # shell_max_wall that fills at most shell_max_fill of its convex hull (0100-mass-models).
     shell_max_wall: float = _field(0.008, ge=0.0)  # m
     shell_max_fill: float = _field(0.5, ge=0.0, le=1.0)
-    # A mesh whose largest bounding-box side exceeds this many metres is almost surely in millimetres.
-    max_extent: float = _field(2.0, gt=0.0)
+    max_extent: float = _field(2.0, gt=0.0)  # m; larger is almost surely millimetres
     min_extent: float = _field(0.005, gt=0.0)  # m; smaller than any graspable household object
-    # Below this volume (m^3, a 1 mm cube) a mesh's hull is flat or collinear, whatever its extent.
-    min_volume: float = _field(1e-9, gt=0.0)
+    min_volume: float = _field(1e-9, gt=0.0)  # m^3 (a 1 mm cube): a hull below is flat or collinear
     min_faces: int = _field(4, ge=4)  # a tetrahedron
-    # Above this many faces a mesh is simplified (quadric decimation, fast-simplification) to it:
-    # a 2,000,000-face scan took 63 s and 2.1 GB before PyBullet rejected it; 200,000 faces keep a
-    # household object's surface within a fraction of a millimetre.
+    # Faces above which a mesh is simplified (quadric decimation); 200,000 keep a household
+    # object's surface within a fraction of a millimetre (0102-memory).
     max_faces: int = _field(200_000, ge=4)
+    # Open pieces (with a boundary) holding less than this share of the surface area are loose
+    # fragments of a scan and are dropped, as are closed pieces under this share of the volume
+    # lying apart from the rest (0103-cleaning).
+    fragment_max_share: float = _field(0.01, ge=0.0, lt=0.5)
     lateral_friction: float = _field(1.0, ge=0.0)  # as ACRONYM; paired with the pads' 1.0
     spinning_friction: float = _field(0.002, ge=0.0)
-    # 0: see GripperConfig.pad_rolling_friction (the rolling rows cost a quarter of a step).
-    rolling_friction: float = _field(0.0, ge=0.0)
-    # Bullet pads convex meshes with a collision margin (bullet3 #2867, ROBOT_FACTS pitfall 5):
-    # with the default the pads stopped 0.9 mm short of each face, so every label's width read
-    # 1.8 mm wide of the object's chord. Zero margin: within 0.25 mm (tests/test_protocol.py).
+    rolling_friction: float = _field(0.0, ge=0.0)  # see GripperConfig.pad_rolling_friction
+    # Bullet's collision margin on convex meshes (bullet3 #2867): 0 keeps widths within 0.25 mm.
     collision_margin: float = _field(0.0, ge=0.0)  # m
-    # A mesh is treated as convex (its hull is its collision shape) when its volume is within this
-    # fraction of its convex hull's volume: 2 % leaves out the chamfers of a real box but not a mug.
+    # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
-    # Convex decomposition (CoACD): concavity thresholds tried from the first (0.05, the library's
-    # default quality) down to the last, x 0.6 each time (0.05, 0.03, 0.02), until the collision
-    # error is within the limits below; finer ones cost minutes per object (the mug at 0.01: 104
-    # parts, 59 s). See annotator/objects/decomposition.py.
+    # CoACD concavity thresholds, the first down to the last, x 0.6 each (0.05, 0.03, 0.02), until
+    # the collision error is within its limits or the budget is spent (0101-collision-ladder).
     decomposition_threshold: float = _field(0.05, gt=0.0, le=1.0)
     decomposition_min_threshold: float = _field(0.02, gt=0.0, le=1.0)
-    # CoACD decomposes a copy simplified to at most this many faces (quadric decimation); the
-    # collision error is still measured against the full mesh. CoACD's time grows with the faces:
-    # a 200,000-face ring (bench/scale.py big-mesh) had not finished its first threshold after
-    # 4 min (2.4 GB); decomposed at 20,000 faces: 45 s, error 0.24 / 1.93 mm against the full mesh.
-    decomposition_max_faces: int = _field(20_000, ge=4)
-    # A decomposition (all thresholds) that runs longer than this fails its object: CoACD has hung
-    # and segfaulted on real meshes; the slowest sample object (bowl) takes ~ 50 s on one core.
-    decomposition_timeout: float = _field(900.0, gt=0.0)  # s
-    # Collision error targets (issue 9): distance between collision geometry and mesh surface,
-    # mean <= 0.5 mm and max <= 2 mm; an object beyond them is reported approximate with its figure.
+    # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
+    # the full mesh (0101-collision-ladder).
+    decomposition_max_faces: int = _field(5_000, ge=4)
+    # CPU seconds per object for the whole decomposition ladder (CoACD, V-HACD, hull), 1-3600
+    # (0101-collision-ladder); CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
+    decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
+    vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s
+    vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)
+    # Seconds a decomposition process may use no CPU at all (a hang, not work) before it is stopped
+    # like one over budget; a loaded machine slows a decomposition down, it does not stop it.
+    decomposition_timeout: float = _field(120.0, gt=0.0)  # s
+    # Collision error targets: distance between collision shape and mesh surface (mean, max); an
+    # object beyond them is reported approximate with its figures.
     collision_mean_limit: float = _field(0.0005, gt=0.0)  # m
     collision_max_limit: float = _field(0.002, gt=0.0)  # m
-    # Surface points sampled per direction to measure it (seeded): repeat runs with other seeds
-    # moved the sample objects' mean by < 2 %.
-    collision_error_samples: int = _field(10_000, ge=100)
-    # Keep a multi-node .glb as one object (default: one object per node, id file/part).
+    collision_error_samples: int = _field(10_000, ge=100)  # surface points per direction, seeded
+    # Memory one worker may spend loading an object (MB), checked from its face count before it is
+    # read; an object above it fails with its estimate (0102-memory).
+    memory_budget: float = _field(4096.0, gt=0.0)  # MB
+    # Keep a multi-node .glb or multi-object .obj as one object (default: one object per body).
     merge_parts: bool = False
 
 
@@ -409,8 +399,10 @@ class KinectConfig(_Section):
 @dataclass(frozen=True)
 class SceneConfig(_Section):
     """Scenes of several objects settled on the seed's table (annotator/scenes): the workspace, the
-    three arrangements, settling and the views. Not yet a section of AnnotatorConfig: the scene
-    pipeline adds it (and binds it in the manifest) when ``annotate --scenes`` lands.
+    three arrangements, settling, the views, the trials among neighbours and clutter removal. A
+    section of AnnotatorConfig that a run's manifest binds only when it labels scenes
+    (``annotate --scenes``), so folders of object runs made before it existed still resume
+    (docs/decisions/0300-scenes-as-units-of-work.md).
 
     Sources: VGN (ethz-asl/vgn, branch corl2020, src/vgn/simulation.py and scripts/generate_data.py;
     branch devel for the packed region) and ACRONYM (NVlabs/acronym, acronym_tools/acronym.py).
@@ -463,6 +455,23 @@ class SceneConfig(_Section):
     view_radius_min: float = _field(0.8, gt=0.0)  # m
     view_radius_max: float = _field(1.2, gt=0.0)  # m
     view_max_polar: float = _field(45.0, ge=0.0, lt=90.0)  # deg (VGN: pi / 4)
+    # Trials among neighbours (annotator/scenes/labels.py): close, lift and shake as the protocol
+    # says, or close and lift only (VGN's trial: close, retreat 10 cm, judge).
+    shake: bool = True
+    # m: closer than this to a neighbour or the table is a collision in the kinematic check (Bullet's
+    # convex queries erred by 0.7 mm); docs/decisions/0301-labels-among-neighbours.md.
+    neighbour_clearance: float = _field(0.001, ge=0.0)
+    # The world's step during a trial: the target's (its light-object substeps, [physics]
+    # light_object_mass), or the lightest object's in the scene; docs/decisions/0302-scene-substeps.md.
+    substeps: str = _field("target", choices=("target", "lightest"))
+    # A neighbour "disturbed" by a trial moved at least this far (m, any corner of its bounding box)
+    # between the settled scene and the trial's end: the label's disturbed flag. Resting objects
+    # drift below 0.2 mm over a trial's second (tests/test_scene_labels.py); 5 mm is a visible push.
+    disturbance_threshold: float = _field(0.005, gt=0.0)  # m
+    # Clutter removal (annotator/scenes/clutter.py): a round ends after this many failed grasps in
+    # a row (VGN: 2); a held object is lifted this far straight up before it counts (VGN: 10 cm).
+    clutter_max_failures: int = _field(2, ge=1)
+    clutter_lift_height: float = _field(0.10, gt=0.0)  # m; docs/decisions/0303-clutter-removal.md
 
 
 @dataclass(frozen=True)
@@ -477,6 +486,8 @@ class AnnotatorConfig:
     robust: RobustConfig = field(default_factory=RobustConfig)
     cell: CellConfig = field(default_factory=CellConfig)
     kinect: KinectConfig = field(default_factory=KinectConfig)
+    # Bound in a run's manifest only by scene runs (to_dict(scenes=True)).
+    scenes: SceneConfig = field(default_factory=SceneConfig)
 
     @classmethod
     def thorough(cls, base: AnnotatorConfig | None = None) -> AnnotatorConfig:
@@ -514,8 +525,13 @@ class AnnotatorConfig:
             ),
         )
 
-    def to_dict(self) -> dict[str, dict[str, Any]]:
-        return dataclasses.asdict(self)
+    def to_dict(self, *, scenes: bool = False) -> dict[str, dict[str, Any]]:
+        """Every section as ``{section: {field: value}}``; ``[scenes]`` only with ``scenes`` (a
+        scene run binds it, an object run does not: its labels do not depend on it)."""
+        data = dataclasses.asdict(self)
+        if not scenes:
+            data.pop("scenes")
+        return data
 
     @classmethod
     def from_dict(cls, data: Any) -> AnnotatorConfig:

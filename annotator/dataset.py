@@ -143,9 +143,10 @@ def validate_labels(df: pd.DataFrame) -> pd.DataFrame:
     score = values[:, 8]
     if ((score < 0) | (score > 1)).any():
         raise SchemaError("score must lie in [0, 1]")
-    keys = pd.MultiIndex.from_arrays([out["object_id"].to_numpy(dtype=object), out["grasp_id"].to_numpy()])
+    unit = "scene_id" if "scene_id" in out.columns else "object_id"  # scene labels number per scene
+    keys = pd.MultiIndex.from_arrays([out[unit].to_numpy(dtype=object), out["grasp_id"].to_numpy()])
     if keys.has_duplicates:
-        raise SchemaError("(object_id, grasp_id) must be unique")
+        raise SchemaError(f"({unit}, grasp_id) must be unique")
     return out
 
 
@@ -337,10 +338,15 @@ def load_geometry(labels_dir: str | Path) -> pd.DataFrame:
         info = json.loads(path.read_text()).get("objects_info", {})
     except (OSError, ValueError, AttributeError) as exc:
         raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
-    rows = [v["geometry"] for v in info.values() if isinstance(v, dict) and "geometry" in v]
+    rows = []
+    for entry in (v for v in info.values() if isinstance(v, dict)):
+        # an object's entry, or a scene's (annotate --scenes: the objects it holds)
+        for record in [entry, *(entry.get("objects") or {}).values()]:
+            if isinstance(record, dict) and "geometry" in record:
+                rows.append(record["geometry"])
     if not rows:
         raise FileNotFoundError(f"no geometry record in {path}")
-    return pd.DataFrame(rows).set_index("object_id").sort_index()
+    return pd.DataFrame(rows).drop_duplicates("object_id").set_index("object_id").sort_index()
 
 
 def load_object_mesh(labels_dir: str | Path, object_id: str):
@@ -377,3 +383,62 @@ def load_object_mesh(labels_dir: str | Path, object_id: str):
     except (OSError, ValueError, KeyError, TypeError):
         pass
     return read_object_mesh(source, config, float(row["scale"]))
+
+
+# --------------------------------------------------------------------------------------- scenes
+
+
+def _scene_manifest(labels_dir: str | Path) -> dict:
+    import json
+
+    path = Path(labels_dir) / "_manifest.json"
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
+    if not isinstance(manifest, dict) or "scenes" not in (manifest.get("run") or {}).get("inputs", {}):
+        raise ValueError(f"{labels_dir} holds no scenes (made without annotate --scenes)")
+    return manifest
+
+
+def _scene_records(manifest: dict) -> dict[str, list[dict]]:
+    """Each scene unit's label file records (its merged file, or its chunks), from the manifest."""
+    out: dict[str, list[dict]] = {}
+    for unit, entry in (manifest.get("objects_done") or {}).items():
+        out.setdefault(unit, []).append(entry)
+    for unit, entry in (manifest.get("chunks_done") or {}).items():
+        out.setdefault(unit, []).extend(entry["files"].values())
+    return out
+
+
+def load_scenes(labels_dir: str | Path) -> pd.DataFrame:
+    """The scene table of an ``annotate --scenes`` run: one row per instance of every scene whose
+    labels the run's manifest vouches for (the columns of :data:`annotator.scenes.records.
+    SCENE_COLUMNS`; :func:`annotator.scenes.scenes_from_table` turns it into records), by scene id
+    and instance id. Each scene's table is the ``scene.parquet`` artifact its labels came with.
+
+    Raises FileNotFoundError without a manifest, ValueError for a folder of object labels."""
+    manifest = _scene_manifest(labels_dir)
+    frames = []
+    for records in _scene_records(manifest).values():
+        for record in records:
+            artifact = (record.get("artifacts") or {}).get("scene.parquet")
+            if artifact is not None:
+                frames.append(pd.read_parquet(Path(labels_dir) / artifact["file"]))
+                break
+    if not frames:
+        raise FileNotFoundError(f"{labels_dir}: its run has labelled no scene yet")
+    table = pd.concat(frames, ignore_index=True)
+    return table.sort_values(["scene_id", "instance_id"], kind="stable", ignore_index=True)
+
+
+def scene_labels(labels_dir: str | Path, scene_id: int) -> pd.DataFrame:
+    """The labels of scene ``scene_id`` of an ``annotate --scenes`` run (validated), by grasp id;
+    KeyError if the run has none of it."""
+    manifest = _scene_manifest(labels_dir)
+    unit = f"scene_{int(scene_id):06d}"  # annotator.store.names.scene_unit
+    records = _scene_records(manifest).get(unit)
+    if not records:
+        raise KeyError(f"{labels_dir} has no labels of scene {scene_id}")
+    df = pd.concat([pd.read_parquet(Path(labels_dir) / r["file"]) for r in records], ignore_index=True)
+    return validate_labels(df).sort_values("grasp_id", kind="stable").reset_index(drop=True)

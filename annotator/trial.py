@@ -88,6 +88,7 @@ class TrialResult:
     width: float  # m, pad separation at the end of closing (open width for collisions)
     steps: int  # simulated steps used
     slip: float  # m, object displacement in the hand from grasp to end (nan if not held)
+    check: CollisionCheck | None = None  # the kinematic check the trial began with
 
 
 class GraspTrial:
@@ -96,7 +97,11 @@ class GraspTrial:
     The initial state (gripper parked, object at rest wherever it is: at the world origin for a
     floating object, on the table for the cell) is saved once and restored before every trial.
     ``obstacles``: bodies the gripper must not touch at all in the kinematic checks (the table);
-    ``resting``: the object rests on one of them, so gravity stays on while the gripper closes.
+    ``resting``: the object rests on one of them, so gravity stays on while the gripper closes;
+    ``shake``: False ends the trial after the lift (judged as after a shake: both pads on the
+    object, moved less than ``max_slip`` in the hand), as VGN's trials end; ``obstacle_margin``
+    (m): how close the gripper may come to an obstacle in the kinematic checks (default the
+    protocol's ``collision_margin``).
     """
 
     def __init__(
@@ -108,6 +113,8 @@ class GraspTrial:
         *,
         obstacles: Sequence[int] = (),
         resting: bool = False,
+        shake: bool = True,
+        obstacle_margin: float | None = None,
     ) -> None:
         self.world = world
         self.hand = hand
@@ -115,6 +122,8 @@ class GraspTrial:
         self.config = config
         self.obstacles = tuple(obstacles)
         self.resting = resting
+        self.shake = shake
+        self.obstacle_margin = obstacle_margin
         self.client = world.client
         info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
         self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
@@ -138,7 +147,9 @@ class GraspTrial:
 
     def _obstacle_touched(self) -> int | None:
         """The first obstacle any link of the gripper (pads included) touches, or None."""
-        margin = self.config.protocol.collision_margin
+        margin = (
+            self.config.protocol.collision_margin if self.obstacle_margin is None else self.obstacle_margin
+        )
         for body in self.obstacles:
             if touching(closest_points(self.client, self.hand.uid, body, margin), margin):
                 return body
@@ -240,7 +251,7 @@ class GraspTrial:
             check = self.collides(T_obj_tcp, width_expected)
         open_width = check.open_width
         if check.collided:
-            return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"))
+            return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"), check)
 
         # 2. close (gravity off on a free object, on for a resting one). The fingers' travel
         # through free space has no effect but time, so they start preclose_gap outside the
@@ -261,7 +272,7 @@ class GraspTrial:
         )
 
         def result(outcome: Outcome, slip: float = float("nan")) -> TrialResult:
-            return TrialResult(outcome, T_obj_tcp_closed, width, self.world.steps - steps0, slip)
+            return TrialResult(outcome, T_obj_tcp_closed, width, self.world.steps - steps0, slip, check)
 
         # 3. both pads on the object?
         if not self._both_pads_touch():
@@ -279,22 +290,23 @@ class GraspTrial:
 
         # 5. shake
         lost = self._loss_monitor(grasped_at)
-        self.hand.shake(
-            cfg.shake_amplitude,
-            cfg.shake_angle,
-            cfg.shake_duration,
-            force,
-            lost,
-            cfg.shake_cycles,
-            cfg.shake_paired,
-        )
+        if self.shake:
+            self.hand.shake(
+                cfg.shake_amplitude,
+                cfg.shake_angle,
+                cfg.shake_duration,
+                force,
+                lost,
+                cfg.shake_cycles,
+                cfg.shake_paired,
+            )
         # let the last motion settle, then judge
         for _ in range(round(cfg.settle_time / self.world.dt)):
             self.hand.gripper.squeeze(force)
             self.world.step()
         slip = self._slip(grasped_at)
         if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
-            return result(Outcome.SLIPPED_SHAKE, slip)
+            return result(Outcome.SLIPPED_SHAKE if self.shake else Outcome.SLIPPED_LIFT, slip)
         return result(Outcome.SUCCESS, slip)
 
     def _hand_obj_position(self) -> np.ndarray:

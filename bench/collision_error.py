@@ -12,7 +12,7 @@ model and mass, the collision method, parts and final CoACD threshold, the error
 decomposition: each run uses a fresh cache unless --cache is given).
 
 "before" (with --before, the default for the sample objects): what the annotator simulated before
-its ladder of CoACD thresholds, CoACD once at threshold 0.05 with its default preprocessing
+the collision-error refinement, CoACD once at threshold 0.05 with its default preprocessing
 ("auto"), or the hull of a convex object, measured on the same cleaned mesh. The table goes into a
 record (bench/harness.py).
 """

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import trimesh
@@ -43,3 +45,13 @@ def synthetic_labels(object_id: str, n: int = 10, start: int = 0, seed: int = 0)
     df["seed"] = np.int64(seed)
     df["antipodal"] = cand.antipodal  # an extra column is kept
     return df
+
+
+def write_l(path: Path, size: float = 1.0) -> Path:
+    """A concave L-shaped block, 60 x 20 x 50 mm times ``size``, as an .obj at ``path`` (CoACD
+    splits it in two within a second: a decomposition that is real but quick)."""
+    outline = np.array([(-0.03, 0), (0.03, 0), (0.03, 0.02), (-0.01, 0.02), (-0.01, 0.05), (-0.03, 0.05)])
+    fan = np.array([(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 5)])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    trimesh.creation.extrude_triangulation(outline * size, fan, 0.02 * size).export(path)
+    return path

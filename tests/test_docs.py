@@ -269,8 +269,8 @@ def _annotate(folder: Path, *args: str) -> None:
 @pytest.fixture(scope="module")
 def docs_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The folder the docs' examples run in: ``objects/`` (box, can, mug from the sample objects),
-    ``labels/`` (``annotate --objects objects/ --n 20``) and ``cell_labels/`` (box and can,
-    ``--cell --views 2 --n 20``)."""
+    ``labels/`` (``annotate --objects objects/ --n 20``), ``cell_labels/`` (box and can,
+    ``--cell --views 2 --n 20``) and ``scene_labels/`` (one pile of two of box and can, 20 grasps)."""
     folder = tmp_path_factory.mktemp("docs")
     for sub, names in (("objects", LABELLED_OBJECTS), ("cell_objects", CELL_OBJECTS)):
         (folder / sub).mkdir()
@@ -280,6 +280,10 @@ def docs_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     _annotate(
         folder, "--objects", "cell_objects/", "--n", str(DOCS_N), "--cell", "--views", "2",
         "--out", "cell_labels/", "--workers", "1",
+    )  # fmt: skip
+    _annotate(
+        folder, "--objects", "cell_objects/", "--scenes", "1", "--per-scene", "2", "--n", str(DOCS_N),
+        "--out", "scene_labels/", "--workers", "1",
     )  # fmt: skip
     return folder
 

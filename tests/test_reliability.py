@@ -23,9 +23,10 @@ from helpers import run_annotate
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
-from annotator.pipeline.plan import PlannedObject, plan_spans
+from annotator.pipeline.plan import PlannedObject
 from annotator.pipeline.run import RunOptions, Workers, execute
-from annotator.pipeline.worker import Span, SpanResult, SpanTask, label_span
+from annotator.pipeline.schedule import Schedule
+from annotator.pipeline.worker import Prepare, Span, SpanResult, SpanTask, label_span
 from annotator.store import LOCK_NAME, MANIFEST_NAME, STALE_DIR
 from annotator.store.names import object_filename
 
@@ -276,14 +277,15 @@ def test_a_killed_worker_costs_a_retry_and_the_labels_are_the_same(objs, referen
 
 
 def _execute_spans(objs: Path, workers: Workers, fn=label_span) -> list[SpanResult]:
-    """Every 10-candidate span of ``objs`` (N = 20) through ``execute`` on ``workers`` (closed
-    after), each run by ``fn`` in a worker. The results in the order they arrived."""
+    """Every object's decomposition task and 10-candidate span of ``objs`` (N = 20) through
+    ``execute`` on ``workers`` (closed after), each run by ``fn`` in a worker. The results in the
+    order they arrived."""
     config = AnnotatorConfig()
     planned = [PlannedObject(s) for s in discover_objects(objs)]
     results: list[SpanResult] = []
     try:
         execute(
-            plan_spans(planned, 20, 10, None),
+            Schedule(planned, 20, 10, None, workers.count),
             lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
             workers,
             results.append,
@@ -295,7 +297,8 @@ def _execute_spans(objs: Path, workers: Workers, fn=label_span) -> list[SpanResu
 
 
 def crash_on_poison(task: SpanTask) -> SpanResult:
-    """A worker function that dies (as a segfault would) on every span of the object 'poison'."""
+    """A worker function that dies (as a segfault would) on every task of the object 'poison'
+    (its decomposition task first)."""
     if task.span.object_id == "poison":
         os._exit(11)
     return label_span(task)
@@ -308,10 +311,14 @@ def test_a_span_that_kills_its_worker_twice_fails_its_object_only(tmp_path):
     by_object: dict[str, list[SpanResult]] = {}
     for r in results:
         by_object.setdefault(r.span.object_id, []).append(r)
-    assert sorted(r.span.start for r in by_object["box"]) == [0, 10]
-    assert all(r.error is None and len(r.rows) == 10 for r in by_object["box"])
-    assert by_object["poison"] and all(r.error for r in by_object["poison"])
-    assert all("a worker process died twice" in r.error for r in by_object["poison"])
+    box = [r for r in by_object["box"] if isinstance(r.span, Span)]
+    assert sorted(r.span.start for r in box) == [0, 10]
+    assert all(r.error is None and len(r.rows) == 10 for r in box)
+    # the poison's decomposition task killed its worker twice: the object failed, none of its
+    # spans was handed out
+    (poison,) = by_object["poison"]
+    assert isinstance(poison.span, Prepare)
+    assert "a worker process died twice while loading (decomposing) the object" in poison.error
 
 
 class _RefusesOnce(Workers):
@@ -337,9 +344,12 @@ class _RefusesOnce(Workers):
 def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_the_run(tmp_path):
     objs = _objects(tmp_path / "objs", ("box", "slab"))
     results = _execute_spans(objs, _RefusesOnce(RunOptions(objs, 20, workers=1), refuse_at=2))
-    keys = sorted((r.span.object_id, r.span.start) for r in results)
-    assert keys == [("box", 0), ("box", 10), ("slab", 0), ("slab", 10)]  # each span once
-    assert all(r.error is None and len(r.rows) == 10 for r in results)
+    keys = sorted(r.span.key for r in results)
+    # each decomposition task (key -1) and each span once
+    assert keys == [("box", -1), ("box", 0), ("box", 10), ("slab", -1), ("slab", 0), ("slab", 10)]
+    spans = [r for r in results if isinstance(r.span, Span)]
+    assert all(r.error is None and len(r.rows) == 10 for r in spans)
+    assert all(r.error is None and r.prepared is not None for r in results if isinstance(r.span, Prepare))
 
 
 def _mount_tmpfs(where: Path, size: str) -> None:
@@ -496,50 +506,24 @@ def test_absurd_workers_and_n_are_usage_errors(objs, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize("ahead", [1, 3, 8])
-def test_plan_gives_first_spans_a_bounded_distance_ahead(ahead):
-    """Every missing span once; each object's first missing span comes before the rest of it, and
-    from an object's first span to its last, the spans planned in between belong to at most
-    2 (ahead - 1) other objects (the rest of those before it, the first span of those after it), so
-    a worker still holds the object, whatever the folder's size; done chunks (a resumed run) are
-    skipped."""
-    from annotator.objects import ObjectSource
-
-    sources = [ObjectSource(f"o{k}", Path(f"/nowhere/o{k}.obj")) for k in range(20)]
-    done = {3: frozenset({(0, 10)}), 4: frozenset({(0, 10), (10, 20), (20, 30)})}  # o4 finished
-    planned = [PlannedObject(s, done.get(k, frozenset())) for k, s in enumerate(sources)]
-    spans = [(s.object_id, s.start) for s in plan_spans(planned, 30, 10, None, ahead=ahead)]
-    expected = (
-        {(f"o{k}", a) for k in range(20) for a in (0, 10, 20)}
-        - {("o3", 0)}
-        - {("o4", a) for a in (0, 10, 20)}
-    )
-    assert len(spans) == len(set(spans)) and set(spans) == expected
-    for k in range(20):
-        mine = [i for i, (oid, _) in enumerate(spans) if oid == f"o{k}"]
-        if not mine:
-            continue
-        first = min(mine, key=lambda i: spans[i][1])
-        assert first == mine[0]  # the first missing span is planned first
-        between = {oid for oid, _ in spans[first : mine[-1] + 1]} - {f"o{k}"}
-        assert len(between) <= 2 * (ahead - 1), (k, between)
-    # the first spans of the first ``ahead`` objects lead (a first run decomposes in parallel);
-    # o4 is done, o3's first missing span is its second
-    lead = [(f"o{k}", 10 if k == 3 else 0) for k in range(ahead) if k != 4]
-    assert spans[: len(lead)] == lead
-
-
 def test_planning_is_lazy(objs):
-    """A million candidates per object plan without building a list of spans."""
+    """A million candidates per object plan without building a list of spans: each object's
+    decomposition task, then its spans one by one as workers take them."""
     import tracemalloc
 
     planned = [PlannedObject(s) for s in discover_objects(objs)]
     tracemalloc.start()
-    spans = plan_spans(planned, 1_000_000, 500, None)
-    first = [next(spans) for _ in range(5)]
+    schedule = Schedule(planned, 1_000_000, 500, None, workers=2)
+    first = [schedule.next() for _ in range(3)]
+    assert first[2] is None  # both workers decompose; no span before its object is ready
+    schedule.record(SpanResult(first[0], None, None, None))
+    spans = [schedule.next() for _ in range(3)]
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    assert [s.object_id for s in first[:3]] == ["box", "cylinder", "slab"]  # first span of each first
-    assert (first[3].object_id, first[3].start) == ("box", 500)
+    assert [(type(u).__name__, u.object_id) for u in first[:2]] == [
+        ("Prepare", "box"),
+        ("Prepare", "cylinder"),
+    ]
+    assert [(s.object_id, s.start) for s in spans] == [("box", 0), ("box", 500), ("box", 1000)]
     assert peak < 1_000_000, peak  # bytes: nothing of size N
-    assert isinstance(first[0], Span)
+    assert isinstance(spans[0], Span)

@@ -24,7 +24,7 @@ SEED_MIMIC = {
 }
 
 
-@pytest.mark.parametrize("urdf", [paths.rg2_urdf(), paths.ur3_rg2_urdf()], ids=["floating", "on_ur3"])
+@pytest.mark.parametrize("urdf", [default_gripper().urdf, paths.ur3_rg2_urdf()], ids=["floating", "on_ur3"])
 def test_mimic_table_read_from_urdf_has_seed_multipliers(urdf):
     table = read_mimic_table(urdf)
     assert {k: m.multiplier for k, m in table.items()} == SEED_MIMIC
@@ -32,7 +32,7 @@ def test_mimic_table_read_from_urdf_has_seed_multipliers(urdf):
 
 
 def test_fully_open_reaches_the_110mm_stroke(world):
-    body = Body.load(world.client, paths.rg2_urdf(), fixed_base=True)
+    body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
     rg2 = ParallelGripper(body, default_gripper(), GripperConfig())
     rg2.reset_angle(body.joints[rg2.driven].upper)
     assert rg2.measured_width() == pytest.approx(0.110, abs=0.002)
@@ -82,7 +82,7 @@ def test_shake_moves_the_gripper_by_its_amplitude_and_angle(world, hand, paired)
 def test_gear_coupling_is_the_default_and_position_coupling_also_runs():
     assert default_gripper().coupling == "gear" and GripperConfig().coupling is None
     with World(PhysicsConfig()) as w:
-        body = Body.load(w.client, paths.rg2_urdf(), fixed_base=True)
+        body = Body.load(w.client, default_gripper().urdf, fixed_base=True)
         rg2 = ParallelGripper(body, default_gripper(), GripperConfig(coupling="position"))
         assert rg2.coupling == "position" and not rg2._constraints
         for _ in range(120):

@@ -14,6 +14,7 @@ otherwise the reason of the one that got furthest:
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,10 +79,17 @@ def _link_names(cell: Cell) -> dict[int, str]:
     return {index: name for name, index in cell.robot.links.items()}
 
 
-def arm_collision(cell: Cell, obj: int | None, margin: float) -> tuple[str, str]:
+def _bodies(obj: int | Sequence[int] | None) -> tuple[int, ...]:
+    if obj is None:
+        return ()
+    return (obj,) if isinstance(obj, int) else tuple(obj)
+
+
+def arm_collision(cell: Cell, obj: int | Sequence[int] | None, margin: float) -> tuple[str, str]:
     """With the arm where it is: (reason, detail) of the first collision found, ('', '') if none.
 
-    The gripper's own links (every link of its description) against the object are the grasp's
+    ``obj``: the object's body, or several (a scene: the target first, then its neighbours). The
+    gripper's own links (every link of its description) against the objects are the grasp's
     collision check, not the arm's; against each other they are the gripper's business.
     """
     robot, gripper = cell.robot, cell.gripper
@@ -91,10 +99,11 @@ def arm_collision(cell: Cell, obj: int | None, margin: float) -> tuple[str, str]
     gripper_links = frozenset(gripper.description.links)
     for link, distance in _closest(client, robot.uid, cell.table.uid, margin):
         return ARM_TABLE, f"{names[link]} touches the table ({distance * 1000:.1f} mm)"
-    if obj is not None:
-        for link, distance in _closest(client, robot.uid, obj, margin):
+    for k, body in enumerate(_bodies(obj)):
+        what = "the object" if k == 0 else f"another object (body {body})"
+        for link, distance in _closest(client, robot.uid, body, margin):
             if names[link] not in gripper_links:
-                return ARM_OBJECT, f"{names[link]} touches the object ({distance * 1000:.1f} mm)"
+                return ARM_OBJECT, f"{names[link]} touches {what} ({distance * 1000:.1f} mm)"
     pb.performCollisionDetection(physicsClientId=client)
     for c in contact_points(client, robot.uid, robot.uid):
         a, b = names[c.link_a], names[c.link_b]
@@ -117,14 +126,14 @@ def check_reach(
     open_width: float,
     approach_distance: float,
     approach_step: float,
-    obj: int | None = None,
+    obj: int | Sequence[int] | None = None,
     q_seed: np.ndarray | None = None,
     margin: float | None = None,
 ) -> Reach:
     """Is the grasp at ``T_world_tcp`` (pads ``width`` apart) executable by the cell's arm?
 
     The arm and gripper are moved kinematically (reset) and put back where they were; no step is
-    simulated. ``obj``: the object's body, checked against the arm links. ``q_seed`` (6,):
+    simulated. ``obj``: the object's body (or several), checked against the arm links. ``q_seed`` (6,):
     solutions nearest to it are tried first (default the arm's current joints).
     """
     robot, gripper = cell.robot, cell.gripper

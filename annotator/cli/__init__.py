@@ -12,6 +12,7 @@ import click
 from annotator import __version__
 from annotator.cli.annotate import annotate_command
 from annotator.cli.calibrate import calibrate_command
+from annotator.cli.clutter_removal import clutter_removal_command
 from annotator.cli.common import CONTEXT
 from annotator.cli.evaluate import evaluate_command
 from annotator.cli.export import export_command
@@ -39,6 +40,12 @@ def main() -> None:
     annotator export labels/ --format acronym --objects objects/ --out acronym/
     annotator evaluate predictions.parquet --objects objects/ --out evaluated/
     annotator calibrate labels/ real_trials.csv --objects objects/
+
+    \b
+    Scenes of several objects (annotate --scenes N, docs/scenes.md):
+    annotator show scene_labels/ --scene 3 --png scene3.png
+    annotator export scene_labels/ --format vgn --out vgn_raw/
+    annotator clutter-removal --objects objects/ --rounds 20 --policy labels
     """
 
 
@@ -51,6 +58,7 @@ for _command in (
     export_command,
     evaluate_command,
     calibrate_command,
+    clutter_removal_command,
 ):
     main.add_command(_command)
 

@@ -8,6 +8,7 @@ import click
 
 from annotator import __version__
 from annotator.cli.common import (
+    CACHE_OPTION,
     CONFIG_OPTION,
     CONTEXT,
     GRIPPER_OPTION,
@@ -18,6 +19,9 @@ from annotator.cli.common import (
     run_pipeline,
     setup_logging,
 )
+
+# Grasps per scene unless --n says otherwise: VGN's GRASPS_PER_SCENE (scripts/generate_data.py).
+SCENE_GRASPS = 120
 
 
 @click.command(
@@ -35,9 +39,10 @@ from annotator.cli.common import (
 @click.option(
     "--n",
     "n",
-    required=True,
+    default=None,
     type=click.IntRange(min=1, max=1_000_000),
-    help="Grasp candidates per object (every one becomes a row, failures included).",
+    help="Grasp candidates per object (every one becomes a row, failures included); with --scenes, "
+    f"per scene [default: {SCENE_GRASPS}, as VGN].",
 )
 @click.option(
     "--out",
@@ -97,10 +102,36 @@ from annotator.cli.common import (
     show_default=True,
     metavar="K",
     help="With --cell: K Kinect v2 views per placement (the seed's mount, then K-1 around the "
-    "object): depth/colour/segmentation PNGs and camera tables in OUT/_views/.",
+    "object): depth/colour/segmentation PNGs and camera tables in OUT/_views/. With --scenes: K "
+    "views per scene on VGN's sphere.",
+)
+@click.option(
+    "--scenes",
+    type=click.IntRange(min=1),
+    default=None,
+    metavar="N",
+    help="Label N scenes of several objects drawn from --objects and settled on the table, each grasp "
+    "tried among its neighbours (docs/scenes.md); --n grasps per scene.",
+)
+@click.option(
+    "--per-scene",
+    "per_scene",
+    default="5",
+    show_default=True,
+    metavar="K|A-B",
+    callback=lambda ctx, param, value: _count_range(value, param),
+    help="With --scenes: objects per scene, K or uniformly A..B.",
+)
+@click.option(
+    "--arrangement",
+    type=click.Choice(["pile", "packed", "table"]),
+    default="pile",
+    show_default=True,
+    help="With --scenes: dropped in a pile, packed upright (VGN), or spread on the table (ACRONYM).",
 )
 @GRIPPER_OPTION
 @CONFIG_OPTION
+@CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
 @click.version_option(__version__, prog_name="annotate")
@@ -117,8 +148,12 @@ def annotate_command(
     repair: bool,
     cell: bool,
     views: int,
+    scenes: int | None,
+    per_scene: tuple[int, int],
+    arrangement: str,
     gripper: str | None,
     config_file: Path | None,
+    cache_dir: Path | None,
     quiet: bool,
     verbose: bool,
 ) -> None:
@@ -132,6 +167,11 @@ def annotate_command(
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
       annotate --objects objects/ --n 500 --cell --views 3 --out cell_labels/
       annotate --objects objects/ --n 500 --gripper panda --out panda_labels/
+      annotate --objects objects/ --scenes 100 --per-scene 3-8 --views 2 --out scene_labels/
+
+    \b
+    Each object's convex decomposition runs first, in a worker, once per --cache (shared by
+    runs and machines); labelling starts as soon as an object is ready.
 
     \b
     Labels are written every 10 candidates; re-running the same command resumes (finished
@@ -153,12 +193,17 @@ def annotate_command(
     config = load_config(config_file)
     if overwrite and repair:
         raise click.UsageError("--overwrite and --repair exclude each other")
-    if views and not cell:
-        raise click.UsageError("--views renders the robot cell's Kinect: it needs --cell")
+    if views and not (cell or scenes):
+        raise click.UsageError("--views renders the robot cell's Kinect: it needs --cell or --scenes")
+    if n is None and not scenes:
+        raise click.UsageError("Missing option '--n' (grasp candidates per object).")
+    scene_options = {}
+    if scenes:
+        scene_options = {"scenes": scenes, "per_scene": per_scene, "arrangement": arrangement}
     run_pipeline(
         "annotate",
         objects_dir=objects_dir,
-        n=n,
+        n=n if n is not None else SCENE_GRASPS,
         out_dir=out_dir,
         workers=workers,
         seed=seed,
@@ -171,5 +216,19 @@ def annotate_command(
         cell=cell,
         views=views,
         gripper=gripper,
+        cache_dir=cache_dir,
         config=config,
+        **scene_options,
     )
+
+
+def _count_range(value: str, param: click.Parameter) -> tuple[int, int]:
+    """``K`` or ``A-B`` (1 <= A <= B) as (A, B); a bad value is a usage error."""
+    parts = str(value).split("-")
+    try:
+        lo, hi = (int(parts[0]), int(parts[-1])) if len(parts) in (1, 2) else (0, -1)
+    except ValueError:
+        lo, hi = 0, -1
+    if not 1 <= lo <= hi:
+        raise click.BadParameter(f"expected K or A-B with 1 <= A <= B, got {value!r}", param=param)
+    return lo, hi

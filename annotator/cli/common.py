@@ -42,6 +42,16 @@ CONFIG_OPTION = click.option(
     help="TOML file overriding constants by section, e.g. [protocol] lift_height = 0.15.",
 )
 VERBOSE_OPTION = click.option("--verbose", "-v", is_flag=True, help="Debug logging.")
+CACHE_OPTION = click.option(
+    "--cache",
+    "cache_dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=None,
+    metavar="DIR",
+    help="Decomposition cache folder for every worker, local or on a cluster (e.g. a shared "
+    "filesystem); content-addressed, safe to share between runs and machines [default: "
+    "$RG2_CACHE_DIR, else ~/.cache/rg2-annotator; a cluster's workers their own].",
+)
 
 
 def _shipped() -> str:

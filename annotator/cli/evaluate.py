@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from annotator.cli.common import (
+    CACHE_OPTION,
     CONTEXT,
     LABELS_GRIPPER_OPTION,
     SEED,
@@ -86,6 +87,7 @@ FRAME_OPTION = click.option(
     "the grasps move with it; the gripper closes with gravity on [default: floating, gravity off].",
 )
 @RESTING_GRASPS_OPTION
+@CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
 def evaluate_command(
@@ -103,6 +105,7 @@ def evaluate_command(
     frame,
     resting,
     resting_grasps,
+    cache_dir,
     quiet,
     verbose,
 ):
@@ -166,6 +169,7 @@ def evaluate_command(
         quiet=quiet,
         gripper=hand.description,
         resting=resting,
+        cache_dir=cache_dir,
         config=config,
         candidates=candidates,
     )

@@ -23,8 +23,10 @@ from annotator.cli.common import (
     "--format",
     "fmt",
     required=True,
-    type=click.Choice(["acronym", "graspgen"]),
-    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object.",
+    type=click.Choice(["acronym", "graspgen", "vgn", "contact_graspnet"]),
+    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object; "
+    "for labels of annotate --scenes: vgn (VGN's grasps.csv and scenes/*.npz, needs --views) or "
+    "contact_graspnet (one npz per scene).",
 )
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
 @OBJECTS_OPTION
@@ -50,8 +52,19 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
     Example:
       annotator export labels/ --format acronym --objects objects/ --out acronym/
       annotator export labels/ --format graspgen --objects objects/ --out graspgen/
+      annotator export scene_labels/ --format vgn --out vgn_raw/
+      annotator export scene_labels/ --format contact_graspnet --objects objects/ --out cgn/
     """
     setup_logging(False, verbose, default=logging.WARNING)
+    if fmt in ("vgn", "contact_graspnet"):
+        from annotator.tools.common import ToolError
+        from annotator.tools.export_scenes import export_scenes
+
+        if object_ids:
+            raise ToolError(f"--object selects objects; --format {fmt} exports whole scenes")
+        result = export_scenes(labels, fmt, out_dir, objects_dir, overwrite=overwrite, partial=partial)
+        click.echo(f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) to {out_dir}")
+        return
     from annotator.tools.common import labelling_gripper
     from annotator.tools.export import export
 

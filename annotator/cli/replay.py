@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CONTEXT, LABELS_GRIPPER_OPTION
+from annotator.cli.common import CACHE_OPTION, CONTEXT, LABELS_GRIPPER_OPTION
 
 
 def _fmt_q(q: np.ndarray) -> str:
@@ -46,6 +46,7 @@ def _fmt_q(q: np.ndarray) -> str:
     help="Simulate with this TOML file [default: the configuration recorded beside the labels].",
 )
 @LABELS_GRIPPER_OPTION
+@CACHE_OPTION
 def replay_command(
     labels: Path,
     object_id: str,
@@ -57,6 +58,7 @@ def replay_command(
     size: tuple[int, int],
     config_file: Path | None,
     gripper: str | None,
+    cache_dir: Path | None,
 ) -> None:
     """Execute one label with the UR3 and the labels' gripper in the seed's cell (table, Kinect)
     and say what happened.
@@ -75,13 +77,8 @@ def replay_command(
       annotator replay labels/ --object mug --grasp 17 --gui
     """
     from annotator.cell import build_cell
-    from annotator.objects import (
-        ObjectDiscoveryError,
-        ObjectError,
-        create_body,
-        discover_objects,
-        load_object,
-    )
+    from annotator.objects import ObjectDiscoveryError, ObjectError, create_body, discover_objects
+    from annotator.pipeline.prepare import load_prepared
     from annotator.render import write_gif
     from annotator.tools.common import check_output_file, labelling_config, labelling_gripper, read_labels
     from annotator.tools.replay import (
@@ -112,7 +109,8 @@ def replay_command(
     if object_id not in sources:
         raise click.UsageError(f"object {object_id!r} is not in {objects_dir} (pass --objects DIR)")
     try:
-        model = load_object(sources[object_id], config.objects, scale=float(row["object_scale"]))
+        # its decomposition from the cache, made by a worker process if the cache does not hold it
+        model = load_prepared(sources[object_id], config, float(row["object_scale"]), cache_dir)
     except ObjectError as exc:
         raise click.UsageError(f"{object_id}: {exc}") from exc
     if model.mesh_sha256 != row["mesh_sha256"]:

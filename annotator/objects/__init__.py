@@ -2,23 +2,28 @@
 (hull or convex parts, with its measured error), and PyBullet bodies.
 
 Steps, one module each: :mod:`~annotator.objects.discovery` (what objects a folder holds),
-:mod:`~annotator.objects.reading` (read + clean), :mod:`~annotator.objects.mass` (mass models),
-:mod:`~annotator.objects.decomposition` (collision geometry, cached, in an isolated process),
+:mod:`~annotator.objects.memory` (the memory budget), :mod:`~annotator.objects.reading` (read +
+clean), :mod:`~annotator.objects.repair` (fragments, holes), :mod:`~annotator.objects.mass` (mass
+models), :mod:`~annotator.objects.decomposition` (collision geometry: the ladder of isolated
+decompositions within a CPU budget), :mod:`~annotator.objects.cache` (the content-addressed cache),
 :mod:`~annotator.objects.fidelity` (collision error), :mod:`~annotator.objects.bodies` (PyBullet),
 :mod:`~annotator.objects.properties` (the ``objects.toml`` sidecar), tied together by
 :mod:`~annotator.objects.model` (:func:`load_object`).
 """
 
 from annotator.objects.bodies import create_body, get_object_pose, quiet_c_output, reset_object_pose
-from annotator.objects.decomposition import add_progress_hook, default_cache_dir
+from annotator.objects.cache import default_cache_dir
+from annotator.objects.decomposition import Progress
 from annotator.objects.discovery import MESH_SUFFIXES, URDF_SUFFIX, ObjectSource, discover_objects
-from annotator.objects.errors import ObjectDiscoveryError, ObjectError
+from annotator.objects.errors import NotDecomposed, ObjectDiscoveryError, ObjectError
 from annotator.objects.fidelity import CollisionError
 from annotator.objects.model import (
+    ObjectMesh,
     ObjectModel,
     contact_substeps,
     load_object,
     physics_for,
+    read_object,
     read_object_mesh,
     source_digest,
 )
@@ -28,12 +33,14 @@ __all__ = [
     "MESH_SUFFIXES",
     "URDF_SUFFIX",
     "CollisionError",
+    "NotDecomposed",
     "ObjectDiscoveryError",
     "ObjectError",
+    "ObjectMesh",
     "ObjectModel",
     "ObjectProperties",
     "ObjectSource",
-    "add_progress_hook",
+    "Progress",
     "contact_substeps",
     "create_body",
     "default_cache_dir",
@@ -42,6 +49,7 @@ __all__ = [
     "load_object",
     "physics_for",
     "quiet_c_output",
+    "read_object",
     "read_object_mesh",
     "reset_object_pose",
     "source_digest",

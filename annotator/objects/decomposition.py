@@ -1,243 +1,274 @@
-"""Collision geometry of an object: its convex hull, or convex parts from CoACD, with their error
-against the mesh; computed once per geometry and cached on disk.
+"""Collision geometry of an object: its convex hull, its own convex shells, or convex parts from a
+ladder of decompositions within a CPU budget, each with its error against the mesh; computed once
+per geometry and kept in the content-addressed cache (:mod:`annotator.objects.cache`).
 
-Isolation: CoACD runs in a child process with a time limit (``ObjectConfig.decomposition_timeout``),
-so a crash (CoACD has segfaulted on real meshes) or a hang fails that object alone, with its
-reason. Once per object: the cache entry is locked (an OS file lock) while it is computed, so two
-workers that need the same new object do not both decompose it; the second waits and reads it.
-Precision: parts are stored as float64 ``.npz``; fresh and cached parts are both read back from
-that file, so a first run and later runs simulate identical geometry.
+The ladder (a concave object), inside ``ObjectConfig.decomposition_budget`` CPU seconds in all:
 
-Refinement: CoACD runs at each of :func:`thresholds` (coarse to fine) until
-the collision error is within ``collision_mean_limit`` / ``collision_max_limit``; otherwise the
-best result is kept and the object is reported approximate with its figure.
+1. CoACD at each of :func:`thresholds` (coarse to fine) until the collision error is within
+   ``collision_mean_limit`` / ``collision_max_limit``, the best so far kept (CoACD 1.0's default
+   search settings, seed 0, in a child process limited to the budget; stopped at the budget less
+   ``vhacd_reserve`` if it has finished no threshold by then); a refinement stopped by the budget
+   keeps the best threshold it finished;
+2. V-HACD (pybullet.vhacd, bullet3's V-HACD 2.2) when CoACD finished no threshold, in a child
+   process limited to what is left;
+3. the convex hull, in this process, when neither gave parts.
 
-Measured on the concave sample objects (objects/, one core, fresh cache; "extra" is volume the
-parts fill that the mesh does not, e.g. a mug's cavity):
-  object   CoACD 1.0.14 (threshold 0.05)     PyBullet V-HACD (pybullet.vhacd defaults)
-  mug      23 parts 13 s  extra 20 cm^3      21 parts 19 s  extra 40 cm^3
-  bowl     39 parts 15 s  extra 29 cm^3      55 parts 35 s  extra 49 cm^3
-  banana    2 parts  1 s  extra  6 cm^3       2 parts  3 s  extra 13 cm^3
-  ring     12 parts  4 s  extra  3 cm^3      12 parts 22 s  extra  6 cm^3
-CoACD is faster and about twice as tight (it cuts along concave edges rather than voxelising)
-and deterministic given a seed, so it is the method.
+Every step reports what it did (:class:`Rung`: kept, over budget, crashed, no parts) with its CPU
+seconds and error. Running over the budget or crashing is a normal result, the next rung's turn:
+the object still gets its shape, cached like any other, and is never decomposed again; only an
+unusable mesh (found before, by reading and cleaning it) fails an object. The budget is CPU time
+(RLIMIT_CPU of the child), so a loaded machine does not push an object down the ladder; a slower
+one can, and the cache keeps whichever shape was made first.
+
+Isolation: each decomposition runs in a child process (CoACD has segfaulted and hung on real
+meshes) with one OpenMP thread (workers already run one per core; CoACD's parts are the same with
+1 and 2 threads). Precision: parts are stored as float64; fresh and cached parts are both read
+back from that entry, so a first run and later runs simulate identical geometry.
+
+CoACD is the first rung because it was faster and about twice as tight as V-HACD on the concave
+sample objects; measurements and reasons in docs/decisions/0101-collision-ladder.md.
 """
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
+import dataclasses
+import json
 import logging
+import math
 import os
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from annotator.config import ObjectConfig
-from annotator.objects.errors import ObjectError
+from annotator.objects import cache
+from annotator.objects.cache import default_cache_dir
+from annotator.objects.errors import NotDecomposed
 from annotator.objects.fidelity import CollisionError, collision_error
 
 log = logging.getLogger(__name__)
 
-METHOD = "coacd"
-CACHE_VERSION = 2  # bump when the cached content changes meaning
+METHOD = "coacd"  # what load_object asks for a concave object: the ladder, CoACD first
+LADDER = ("coacd", "vhacd", "hull")
+# Called as progress(object_id, message) when a decomposition starts, moves down the ladder and ends.
+Progress = Callable[[str, str], None]
+# How often (s) the parent looks at its decomposition child.
+POLL_SECONDS = 0.05
 
-# Called as hook(object_id, message) when a decomposition starts and ends (a progress display).
-_HOOKS: list[Callable[[str, str], None]] = []
-
-
-def add_progress_hook(hook: Callable[[str, str], None]) -> Callable[[], None]:
-    """Call ``hook(object_id, message)`` when a decomposition starts or ends; returns a remover."""
-    _HOOKS.append(hook)
-    return lambda: _HOOKS.remove(hook) if hook in _HOOKS else None
+__all__ = ["CollisionGeometry", "Progress", "Rung", "collision_geometry", "default_cache_dir", "thresholds"]
 
 
-def _report(object_id: str, message: str) -> None:
-    log.info("%s: %s", object_id, message)
-    for hook in list(_HOOKS):
-        hook(object_id, message)
+@dataclass(frozen=True)
+class Rung:
+    """One step of the ladder as it went.
 
+    ``method``: coacd, vhacd or hull; ``outcome``: ``kept`` (its parts are the shape), ``over
+    budget`` (stopped by the CPU budget before it had parts), ``crashed`` (its process died; the
+    reason in ``detail``) or ``no parts``; ``cpu_seconds`` it took; ``threshold`` (CoACD: of its
+    parts; 0 otherwise) and ``error`` of its parts (None without parts).
+    """
 
-def default_cache_dir() -> Path:
-    """``$RG2_CACHE_DIR`` if set, else ``~/.cache/rg2-annotator``."""
-    env = os.environ.get("RG2_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "rg2-annotator"
+    method: str
+    outcome: str
+    cpu_seconds: float
+    threshold: float = 0.0
+    error: CollisionError | None = None
+    detail: str = ""
+
+    def summary(self, seconds: bool = True) -> str:
+        """One phrase, e.g. ``coacd kept (threshold 0.03, error 0.15 / 1.82 mm, 12.1 CPU-s)``."""
+        bits = [f"threshold {self.threshold:g}"] if self.threshold else []
+        if self.error is not None:
+            bits.append(f"error {self.error.mean * 1e3:.2f} / {self.error.max * 1e3:.2f} mm")
+        if self.detail:
+            bits.append(self.detail)
+        if seconds:
+            bits.append(f"{self.cpu_seconds:.1f} CPU-s")
+        return f"{self.method} {self.outcome} ({', '.join(bits)})"
+
+    def to_json(self) -> dict:
+        out = dataclasses.asdict(self)
+        out["error"] = None if self.error is None else dataclasses.astuple(self.error)
+        return out
+
+    @classmethod
+    def from_json(cls, data: dict) -> Rung:
+        error = data.get("error")
+        return cls(
+            str(data["method"]),
+            str(data["outcome"]),
+            float(data["cpu_seconds"]),
+            float(data.get("threshold", 0.0)),
+            None if error is None else CollisionError(*map(float, error)),
+            str(data.get("detail", "")),
+        )
 
 
 @dataclass
 class CollisionGeometry:
     """Convex ``parts`` (metres, mesh frame), their ``error`` against the mesh, how they were made.
 
-    ``threshold``: the CoACD concavity threshold of the kept result (0 for a hull).
-    ``file``: the cache entry (``.npz``); ``obj_file``: the multi-part .obj PyBullet loads.
+    ``method``: hull, shells, coacd or vhacd (the rung that gave the parts); ``threshold``: CoACD's
+    concavity threshold of the parts (0 otherwise); ``seconds``: CPU seconds it took to make them
+    (all rungs); ``ladder``: the rungs tried, in order (empty for hull and shells); ``file``: the
+    cache entry; ``obj_file``: the multi-part .obj PyBullet loads (None for one part).
     """
 
     parts: list[trimesh.Trimesh]
     error: CollisionError
-    method: str  # "hull", "shells" or "coacd"
+    method: str
     threshold: float
     file: Path
     from_cache: bool
     seconds: float
-
-    @property
-    def obj_file(self) -> Path:
-        return self.file.with_suffix(".obj")
+    ladder: tuple[Rung, ...] = ()
+    obj_file: Path | None = None
 
     def within(self, config: ObjectConfig) -> bool:
         return self.error.within(config.collision_mean_limit, config.collision_max_limit)
+
+    def ladder_summary(self, seconds: bool = True) -> str:
+        """The rungs tried, ``; ``-separated (empty for a hull or shells); ``seconds``: with their
+        CPU seconds (which vary from run to run)."""
+        return "; ".join(r.summary(seconds) for r in self.ladder)
+
+
+def thresholds(config: ObjectConfig) -> tuple[float, ...]:
+    """CoACD thresholds to try, coarse to fine: the first, x 0.6 each, then the last (a step to it
+    shorter than 1.2 x is not taken: 0.05, 0.03, 0.018, 0.01 down to 0.01; 0.05, 0.03, 0.02 down
+    to 0.02)."""
+    last = config.decomposition_min_threshold
+    out, t = [], config.decomposition_threshold
+    while t > last * (1 + 1e-9):
+        out.append(round(t, 6))
+        t *= 0.6
+        if t < last * 1.2:
+            break
+    out.append(last)
+    return tuple(out)
+
+
+def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple:
+    """Every setting that shapes the geometry ``method`` gives ``mesh`` (part of the cache key)."""
+    error = (config.collision_error_samples,)
+    if method != METHOD:
+        return error
+    ladder: tuple = (
+        thresholds(config),
+        config.collision_mean_limit,
+        config.collision_max_limit,
+        config.decomposition_budget,
+        config.vhacd_reserve,
+        config.vhacd_resolution,
+    )
+    if len(mesh.faces) > config.decomposition_max_faces:
+        ladder += (config.decomposition_max_faces,)  # shapes only what it simplifies
+    return error + ladder
 
 
 def geometry_key(
     mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: list[trimesh.Trimesh] = ()
 ) -> str:
-    """Hash of the exact vertices, faces (of the mesh and of the ``shells`` that give the parts)
-    and every parameter that shapes the result."""
-    h = hashlib.sha256(f"v{CACHE_VERSION}\0{method}\0".encode())
+    """The cache key: the exact vertices and faces (of the mesh and of the ``shells`` that give the
+    parts), every setting that shapes the result and the library versions."""
+    arrays = []
     for m in [mesh, *shells]:
-        h.update(np.ascontiguousarray(m.vertices, dtype="<f8").tobytes())
-        h.update(np.ascontiguousarray(m.faces, dtype="<i8").tobytes())
-    params: tuple = (
-        thresholds(config),
-        config.collision_mean_limit,
-        config.collision_max_limit,
-        config.collision_error_samples,
-    )
-    if method == METHOD and len(mesh.faces) > config.decomposition_max_faces:
-        params += (config.decomposition_max_faces,)  # shapes only what it simplifies
-    h.update(repr(params).encode())
-    return h.hexdigest()[:32]
+        arrays += [np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)]
+    return cache.entry_key(method, arrays, settings(method, mesh, config))
 
 
 # --------------------------------------------------------------------------------------------------
-# the cache file: float64 parts, error figures
+# entries: float64 parts, error figures, the ladder
 
 
-def _save(
-    path: Path,
+def _arrays(
     parts: list[trimesh.Trimesh],
     error: CollisionError,
     method: str,
     threshold: float,
     seconds: float,
-) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}", suffix=".npz.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(
-                fh,
-                vertex_counts=np.array([len(p.vertices) for p in parts], dtype=np.int64),
-                face_counts=np.array([len(p.faces) for p in parts], dtype=np.int64),
-                vertices=np.concatenate([np.asarray(p.vertices, dtype=np.float64) for p in parts]),
-                faces=np.concatenate([np.asarray(p.faces, dtype=np.int64) for p in parts]),
-                error=np.array(
-                    [
-                        error.mean,
-                        error.max,
-                        error.mean_outward,
-                        error.max_outward,
-                        error.mean_inward,
-                        error.max_inward,
-                    ]
-                ),
-                method=np.array(method),
-                threshold=np.array(threshold),
-                seconds=np.array(seconds),
-            )
-        os.replace(tmp, path)  # atomic: readers see the whole entry or none
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    ladder: tuple[Rung, ...] = (),
+) -> dict[str, np.ndarray]:
+    return {
+        "vertex_counts": np.array([len(p.vertices) for p in parts], dtype=np.int64),
+        "face_counts": np.array([len(p.faces) for p in parts], dtype=np.int64),
+        "vertices": np.concatenate([np.asarray(p.vertices, dtype=np.float64) for p in parts]),
+        "faces": np.concatenate([np.asarray(p.faces, dtype=np.int64) for p in parts]),
+        "error": np.array(dataclasses.astuple(error), dtype=np.float64),
+        "method": np.array(method),
+        "threshold": np.array(threshold, dtype=np.float64),
+        "seconds": np.array(seconds, dtype=np.float64),
+        "ladder": np.array(json.dumps([r.to_json() for r in ladder])),
+    }
 
 
-def _load(path: Path) -> CollisionGeometry:
-    with np.load(path, allow_pickle=False) as z:
-        v_split = np.cumsum(z["vertex_counts"])[:-1]
-        f_split = np.cumsum(z["face_counts"])[:-1]
-        parts = [
-            trimesh.Trimesh(v, f, process=False)
-            for v, f in zip(np.split(z["vertices"], v_split), np.split(z["faces"], f_split), strict=True)
-        ]
-        e = z["error"].tolist()
-        geometry = CollisionGeometry(
-            parts,
-            CollisionError(*e),
-            str(z["method"]),
-            float(z["threshold"]),
-            path,
-            True,
-            float(z["seconds"]),
+def _geometry(arrays: dict[str, np.ndarray], path: Path) -> CollisionGeometry:
+    """The geometry of an entry's arrays; ValueError/KeyError when they do not make one."""
+    v_split = np.cumsum(arrays["vertex_counts"])[:-1]
+    f_split = np.cumsum(arrays["face_counts"])[:-1]
+    parts = [
+        trimesh.Trimesh(v, f, process=False)
+        for v, f in zip(
+            np.split(arrays["vertices"], v_split), np.split(arrays["faces"], f_split), strict=True
         )
-    if not parts:
+    ]
+    if not parts or any(len(p.faces) == 0 for p in parts):
         raise ValueError("no parts")
-    return geometry
+    ladder = tuple(Rung.from_json(r) for r in json.loads(str(arrays["ladder"])))
+    return CollisionGeometry(
+        parts,
+        CollisionError(*arrays["error"].tolist()),
+        str(arrays["method"]),
+        float(arrays["threshold"]),
+        path,
+        True,
+        float(arrays["seconds"]),
+        ladder,
+    )
 
 
-def _write_obj(parts: list[trimesh.Trimesh], path: Path) -> None:
+def obj_text(parts: list[trimesh.Trimesh]) -> str:
     """Multi-part .obj, one ``o`` group per convex part (PyBullet loads it as a compound), with
-    repr-exact coordinates; written atomically from the float64 parts."""
-    if path.is_file():
-        return
+    repr-exact coordinates of the float64 parts."""
     lines, offset = [], 1
     for i, part in enumerate(parts):
         lines.append(f"o part_{i}")
         lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in np.asarray(part.vertices, dtype=float).tolist()]
         lines += [f"f {a + offset} {b + offset} {c + offset}" for a, b, c in np.asarray(part.faces).tolist()]
         offset += len(part.vertices)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}", suffix=".obj.tmp", dir=path.parent)
+    return "\n".join(lines) + "\n"
+
+
+def _read_entry(path: Path, label: str) -> CollisionGeometry | None:
+    """The verified entry at ``path`` with its .obj in place; None when missing or broken."""
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write("\n".join(lines) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-@contextlib.contextmanager
-def _locked(path: Path) -> Iterator[None]:
-    """Hold an exclusive OS lock on ``path`` (released on exit, also when the process dies)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+b") as fh:
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - Windows: no lock, atomic writes still hold
-            yield
-            return
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+        geometry = _geometry(cache.load_arrays(path), path)
+    except FileNotFoundError:
+        return None
+    except (cache.CorruptEntry, ValueError, KeyError, TypeError) as exc:
+        log.warning("%s: broken collision cache entry %s (%s); making it again", label, path.name, exc)
+        return None
+    if len(geometry.parts) > 1:
+        geometry.obj_file = cache.write_obj(path.parent, path.stem, obj_text(geometry.parts))
+    return geometry
 
 
 # --------------------------------------------------------------------------------------------------
-# computing
-
-
-def thresholds(config: ObjectConfig) -> tuple[float, ...]:
-    """CoACD thresholds to try, coarse to fine: the first, x 0.6 each, down to the last."""
-    out, t = [], config.decomposition_threshold
-    while t > config.decomposition_min_threshold * (1 + 1e-9):
-        out.append(round(t, 6))
-        t *= 0.6
-    out.append(config.decomposition_min_threshold)
-    return tuple(out)
+# computing, in the child process
 
 
 def decomposition_input(
     vertices: np.ndarray, faces: np.ndarray, max_faces: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """What CoACD decomposes: the mesh itself, or a copy simplified to ``max_faces`` (quadric
+    """What a decomposition cuts: the mesh itself, or a copy simplified to ``max_faces`` (quadric
     decimation) when it has more. ``vertices : (n, 3) float``, ``faces : (m, 3) int``; returns
     float64 vertices and int32 faces."""
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -250,12 +281,37 @@ def decomposition_input(
     return np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int32)
 
 
-def refine_coacd(
-    vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig
-) -> tuple[list[trimesh.Trimesh], CollisionError, float]:
-    """CoACD at each threshold until within the error limits; the best (lowest max) otherwise.
+Found = Callable[[list[trimesh.Trimesh], CollisionError, float], None]
 
-    Runs in the child process (see ``child_main``). Returns (parts, error, threshold).
+
+def next_threshold(
+    todo: tuple[float, ...], threshold: float, error: CollisionError, config: ObjectConfig
+) -> int:
+    """Index in ``todo`` (the finer thresholds left, coarse to fine) of the one to try after
+    ``threshold`` gave ``error``: the coarsest at or below ``threshold`` x (limit / error) for the
+    worse of mean and max, the finest when none is.
+
+    CoACD's threshold bounds each part's concavity relative to the mesh's size, so the error
+    shrinks about in proportion to it: a threshold that the error says cannot be enough is skipped
+    (the YCB power drill at 0.05, 4.65 mm max: straight to 0.02, not 0.03 first). The sample
+    objects that refine (banana 3.12 mm, bowl 3.15 mm, mug 2.69 mm at 0.05) still go to 0.03.
+    """
+    ratio = min(
+        config.collision_mean_limit / max(error.mean, 1e-300),
+        config.collision_max_limit / max(error.max, 1e-300),
+    )
+    enough = threshold * ratio * (1 + 1e-9)
+    return next((i for i, t in enumerate(todo) if t <= enough), len(todo) - 1)
+
+
+def refine_coacd(
+    vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig, found: Found | None = None
+) -> tuple[list[trimesh.Trimesh], CollisionError, float]:
+    """CoACD at thresholds coarse to fine (:func:`thresholds`, skipping those :func:`next_threshold`
+    finds too coarse) until within the error limits; the best (lowest max) otherwise.
+
+    Returns (parts, error, threshold); ``found(parts, error, threshold)`` is called each time the
+    best so far improves (the child saves it, so a refinement stopped by the budget keeps it).
     """
     import coacd
 
@@ -263,7 +319,9 @@ def refine_coacd(
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     coacd_vertices, coacd_faces = decomposition_input(vertices, faces, config.decomposition_max_faces)
     best: tuple[list[trimesh.Trimesh], CollisionError, float] | None = None
-    for threshold in thresholds(config):
+    todo = thresholds(config)
+    while todo:
+        threshold, todo = todo[0], todo[1:]
         result = coacd.run_coacd(
             coacd.Mesh(coacd_vertices, coacd_faces),
             threshold=float(threshold),
@@ -278,32 +336,206 @@ def refine_coacd(
         error = collision_error(mesh, parts, config.collision_error_samples)
         if best is None or error.max < best[1].max:
             best = (parts, error, float(threshold))
-        if error.within(config.collision_mean_limit, config.collision_max_limit):
+            if found is not None:
+                found(*best)
+        if error.within(config.collision_mean_limit, config.collision_max_limit) or not todo:
             break
+        todo = todo[next_threshold(todo, threshold, error, config) :]
     if best is None:
         raise RuntimeError("convex decomposition produced no parts")
     return best
 
 
-def child_main(job: str) -> None:
-    """Entry of the isolated process: read ``job/in.npz``, write ``job/out.npz``."""
-    import dataclasses
-    import json
+def read_vhacd_parts(path: Path) -> list[trimesh.Trimesh]:
+    """The convex hulls of the ``o`` groups of a V-HACD output .obj (global vertex numbering)."""
+    groups: list[list[int]] = []
+    vertices: list[list[float]] = []
+    for line in path.read_text().splitlines():
+        if line.startswith("o "):
+            groups.append([])
+        elif line.startswith("v "):
+            if not groups:
+                groups.append([])
+            vertices.append([float(x) for x in line.split()[1:4]])
+            groups[-1].append(len(vertices) - 1)
+    points = np.asarray(vertices, dtype=np.float64)
+    parts = []
+    for idx in groups:
+        if len(idx) < 4:
+            continue
+        try:
+            hull = trimesh.Trimesh(points[idx], process=False).convex_hull
+        except Exception:  # qhull: a flat group
+            continue
+        if hull.volume > 0:
+            parts.append(hull)
+    return parts
 
+
+def run_vhacd(
+    vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig, job: Path
+) -> list[trimesh.Trimesh]:
+    """V-HACD's convex parts (pybullet.vhacd, voxel mode, ``vhacd_resolution`` voxels, its other
+    settings PyBullet's defaults) of the mesh, simplified to ``decomposition_max_faces`` first."""
+    from annotator.sim import pb
+
+    v, f = decomposition_input(vertices, faces, config.decomposition_max_faces)
+    src, out = job / "vhacd_in.obj", job / "vhacd_out.obj"
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f.tolist()]
+    src.write_text("\n".join(lines) + "\n")
+    pb.vhacd(str(src), str(out), str(job / "vhacd.log"), resolution=int(config.vhacd_resolution))
+    return read_vhacd_parts(out) if out.is_file() else []
+
+
+def _save_result(job: Path, parts, error: CollisionError, threshold: float, done: bool) -> None:
+    arrays = _arrays(parts, error, "", threshold, 0.0)
+    arrays["done"] = np.array(done)
+    cache.save_arrays(job / "out.npz", arrays)
+
+
+def child_main(job: str) -> None:
+    """Entry of the isolated process: read ``job/in.npz`` (mesh, settings, rung), write
+    ``job/out.npz`` (its best parts so far, then the final ones)."""
     src = Path(job)
     with np.load(src / "in.npz", allow_pickle=False) as z:
         vertices, faces = z["vertices"], z["faces"]
         fields = json.loads(str(z["config"]))
+        rung = str(z["rung"])
+        cpu_limit = float(z["cpu_limit"])
+    _limit_own_cpu(cpu_limit)
     config = dataclasses.replace(ObjectConfig(), **fields)
-    start = time.perf_counter()
-    parts, error, threshold = refine_coacd(vertices, faces, config)
-    _save(src / "out.npz", parts, error, METHOD, threshold, time.perf_counter() - start)
+    if rung == "coacd":
+        parts, error, threshold = refine_coacd(
+            vertices, faces, config, lambda p, e, t: _save_result(src, p, e, t, done=False)
+        )
+        _save_result(src, parts, error, threshold, done=True)
+        return
+    parts = run_vhacd(vertices, faces, config, src)
+    if parts:
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        _save_result(src, parts, collision_error(mesh, parts, config.collision_error_samples), 0.0, True)
+
+
+def _limit_own_cpu(seconds: float) -> None:
+    """The CPU limit on this process itself, where the parent could not set it (no prlimit)."""
+    import resource
+
+    soft = max(1, math.ceil(seconds))
+    current, _ = resource.getrlimit(resource.RLIMIT_CPU)
+    if current == resource.RLIM_INFINITY or current > soft:
+        try:
+            resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 1))
+        except (ValueError, OSError):  # pragma: no cover - a hard limit below it: keep that
+            pass
 
 
 def child_command(job: Path) -> list[str]:
     """The command that runs one decomposition job in its own process (a test seam)."""
     code = "import sys; from annotator.objects.decomposition import child_main; child_main(sys.argv[1])"
     return [sys.executable, "-c", code, str(job)]
+
+
+@dataclass(frozen=True)
+class ChildRun:
+    """How a limited child process ended: its exit code (negative: the signal), CPU seconds (its
+    own and its waited-for children's), whether a limit stopped it, the end of its stderr."""
+
+    returncode: int
+    cpu_seconds: float
+    over_cpu: bool
+    stalled: bool  # stopped after using no CPU for the stall limit (a hang, not work)
+    stderr: str = ""
+
+
+def _limit_cpu(pid: int, seconds: float) -> None:
+    """RLIMIT_CPU of process ``pid``: SIGXCPU at ``seconds`` (whole, at least 1), SIGKILL a second
+    later; no core file. Linux (prlimit); elsewhere the child limits itself (child_main)."""
+    import resource
+
+    soft = max(1, math.ceil(seconds))
+    resource.prlimit(pid, resource.RLIMIT_CORE, (0, 0))
+    resource.prlimit(pid, resource.RLIMIT_CPU, (soft, soft + 1))
+
+
+def _cpu_ticks(pid: int) -> int | None:
+    """CPU clock ticks (user + system) process ``pid`` has used so far; None where /proc cannot say."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            fields = fh.read().rsplit(b")", 1)[1].split()
+        return int(fields[11]) + int(fields[12])  # utime, stime: fields 14 and 15 of stat(5)
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """Stop a child at ``seconds`` of CPU unless ``keep_going()`` says it has earned the rest of
+    its limit (CoACD: it has finished a threshold, so V-HACD's reserve is no longer needed)."""
+
+    seconds: float
+    keep_going: Callable[[], bool]
+
+
+@dataclass
+class _Watch:
+    """The parent's view of a running child: its CPU ticks, when they last moved, and why it was
+    stopped (a checkpoint it had not earned, or a stall)."""
+
+    stall_seconds: float
+    checkpoint: Checkpoint | None
+    tick: float
+    last_ticks: int | None = None
+    progress: float = field(default_factory=time.monotonic)
+    stopped: bool = False
+    stalled: bool = False
+
+    def must_stop(self, pid: int) -> bool:
+        ticks, now = _cpu_ticks(pid), time.monotonic()
+        if ticks is not None and ticks != self.last_ticks:
+            self.last_ticks, self.progress = ticks, now
+        if self.checkpoint is not None and ticks is not None and ticks / self.tick >= self.checkpoint.seconds:
+            self.stopped = not self.checkpoint.keep_going()
+            self.checkpoint = None  # earned, or stopped now: decided once
+        self.stalled = now - self.progress > self.stall_seconds
+        return self.stopped or self.stalled
+
+
+def run_limited(
+    cmd: list[str], cpu_seconds: float, stall_seconds: float, cwd: Path, checkpoint: Checkpoint | None = None
+) -> ChildRun:
+    """Run ``cmd`` with at most ``cpu_seconds`` of CPU time (and at most ``checkpoint.seconds``
+    unless it has earned more), stopped too when it uses no CPU for ``stall_seconds`` (a hang;
+    where /proc cannot tell, after ``stall_seconds`` of wall time), one OpenMP thread; returns how it
+    ended. A loaded machine slows it down but does not stop it."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    with open(cwd / "stderr.txt", "w+b") as err:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, env=env)
+        watched = _cpu_ticks(proc.pid) is not None  # /proc tells its CPU: the checkpoint can be kept
+        try:
+            _limit_cpu(proc.pid, cpu_seconds if watched or checkpoint is None else checkpoint.seconds)
+        except (AttributeError, OSError, ValueError):  # pragma: no cover - no prlimit: the child's own
+            pass
+        watch = _Watch(stall_seconds, checkpoint, float(os.sysconf("SC_CLK_TCK")))
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if watch.must_stop(proc.pid):
+                proc.kill()
+                pid, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(POLL_SECONDS)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        tail = err.read().decode(errors="replace").strip().splitlines()[-1:]
+    cpu = usage.ru_utime + usage.ru_stime
+    # SIGXCPU comes from the CPU limit alone; SIGKILL from its hard limit a second later, or from
+    # this function at the checkpoint or after a stall. rusage's user + system time is sampled and
+    # can read a second short of the limit the kernel enforced.
+    hard_limit = proc.returncode == -signal.SIGKILL and cpu >= max(1, math.ceil(cpu_seconds)) - 1.5
+    over_cpu = watch.stopped or (not watch.stalled and (proc.returncode == -signal.SIGXCPU or hard_limit))
+    return ChildRun(proc.returncode, cpu, over_cpu, watch.stalled, tail[0][:160] if tail else "")
 
 
 def _describe_exit(code: int) -> str:
@@ -315,40 +547,111 @@ def _describe_exit(code: int) -> str:
     return f"exit code {code}"
 
 
-def _run_isolated(mesh: trimesh.Trimesh, config: ObjectConfig, object_id: str) -> CollisionGeometry:
-    import dataclasses
-    import json
+@dataclass
+class _Found:
+    """What a child rung gave: parts and their error (None: nothing), and how the rung went."""
 
+    rung: Rung
+    parts: list[trimesh.Trimesh] = field(default_factory=list)
+    error: CollisionError | None = None
+    threshold: float = 0.0
+
+
+def _child_rung(
+    mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_limit: float, reserve: float = 0.0
+) -> _Found:
+    """One rung (coacd or vhacd) in a limited child process; whatever it gave within the limit.
+    With a ``reserve``, it is stopped ``reserve`` CPU-s before its limit unless it has parts by then
+    (the next rung needs that reserve only if this one gives nothing)."""
     with tempfile.TemporaryDirectory(prefix="rg2-decompose-") as tmp:
         job = Path(tmp)
-        cfg = dataclasses.asdict(config)
         np.savez(
             job / "in.npz",
             vertices=np.asarray(mesh.vertices, dtype=np.float64),
             faces=np.asarray(mesh.faces, dtype=np.int64),
-            config=np.array(json.dumps(cfg)),
+            config=np.array(json.dumps(dataclasses.asdict(config))),
+            rung=np.array(method),
+            cpu_limit=np.array(cpu_limit),
         )
+        checkpoint = None
+        if reserve > 0:
+            checkpoint = Checkpoint(max(1.0, cpu_limit - reserve), (job / "out.npz").is_file)
+        run = run_limited(child_command(job), cpu_limit, config.decomposition_timeout, job, checkpoint)
         try:
-            done = subprocess.run(
-                child_command(job),
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.PIPE,
-                timeout=config.decomposition_timeout,
-                check=False,
-            )
-        except subprocess.TimeoutExpired:
-            raise ObjectError(
-                f"{object_id}: convex decomposition took longer than {config.decomposition_timeout:g} s"
-                " (ObjectConfig.decomposition_timeout)"
-            ) from None
-        if done.returncode != 0 or not (job / "out.npz").is_file():
-            tail = done.stderr.decode(errors="replace").strip().splitlines()[-1:] if done.stderr else []
-            detail = f": {tail[0][:160]}" if tail else ""
-            raise ObjectError(
-                f"{object_id}: convex decomposition failed ({_describe_exit(done.returncode)}{detail})"
-            )
-        return _load(job / "out.npz")
+            out = cache.load_arrays(job / "out.npz")
+            geometry = _geometry(out, job)
+            done = bool(out["done"])
+        except (FileNotFoundError, cache.CorruptEntry, ValueError, KeyError):
+            geometry, done = None, False
+    if run.over_cpu:
+        outcome, detail = "over budget", f"stopped at {run.cpu_seconds:.0f} CPU-s"
+    elif run.stalled:
+        outcome, detail = "over budget", f"stopped after {config.decomposition_timeout:g} s without using CPU"
+    elif run.returncode != 0:
+        outcome = "crashed"
+        detail = _describe_exit(run.returncode) + (f": {run.stderr}" if run.stderr else "")
+    else:
+        outcome, detail = ("kept" if geometry is not None else "no parts"), ""
+    if geometry is None:
+        return _Found(Rung(method, outcome, run.cpu_seconds, detail=detail))
+    if not done:  # stopped during a finer threshold: the best one it finished stays
+        detail = f"{outcome}: {detail}" if detail else outcome
+        outcome = "kept"
+    rung = Rung(method, "kept", run.cpu_seconds, geometry.threshold, geometry.error, detail)
+    return _Found(rung, geometry.parts, geometry.error, geometry.threshold)
+
+
+def _ladder(
+    mesh: trimesh.Trimesh, config: ObjectConfig, label: str, progress: Progress | None
+) -> tuple[_Found, tuple[Rung, ...]]:
+    """The ladder within the budget: CoACD, V-HACD, the hull; the first rung with parts."""
+    budget = config.decomposition_budget
+    rungs: list[Rung] = []
+    used = 0.0
+    for method in LADDER:
+        if method == "hull":
+            start = time.process_time()
+            parts = [mesh.convex_hull]
+            error = collision_error(mesh, parts, config.collision_error_samples)
+            found = _Found(Rung("hull", "kept", time.process_time() - start, 0.0, error), parts, error)
+        else:
+            # CoACD may use the whole budget once it has parts; until then it leaves V-HACD its reserve
+            reserve = config.vhacd_reserve if method == "coacd" else 0.0
+            limit = max(1.0, math.floor(budget - used))  # whole seconds, within the budget
+            found = _child_rung(mesh, config, method, limit, reserve)
+        rungs.append(found.rung)
+        used += found.rung.cpu_seconds
+        if found.parts:
+            return found, tuple(rungs)
+        _say(progress, label, f"{found.rung.summary()}; next: {LADDER[LADDER.index(method) + 1]}")
+    raise AssertionError("the hull always has parts")  # pragma: no cover
+
+
+def _say(progress: Progress | None, label: str, message: str) -> None:
+    log.info("%s: %s", label, message)
+    if progress is not None:
+        progress(label, message)
+
+
+def _compute(
+    mesh: trimesh.Trimesh,
+    method: str,
+    config: ObjectConfig,
+    shells: list[trimesh.Trimesh],
+    label: str,
+    progress: Progress | None,
+) -> dict[str, np.ndarray]:
+    """The entry's arrays for ``method``: computed here (hull, shells) or by the ladder."""
+    if method != METHOD:
+        start = time.process_time()
+        parts = [mesh.convex_hull] if method == "hull" else [shell.convex_hull for shell in shells]
+        error = collision_error(mesh, parts, config.collision_error_samples)
+        return _arrays(parts, error, method, 0.0, time.process_time() - start)
+    _say(progress, label, f"decomposing ({len(mesh.faces)} faces) into convex parts")
+    found, rungs = _ladder(mesh, config, label, progress)
+    seconds = sum(r.cpu_seconds for r in rungs)
+    kept = rungs[-1]
+    return _arrays(found.parts, found.error, kept.method, found.threshold, seconds, rungs)
 
 
 def collision_geometry(
@@ -358,44 +661,45 @@ def collision_geometry(
     cache_dir: Path | None,
     object_id: str = "",
     shells: list[trimesh.Trimesh] = (),
+    progress: Progress | None = None,
+    decompose: bool = True,
 ) -> CollisionGeometry:
     """The object's collision geometry by ``method``, cached: ``hull`` (the convex hull),
     ``shells`` (the hulls of the mesh's own convex ``shells``: a file written as convex parts,
-    e.g. a V-HACD collision mesh, collides as those parts, as PyBullet itself would) or ``coacd``.
+    e.g. a V-HACD collision mesh, collides as those parts, as PyBullet itself would) or ``coacd``
+    (the ladder: CoACD, V-HACD, hull, within ``config.decomposition_budget``).
 
-    Raises ObjectError when the decomposition crashes, hangs past its time limit or gives nothing.
+    ``cache_dir``: the cache folder (None: :func:`default_cache_dir`). ``progress(object_id,
+    message)`` hears when a decomposition starts, moves down the ladder and ends. Never raises for
+    a decomposition that crashes or runs over its budget: the next rung's shape is the result.
+    ``decompose=False``: :class:`NotDecomposed` instead of running the ladder when the cache does
+    not hold its result (a hull or shells are still made here: they take a fraction of a second).
     """
     if method not in ("hull", "shells", METHOD):
         raise ValueError(f"unknown collision method {method!r}")
-    convex = method != METHOD
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     path = root / f"{geometry_key(mesh, method, config, shells if method == 'shells' else ())}.npz"
     label = object_id or path.stem[:12]
-    with _locked(path.with_suffix(".lock")):
-        if path.is_file():
-            try:
-                geometry = _load(path)
-                _write_obj(geometry.parts, geometry.obj_file)
-                return geometry
-            except (OSError, ValueError, KeyError) as exc:  # a broken entry is recomputed
-                log.warning("%s: unreadable collision cache %s (%s); recomputing", label, path.name, exc)
-        start = time.perf_counter()
-        if convex:
-            parts = [mesh.convex_hull] if method == "hull" else [shell.convex_hull for shell in shells]
-            error = collision_error(mesh, parts, config.collision_error_samples)
-            _save(path, parts, error, method, 0.0, time.perf_counter() - start)
-        else:
-            _report(label, f"decomposing ({len(mesh.faces)} faces) into convex parts")
-            fresh = _run_isolated(mesh, config, label)
-            _save(path, fresh.parts, fresh.error, method, fresh.threshold, time.perf_counter() - start)
-        geometry = _load(path)  # fresh and cached: the same float64 file
-        geometry.from_cache = False
-        _write_obj(geometry.parts, geometry.obj_file)
-        if not convex:
-            _report(
-                label,
-                f"decomposed into {len(geometry.parts)} parts in {geometry.seconds:.1f} s "
-                f"(threshold {geometry.threshold:g}; collision error mean "
-                f"{geometry.error.mean * 1e3:.2f} mm, max {geometry.error.max * 1e3:.2f} mm)",
-            )
+    geometry = _read_entry(path, label)
+    if geometry is not None:
         return geometry
+    if not decompose and method == METHOD:
+        raise NotDecomposed(f"{label}: its decomposition is not in the cache {root}")
+    with cache.advisory_lock(path.with_suffix(".lock")):
+        geometry = _read_entry(path, label)  # another process may have made it while this one waited
+        if geometry is not None:
+            return geometry
+        cache.save_arrays(path, _compute(mesh, method, config, list(shells), label, progress))
+    geometry = _read_entry(path, label)  # fresh and cached: the same float64 entry
+    if geometry is None:  # pragma: no cover - removed or damaged between the write and the read
+        raise OSError(f"{label}: the collision cache entry {path} vanished after it was written")
+    geometry.from_cache = False
+    if method == METHOD:
+        _say(
+            progress,
+            label,
+            f"decomposed into {len(geometry.parts)} parts by {geometry.method} in {geometry.seconds:.1f} "
+            f"CPU-s (collision error mean {geometry.error.mean * 1e3:.2f} mm, "
+            f"max {geometry.error.max * 1e3:.2f} mm)",
+        )
+    return geometry

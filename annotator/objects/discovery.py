@@ -64,28 +64,13 @@ def discover_objects(root: Path, config: ObjectConfig | None = None) -> list[Obj
         raise ObjectDiscoveryError(f"objects folder not found: {root}")
     sidecar = Sidecar.load(root)
     files = sorted(p for p in root.rglob("*") if p.is_file())
-    owned: set[Path] = set()
-    for path in files:
-        if path.suffix.lower() == URDF_SUFFIX:
-            try:
-                owned.update(ref.path for ref in urdf.mesh_refs(path, root))
-            except ObjectError:
-                pass  # a broken URDF is still listed; load_object reports it
-    sources = []
-    for path in files:
-        suffix = path.suffix.lower()
-        if not (suffix == URDF_SUFFIX or (suffix in MESH_SUFFIXES and path.resolve() not in owned)):
-            continue
-        file_id = path.relative_to(root).with_suffix("").as_posix()
-        props = sidecar.for_object(file_id)
-        merge = props.merge_parts if props.merge_parts is not None else config.merge_parts
-        parts = [] if merge else _parts(path)
-        if len(parts) > 1:
-            for index, name in parts:
-                part_id = f"{file_id}/{name}"
-                sources.append(ObjectSource(part_id, path, root, index, sidecar.for_object(file_id, part_id)))
-        else:
-            sources.append(ObjectSource(file_id, path, root, None, props))
+    owned = _urdf_meshes(files, root)
+    sources = [
+        source
+        for path in files
+        if _is_object(path, owned)
+        for source in _sources_of(path, root, sidecar, config)
+    ]
     if not sources:
         raise ObjectDiscoveryError(
             f"no objects in {root} (searched recursively for {' '.join(MESH_SUFFIXES)} {URDF_SUFFIX})"
@@ -95,6 +80,37 @@ def discover_objects(root: Path, config: ObjectConfig | None = None) -> list[Obj
     if dupes:
         raise ObjectDiscoveryError(f"two files give the same object id(s) {dupes}; rename one")
     return sorted(sources, key=lambda s: s.object_id)
+
+
+def _urdf_meshes(files: list[Path], root: Path) -> set[Path]:
+    """The meshes the URDFs among ``files`` reference (parts of those objects, not objects)."""
+    owned: set[Path] = set()
+    for path in files:
+        if path.suffix.lower() == URDF_SUFFIX:
+            try:
+                owned.update(ref.path for ref in urdf.mesh_refs(path, root))
+            except ObjectError:
+                pass  # a broken URDF is still listed; load_object reports it
+    return owned
+
+
+def _is_object(path: Path, owned: set[Path]) -> bool:
+    suffix = path.suffix.lower()
+    return suffix == URDF_SUFFIX or (suffix in MESH_SUFFIXES and path.resolve() not in owned)
+
+
+def _sources_of(path: Path, root: Path, sidecar: Sidecar, config: ObjectConfig) -> list[ObjectSource]:
+    """The objects one file gives: itself, or one per body of a multi-body file."""
+    file_id = path.relative_to(root).with_suffix("").as_posix()
+    props = sidecar.for_object(file_id)
+    merge = props.merge_parts if props.merge_parts is not None else config.merge_parts
+    parts = [] if merge else _parts(path)
+    if len(parts) < 2:
+        return [ObjectSource(file_id, path, root, None, props)]
+    return [
+        ObjectSource(f"{file_id}/{name}", path, root, index, sidecar.for_object(file_id, f"{file_id}/{name}"))
+        for index, name in parts
+    ]
 
 
 def _parts(path: Path) -> list[tuple[int, str]]:

@@ -1,4 +1,5 @@
-"""The two errors of the objects package: one object unusable, or no objects at all."""
+"""The errors of the objects package: one object unusable, no objects at all, or a decomposition
+that is not in the cache where the caller does not make it."""
 
 from __future__ import annotations
 
@@ -9,3 +10,8 @@ class ObjectError(ValueError):
 
 class ObjectDiscoveryError(ValueError):
     """The objects folder is missing or holds no objects (a usage error: CLI exit 2)."""
+
+
+class NotDecomposed(LookupError):
+    """The object's decomposition is not in the cache and the caller asked not to make it
+    (``load_object(..., decompose=False)``: a process that leaves decompositions to workers)."""

@@ -21,9 +21,9 @@ import trimesh
 from annotator.config import ObjectConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.objects import mass as mass_model
-from annotator.objects import reading, urdf
+from annotator.objects import memory, reading, repair, urdf
 from annotator.objects.bodies import principal_axes
-from annotator.objects.decomposition import collision_geometry
+from annotator.objects.decomposition import CollisionGeometry, Progress, collision_geometry
 from annotator.objects.discovery import ObjectSource
 from annotator.objects.errors import ObjectError
 from annotator.objects.fidelity import CollisionError
@@ -41,8 +41,12 @@ class ObjectModel:
     shape (one, the hull, for a convex object). ``collision_file`` : the multi-part .obj (``o``
     group per part) PyBullet loads as a compound, ``None`` for a single hull.
     ``collision_error`` : distance between collision shape and mesh surface (mean, max, m);
-    ``approximate`` : beyond the configured limits. ``mass_model`` : solid, shell, urdf or given.
-    ``digest`` : :func:`source_digest` of the source.
+    ``approximate`` : beyond the configured limits. ``collision_method`` : hull, shells, coacd or
+    vhacd; ``collision_ladder`` : the decomposition rungs tried and how each went (empty for a hull
+    or shells). ``mass_model`` : solid, shell, urdf or given. ``digest`` : :func:`source_digest` of
+    the source. ``warnings`` : one line each (without the object id) for what a user should know
+    about this object (holes filled, a mesh simplified, an approximate collision shape, a URDF
+    inertia replaced); collected here, not logged, so a caller reports each once per object.
     """
 
     object_id: str
@@ -66,6 +70,7 @@ class ObjectModel:
     collision_error: CollisionError | None = None
     collision_method: str = "hull"
     collision_threshold: float = 0.0  # CoACD threshold of the kept parts (0 for a hull)
+    collision_ladder: str = ""
     approximate: bool = False
     cleaning: reading.Cleaning = field(default_factory=reading.Cleaning)
     source_files: tuple[str, ...] = ()
@@ -73,6 +78,7 @@ class ObjectModel:
     properties: dict[str, Any] = field(default_factory=dict)
     objects_dir: str = ""  # the folder source_files are relative to
     node: int | None = None  # the body of a multi-body file (.glb node, .obj part)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def T_obj_com(self) -> Transform:
@@ -106,6 +112,7 @@ class ObjectModel:
             "collision_method": self.collision_method,
             "collision_parts": int(len(self.parts)),
             "collision_threshold": float(self.collision_threshold),
+            "collision_ladder": self.collision_ladder,
             "collision_error_mean": float(err.mean) if err else float("nan"),
             "collision_error_max": float(err.max) if err else float("nan"),
             "collision_approximate": bool(self.approximate),
@@ -206,7 +213,7 @@ def _urdf_mass(
     geometric: mass_model.MassProperties,
     mesh: trimesh.Trimesh,
     scale: float,
-    name: str,
+    warnings: list[str],
 ) -> mass_model.MassProperties:
     """A URDF's ``<inertial>`` (scaled with the mesh), unless its inertia cannot belong to this
     shape: then its mass with the geometry's distribution. pybullet_data's cube_small.urdf, a 5 cm
@@ -220,13 +227,9 @@ def _urdf_mass(
         return mass_model.MassProperties(
             inertial.mass, geometric.volume, inertial.center_mass * scale, inertia, "urdf"
         )
-    log.warning(
-        "%s: the URDF's inertia cannot belong to this shape (radius of gyration %.3g m, object %.3g m); "
-        "using its mass %.3g kg with the mesh's inertia",
-        name,
-        gyration,
-        size,
-        inertial.mass,
+    warnings.append(
+        f"the URDF's inertia cannot belong to this shape (radius of gyration {gyration:.3g} m, object "
+        f"{size:.3g} m); using its mass {inertial.mass:.3g} kg with the mesh's inertia"
     )
     return geometric.with_mass(inertial.mass, "urdf")
 
@@ -271,62 +274,172 @@ class _Read:
     inertial: urdf.UrdfInertial | None
     cleaning: reading.Cleaning
     shells: list[trimesh.Trimesh] = field(default_factory=list)  # separate closed solids, if several
+    warnings: list[str] = field(default_factory=list)
 
 
-def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _Read:
+def _user_scale(source: ObjectSource, scale: float | None) -> float:
     props = source.properties
     user_scale = props.scale if props.scale is not None else (1.0 if scale is None else float(scale))
     if not np.isfinite(user_scale) or user_scale <= 0:
         raise ObjectError(f"scale must be a positive number, got {scale}")
-    name = source.object_id
+    return user_scale
+
+
+def _raw(source: ObjectSource) -> tuple[trimesh.Trimesh, bytes, urdf.UrdfInertial | None]:
+    """The file's triangles as written (a URDF's meshes placed in its base link), their bytes and
+    a URDF's ``<inertial>``."""
     if source.is_urdf:
         raw, blob = _read_urdf(source)
-        inertial = urdf.base_inertial(source.path)
-    else:
-        raw = reading.read_triangles(source.path, source.node)
-        blob, inertial = source.path.read_bytes(), None
+        return raw, blob, urdf.base_inertial(source.path)
+    return reading.read_triangles(source.path, source.node), source.path.read_bytes(), None
+
+
+def _close(
+    mesh: trimesh.Trimesh, config: ObjectConfig, report: reading.Cleaning, warnings: list[str]
+) -> tuple[trimesh.Trimesh, bool]:
+    """Make the surface closed if it can be: shells that share edges separated, holes filled
+    (MeshFix), else MeshFix's repair. Returns the mesh and whether it is closed."""
+    if mesh.is_watertight and mesh.is_winding_consistent:
+        return mesh, True
+    separated = reading.separate_at_shared_edges(mesh, report)
+    if separated is not None:
+        return separated, True
+    filled, report.holes_filled = repair.fill_holes(mesh)
+    if report.holes_filled:
+        warnings.append(f"mesh was open; filled {report.holes_filled} hole(s)")
+        return filled, True
+    mended = repair.mend(mesh, config.min_volume)
+    if mended is not None:
+        report.mended = True
+        warnings.append(
+            f"mesh was open or not a manifold; repaired by MeshFix ({len(mesh.faces)} -> "
+            f"{len(mended.faces)} faces)"
+        )
+        return mended, True
+    warnings.append(
+        "mesh is not watertight and MeshFix could not close it; its convex hull is its collision shape"
+    )
+    return mesh, False
+
+
+def _solid(
+    mesh: trimesh.Trimesh, name: str, config: ObjectConfig, report: reading.Cleaning
+) -> tuple[trimesh.Trimesh, list[trimesh.Trimesh]]:
+    """A closed mesh outward wound, with volume, its overlapping closed shells joined; and its
+    separate closed shells (empty for one)."""
+    if mesh.volume < 0:
+        mesh.invert()
+    if not mesh.volume > config.min_volume:
+        raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
+    shells = reading.closed_shells(mesh)
+    if shells and reading.overlapping(shells):  # parts written as one file: their union
+        mesh = reading.join(shells, name)
+        report.shells_joined = len(shells)
+    return mesh, shells
+
+
+def _drop_fragments(mesh: trimesh.Trimesh, config: ObjectConfig, report: reading.Cleaning) -> trimesh.Trimesh:
+    mesh, dropped = repair.drop_fragments(mesh, config.fragment_max_share)
+    report.fragments_dropped, report.fragment_area_share = dropped.pieces, dropped.area_share
+    return mesh
+
+
+def _read(source: ObjectSource, config: ObjectConfig, scale: float | None) -> _Read:
+    user_scale = _user_scale(source, scale)
+    name = source.object_id
+    memory.check(source, config)  # before a vertex is parsed
+    raw, blob, inertial = _raw(source)
     if not np.all(np.isfinite(raw.vertices)):
         raise ObjectError(f"{name}: vertices contain NaN or inf")
     raw = trimesh.Trimesh(raw.vertices * user_scale, raw.faces, process=False)
 
-    report = reading.Cleaning()
+    report, warnings = reading.Cleaning(), []
     mesh = reading.clean(raw, name, report)
-    mesh = reading.simplify(mesh, config.max_faces, name, report)
+    mesh = _drop_fragments(mesh, config, report)
+    mesh = reading.simplify(mesh, config.max_faces, report)
+    if report.simplified_to:
+        warnings.append(
+            f"{report.faces_read} faces above the budget of {config.max_faces}; simplified to "
+            f"{report.simplified_to}"
+        )
     hull = _check_size(mesh, name, config)
-    watertight = bool(mesh.is_watertight and mesh.is_winding_consistent)
-    if not watertight:
-        separated = reading.separate_at_shared_edges(mesh, report)
-        if separated is not None:
-            mesh, watertight = separated, True
-    if not watertight:
-        mesh, report.holes_filled = reading.fill_holes(mesh)
-        watertight = report.holes_filled > 0
-        if watertight:
-            log.warning("%s: mesh was open; filled %d hole(s)", name, report.holes_filled)
+    mesh, watertight = _close(mesh, config, report, warnings)
     shells: list[trimesh.Trimesh] = []
     if watertight:
-        if mesh.volume < 0:
-            mesh.invert()
-        if not mesh.volume > config.min_volume:
-            raise ObjectError(f"{name}: degenerate mesh (zero enclosed volume)")
-        shells = reading.closed_shells(mesh)
-        if shells and reading.overlapping(shells):  # parts written as one file: their union
-            mesh = reading.join(shells, name)
-            report.shells_joined = len(shells)
-    else:
-        log.warning("%s: mesh is not watertight; its convex hull is its collision shape", name)
+        if report.mended:
+            hull = _check_size(mesh, name, config)
+        mesh, shells = _solid(mesh, name, config, report)
     if report.summary() != "clean":
         log.info("%s: cleaned: %s", name, report.summary())
     sha = hashlib.sha256(blob).hexdigest()
-    return _Read(mesh, hull, watertight, user_scale, sha, inertial, report, shells)
+    return _Read(mesh, hull, watertight, user_scale, sha, inertial, report, shells, warnings)
+
+
+@dataclass(frozen=True)
+class ObjectMesh:
+    """An object's mesh as its poses see it (trimesh.Trimesh, metres, pose frame) and the SHA-256
+    of the bytes it was read from (the labels' ``mesh_sha256``)."""
+
+    mesh: trimesh.Trimesh
+    mesh_sha256: str
+
+
+def read_object(
+    source: ObjectSource | Path, config: ObjectConfig | None = None, scale: float | None = None
+) -> ObjectMesh:
+    """The object's mesh exactly as its poses see it (scaled, cleaned, in the pose frame) and its
+    file's hash, without weighing or decomposing it. Raises ObjectError like :func:`load_object`."""
+    read = _read(_as_source(source), config or ObjectConfig(), scale)
+    return ObjectMesh(read.mesh, read.mesh_sha256)
 
 
 def read_object_mesh(
     source: ObjectSource | Path, config: ObjectConfig | None = None, scale: float | None = None
 ) -> trimesh.Trimesh:
-    """The object's mesh exactly as its poses see it (scaled, cleaned, in the pose frame), without
-    weighing or decomposing it. Raises ObjectError like :func:`load_object`."""
-    return _read(_as_source(source), config or ObjectConfig(), scale).mesh
+    """The mesh of :func:`read_object`."""
+    return read_object(source, config, scale).mesh
+
+
+def _weigh(read: _Read, props, config: ObjectConfig) -> mass_model.MassProperties:
+    """Mass properties: a sidecar mass, else a URDF's ``<inertial>``, else the mass model."""
+    weighed = mass_model.weigh(
+        read.mesh,
+        read.hull,
+        read.watertight,
+        config,
+        props.mass_model or "auto",
+        props.density,
+        props.shell_thickness,
+    )
+    if props.mass is not None:
+        return weighed.with_mass(props.mass, "given")
+    if read.inertial is not None:
+        return _urdf_mass(read.inertial, weighed, read.mesh, read.scale, read.warnings)
+    return weighed
+
+
+def _collision_method(read: _Read, config: ObjectConfig) -> tuple[str, bool]:
+    """(method, convex): hull for convex or open meshes, shells for separate convex solids (a
+    V-HACD collision mesh collides as itself), else the decomposition ladder."""
+    convex = _convex(read.mesh, read.hull, config) if read.watertight else False
+    if convex or not read.watertight:
+        return "hull", convex
+    if read.shells and all(_convex(shell, shell.convex_hull, config) for shell in read.shells):
+        return "shells", convex
+    return "coacd", convex
+
+
+def _geometry_warnings(geometry: CollisionGeometry, config: ObjectConfig) -> list[str]:
+    out = []
+    if len(geometry.ladder) > 1 or any(r.detail for r in geometry.ladder):
+        out.append(f"collision shape by {geometry.method}: {geometry.ladder_summary()}")
+    if not geometry.within(config):
+        out.append(
+            f"approximate collision shape: error mean {geometry.error.mean * 1e3:.2f} mm, max "
+            f"{geometry.error.max * 1e3:.2f} mm (limits {config.collision_mean_limit * 1e3:.2f} / "
+            f"{config.collision_max_limit * 1e3:.2f} mm)"
+        )
+    return out
 
 
 def load_object(
@@ -334,70 +447,50 @@ def load_object(
     config: ObjectConfig,
     scale: float | None = None,
     cache_dir: Path | None = None,
+    progress: Progress | None = None,
+    decompose: bool = True,
 ) -> ObjectModel:
     """Load, clean, validate, weigh and give collision geometry to one object.
 
     ``scale`` multiplies the file's coordinates (after a URDF's own mesh scale); ``None`` is 1; a
-    sidecar ``scale`` overrides it. Steps: read (reasons name the file's problem), clean (merge
-    seam vertices, drop degenerate and duplicate faces), simplify above ``config.max_faces``,
-    check size, close real holes (MeshFix), join closed shells that touch or overlap into their
-    union (manifold3d), weigh (:mod:`annotator.objects.mass`; a sidecar mass,
-    else a URDF's ``<inertial>``, else the mass model), collision geometry (hull for convex or
-    open meshes; the shells themselves when the file is made of convex solids, as V-HACD collision
-    meshes are; CoACD parts otherwise) with its error against the mesh.
-    Raises :class:`ObjectError` with a one-line reason for unusable input.
+    sidecar ``scale`` overrides it. Steps: check the memory estimate, read (reasons name the
+    file's problem), clean (merge seam vertices, drop degenerate and duplicate faces, drop loose
+    fragments), simplify above ``config.max_faces``, check size, close the surface (holes filled,
+    else MeshFix's repair), join closed shells that touch or overlap into their union
+    (manifold3d), weigh (:mod:`annotator.objects.mass`), collision geometry
+    (:mod:`annotator.objects.decomposition`: hull for convex or open meshes; the shells themselves
+    for convex solids written as one file; the ladder otherwise) with its error against the mesh.
+    ``cache_dir``: the decomposition cache (None: ``$RG2_CACHE_DIR`` or ``~/.cache/rg2-annotator``).
+    ``progress(object_id, message)``: told when a decomposition starts, changes rung and ends.
+    Raises :class:`ObjectError` with a one-line reason for unusable input; a decomposition that
+    crashes or runs over its budget is not one (the next rung's shape is used and reported).
+    ``decompose=False``: raise :class:`NotDecomposed` rather than decompose a concave object whose
+    decomposition the cache does not hold (a process that leaves decompositions to its workers).
     """
     source = _as_source(source)
     props = source.properties
     name = source.object_id
     read = _read(source, config, scale)
-    mesh, hull, watertight, user_scale, inertial = (
-        read.mesh,
-        read.hull,
-        read.watertight,
-        read.scale,
-        read.inertial,
+    weighed = _weigh(read, props, config)
+    method, convex = _collision_method(read, config)
+    geometry = collision_geometry(
+        read.mesh, method, config, cache_dir, name, read.shells, progress, decompose=decompose
     )
-    mesh_sha, report = read.mesh_sha256, read.cleaning
-
-    props_mass = mass_model.weigh(
-        mesh, hull, watertight, config, props.mass_model or "auto", props.density, props.shell_thickness
-    )
-    if props.mass is not None:
-        props_mass = props_mass.with_mass(props.mass, "given")
-    elif inertial is not None:
-        props_mass = _urdf_mass(inertial, props_mass, mesh, user_scale, name)
-
-    convex = _convex(mesh, hull, config) if watertight else False
-    if convex or not watertight:
-        method = "hull"
-    elif read.shells and all(_convex(shell, shell.convex_hull, config) for shell in read.shells):
-        method = "shells"  # separate convex solids (a V-HACD collision mesh): collide as themselves
-    else:
-        method = "coacd"
-    geometry = collision_geometry(mesh, method, config, cache_dir, name, read.shells)
-    approximate = not geometry.within(config)
-    if approximate:
-        log.warning(
-            "%s: approximate collision shape: error mean %.2f mm, max %.2f mm (limits %.2f / %.2f mm)",
-            name,
-            geometry.error.mean * 1e3,
-            geometry.error.max * 1e3,
-            config.collision_mean_limit * 1e3,
-            config.collision_max_limit * 1e3,
-        )
+    warnings = read.warnings + _geometry_warnings(geometry, config)
+    for warning in warnings:
+        log.debug("%s: %s", name, warning)
     files = [p.as_posix() if source.root is None else _rel(p, source.folder) for p in _source_files(source)]
     return ObjectModel(
         object_id=name,
         path=source.path,
-        mesh=mesh,
-        scale=user_scale,
-        mass=float(props_mass.mass),
-        volume=float(props_mass.volume),
-        center_mass=np.asarray(props_mass.center_mass, dtype=np.float64),
-        inertia=np.asarray(props_mass.inertia, dtype=np.float64),
-        mesh_sha256=mesh_sha,
-        watertight=watertight,
+        mesh=read.mesh,
+        scale=read.scale,
+        mass=float(weighed.mass),
+        volume=float(weighed.volume),
+        center_mass=np.asarray(weighed.center_mass, dtype=np.float64),
+        inertia=np.asarray(weighed.inertia, dtype=np.float64),
+        mesh_sha256=read.mesh_sha256,
+        watertight=read.watertight,
         convex=convex,
         parts=geometry.parts,
         collision_file=geometry.obj_file if len(geometry.parts) > 1 else None,
@@ -405,17 +498,19 @@ def load_object(
         decomposition_seconds=0.0 if geometry.from_cache else geometry.seconds,
         config=config,
         friction=config.lateral_friction if props.friction is None else props.friction,
-        mass_model=props_mass.model,
+        mass_model=weighed.model,
         collision_error=geometry.error,
         collision_method=geometry.method,
         collision_threshold=geometry.threshold,
-        approximate=approximate,
-        cleaning=report,
+        collision_ladder=geometry.ladder_summary(seconds=False),
+        approximate=not geometry.within(config),
+        cleaning=read.cleaning,
         source_files=tuple(files),
         digest=source_digest(source),
         properties=props.as_dict(),
         objects_dir=str(source.folder.resolve()),
         node=source.node,
+        warnings=warnings,
     )
 
 

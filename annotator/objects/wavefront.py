@@ -121,6 +121,32 @@ def _disjoint(sets: list[np.ndarray]) -> bool:
     return len(np.unique(np.concatenate(sets))) == total if sets else True
 
 
+def _bodies(data: bytes | mmap.mmap) -> tuple[list, str]:
+    """The explicit objects of the file (name, face stretches, all stretches) and their statement
+    kind: ``o`` objects if there are two or more with faces, else vertex-disjoint ``g`` groups;
+    ([], "") when neither gives two."""
+    segments = _segments(data)
+    by_object = _group_by([s for s in segments if s[1] is not None], 1)
+    if len(by_object) > 1:
+        return _group_by(segments, 1), "o"
+    by_group = _group_by(segments, 2)
+    if len(by_object) == 1 or len(by_group) < 2:  # one object, or no groups to split
+        return [], ""
+    sets = _vertex_sets(data, by_group)
+    if sets is None or not _disjoint(sets):
+        return [], ""
+    return by_group, "g"
+
+
+def _names(chosen: list, groups: list[list[int]], kind: str) -> list[str]:
+    """A file-safe name per body (its first object's), or ``<kind><index>`` when any is empty or
+    two are the same."""
+    names = [_safe(chosen[g[0]][0]) for g in groups]
+    if any(not n for n in names) or len(set(names)) != len(names):
+        return [f"{kind}{g[0]}" for g in groups]
+    return names
+
+
 def parts(path: Path) -> list[ObjPart]:
     """The file's bodies when it holds several (empty: one body).
 
@@ -129,29 +155,17 @@ def parts(path: Path) -> list[ObjPart]:
     file, a mug's handle written as its own object) do. Reads the coordinates of the vertex lines
     only for a file with several objects.
     """
-    with path.open("rb") as fh:
-        if path.stat().st_size == 0:
-            return []
-        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            segments = _segments(data)
-            by_object = _group_by([s for s in segments if s[1] is not None], 1)
-            if len(by_object) > 1:
-                chosen, kind = _group_by(segments, 1), "o"
-            else:
-                by_group = _group_by(segments, 2)
-                if len(by_object) == 1 or len(by_group) < 2:  # one object, or no groups to split
-                    return []
-                sets = _vertex_sets(data, by_group)
-                if sets is None or not _disjoint(sets):
-                    return []
-                chosen, kind = by_group, "g"
-            boxes = [_bounds(data, every) for _, _, every in chosen]
+    if path.stat().st_size == 0:
+        return []
+    with path.open("rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        chosen, kind = _bodies(data)
+        boxes = [_bounds(data, every) for _, _, every in chosen]
+    if not chosen:
+        return []
     groups = [[i] for i in range(len(chosen))] if any(b is None for b in boxes) else touching_groups(boxes)
     if len(groups) < 2:
         return []
-    names = [_safe(chosen[g[0]][0]) for g in groups]
-    if any(not n for n in names) or len(set(names)) != len(names):
-        names = [f"{kind}{g[0]}" for g in groups]
+    names = _names(chosen, groups, kind)
     return [
         ObjPart(i, name, kind, tuple(sorted(span for k in group for span in chosen[k][1])))
         for i, (name, group) in enumerate(zip(names, groups, strict=True))

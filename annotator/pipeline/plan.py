@@ -1,9 +1,10 @@
-"""Which spans of candidates are still to simulate, generated lazily (memory independent of N)."""
+"""Which spans of candidates are still to simulate, generated lazily (memory independent of N);
+the order they are handed out in is :mod:`annotator.pipeline.schedule`'s."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from annotator.objects import ObjectSource
@@ -16,9 +17,10 @@ CHUNK_SIZE = 10
 # Chunks per object at most: for very large N the chunk grows so that the manifest (one entry
 # per finished chunk of an unfinished object) and the planning stay small.
 MAX_CHUNKS_PER_OBJECT = 2000
-# Objects whose first span is planned before the rest of an object's spans: enough that a first
-# run's workers decompose different objects at once (a run uses at least one per worker), few
-# enough that a worker still holds an object when it comes back for the rest of it.
+# Units whose first span a plan may hand out before the rest of a unit's spans (a plan that
+# interleaves units so that workers start on different ones): few enough that a worker still holds
+# a unit when it comes back for the rest of it. Objects no longer need it: each object's
+# decomposition task runs ahead of its spans (annotator.pipeline.schedule).
 FIRST_SPANS_AHEAD = 8
 # Candidates per object at most: a worker holds an object's N candidates (~190 bytes each) and one
 # object at 1e6 candidates is about 14 core-hours; more belongs in several runs (other seeds).
@@ -61,33 +63,10 @@ def _missing(obj: PlannedObject, n: int, chunk: int) -> Iterator[tuple[int, int]
             yield rng
 
 
-def plan_spans(
-    objects: Sequence[PlannedObject],
-    n: int,
-    chunk: int,
-    scale: float | None,
-    ahead: int = FIRST_SPANS_AHEAD,
-) -> Iterator[Span]:
-    """The spans still to simulate: each object's first missing span ``ahead`` objects before the
-    rest of its spans, the rest object by object. On a first run the workers thus load (and
-    decompose) different objects at once instead of the same one; and a worker that comes back to
-    an object for the rest of it has seen at most 2 (ahead - 1) others since, so it still has the
-    object in memory (``annotator.pipeline.worker.RECENT_OBJECT_BYTES``), whatever the folder's
-    size.
-    Lazy: nothing of size N or of the number of objects is built."""
-    firsts: dict[int, tuple[int, int] | None] = {}  # object index -> its first missing span
-    issued = 0  # objects whose first span has been planned
-    for i, obj in enumerate(objects):
-        while issued < len(objects) and issued < i + max(1, ahead):
-            first = next(_missing(objects[issued], n, chunk), None)
-            firsts[issued] = first
-            if first is not None:
-                yield objects[issued].span(*first, scale)
-            issued += 1
-        first = firsts.pop(i)
-        for rng in _missing(obj, n, chunk):
-            if rng != first:
-                yield obj.span(*rng, scale)
+def object_spans(obj: PlannedObject, n: int, chunk: int, scale: float | None) -> Iterator[Span]:
+    """The spans of ``obj`` still to simulate, in order; lazy (memory independent of N)."""
+    for rng in _missing(obj, n, chunk):
+        yield obj.span(*rng, scale)
 
 
 def spans_to_do(obj: PlannedObject, n: int, chunk: int) -> int:

@@ -1,7 +1,10 @@
-"""Run the job: objects -> spans on local worker processes (or a Dask cluster) -> one writer.
+"""Run the job: objects -> decomposition tasks and spans on local worker processes (or a Dask
+cluster) -> one writer.
 
-The main process only discovers the objects, checks the output folder and hands out spans; it
-never loads a mesh, so work starts at once. Workers return labels; the store alone writes them.
+The main process only discovers the objects, checks the output folder and hands out work
+(:mod:`annotator.pipeline.schedule`: each object's decomposition task, then its spans); it never
+loads a mesh, so work starts at once and every object's decomposition runs in a worker, in
+parallel with the others and with the labelling. Workers return labels; the store alone writes them.
 
 Faults (README "Reliability"): a worker process that dies costs the spans it had one retry each,
 run alone on a fresh worker; a span that kills its worker again fails its object with the reason
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import dataclasses
 import logging
 import os
 import shutil
@@ -22,7 +26,7 @@ import tempfile
 import time
 import weakref
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from annotator.config import AnnotatorConfig
@@ -44,18 +48,25 @@ from annotator.objects import (
 )
 from annotator.pipeline import status
 from annotator.pipeline.plan import (
-    FIRST_SPANS_AHEAD,
     MAX_N,
     PlannedObject,
     candidates_to_do,
     chunk_size_for,
-    plan_spans,
     spans_to_do,
 )
 from annotator.pipeline.progress import Progress
+from annotator.pipeline.schedule import Schedule, Stream
 from annotator.pipeline.source import GivenCandidates, SampledCandidates
 from annotator.pipeline.summary import ObjectStats, Summary, format_summary
-from annotator.pipeline.worker import CellOptions, Span, SpanResult, SpanTask, WorkerStats, label_span
+from annotator.pipeline.worker import (
+    CellOptions,
+    Prepare,
+    Span,
+    SpanResult,
+    SpanTask,
+    WorkerStats,
+    label_span,
+)
 from annotator.store import OutputError, RunSpec, Store, StoreError
 
 log = logging.getLogger(__name__)
@@ -96,12 +107,18 @@ class RunOptions:
     repair: bool = False
     quiet: bool = False
     cell: bool = False  # objects rest on the seed's table; UR3 reachability columns
-    views: int = 0  # Kinect views per placement (--cell only)
+    views: int = 0  # Kinect views per placement (--cell only), per scene with --scenes
     # the gripper simulated: a description, a shipped name or a folder (None: the RG2)
     gripper: GripperDescription | str | None = None
     # given grasps on objects resting on the table (evaluate --resting): False, True / "object" (the
     # grasps move with the settling object) or "table" (they stay in the table frame)
     resting: bool | str = False
+    # annotate --scenes N: N scenes of per_scene (min, max) objects in the arrangement, n grasps
+    # per scene (annotator.scenes.run)
+    scenes: int = 0
+    per_scene: tuple[int, int] = (5, 5)
+    arrangement: str = "pile"
+    cache_dir: Path | None = None  # --cache: the decomposition cache of every worker (None: default)
 
     def cell_options(self) -> CellOptions | None:
         return CellOptions(self.views) if self.cell else None
@@ -203,29 +220,35 @@ class Workers:
             executor.shutdown(wait=False, kill_workers=bool(not_done))
 
 
+Unit = Span | Prepare
+
+
 def execute(
-    spans: Iterator[Span],
-    make_task: Callable[[Span], SpanTask],
+    work: Schedule | Stream | Iterator[Unit],
+    make_task: Callable[[Unit], SpanTask],
     workers: Workers,
     on_result: Callable[[SpanResult], None],
     on_tick: Callable[[], None] = lambda: None,
     fn: Callable[[SpanTask], SpanResult] = label_span,
 ) -> None:
-    """Run every span (``fn``, in a worker) and hand each result to ``on_result`` (in this process).
+    """Run every unit of ``work`` (``fn``, in a worker) and hand each result to ``on_result`` (in
+    this process). ``work``: a :class:`Schedule` (units wait for their object's decomposition), or
+    an iterator of units handed out in its order.
 
-    At most twice as many spans as workers are out at once. When a worker process dies, every span
+    At most twice as many units as workers are out at once. When a worker process dies, every unit
     that was out is retried once, alone on a fresh worker, so the one that kills its worker is
     known; it then fails its object (an error result) and the run goes on.
     """
-    _Execution(iter(spans), make_task, workers, on_result, on_tick, fn).run()
+    source = work if isinstance(work, (Schedule, Stream)) else Stream(iter(work))
+    _Execution(source, make_task, workers, on_result, on_tick, fn).run()
 
 
 @dataclass
 class _Execution:
-    """The state of :func:`execute`: spans still to submit, futures out, spans whose worker died."""
+    """The state of :func:`execute`: work still to hand out, futures out, units whose worker died."""
 
-    pending: Iterator[Span]
-    make_task: Callable[[Span], SpanTask]
+    source: Schedule | Stream
+    make_task: Callable[[Unit], SpanTask]
     workers: Workers
     on_result: Callable[[SpanResult], None]
     on_tick: Callable[[], None]
@@ -233,14 +256,15 @@ class _Execution:
 
     def __post_init__(self) -> None:
         self.died = _worker_died_errors()
-        self.out: dict[cf.Future, Span] = {}
-        self.exhausted = False
+        self.out: dict[cf.Future, Unit] = {}
 
     def run(self) -> None:
         while True:
             crashed = self._submit()
             if not self.out and not crashed:
-                return
+                if self.source.exhausted:
+                    return
+                raise RuntimeError("work is left that nothing out can unblock")  # pragma: no cover
             if crashed:  # what finished before the pool broke is handed on as usual
                 done = {future for future in self.out if future.done()}
             else:
@@ -252,51 +276,54 @@ class _Execution:
             if crashed:
                 self._retry(crashed)
 
-    def _submit(self) -> list[Span]:
-        """Submit spans up to capacity; a span the pool refuses (a worker died) is returned."""
+    def _submit(self) -> list[Unit]:
+        """Submit units up to capacity; a unit the pool refuses (a worker died) is returned."""
         capacity = 2 * self.workers.count
-        while not self.exhausted and len(self.out) < capacity:
-            span = next(self.pending, None)
-            if span is None:
-                self.exhausted = True
+        while len(self.out) < capacity:
+            unit = self.source.next()
+            if unit is None:
                 break
             try:
-                self.out[self.workers.submit(self.make_task(span), self.fn)] = span
+                self.out[self.workers.submit(self.make_task(unit), self.fn)] = unit
             except self.died:  # a worker died since the last wait: the pool refuses work
-                return [span]
+                return [unit]
         return []
 
-    def _collect(self, done) -> list[Span]:
-        """Hand on the results of ``done``; returns the spans whose worker died."""
+    def _deliver(self, result: SpanResult) -> None:
+        self.source.record(result)
+        self.on_result(result)
+
+    def _collect(self, done) -> list[Unit]:
+        """Hand on the results of ``done``; returns the units whose worker died."""
         crashed = []
         for future in done:
-            span = self.out.pop(future)
+            unit = self.out.pop(future)
             try:
                 result = future.result()
             except (Exception, cf.CancelledError) as exc:
                 if self.workers.lost():
                     raise SchedulerLost("lost the Dask scheduler") from exc
                 if isinstance(exc, (*self.died, cf.CancelledError)):
-                    crashed.append(span)
+                    crashed.append(unit)
                     continue
                 # the task itself failed in a way the worker did not catch
-                result = _failed(span, f"internal error: {type(exc).__name__}: {exc}")
-            self.on_result(result)
+                result = _failed(unit, f"internal error: {type(exc).__name__}: {exc}")
+            self._deliver(result)
         return crashed
 
-    def _retry(self, crashed: list[Span]) -> None:
-        """The pool is broken: every span still out is lost with it; each is retried alone."""
-        for future, span in list(self.out.items()):
+    def _retry(self, crashed: list[Unit]) -> None:
+        """The pool is broken: every unit still out is lost with it; each is retried alone."""
+        for future, unit in list(self.out.items()):
             future.cancel()
-            crashed.append(span)
+            crashed.append(unit)
         self.out.clear()
-        log.warning("a worker process died; retrying its %d span(s) one at a time", len(crashed))
+        log.warning("a worker process died; retrying its %d task(s) one at a time", len(crashed))
         self.workers.restart()
-        for span in sorted(crashed, key=lambda s: s.key):
-            self.on_result(_retry_alone(span, self.make_task, self.workers, self.died, self.on_tick, self.fn))
+        for unit in sorted(crashed, key=lambda s: s.key):
+            self._deliver(_retry_alone(unit, self.make_task, self.workers, self.died, self.on_tick, self.fn))
 
 
-def _retry_alone(span, make_task, workers: Workers, died, on_tick, fn) -> SpanResult:
+def _retry_alone(span: Unit, make_task, workers: Workers, died, on_tick, fn) -> SpanResult:
     future = workers.submit(make_task(span), fn)
     while True:
         done, _ = cf.wait([future], timeout=TICK_SECONDS)
@@ -314,12 +341,17 @@ def _retry_alone(span, make_task, workers: Workers, died, on_tick, fn) -> SpanRe
             return _failed(span, f"internal error: {type(exc).__name__}: {exc}")
         workers.restart()
         what = str(exc).split("\n")[0][:160]
-        where = f"candidates {span.start}-{span.stop - 1}"
-        return _failed(span, f"a worker process died twice while simulating {where} ({what})")
+        return _failed(span, f"a worker process died twice while {_doing(span)} ({what})")
 
 
-def _failed(span: Span, error: str) -> SpanResult:
-    return SpanResult(span, None, error, WorkerStats(0.0, 0.0, 0.0, 0, ""))
+def _doing(unit) -> str:
+    """What a worker was doing with ``unit`` (a span of another kind says it by its candidates)."""
+    describe = getattr(unit, "describe", None)
+    return describe() if describe is not None else f"simulating candidates {unit.start}-{unit.stop - 1}"
+
+
+def _failed(unit: Unit, error: str) -> SpanResult:
+    return SpanResult(unit, None, error, WorkerStats(0.0, 0.0, 0.0, 0, ""))
 
 
 # --- the run ------------------------------------------------------------------------------------------
@@ -348,6 +380,25 @@ def _check_workers(options: RunOptions) -> None:
         )
 
 
+def _check_cache(options: RunOptions) -> RunOptions:
+    """``--cache DIR`` made absolute (workers may start elsewhere) and, on this machine, created and
+    checked writable: a folder the workers cannot write is a usage error, not a failure per object.
+    A cluster's workers are trusted to see the folder (a shared filesystem) when this machine does
+    not."""
+    if options.cache_dir is None:
+        return options
+    folder = Path(os.path.abspath(os.path.expanduser(options.cache_dir)))
+    if options.scheduler and not folder.exists():
+        return dataclasses.replace(options, cache_dir=folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".rg2-write-check-"):
+            pass
+    except OSError as exc:
+        raise UsageError(f"--cache {options.cache_dir}: cannot write there ({exc.strerror or exc})") from exc
+    return dataclasses.replace(options, cache_dir=folder)
+
+
 def run(
     options: RunOptions,
     config: AnnotatorConfig,
@@ -360,6 +411,16 @@ def run(
     ``candidates``: where the candidates come from, by default ``options.n`` sampled per object
     (``annotate``); :class:`GivenCandidates` simulates given poses instead (``evaluate``).
     """
+    options = _check_cache(options)
+    if options.scenes:  # scenes are their own units of work (annotator.scenes.run)
+        if candidates is not None:
+            raise UsageError("--scenes labels sampled candidates only")
+        named = _loaded(options.gripper).name
+        if named != "rg2":
+            raise UsageError(f"--scenes simulates the RG2 only; --gripper {named} labels objects one by one")
+        from annotator.scenes.run import run_scenes
+
+        return run_scenes(options, config)
     summary = Summary()
     candidates = candidates or SampledCandidates(options.n)
     if not 1 <= options.n <= MAX_N:
@@ -374,10 +435,7 @@ def run(
         raise UsageError("--resting simulates given grasps only (annotator evaluate)")
     if options.resting and options.cell:
         raise UsageError("--resting and --cell exclude each other")
-    try:
-        gripper = load_gripper(options.gripper)
-    except DescriptionError as exc:
-        raise UsageError(f"--gripper: {exc}") from exc
+    gripper = _loaded(options.gripper)
     _check_workers(options)
     try:
         sources = discover_objects(options.objects_dir, config.objects)
@@ -450,6 +508,14 @@ def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates
     return inputs
 
 
+def _loaded(spec: GripperDescription | str | None) -> GripperDescription:
+    """The gripper description ``spec`` names; a bad one is a usage error (exit 2)."""
+    try:
+        return load_gripper(spec)
+    except DescriptionError as exc:
+        raise UsageError(f"--gripper: {exc}") from exc
+
+
 def _gripper_files(gripper: GripperDescription) -> GripperFiles:
     try:
         return GripperFiles.of(gripper)
@@ -478,11 +544,9 @@ def _run(
     store.manifest.gripper_folder = None if is_shipped(gripper) else str(gripper.folder.resolve())
     for oid, error in summary.failed.items():
         store.fail_object(oid, error)
-    live = [s for s in sources if s.object_id in digests]
-    chunk = store.spec.chunk_size
-    n = options.n
     for oid in sorted(resume.done):
         summary.resumed[oid] = ObjectStats.from_json(store.manifest.objects_done[oid]["stats"], None)
+    chunk = store.spec.chunk_size
     planned = [
         PlannedObject(
             s,
@@ -490,15 +554,15 @@ def _run(
             candidates.count(s.object_id),
             candidates.given,
         )
-        for s in live
-        if s.object_id not in resume.done
+        for s in sources
+        if s.object_id in digests and s.object_id not in resume.done
     ]
-    remaining = {p.source.object_id: spans_to_do(p, n, chunk) for p in planned}
+    remaining = {p.source.object_id: spans_to_do(p, options.n, chunk) for p in planned}
     for p in planned:
         if remaining[p.source.object_id] == 0:  # every chunk on disk: only the merge was missing
             oid = p.source.object_id
             summary.done[oid] = ObjectStats.from_json(store.finish_object(oid, digests[oid]), 0.0)
-    total = sum(candidates_to_do(p, n, chunk) for p in planned)
+    total = sum(candidates_to_do(p, options.n, chunk) for p in planned)
     if resume.done or any(p.done for p in planned):
         log.info(
             "resuming %s: %d objects done earlier, %d chunks of unfinished objects kept; %d candidates to do",
@@ -507,51 +571,132 @@ def _run(
             sum(len(p.done) for p in planned),
             total,
         )
-    if total == 0:
-        return
+    if total > 0:
+        _label(options, config, summary, store, digests, status_dir, planned, remaining, total, gripper)
 
+
+def _label(
+    options: RunOptions,
+    config: AnnotatorConfig,
+    summary: Summary,
+    store: Store,
+    digests: dict[str, str],
+    status_dir: str,
+    planned: list[PlannedObject],
+    remaining: dict[str, int],
+    total: int,
+    gripper: GripperDescription,
+) -> None:
+    """Decompose and label the ``planned`` objects with spans ``remaining`` on the run's workers
+    with ``gripper``."""
+    n, chunk = options.n, store.spec.chunk_size
     workers = Workers(options, status_dir)
-    progress = Progress(total, len(planned), quiet=options.quiet)
-    object_seconds: dict[str, float] = {}
+    todo = [p for p in planned if remaining[p.source.object_id] > 0]
+    progress = Progress(total, len(planned), quiet=options.quiet, decompositions=len(todo))
     versions = store.spec.versions
     cell = options.cell_options()
-    cache_dir = default_cache_dir()  # read here, not in reused workers started under another env
+    # read here, not in reused workers started under another env; a cluster's workers use their
+    # own default unless --cache names a folder (a shared filesystem)
+    cache_dir = options.cache_dir or (default_cache_dir() if workers.client is None else None)
+    collect = _Collect(
+        summary,
+        store,
+        progress,
+        digests,
+        remaining,
+        {p.source.object_id: candidates_to_do(p, n, chunk) for p in todo},
+    )
     # a cluster's workers may not see the gripper's folder: they get its files (GripperFiles)
     sent = gripper if workers.client is None else _gripper_files(gripper)
 
-    def make_task(span: Span) -> SpanTask:
+    def make_task(unit: Span | Prepare) -> SpanTask:
         return SpanTask(
-            span,
+            unit,
             config,
             options.seed,
             n,
             options.trials,
-            source_sha256=digests[span.object_id],
+            source_sha256=digests[unit.object_id],
             versions=versions,
             parent_pid=workers.parent_pid,
             status_dir=status_dir if workers.client is None else None,
-            cache_dir=str(cache_dir) if workers.client is None else None,
+            cache_dir=None if cache_dir is None else str(cache_dir),
             cell=cell,
             gripper=sent,
             resting=options.resting,
         )
 
-    def on_result(result: SpanResult) -> None:
-        span, oid = result.span, result.span.object_id
-        progress.advance(span.size)
-        summary.peak_rss_mb[result.stats.pid] = result.stats.peak_rss_mb
-        summary.worker_seconds += result.stats.seconds
-        if oid in summary.failed:  # another span of it failed first: the object is failed
+    def on_tick() -> None:
+        if progress.bar is not None:
+            busy = status.read(status_dir, older_than=STATUS_AFTER)
+            progress.status("; ".join(busy) if busy else "")
+
+    interrupted = True
+    try:
+        schedule = Schedule(todo, n, chunk, options.scale, workers.count)
+        execute(schedule, make_task, workers, collect.on_result, on_tick)
+        interrupted = False
+    except (KeyboardInterrupt, Terminated):
+        log.info("interrupted: %d candidates written this run", summary.candidates)
+        raise
+    finally:
+        progress.close()
+        workers.close(kill=interrupted)
+
+
+@dataclass
+class _Collect:
+    """The main process's side of the results: decompositions reported, labels written, objects
+    finished or failed. ``remaining``: spans still to come per object; ``left``: its candidates not
+    yet shown on the progress bar."""
+
+    summary: Summary
+    store: Store
+    progress: Progress
+    digests: dict[str, str]
+    remaining: dict[str, int]
+    left: dict[str, int]
+    object_seconds: dict[str, float] = field(default_factory=dict)
+
+    def on_result(self, result: SpanResult) -> None:
+        oid = result.span.object_id
+        self.summary.peak_rss_mb[result.stats.pid] = result.stats.peak_rss_mb
+        self.summary.worker_seconds += result.stats.seconds
+        if oid in self.summary.failed:  # another task of it failed first: the object is failed
             return
         if result.error is not None:
-            summary.failed[oid] = result.error
-            store.fail_object(oid, result.error)
-            named = result.error.startswith(f"{oid}:")  # an ObjectError names its object
-            log.error("%s", result.error if named else f"{oid}: {result.error}")
-            progress.object_done(oid, "failed")
-            return
-        df = result.rows
-        object_seconds[oid] = object_seconds.get(oid, 0.0) + result.stats.seconds
+            self._fail(oid, result.error, decomposing=isinstance(result.span, Prepare))
+        elif isinstance(result.span, Prepare):
+            self._prepared(oid, result)
+        else:
+            self._labelled(oid, result)
+
+    def _fail(self, oid: str, error: str, decomposing: bool) -> None:
+        self.summary.failed[oid] = error
+        self.store.fail_object(oid, error)
+        named = error.startswith(f"{oid}:")  # an ObjectError names its object
+        log.error("%s", error if named else f"{oid}: {error}")
+        self.progress.advance(self.left.pop(oid, 0))
+        if decomposing:
+            self.progress.prepared(oid, None)
+        self.progress.object_done(oid, "failed")
+
+    def _prepared(self, oid: str, result: SpanResult) -> None:
+        prepared = result.prepared
+        self.summary.prepare_seconds += result.stats.seconds
+        self.object_seconds[oid] = self.object_seconds.get(oid, 0.0) + result.stats.seconds
+        if prepared is not None:
+            self.summary.prepared[oid] = prepared
+            if prepared.warnings:
+                self.summary.warnings[oid] = list(prepared.warnings)
+        self.summary.ready_seconds = time.perf_counter() - self.summary.started
+        self.progress.prepared(oid, prepared.line() if prepared is not None and prepared.decomposed else None)
+
+    def _labelled(self, oid: str, result: SpanResult) -> None:
+        summary, store, span, df = self.summary, self.store, result.span, result.rows
+        self.progress.advance(span.size)
+        self.left[oid] = self.left.get(oid, 0) - span.size
+        self.object_seconds[oid] = self.object_seconds.get(oid, 0.0) + result.stats.seconds
         summary.step_seconds += result.stats.step_seconds
         summary.sim_steps += int(df["sim_steps"].sum())
         summary.candidates += len(df)
@@ -562,32 +707,14 @@ def _run(
         artifacts = {
             name: store.write_artifact(oid, name, data) for name, data in (result.artifacts or {}).items()
         }
-        store.write_chunk(oid, df, span.start, digests[oid], artifacts)
+        store.write_chunk(oid, df, span.start, self.digests[oid], artifacts)
         if summary.first_label_seconds is None:
             summary.first_label_seconds = time.perf_counter() - summary.started
-        remaining[oid] -= 1
-        if remaining[oid] == 0:
-            stats = store.finish_object(oid, digests[oid])
-            summary.done[oid] = done = ObjectStats.from_json(stats, object_seconds[oid])
-            progress.object_done(oid, done.line())
-
-    def on_tick() -> None:
-        if progress.bar is not None:
-            busy = status.read(status_dir, older_than=STATUS_AFTER)
-            progress.status("; ".join(busy) if busy else "")
-
-    interrupted = True
-    try:
-        # first spans at least one per worker ahead: on a first run every worker starts on its own object
-        spans = plan_spans(planned, n, chunk, options.scale, ahead=max(FIRST_SPANS_AHEAD, workers.count))
-        execute(spans, make_task, workers, on_result, on_tick)
-        interrupted = False
-    except (KeyboardInterrupt, Terminated):
-        log.info("interrupted: %d candidates written this run", summary.candidates)
-        raise
-    finally:
-        progress.close()
-        workers.close(kill=interrupted)
+        self.remaining[oid] -= 1
+        if self.remaining[oid] == 0:
+            stats = store.finish_object(oid, self.digests[oid])
+            summary.done[oid] = done = ObjectStats.from_json(stats, self.object_seconds[oid])
+            self.progress.object_done(oid, done.line())
 
 
 def _print_summary(summary: Summary) -> None:

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from annotator.dataset import OUTCOMES
+
+if TYPE_CHECKING:
+    from annotator.pipeline.worker import PreparedObject
 
 
 @dataclass
@@ -37,7 +40,8 @@ class ObjectStats:
 
 @dataclass
 class Summary:
-    """Everything the run reports; ``done`` and ``resumed`` hold per-object statistics."""
+    """Everything the run reports; ``done`` and ``resumed`` hold per-object statistics;
+    ``prepared``: each object's decomposition task; ``warnings``: each object's warnings, once."""
 
     done: dict[str, ObjectStats] = field(default_factory=dict)  # labelled by this run
     resumed: dict[str, ObjectStats] = field(default_factory=dict)  # labelled by an earlier run
@@ -52,7 +56,12 @@ class Summary:
     step_seconds: float = 0.0  # of which inside stepSimulation
     first_label_seconds: float | None = None  # from start to the first label file written
     peak_rss_mb: dict[int, float] = field(default_factory=dict)  # per worker pid
+    prepared: dict[str, PreparedObject] = field(default_factory=dict)  # decomposition tasks, by object
+    warnings: dict[str, list[str]] = field(default_factory=dict)  # one line each, per object
+    prepare_seconds: float = 0.0  # worker seconds of the decomposition tasks (in worker_seconds)
+    ready_seconds: float | None = None  # from start until the last decomposition task finished
     started: float = field(default_factory=time.perf_counter)
+    unit: str = "object"  # what a row of the table is: an object, or a scene (annotate --scenes)
 
     @property
     def skipped(self) -> list[str]:
@@ -68,7 +77,7 @@ def format_summary(summary: Summary) -> str:
     rows = sorted([(o, s) for o, s in summary.done.items()] + [(o, s) for o, s in summary.resumed.items()])
     cell = any(st.reachable_successes is not None for _, st in rows)
     head = (
-        f"{'object':<{name_w}} {'n':>6} {'rate':>6} {'score':>6} "
+        f"{summary.unit:<{name_w}} {'n':>6} {'rate':>6} {'score':>6} "
         + " ".join(f"{c:>{w}}" for c, w in zip(cols, widths, strict=True))
         + (f" {'reachable':>9}" if cell else "")
         + f" {'time':>7}"
@@ -84,18 +93,39 @@ def format_summary(summary: Summary) -> str:
         lines.append(f"{_cut(oid, name_w):<{name_w}} {figures}")
     if cell:
         lines.append("reachable: successes the UR3 can execute (IK along the approach, no arm collision)")
-    for oid, err in sorted(summary.failed.items()):
-        lines.append(f"{_cut(oid, name_w):<{name_w}} FAILED: {err}")
+    return "\n".join(lines + _tail(summary, name_w))
+
+
+def _tail(summary: Summary, name_w: int) -> list[str]:
+    """What follows the table: failures, each object's warnings once, notes, decompositions, totals."""
+    lines = [f"{_cut(oid, name_w):<{name_w}} FAILED: {err}" for oid, err in sorted(summary.failed.items())]
+    lines += [f"warning: {oid}: {w}" for oid, warnings in sorted(summary.warnings.items()) for w in warnings]
     lines += [f"note: {note}" for note in summary.notes]
+    lines += _decompositions(summary)
     if summary.stopped:
         lines.append(f"STOPPED: {summary.stopped}")
     rate = summary.candidates / summary.seconds if summary.seconds else 0.0
     lines.append(
-        f"{len(summary.done)} objects labelled, {len(summary.resumed)} done earlier, "
+        f"{len(summary.done)} {summary.unit}s labelled, {len(summary.resumed)} done earlier, "
         f"{len(summary.failed)} failed; {summary.candidates} candidates simulated in "
         f"{summary.seconds:.1f} s ({rate:.1f} candidates/s, {summary.physics_trials} physics trials)"
     )
-    return "\n".join(lines)
+    return lines
+
+
+def _decompositions(summary: Summary) -> list[str]:
+    """One line on the decompositions this run made, when it made any."""
+    made = {oid: p for oid, p in summary.prepared.items() if p.decomposed}
+    if not made:
+        return []
+    cpu = sum(p.decomposition_cpu_s for p in made.values())
+    slowest = max(made, key=lambda oid: made[oid].decomposition_cpu_s)
+    ready = summary.ready_seconds
+    ready_text = "" if ready is None else f"; every object ready {ready:.1f} s after the start"
+    return [
+        f"{len(made)} object(s) decomposed in {cpu:.1f} CPU-s (the slowest {slowest}, "
+        f"{made[slowest].decomposition_cpu_s:.1f} CPU-s){ready_text}"
+    ]
 
 
 def _cut(text: str, width: int) -> str:

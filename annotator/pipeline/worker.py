@@ -1,7 +1,10 @@
 """The worker side of the job: one world per process, objects loaded on demand, spans labelled.
 
-A worker builds its world once (PyBullet DIRECT, floating gripper) and keeps it between spans; when a
-span of a new object arrives it loads the object (the convex decomposition comes from the cache),
+A worker builds its world once (PyBullet DIRECT, floating gripper) and keeps it between spans. Before
+any span of an object, one worker runs the object's decomposition task (:class:`Prepare`): it loads
+the object, which makes its collision shape and writes it to the content-addressed cache unless the
+cache holds it already, and keeps the model for its own spans of it. When a span of an object
+arrives the worker takes the object it keeps, or loads it (the collision shape from the cache),
 samples its N candidates (the same on every worker: the Generator is keyed on seed and object id)
 and creates its body. Each candidate starts from a restored snapshot with no contact memory
 (:meth:`annotator.sim.world.World.restore_state`), so a label depends only on (object, seed,
@@ -36,7 +39,6 @@ from annotator.objects import (
     ObjectError,
     ObjectModel,
     ObjectSource,
-    add_progress_hook,
     create_body,
     load_object,
     physics_for,
@@ -57,12 +59,12 @@ log = logging.getLogger(__name__)
 # asked it to stop: a worker outlives a killed or interrupted main process by at most this long.
 PARENT_CHECK_SECONDS = 0.2
 # Objects a worker keeps in memory (model and sampled candidates, not the body) after it moves to
-# another one, up to about this many bytes in all. The plan gives each object's first span a few
-# objects ahead of the rest of it (annotator.pipeline.plan.FIRST_SPANS_AHEAD), so a worker comes
-# back to objects it had: without them it loaded and sampled each object again (sampling was
-# 4.4 % of a span's time on the sample objects, bench/profile_worker.py). 128 MB holds the 14
-# objects a worker can meet in between when they are under ~8 MB each (about 40,000 faces) and
-# keeps a worker within its memory target; a larger object is loaded again, as before.
+# another one, up to about this many bytes in all: the objects whose decomposition tasks it ran
+# (their spans reach it later, after spans of other objects) and those it labelled, which it may
+# meet again; without them it loaded and sampled such an object again (sampling was 4.4 % of a
+# span's time on the sample objects, bench/profile_worker.py). 128 MB holds 14 objects under
+# ~8 MB each (about 40,000 faces) and keeps a worker within its memory target; a larger object is
+# loaded again, as before.
 RECENT_OBJECT_BYTES = 128 * 2**20
 # Memory of a mesh or collision-part face with its vertices and trimesh's cached normals, about.
 BYTES_PER_FACE = 200
@@ -118,6 +120,34 @@ class Span:
     def key(self) -> tuple[str, int]:
         return (self.object_id, self.start)
 
+    def describe(self) -> str:
+        """What a worker does with it, for a reason: ``simulating candidates 0-9``."""
+        return f"simulating candidates {self.start}-{self.stop - 1}"
+
+
+@dataclass(frozen=True)
+class Prepare:
+    """A decomposition task: load one object in a worker, ahead of its spans, so that its collision
+    shape is made (and written to the cache) once, by one worker, while other workers label.
+
+    A worker that runs it keeps the model for its own spans of the object; every other worker
+    reads the shape from the cache. It simulates nothing (``size`` 0); its result carries a
+    :class:`PreparedObject`, or the object's one-line error (an unusable mesh).
+    """
+
+    object_id: str
+    source: ObjectSource
+    scale: float | None
+
+    size = 0
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.object_id, -1)  # before the object's spans
+
+    def describe(self) -> str:
+        return "loading (decomposing) the object"
+
 
 @dataclass(frozen=True)
 class CellOptions:
@@ -132,7 +162,8 @@ class CellOptions:
 
 @dataclass(frozen=True)
 class SpanTask:
-    """What a worker is asked to do, with what it needs to check that it may.
+    """What a worker is asked to do (``span``: a :class:`Span` to label, or a :class:`Prepare`), with
+    what it needs to check that it may.
 
     ``source_sha256``: the object's source digest (a worker keeps a loaded object only while it is
     the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
@@ -147,7 +178,7 @@ class SpanTask:
     settles; ``"table"``, they stay where they were given in the table frame.
     """
 
-    span: Span
+    span: Span | Prepare
     config: AnnotatorConfig
     seed: int
     n: int
@@ -174,17 +205,76 @@ class WorkerStats:
 
 
 @dataclass(frozen=True)
+class PreparedObject:
+    """What a decomposition task (:class:`Prepare`) reports about its object.
+
+    ``method``: the collision method (hull, shells, coacd, vhacd); ``parts``: convex parts;
+    ``made``: the collision shape was made by this task (False: read from the cache, or held by the
+    worker already); ``decomposition_cpu_s``: CPU seconds of the decomposition ladder when it ran
+    (0 otherwise); ``cpu_s``: CPU seconds of the whole load in the worker (its process and the
+    decomposition processes it waited for); ``error_mean`` / ``error_max``: collision error (m);
+    ``warnings``: the object's warnings, one line each, without its id.
+    """
+
+    method: str
+    parts: int
+    made: bool
+    decomposition_cpu_s: float
+    cpu_s: float
+    error_mean: float
+    error_max: float
+    ladder: str = ""
+    warnings: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, model: ObjectModel, made: bool, cpu_s: float) -> PreparedObject:
+        err = model.collision_error
+        return cls(
+            model.collision_method,
+            len(model.parts),
+            made,
+            float(model.decomposition_seconds) if made else 0.0,
+            cpu_s,
+            float(err.mean),
+            float(err.max),
+            model.collision_ladder,
+            tuple(model.warnings),
+        )
+
+    @property
+    def decomposed(self) -> bool:
+        """Its shape was made by the decomposition ladder in this task (not a hull or the shells
+        of a convex object, not read from the cache)."""
+        return self.made and bool(self.ladder)
+
+    def line(self) -> str:
+        """One line, e.g. ``decomposed by coacd into 34 parts in 14.2 CPU-s (collision error 0.15 /
+        1.82 mm)``."""
+        plural = "s" if self.parts != 1 else ""
+        if self.decomposed:
+            how = (
+                f"decomposed by {self.method} into {self.parts} part{plural} in "
+                f"{self.decomposition_cpu_s:.1f} CPU-s"
+            )
+        else:
+            how = f"{self.method}, {self.parts} part{plural}" + ("" if self.made else ", from the cache")
+        return f"{how} (collision error {self.error_mean * 1e3:.2f} / {self.error_max * 1e3:.2f} mm)"
+
+
+@dataclass(frozen=True)
 class SpanResult:
     """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
     as simulated (mass, scale, ...) for the manifest; ``artifacts``: files that belong with the
-    span's labels (file name -> bytes: the Kinect views it rendered), written by the main process."""
+    span's labels (file name -> bytes: the Kinect views it rendered), written by the main process;
+    ``prepared``: what a decomposition task (``span`` a :class:`Prepare`) found."""
 
-    span: Span
+    span: Span | Prepare
     rows: pd.DataFrame | None
     error: str | None
     stats: WorkerStats
     info: dict[str, Any] | None = None
     artifacts: dict[str, bytes] | None = None
+    prepared: PreparedObject | None = None
 
 
 @dataclass
@@ -219,6 +309,14 @@ def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]
     return BYTES_PER_FACE * faces + sum(a.nbytes for a in arrays)
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and of the children it waited for (the decompositions)."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def _peak_rss_mb() -> float:
     """This process's peak resident memory (MB); 0 where the platform does not say."""
     try:
@@ -248,6 +346,7 @@ def object_info(model: ObjectModel) -> dict[str, Any]:
         "collision_error_mean": float(model.collision_error.mean),
         "collision_error_max": float(model.collision_error.max),
         "geometry": model.geometry_record(),  # dataset.load_geometry reads these back
+        "warnings": list(model.warnings),  # reported once per object per run
     }
 
 
@@ -302,7 +401,8 @@ class WorkerState:
                 previous = (self.config.objects, self.config.sampler, self.config.cell, self.gripper_key)
                 previous += self.mode
             if previous == kept and self.obj is not None:
-                self._keep(self.obj)  # its model and candidates serve the new world too
+                # its model and candidates serve the new world too
+                self._keep(self.obj.key, self.obj.model, self.obj.candidates)
             self.close()
             self.world = World(config.physics)
             self.hand = FloatingGripper(self.world, config.gripper, gripper)
@@ -333,55 +433,103 @@ class WorkerState:
 
     def object_for(self, task: SpanTask) -> LoadedObject:
         """The span's object in this world (its body is created once per object); ObjectError."""
-        span, config = task.span, task.config
-        world, _ = self.world_for(config, task.cell is not None, task.gripper, task.cache_dir, task.resting)
-        # Worker processes outlive a run (they are reused), so the key is the object's source as it
-        # is now: its digest (a mesh behind an unchanged URDF included), else the file's stat.
-        version = task.source_sha256
-        if version is None:
-            try:
-                stat = os.stat(span.source.path)
-            except OSError as exc:
-                raise ObjectError(f"cannot read {span.source.path}: {exc.strerror or exc}") from exc
-            version = f"{stat.st_mtime_ns}-{stat.st_size}"
-        key = (span.object_id, str(span.source.path), version, span.scale, span.source.properties)
+        world, _ = self.world_for(
+            task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting
+        )
+        key = self._key(task)
         if key in self.failed:
             raise ObjectError(self.failed[key])
         if self.obj is not None and self.obj.key == key:
             return self.obj
         if self.obj is not None:
-            self._keep(self.obj)
+            self._keep(self.obj.key, self.obj.model, self.obj.candidates)
             self.obj.release()
             world.remove_body(self.obj.uid)
             self.obj = None
-        model, candidates = self.recent.pop(key, (None, {}))
-        if model is not None and model.collision_file is not None and not model.collision_file.exists():
-            model, candidates = None, {}  # its collision file left the cache: load it again
+        model, candidates = self._kept(key)
         if model is None:
             model = self._load(task, key)
         self.obj = self._create(model, key, candidates)
         return self.obj
 
+    def _key(self, task: SpanTask) -> tuple:
+        """What identifies the task's object in this worker. Worker processes outlive a run (they
+        are reused), so the key is the object's source as it is now: its digest (a mesh behind an
+        unchanged URDF included), else the file's stat."""
+        unit = task.span
+        version = task.source_sha256
+        if version is None:
+            try:
+                stat = os.stat(unit.source.path)
+            except OSError as exc:
+                raise ObjectError(f"cannot read {unit.source.path}: {exc.strerror or exc}") from exc
+            version = f"{stat.st_mtime_ns}-{stat.st_size}"
+        return (unit.object_id, str(unit.source.path), version, unit.scale, unit.source.properties)
+
+    def _kept(self, key: tuple) -> tuple[ObjectModel | None, dict]:
+        """The model and candidates this worker kept of ``key`` (taken out of ``recent``), if any."""
+        model, candidates = self.recent.pop(key, (None, {}))
+        if model is not None and model.collision_file is not None and not model.collision_file.exists():
+            model, candidates = None, {}  # its collision file left the cache: load it again
+        return model, candidates
+
     def _load(self, task: SpanTask, key: tuple) -> ObjectModel:
-        span, config = task.span, task.config
-        status.write(task.status_dir, f"loading {span.object_id}")
+        unit, config = task.span, task.config
+        status.write(task.status_dir, f"loading {unit.object_id}")
         status_dir = task.status_dir
-        remove_hook = add_progress_hook(lambda oid, message: status.write(status_dir, f"{oid}: {message}"))
         try:
             cache = Path(task.cache_dir) if task.cache_dir is not None else None
-            return load_object(span.source, config.objects, scale=span.scale, cache_dir=cache)
+            return load_object(
+                unit.source,
+                config.objects,
+                scale=unit.scale,
+                cache_dir=cache,
+                progress=lambda oid, message: status.write(status_dir, f"{oid}: {message}"),
+            )
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
-        finally:
-            remove_hook()
 
-    def _keep(self, loaded: LoadedObject) -> None:
-        """Remember the object a worker leaves (its model and candidates) within the memory budget."""
-        self.recent[loaded.key] = (loaded.model, loaded.candidates)
+    def _keep(self, key: tuple, model: ObjectModel, candidates: dict) -> None:
+        """Remember an object this worker leaves or prepared (its model and candidates) within the
+        memory budget, most recent last."""
+        self.recent.pop(key, None)
+        self.recent[key] = (model, candidates)
         total = sum(_footprint(*kept) for kept in self.recent.values())
         while self.recent and total > RECENT_OBJECT_BYTES:
             total -= _footprint(*self.recent.popitem(last=False)[1])
+
+    def prepare(self, task: SpanTask) -> SpanResult:
+        """A decomposition task (``task.span`` a :class:`Prepare`): load the object (its collision
+        shape made and cached unless the cache holds it) and keep it for this worker's spans of it.
+        Returns what was found (:class:`PreparedObject`), or the object's one-line error."""
+        t0, cpu0 = time.perf_counter(), _cpu_seconds()
+        self._watch_parent(task.parent_pid, task.status_dir)
+        unit = task.span
+        try:
+            self._check_versions(task.versions)
+            self.world_for(task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting)
+            key = self._key(task)
+            if key in self.failed:
+                raise ObjectError(self.failed[key])
+            made = False
+            if self.obj is not None and self.obj.key == key:
+                model = self.obj.model
+            else:
+                model, candidates = self._kept(key)
+                if model is None:
+                    model, candidates = self._load(task, key), {}
+                    made = not model.from_cache
+                self._keep(key, model, candidates)
+        except ObjectError as exc:
+            return SpanResult(unit, None, str(exc), self._stats(t0, 0.0))
+        except Exception as exc:  # an unexpected failure is this object's, not the run's
+            log.exception("%s: unexpected error while loading", unit.object_id)
+            return SpanResult(unit, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+        finally:
+            status.write(task.status_dir, None)
+        prepared = PreparedObject.of(model, made, _cpu_seconds() - cpu0)
+        return SpanResult(unit, None, None, self._stats(t0, 0.0), prepared=prepared)
 
     def _create(self, model: ObjectModel, key: tuple, candidates: dict) -> LoadedObject:
         """The object's body in this world, its trial (or its placements on the table)."""
@@ -423,7 +571,9 @@ class WorkerState:
     # --- a span ---------------------------------------------------------------------------------
 
     def label(self, task: SpanTask) -> SpanResult:
-        """Labels of one span, or its object's one-line error."""
+        """Labels of one span, or its object's one-line error (a :class:`Prepare`: :meth:`prepare`)."""
+        if isinstance(task.span, Prepare):
+            return self.prepare(task)
         t0 = time.perf_counter()
         self._watch_parent(task.parent_pid, task.status_dir)
         span = task.span

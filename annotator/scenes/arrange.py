@@ -315,6 +315,8 @@ def arrange_table(build: _Build, drawn: list[tuple[int, str, ObjectModel]], cata
 class SceneBuilder:
     """Builds scenes from a pool of loaded objects (object id -> ObjectModel, as
     :func:`annotator.objects.load_object` gives them), each in a fresh world with ``physics``.
+    ``models`` may load lazily (a Mapping whose keys are the pool): only the objects a scene draws
+    are looked up.
 
     ``build(spec)`` returns the settled :class:`SceneRecord`; the builder keeps the objects' stable
     poses between scenes (they depend on the mesh only).
@@ -328,7 +330,7 @@ class SceneBuilder:
         physics: PhysicsConfig | None = None,
         cell: CellConfig | None = None,
     ) -> None:
-        self.models = dict(models)
+        self.models = models
         self.scenes = scenes or SceneConfig()
         self.physics = physics or PhysicsConfig()
         self.cell = cell or CellConfig()
@@ -354,7 +356,10 @@ class SceneBuilder:
         self, spec: SceneSpec, build: _Build, drawn: list[tuple[int, str, ObjectModel]]
     ) -> SceneRecord:
         T_table_world = build.T_world_table.inverse()
-        poses = {b.instance_id: T_table_world * get_object_pose(build.client, b.uid) for b in build.bodies}
+        poses = {
+            b.instance_id: _as_recorded(T_table_world * get_object_pose(build.client, b.uid))
+            for b in build.bodies
+        }
         instances = tuple(
             Instance(
                 k,
@@ -371,5 +376,17 @@ class SceneBuilder:
             "scene %d (%s): %d of %d objects kept", spec.scene_id, spec.arrangement, kept, len(instances)
         )
         return SceneRecord(
-            spec.scene_id, spec.seed, spec.arrangement, instances, build.workspace, build.T_world_table
+            spec.scene_id,
+            spec.seed,
+            spec.arrangement,
+            instances,
+            build.workspace,
+            _as_recorded(build.T_world_table),
         )
+
+
+def _as_recorded(T: Transform) -> Transform:
+    """``T`` from its position and quaternion alone, as a scene table reads it back: a product of
+    transforms keeps the rotation matrix it was multiplied with, whose last bits can differ from
+    the quaternion's, and a scene loaded from its file must be the scene that was built."""
+    return Transform.exact(T.pos, T.quat)

@@ -14,6 +14,7 @@ import numpy as np
 
 from annotator.cell.world import Cell, build_cell
 from annotator.config import CellConfig, GripperConfig, KinectConfig
+from annotator.grippers import GripperDescription
 from annotator.objects import ObjectModel, create_body
 from annotator.scenes.records import SceneRecord
 from annotator.sim.world import World
@@ -54,11 +55,19 @@ def load_scene(
     kinect: bool = False,
     gripper: GripperConfig | None = None,
     kinect_config: KinectConfig | None = None,
+    description: GripperDescription | str | None = None,
 ) -> LoadedScene:
-    """Build the cell's table (and the arm / Kinect if asked) in ``world`` and create every kept
-    instance of ``record`` at its recorded pose. ``models`` maps object ids to loaded objects."""
+    """Build the cell's table (and the arm with the gripper ``description``, default the RG2, and
+    the Kinect if asked) in ``world`` and create every kept instance of ``record`` at its recorded
+    pose. ``models`` maps object ids to loaded objects."""
     cell = build_cell(
-        world, cell_config, robot=robot, kinect=kinect, gripper=gripper, kinect_config=kinect_config
+        world,
+        cell_config,
+        robot=robot,
+        kinect=kinect,
+        gripper=gripper,
+        kinect_config=kinect_config,
+        description=description,
     )
     offset = float(np.abs(cell.top.T_world_top.pos - record.T_world_table.pos).max())
     if offset > TABLE_TOLERANCE:

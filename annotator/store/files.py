@@ -30,7 +30,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
-from annotator.store.names import chunk_filename, is_label_filename, is_temp_file_name, object_filename
+from annotator.store.names import (
+    chunk_filename,
+    is_label_filename,
+    is_temp_file_name,
+    object_filename,
+    scene_unit,
+)
 
 log = logging.getLogger(__name__)
 
@@ -148,6 +154,15 @@ def arrow_table(df: pd.DataFrame, mark: dict[str, Any] | None = None) -> pa.Tabl
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=metadata))
 
 
+def unit_ids(df: pd.DataFrame) -> np.ndarray:
+    """The unit of work each row belongs to, (n,) str: its ``object_id``, or for the labels of a
+    scene (rows with a ``scene_id`` column, ``annotate --scenes``) the scene's unit id
+    (:func:`annotator.store.names.scene_unit`), whose rows name several objects."""
+    if "scene_id" in df.columns:
+        return np.array([scene_unit(s) for s in df["scene_id"].to_numpy()], dtype=object)
+    return df["object_id"].to_numpy(dtype=object)
+
+
 def write_labels(
     out_dir: Path,
     df: pd.DataFrame,
@@ -160,13 +175,14 @@ def write_labels(
     *,
     run_id: str | None = None,
 ) -> FileRecord:
-    """Validate rows of ONE object with ``grasp_id`` exactly ``start..stop-1``; write them atomically
+    """Validate rows of ONE object (or scene: :func:`unit_ids`) with ``grasp_id`` exactly
+    ``start..stop-1``; write them atomically
     as ``out_dir / name``, marked as the tool's (``run_key``, the folder's ``run_id``, the object's
     ``source_sha256`` and the records of the ``artifacts`` that came with these labels, so a lost
     manifest can be rebuilt from the files and another run's files are never taken for this
     run's); return the file's record."""
     out = validate_labels(df)
-    ids = out["object_id"].unique()
+    ids = pd.unique(unit_ids(out))
     if len(ids) != 1:
         raise SchemaError(f"a label file holds one object's labels, got object_ids {list(ids)[:5]}")
     grasp_ids = np.sort(out["grasp_id"].to_numpy())
@@ -270,6 +286,6 @@ def verify_labels(path: Path, run_key: str, object_id: str, start: int, stop: in
         df = validate_labels(pq.read_table(path).to_pandas())
     except Exception as exc:
         return f"unreadable ({type(exc).__name__}: {exc})"
-    if set(df["object_id"]) != {object_id} or sorted(df["grasp_id"]) != list(range(start, stop)):
+    if set(unit_ids(df)) != {object_id} or sorted(df["grasp_id"]) != list(range(start, stop)):
         return "holds other rows than its name says"
     return None

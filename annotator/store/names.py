@@ -32,6 +32,12 @@ _ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _OBJECT_STEM_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*-[0-9a-f]{10}$")
 
 
+def scene_unit(scene_id: int) -> str:
+    """The unit id of scene ``scene_id`` of ``annotate --scenes`` (its files are named from it as an
+    object's are): ``scene_000003``."""
+    return f"scene_{int(scene_id):06d}"
+
+
 def object_filename(object_id: str) -> str:
     """A safe file name for ``object_id`` (which may contain ``/``), unique per id.
 

@@ -376,9 +376,10 @@ def object_mesh(
 ):
     """The object's mesh in its mesh frame, as the label poses see it (metres, label's scale).
 
-    With ``objects_dir`` the object is looked up there by id and loaded as ``annotate`` loads it
-    (:func:`annotator.objects.load_object`, at the labels' ``object_scale``); a mesh whose hash
-    differs from the labels' ``mesh_sha256`` is used with a warning. Without it, the geometry
+    With ``objects_dir`` the object is looked up there by id and read and cleaned as ``annotate``
+    reads it (:func:`annotator.objects.read_object`, at the labels' ``object_scale``; never
+    decomposed: only its mesh is drawn or measured); a mesh whose hash differs from the labels'
+    ``mesh_sha256`` is used with a warning. Without it, the geometry
     record the labels folder carries is used when this version writes one.
     """
     if objects_dir is None:
@@ -393,7 +394,7 @@ def object_mesh(
             return load_object_mesh(labels_dir, object_id)
         except (FileNotFoundError, KeyError, ValueError) as exc:
             raise ToolError(f"{object_id}: no mesh in {labels_dir} ({exc}); pass --objects DIR") from None
-    from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, load_object
+    from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, read_object
 
     try:
         sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
@@ -404,7 +405,7 @@ def object_mesh(
     scale = float(rows["object_scale"].iloc[0]) if rows is not None and len(rows) else None
     config = labelling_config(labels_dir).config
     try:
-        model = load_object(sources[object_id], config.objects, scale=scale)
+        model = read_object(sources[object_id], config.objects, scale=scale)
     except ObjectError as exc:
         raise ToolError(f"{object_id}: {exc}") from None
     if rows is not None and len(rows) and model.mesh_sha256 != rows["mesh_sha256"].iloc[0]:

@@ -17,7 +17,9 @@ A grasp is executed as a sampled candidate whose expected chord is ``width``: th
 that its TCP at that opening is at the pose, opened ``2 x pregrasp_clearance`` wider, checked along
 the approach and closed from ``width + 2 x preclose_gap``. Without a ``width`` column the chord is
 measured on the mesh: the two pads, fully open, are moved towards the TCP along the closing axis
-until they meet the surface (:func:`expected_width`); 0 when they meet nothing.
+until they meet the surface (:func:`expected_width`); 0 when they meet nothing. The mesh is read
+and cleaned here, as the workers see it, but never decomposed: the decompositions are the
+workers' (:mod:`annotator.pipeline.schedule`).
 """
 
 from __future__ import annotations
@@ -248,8 +250,9 @@ def given_candidates(
     ids given so); otherwise they are numbered 0..k-1 in the order of the file. Rows of a label
     table (an ``outcome`` column) are replayed (:func:`annotator.tools.given.replay_grasps`: their
     commanded grasps bit for bit, so their outcomes are reproduced exactly). Missing widths are
-    measured on the mesh (:func:`expected_width`). ``frame="base"``: the poses are the gripper's
-    base link's (``gripper``: its description), turned into TCP poses (:func:`tcp_from_base`).
+    measured on the mesh (:func:`expected_width`; read, not decomposed: :func:`read_object_mesh`).
+    ``frame="base"``: the poses are the gripper's base link's (``gripper``: its description), turned
+    into TCP poses (:func:`tcp_from_base`).
     ``resting``: each grasp carries the orientation its object rests in (``rest_q*``, else upright).
     Returns ``(candidates, renumbered object ids)``.
     """

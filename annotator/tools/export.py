@@ -147,7 +147,17 @@ class ExportFolder:
                 if path.is_file() and not path.is_symlink():
                     path.unlink()
             record.unlink()
-            for sub in ("grasps", "splits", "meshes"):
+            # the folders exports make (scene exports: scenes/, dataset/, scene_contacts/, views/)
+            for sub in (
+                "grasps",
+                "splits",
+                "meshes",
+                "scenes",
+                "dataset/scenes",
+                "dataset",
+                "scene_contacts",
+                "views",
+            ):
                 with contextlib.suppress(OSError):
                     (out_dir / sub).rmdir()  # once empty
         return cls(out_dir, [])
@@ -309,6 +319,8 @@ def export(
     if not partial:
         run.require_finished("export")
     labels, manifest = run.labels, run.manifest
+    if "scene_id" in labels.columns:  # a scene's grasps are numbered per scene, not per object
+        raise ToolError(f"{labels_dir} holds scenes: export them with --format vgn or contact_graspnet")
     ids = list(object_ids) or sorted(labels["object_id"].unique())
     config = labelling_config(labels_dir).config
     folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)

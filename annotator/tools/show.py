@@ -319,48 +319,60 @@ def overview(renderer: GraspRenderer, rows: pd.DataFrame, size: int = 2 * VIEW_S
     Glyph parts behind the object (depth test against the render) are drawn faint; successes
     are drawn last so they stay on top.
     """
-    from PIL import Image, ImageDraw
-
     renderer.hide_gripper()
-    rank = {"collision": 0, "success": 2}  # drawn first .. last
-    order = np.argsort([rank.get(o, 1) for o in rows["outcome"]], kind="stable")
-    rows = rows.iloc[order].reset_index(drop=True)
+    rows = drawing_order(rows)
     T = poses_as_matrices(rows)
-    segs = glyph_segments(T, rows["width"].to_numpy(), renderer.pad_tip)
-    samples = np.linspace(0.0, 1.0, 12)
     out = Overview([], [], [], [], rows["grasp_id"].to_numpy())
     for camera in overview_cameras(renderer.mesh, size):
         frame = renderer.render(camera)
-        img = Image.fromarray(frame.rgb).convert("RGBA")
-        faint = Image.new("RGBA", img.size, (0, 0, 0, 0))
-        draw_faint, draw = ImageDraw.Draw(faint), None
-        pts = segs[..., None, :, :]  # (n, 4, 1, 2, 3)
-        line = pts[..., 0, :] + samples[:, None] * (pts[..., 1, :] - pts[..., 0, :])  # (n, 4, s, 3)
-        uv, depth = project(camera, line.reshape(-1, 3))
-        uv = uv.reshape(*line.shape[:3], 2)
-        depth = depth.reshape(line.shape[:3])
-        col = np.clip(np.round(uv[..., 0]).astype(int), 0, camera.width - 1)
-        row_ = np.clip(np.round(uv[..., 1]).astype(int), 0, camera.height - 1)
-        visible = depth <= frame.depth[row_, col] + 0.002
-        layer = Image.new("RGBA", img.size, (0, 0, 0, 0))
-        draw = ImageDraw.Draw(layer)
-        for i, outcome in enumerate(rows["outcome"]):
-            rgb = OUTCOME_COLORS.get(outcome, (0, 0, 0))
-            width, alpha = GLYPH_WIDTH.get(outcome, 2), GLYPH_ALPHA.get(outcome, 255)
-            for s in range(4):
-                p = uv[i, s]
-                for k in range(len(samples) - 1):
-                    seg = [tuple(p[k]), tuple(p[k + 1])]
-                    if visible[i, s, k] and visible[i, s, k + 1]:
-                        draw.line(seg, fill=(*rgb, alpha), width=width)
-                    else:
-                        draw_faint.line(seg, fill=(*rgb, alpha * 2 // 5), width=1)
-        img = Image.alpha_composite(Image.alpha_composite(img, faint), layer).convert("RGB")
-        out.images.append(np.asarray(img))
+        out.images.append(draw_glyphs(frame, T, rows["width"].to_numpy(), rows["outcome"], renderer.pad_tip))
         out.frames.append(frame)
         out.object_masks.append(renderer.object_mask(frame))
         out.tcp_pixels.append(project(camera, T[:, :3, 3])[0])
     return out
+
+
+def drawing_order(rows: pd.DataFrame) -> pd.DataFrame:
+    """``rows`` in the order their glyphs are drawn: collisions first, successes last (on top)."""
+    rank = {"collision": 0, "success": 2}  # drawn first .. last
+    order = np.argsort([rank.get(o, 1) for o in rows["outcome"]], kind="stable")
+    return rows.iloc[order].reset_index(drop=True)
+
+
+def draw_glyphs(frame: Frame, T: np.ndarray, widths: np.ndarray, outcomes, pad_tip: float) -> np.ndarray:
+    """``frame``'s picture (h, w, 3) uint8 with a glyph per grasp ``T`` (n, 4, 4) (the frame's
+    world), ``widths`` (n,) m, coloured by ``outcomes`` (n,) and drawn in that order; parts behind
+    what the frame shows (its depth) faint."""
+    from PIL import Image, ImageDraw
+
+    camera = frame.camera
+    segs = glyph_segments(T, widths, pad_tip)
+    samples = np.linspace(0.0, 1.0, 12)
+    img = Image.fromarray(frame.rgb).convert("RGBA")
+    faint = Image.new("RGBA", img.size, (0, 0, 0, 0))
+    draw_faint = ImageDraw.Draw(faint)
+    pts = segs[..., None, :, :]  # (n, 4, 1, 2, 3)
+    line = pts[..., 0, :] + samples[:, None] * (pts[..., 1, :] - pts[..., 0, :])  # (n, 4, s, 3)
+    uv, depth = project(camera, line.reshape(-1, 3))
+    uv = uv.reshape(*line.shape[:3], 2)
+    depth = depth.reshape(line.shape[:3])
+    col = np.clip(np.round(uv[..., 0]).astype(int), 0, camera.width - 1)
+    row_ = np.clip(np.round(uv[..., 1]).astype(int), 0, camera.height - 1)
+    visible = depth <= frame.depth[row_, col] + 0.002
+    layer = Image.new("RGBA", img.size, (0, 0, 0, 0))
+    draw = ImageDraw.Draw(layer)
+    for i, outcome in enumerate(outcomes):
+        rgb = OUTCOME_COLORS.get(outcome, (0, 0, 0))
+        width, alpha = GLYPH_WIDTH.get(outcome, 2), GLYPH_ALPHA.get(outcome, 255)
+        for s in range(4):
+            p = uv[i, s]
+            for k in range(len(samples) - 1):
+                seg = [tuple(p[k]), tuple(p[k + 1])]
+                if visible[i, s, k] and visible[i, s, k + 1]:
+                    draw.line(seg, fill=(*rgb, alpha), width=width)
+                else:
+                    draw_faint.line(seg, fill=(*rgb, alpha * 2 // 5), width=1)
+    return np.asarray(Image.alpha_composite(Image.alpha_composite(img, faint), layer).convert("RGB"))
 
 
 # ------------------------------------------------------------------------------------ the command

@@ -1,0 +1,101 @@
+"""``annotator export --format vgn | contact_graspnet``: the labels of a scene run in the files of
+VGN (:mod:`annotator.tools.export_vgn`) or Contact-GraspNet (:mod:`annotator.tools.export_cgn`).
+
+- ``vgn``: VGN's raw layout in OUT (``setup.json``, ``grasps.csv``, ``scenes/scene_NNNNNN.npz``: what
+  its ``generate_data.py`` writes, every grasp with its label) and the dataset its
+  ``construct_dataset.py`` makes from it in ``OUT/dataset/`` (TSDF grids of 40³ fused from the
+  scene's views). Both need the scenes' depth images: the run must have been made with ``--views``.
+- ``contact_graspnet``: ``meshes/``, ``scene_contacts/NNNNNN.npz`` per scene (its positives: the
+  successes, as the gripper's base pose, with their pad contacts) and, when the run has views,
+  ``views/NNNNNN_VV.npz`` (its inference input).
+
+The files an export writes are recorded in the folder's ``_export.json`` (as every export's), so
+``--overwrite`` removes exactly those.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from annotator.tools.common import ToolError
+from annotator.tools.export import ExportFolder, ExportResult, TcpDepth
+from annotator.tools.scene_labels import SceneLabels, open_scene_labels
+
+log = logging.getLogger(__name__)
+
+SCENE_FORMATS = ("vgn", "contact_graspnet")
+
+
+def export_scenes(
+    labels_dir: Path,
+    fmt: str,
+    out_dir: Path,
+    objects_dir: Path | None = None,
+    *,
+    overwrite: bool = False,
+    partial: bool = False,
+) -> ExportResult:
+    """Write the scene run in ``labels_dir`` to ``out_dir`` in ``fmt`` (module docstring)."""
+    if fmt not in SCENE_FORMATS:
+        raise ToolError(f"unknown scene format {fmt!r}; choose from {', '.join(SCENE_FORMATS)}")
+    scenes = open_scene_labels(labels_dir, f"export --format {fmt}")
+    if not partial:
+        scenes.run.require_finished("export")
+    folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
+    depth = TcpDepth(scenes.gripper)
+    ids = scenes.scene_ids()
+    items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
+    if fmt == "vgn":
+        files = _vgn(scenes, items, folder, depth)
+    else:
+        files = _cgn(scenes, items, folder, depth, objects_dir)
+    folder.close(fmt, Path(labels_dir))
+    n = sum(len(g.width) for _, _, g in items)
+    log.info("exported %d grasps of %d scenes to %s (%s)", n, len(ids), folder.path, fmt)
+    return ExportResult(folder.path, files, n)
+
+
+def _vgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth) -> list[Path]:
+    from annotator.tools.export_vgn import VgnSetup, scene_name, write_vgn_dataset, write_vgn_raw
+
+    missing = [record.scene_id for record, views, _ in items if not views]
+    if missing:
+        raise ToolError(
+            f"{scenes.path}: scene {missing[0]} has no views, and VGN's files are depth images with "
+            "grasps; label the scenes with --views K (VGN renders 1 to 6 per scene)"
+        )
+    if not items:
+        raise ToolError(f"{scenes.path}: no scene to export")
+    size = items[0][0].workspace.size
+    setup = VgnSetup(size, items[0][1][0].depth_K, depth.max_width)
+    names = ["setup.json", "grasps.csv", "dataset/grasps.csv"]
+    for record, _, _ in items:
+        names += [
+            f"scenes/{scene_name(record.scene_id)}.npz",
+            f"dataset/scenes/{scene_name(record.scene_id)}.npz",
+        ]
+    for name in names:  # refuses before anything is written if a file it did not write is there
+        folder.target(name)
+    paths = write_vgn_raw(folder.path, setup, items)
+    paths += write_vgn_dataset(folder.path / "dataset", setup, items)
+    return paths
+
+
+def _cgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir) -> list[Path]:
+    from annotator.tools.common import object_mesh
+    from annotator.tools.export_cgn import mesh_file, scene_file, write_cgn
+
+    labels = scenes.labels
+    used = sorted({inst.object_id for record, _, _ in items for inst in record.kept})
+    meshes = {}
+    for oid in used:
+        rows = labels[labels["object_id"] == oid]
+        meshes[oid] = object_mesh(scenes.path, oid, objects_dir, rows if len(rows) else None)
+    names = [mesh_file(oid) for oid in used]
+    for record, views, _ in items:
+        names.append(f"scene_contacts/{scene_file(record.scene_id)}")
+        names += [f"views/{int(record.scene_id):06d}_{v.view_id:02d}.npz" for v in views]
+    for name in names:
+        folder.target(name)
+    return write_cgn(folder.path, items, meshes, depth.T_base_tcp)

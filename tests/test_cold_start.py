@@ -1,0 +1,370 @@
+"""The cold start in parallel: each object's decomposition task runs in a worker before its label
+spans, once; the main process never loads or decomposes an object; runs that share one ``--cache``
+decompose each object once between them; each object's warnings are reported once per run; the
+progress shows the decomposition stage. Real workers, real CoACD on small concave blocks."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import trimesh
+from helpers import run_annotate, write_l
+
+import annotator.objects
+import annotator.objects.decomposition
+import annotator.objects.model
+import annotator.objects.reading
+import annotator.pipeline.worker
+from annotator.config import AnnotatorConfig
+from annotator.objects import ObjectSource, discover_objects
+from annotator.pipeline.plan import PlannedObject
+from annotator.pipeline.progress import Progress
+from annotator.pipeline.run import RunOptions, Workers, execute, run
+from annotator.pipeline.schedule import Schedule
+from annotator.pipeline.summary import Summary, format_summary
+from annotator.pipeline.worker import Prepare, PreparedObject, Span, SpanResult, SpanTask, label_span
+from annotator.store import MANIFEST_NAME
+
+
+def _objects(folder: Path) -> Path:
+    """Two concave blocks (CoACD decomposes each in about a second) and a convex box."""
+    write_l(folder / "corner.obj")
+    write_l(folder / "large_corner.obj", size=1.3)
+    trimesh.creation.box((0.05, 0.04, 0.10)).export(folder / "box.obj")
+    return folder
+
+
+def _ok(unit) -> SpanResult:
+    return SpanResult(unit, None, None, None)  # type: ignore[arg-type]  # the schedule reads span, error
+
+
+def _planned(k: int, done: dict[int, frozenset] | None = None) -> list[PlannedObject]:
+    sources = [ObjectSource(f"o{i}", Path(f"/nowhere/o{i}.obj")) for i in range(k)]
+    return [PlannedObject(s, (done or {}).get(i, frozenset())) for i, s in enumerate(sources)]
+
+
+def _key(unit) -> tuple[str, str, int]:
+    return ("prepare" if isinstance(unit, Prepare) else "span", unit.object_id, getattr(unit, "start", -1))
+
+
+# ------------------------------------------------------------------------------------------ the plan
+
+
+def test_each_object_is_decomposed_before_its_spans_and_one_worker_keeps_decomposing():
+    """Two workers: both decompose first (the first objects in plan order); an object's spans start
+    when its decomposition has finished, first ready object in plan order first; while objects
+    wait, one decomposition runs alongside the labelling; a failed decomposition hands out none
+    of its spans; a resumed object only its missing ones."""
+    schedule = Schedule(_planned(4, {3: frozenset({(0, 10)})}), 30, 10, None, workers=2)
+    assert [_key(schedule.next()) for _ in range(2)] == [("prepare", "o0", -1), ("prepare", "o1", -1)]
+    assert schedule.next() is None  # no span before its object is ready, no third decomposition
+    schedule.record(_ok(Prepare("o1", None, None)))  # o1 ready first: its spans, o0 still decomposing
+    assert _key(schedule.next()) == ("span", "o1", 0)
+    schedule.record(_ok(Prepare("o0", None, None)))
+    # no decomposition out any more: the next one first, then o0's spans (before o1's, plan order)
+    got = [_key(schedule.next()) for _ in range(6)]
+    assert got == [
+        ("prepare", "o2", -1),
+        ("span", "o0", 0),
+        ("span", "o0", 10),
+        ("span", "o0", 20),
+        ("span", "o1", 10),
+        ("span", "o1", 20),
+    ]
+    # nothing ready to label: the last decomposition, then nothing until a result comes back
+    assert _key(schedule.next()) == ("prepare", "o3", -1)
+    assert schedule.next() is None and not schedule.exhausted
+    schedule.record(SpanResult(Prepare("o2", None, None), None, "o2: degenerate mesh", None))  # type: ignore[arg-type]
+    assert schedule.next() is None
+    schedule.record(_ok(Prepare("o3", None, None)))
+    assert [_key(schedule.next()) for _ in range(2)] == [("span", "o3", 10), ("span", "o3", 20)]
+    assert schedule.next() is None and schedule.exhausted
+
+
+def test_one_worker_labels_an_object_before_decomposing_the_next():
+    """With one worker nothing runs alongside: decompose, label, decompose the next (the first
+    labels come after one decomposition, not after all of them)."""
+    schedule = Schedule(_planned(2), 20, 10, None, workers=1)
+    order = []
+    while not schedule.exhausted:
+        unit = schedule.next()
+        assert unit is not None
+        order.append(_key(unit))
+        if isinstance(unit, Prepare):
+            schedule.record(_ok(unit))
+    assert order == [
+        ("prepare", "o0", -1),
+        ("span", "o0", 0),
+        ("span", "o0", 10),
+        ("prepare", "o1", -1),
+        ("span", "o1", 0),
+        ("span", "o1", 10),
+    ]
+
+
+def test_a_span_that_fails_stops_its_objects_other_spans():
+    schedule = Schedule(_planned(1), 40, 10, None, workers=1)
+    prepare = schedule.next()
+    schedule.record(_ok(prepare))
+    span = schedule.next()
+    schedule.record(SpanResult(span, None, "worker on x has other versions", None))  # type: ignore[arg-type]
+    assert schedule.next() is None and schedule.exhausted
+
+
+# ------------------------------------------------------------------------------ the decomposition stage
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+DECOMPOSED = PreparedObject("coacd", 2, True, 1.25, 1.5, 1e-4, 1.2e-3, "coacd kept (threshold 0.05)")
+CACHED = PreparedObject("coacd", 2, False, 0.0, 0.2, 1e-4, 1.2e-3, "coacd kept (threshold 0.05)")
+HULL = PreparedObject("hull", 1, True, 0.0, 0.1, 0.0, 0.0)
+
+
+def test_the_bar_counts_the_decomposition_stage_and_a_log_has_a_line_per_decomposed_object():
+    assert DECOMPOSED.decomposed and not CACHED.decomposed and not HULL.decomposed
+    terminal = _Terminal()
+    progress = Progress(60, 3, quiet=False, stream=terminal, decompositions=3)
+    for oid, prepared in (("corner", DECOMPOSED), ("box", HULL), ("mug", CACHED)):
+        progress.prepared(oid, prepared.line() if prepared.decomposed else None)
+    progress.advance(60)
+    progress.close()
+    drawn = terminal.getvalue()
+    assert "decomposing 0/3" in drawn and "decomposing 2/3" in drawn and "[decomposed" not in drawn
+
+    log = io.StringIO()  # not a terminal: one line per object decomposed, none for the others
+    progress = Progress(60, 3, quiet=False, stream=log, decompositions=3)
+    for oid, prepared in (("corner", DECOMPOSED), ("box", HULL), ("mug", CACHED)):
+        progress.prepared(oid, prepared.line() if prepared.decomposed else None)
+    assert log.getvalue().splitlines() == [
+        "[decomposed, 1/3 objects ready] corner: decomposed by coacd into 2 parts in 1.2 CPU-s "
+        "(collision error 0.10 / 1.20 mm)"
+    ]
+    assert CACHED.line() == "coacd, 2 parts, from the cache (collision error 0.10 / 1.20 mm)"
+
+
+def test_the_summary_gives_each_warning_once_and_the_decompositions():
+    summary = Summary(seconds=10.0)
+    summary.warnings = {"open_box": ["mesh was open; filled 1 hole(s)"]}
+    summary.prepared = {"corner": DECOMPOSED, "box": HULL}
+    summary.ready_seconds = 4.0
+    text = format_summary(summary)
+    assert text.count("mesh was open") == 1
+    assert "warning: open_box: mesh was open; filled 1 hole(s)" in text
+    line = "1 object(s) decomposed in 1.2 CPU-s (the slowest corner, 1.2 CPU-s); every object ready 4.0 s"
+    assert line in text
+
+
+# ------------------------------------------------------------------------------------ with real workers
+
+
+def recorded_label_span(task: SpanTask) -> SpanResult:
+    """``label_span``, noting in the run's status folder what ran, when, where, and the CPU time
+    of the processes the task waited for (a decomposition runs in such a child process)."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    begin = time.time()
+    result = label_span(task)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    note = {
+        "unit": _key(task.span),
+        "begin": begin,
+        "end": time.time(),
+        "pid": os.getpid(),
+        "child_cpu": after.ru_utime + after.ru_stime - children.ru_utime - children.ru_stime,
+        "made": result.prepared.made if result.prepared is not None else None,
+        "error": result.error,
+    }
+    with open(Path(task.status_dir) / "tasks.jsonl", "a") as fh:
+        fh.write(json.dumps(note) + "\n")
+    return result
+
+
+@pytest.mark.slow
+def test_each_object_is_decomposed_once_by_a_worker_before_any_of_its_spans(tmp_path):
+    objs = _objects(tmp_path / "objs")
+    config = AnnotatorConfig()
+    planned = [PlannedObject(s) for s in discover_objects(objs)]
+    cache, notes = tmp_path / "cache", tmp_path / "status"
+    notes.mkdir()
+    workers = Workers(RunOptions(objs, 20, workers=2))
+    results: list[SpanResult] = []
+    try:
+        execute(
+            Schedule(planned, 20, 10, None, workers.count),
+            lambda unit: SpanTask(
+                unit, config, 0, 20, parent_pid=os.getpid(), status_dir=str(notes), cache_dir=str(cache)
+            ),
+            workers,
+            results.append,
+            fn=recorded_label_span,
+        )
+    finally:
+        workers.close(kill=True)
+    ran = [json.loads(line) for line in (notes / "tasks.jsonl").read_text().splitlines()]
+    assert all(r["error"] is None for r in ran) and len(ran) == 3 * 3  # a task and 2 spans each
+    for oid in ("box", "corner", "large_corner"):
+        (prepare,) = [r for r in ran if r["unit"][:2] == ["prepare", oid]]
+        spans = [r for r in ran if r["unit"][:2] == ["span", oid]]
+        assert sorted(r["unit"][2] for r in spans) == [0, 10]
+        assert all(r["begin"] >= prepare["end"] for r in spans), oid  # no span before it was ready
+        assert prepare["pid"] != os.getpid() and prepare["made"] is True
+        assert all(abs(r["child_cpu"]) < 1e-6 for r in spans), oid  # no span ran a decomposition
+        if oid != "box":
+            assert prepare["child_cpu"] > 0  # the decomposition ran, in its child process
+    assert len(list(cache.glob("*.npz"))) == 3  # one entry per object
+    prepared = {r.span.object_id: r.prepared for r in results if isinstance(r.span, Prepare)}
+    assert prepared["corner"].decomposed and prepared["corner"].method == "coacd"
+    assert not prepared["box"].decomposed and prepared["box"].method == "hull"
+    assert sum(len(r.rows) for r in results if isinstance(r.span, Span)) == 3 * 20
+
+
+def _forbid(monkeypatch, module, name: str) -> None:
+    def forbidden(*args, **kwargs):
+        raise AssertionError(f"the main process called {module.__name__}.{name}")
+
+    monkeypatch.setattr(module, name, forbidden)
+
+
+DECOMPOSING = (
+    (annotator.objects, "load_object"),
+    (annotator.objects.model, "load_object"),
+    (annotator.objects.model, "collision_geometry"),
+    (annotator.objects.decomposition, "collision_geometry"),
+    (annotator.objects.decomposition, "run_limited"),
+    (annotator.pipeline.worker, "load_object"),
+)
+READING = (
+    (annotator.objects, "read_object_mesh"),
+    (annotator.objects.model, "_read"),
+    (annotator.objects.reading, "read_triangles"),
+)
+
+
+@pytest.mark.slow
+def test_the_main_process_never_loads_or_decomposes_an_object(tmp_path, monkeypatch):
+    """annotate and evaluate with an empty cache, every way this process could decompose an
+    object made to raise (worker processes import their own, untouched): the workers decompose
+    and the run reports it. annotate does not even read a mesh here; evaluate reads (never
+    decomposes) the meshes of grasps without a width, to measure their chords."""
+    from click.testing import CliRunner
+
+    from annotator.cli import main
+
+    for module, name in DECOMPOSING:
+        _forbid(monkeypatch, module, name)
+    objs = _objects(tmp_path / "objs")
+    out, cache = tmp_path / "labels", tmp_path / "c"
+    options = RunOptions(objs, 20, out_dir=out, workers=2, quiet=True, cache_dir=cache)
+    with pytest.MonkeyPatch.context() as reading:
+        for module, name in READING:
+            _forbid(reading, module, name)
+        summary = run(options, AnnotatorConfig())
+    assert sorted(summary.done) == ["box", "corner", "large_corner"] and not summary.failed
+    assert {oid for oid, p in summary.prepared.items() if p.decomposed} == {"corner", "large_corner"}
+    assert summary.ready_seconds is not None and summary.ready_seconds <= summary.seconds
+
+    labels = pd.read_parquet(out)
+    poses = labels[["object_id", "x", "y", "z", "qx", "qy", "qz", "qw"]]  # no width: measured
+    poses.to_parquet(tmp_path / "poses.parquet")
+    # elsewhere: reused workers keep the objects they loaded, by file, and would not load them again
+    objs = shutil.copytree(objs, tmp_path / "copy")
+    args = ["evaluate", str(tmp_path / "poses.parquet"), "--objects", str(objs), "--out", str(tmp_path / "e")]
+    args += ["--workers", "2", "--cache", str(tmp_path / "c2"), "--quiet"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    assert len(pd.read_parquet(tmp_path / "e")) == len(labels)
+    assert "2 object(s) decomposed" in result.output  # an empty cache of its own: its workers made it
+
+
+def _labels(out: Path) -> pd.DataFrame:
+    return pd.read_parquet(out).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
+
+
+def _annotate(objs: Path, out: Path, cache: Path, *extra: str) -> subprocess.Popen:
+    exe = Path(sys.executable).with_name("annotate")
+    cmd = [str(exe), "--objects", str(objs), "--n", "20", "--out", str(out), "--cache", str(cache), *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow
+def test_two_runs_sharing_one_cache_decompose_each_object_once(tmp_path):
+    """Two annotate processes started together on different --out with one empty --cache: each
+    concave object is decomposed by one of them, the other waits for its entry; same labels."""
+    objs = _objects(tmp_path / "objs")
+    cache = tmp_path / "shared-cache"
+    runs = [_annotate(objs, tmp_path / f"out{k}", cache, "--workers", "1") for k in (1, 2)]
+    outputs = [p.communicate(timeout=600) for p in runs]
+    for p, (out, err) in zip(runs, outputs, strict=True):
+        assert p.returncode == 0, out + err
+    decomposed = [
+        line.split("] ", 1)[1].split(":")[0]
+        for _, err in outputs
+        for line in err.splitlines()
+        if line.startswith("[decomposed")
+    ]
+    assert sorted(decomposed) == ["corner", "large_corner"], outputs  # once each, in one run or the other
+    assert len(list(cache.glob("*.npz"))) == 3 and not list(cache.glob("*.tmp"))
+    first, second = (_labels(tmp_path / f"out{k}") for k in (1, 2))
+    pd.testing.assert_frame_equal(first, second, check_exact=True)
+
+
+@pytest.mark.slow
+def test_an_objects_warnings_are_reported_once_per_run_and_kept_in_the_manifest(tmp_path):
+    """An open box (a face missing: its hole is filled, with a warning) labelled by 2 workers in 4
+    spans: the warning is printed once, in the summary, and recorded in the manifest."""
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    box = trimesh.creation.box((0.05, 0.04, 0.10))
+    trimesh.Trimesh(box.vertices, box.faces[2:], process=False).export(objs / "open_box.obj")
+    box.export(objs / "box.obj")
+    p = _annotate(objs, tmp_path / "out", tmp_path / "c", "--workers", "2", "--n", "40")
+    out, err = p.communicate(timeout=600)
+    assert p.returncode == 0, out + err
+    text = out + err
+    assert text.count("filled 1 hole") == 1, text
+    assert "warning: open_box: mesh was open; filled 1 hole(s)" in out
+    info = json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())["objects_info"]
+    assert info["open_box"]["warnings"] == ["mesh was open; filled 1 hole(s)"]
+    assert info["box"]["warnings"] == []
+
+
+def test_a_cache_folder_that_cannot_be_written_is_a_usage_error(tmp_path):
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    trimesh.creation.box((0.05, 0.04, 0.10)).export(objs / "box.obj")
+    (tmp_path / "file").write_text("not a folder")
+    cache = tmp_path / "file" / "c"
+    result = run_annotate("--objects", objs, "--n", 10, "--out", tmp_path / "o", "--cache", cache, check=2)
+    assert "--cache" in result.output and "cannot write" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.cluster
+def test_cache_reaches_the_dask_workers(tmp_path, monkeypatch):
+    """--cache names the folder every cluster worker uses (not its own default)."""
+    distributed = pytest.importorskip("dask.distributed")
+    objs = _objects(tmp_path / "objs")
+    monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "default"))  # what the workers would use
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        run_annotate(
+            "--objects", objs, "--n", 10, "--out", tmp_path / "o", "--scheduler", cluster.scheduler_address,
+            "--cache", tmp_path / "shared", "--quiet",
+        )  # fmt: skip
+    assert len(list((tmp_path / "shared").glob("*.npz"))) == 3
+    assert not (tmp_path / "default").exists()

@@ -1,0 +1,399 @@
+"""The decomposition ladder within its CPU budget and the content-addressed cache, with real child
+processes, real CoACD / V-HACD and real files (the seams replace a child's command, never physics)."""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from helpers import write_l
+
+from annotator.config import AnnotatorConfig, ObjectConfig
+from annotator.objects import cache, decomposition, discover_objects, load_object
+from annotator.objects.fidelity import collision_error
+
+CONFIG = ObjectConfig()
+SPIN = [sys.executable, "-c", "while True: pass"]  # a decomposition that never ends, using CPU
+SLEEP = [sys.executable, "-c", "import time; time.sleep(60)"]  # one that hangs without using CPU
+ABORT = [sys.executable, "-c", "import os; os.abort()"]
+
+
+def write_two_boxes(path: Path) -> Path:
+    """Two separate boxes in one file (convex solids written as one mesh): they collide as those
+    two parts ("shells"), made in this process, no decomposition."""
+    a = trimesh.creation.box(extents=(0.04, 0.04, 0.04))
+    b = trimesh.creation.box(extents=(0.02, 0.02, 0.06))
+    b.apply_translation((0.06, 0.0, 0.0))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    trimesh.util.concatenate([a, b]).export(path)
+    return path
+
+
+def rimmed_can(segments: int = 40) -> trimesh.Trimesh:
+    """A drinks can of 960 faces (94 % of its hull): domed bottom, necked top, rolled rim, recessed
+    lid, as robosuite's can.stl is shaped (956 faces, 95 %; CoACD at 0.05 did not finish it in 300 s)."""
+    profile = np.array(
+        [
+            (0.012, 0.006), (0.022, 0.002), (0.027, 0.0), (0.031, 0.002), (0.033, 0.008), (0.033, 0.105),
+            (0.031, 0.112), (0.029, 0.118), (0.0295, 0.1215), (0.0285, 0.1225), (0.027, 0.119),
+            (0.026, 0.116),
+        ]
+    )  # fmt: skip
+    angles = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
+    rings = [np.c_[r * np.cos(angles), r * np.sin(angles), np.full(segments, z)] for r, z in profile]
+    vertices = np.vstack([[0.0, 0.0, 0.008], *rings, [0.0, 0.0, 0.116]])
+    top, i = len(vertices) - 1, np.arange(segments)
+    j = (i + 1) % segments
+    faces = [np.c_[np.zeros(segments, int), 1 + j, 1 + i]]
+    for k in range(len(profile) - 1):
+        a, b = 1 + k * segments, 1 + (k + 1) * segments
+        faces += [np.c_[a + i, a + j, b + j], np.c_[a + i, b + j, b + i]]
+    last = 1 + (len(profile) - 1) * segments
+    faces.append(np.c_[np.full(segments, top), last + i, last + j])
+    mesh = trimesh.Trimesh(vertices, np.vstack(faces), process=False)
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
+
+
+def seam(monkeypatch, commands: dict[str, list[str]], calls: list[str] | None = None) -> None:
+    """Replace the child command of the rungs named in ``commands``; record every rung started."""
+    real = decomposition.child_command
+
+    def command(job: Path) -> list[str]:
+        with np.load(job / "in.npz") as z:
+            rung = str(z["rung"])
+        if calls is not None:
+            calls.append(rung)
+        return commands.get(rung, real(job))
+
+    monkeypatch.setattr(decomposition, "child_command", command)
+
+
+# ---------------------------------------------------------------------------------------------- the ladder
+
+
+@pytest.mark.slow
+def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_again(tmp_path, monkeypatch):
+    from annotator.pipeline.worker import Span, SpanTask, WorkerState
+
+    calls: list[str] = []
+    seam(monkeypatch, {"coacd": SPIN}, calls)
+    config = dataclasses.replace(CONFIG, decomposition_budget=7.0, vhacd_reserve=6.0)
+    model = load_object(write_l(tmp_path / "objects" / "corner.obj"), config, cache_dir=tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")  # its entry
+    coacd, vhacd = geometry.ladder
+    assert coacd.method == "coacd" and coacd.outcome == "over budget" and coacd.error is None
+    assert 0.9 <= coacd.cpu_seconds <= 2.5  # its share: the budget less the V-HACD reserve, 1 CPU-s
+    assert vhacd.method == "vhacd" and vhacd.outcome == "kept" and vhacd.error is not None
+    assert coacd.cpu_seconds + vhacd.cpu_seconds <= config.decomposition_budget + 1.0
+    assert model.collision_method == "vhacd" and len(model.parts) >= 1
+    assert model.collision_ladder.startswith("coacd over budget (stopped at 1 CPU-s)")
+    assert any(w.startswith("collision shape by vhacd: coacd over budget") for w in model.warnings)
+    assert model.collision_error == collision_error(model.mesh, model.parts, config.collision_error_samples)
+    assert calls == ["coacd", "vhacd"]
+    # the outcome is a result like any other: spans of the object on this worker and on a fresh one
+    # label it from the cache, nothing is decomposed again
+    objects = tmp_path / "objects"
+    source = discover_objects(objects)[0]
+    cfg = dataclasses.replace(AnnotatorConfig(), objects=config)
+    for start in (0, 3):
+        state = WorkerState()
+        try:
+            task = SpanTask(
+                Span("corner", source, None, start, start + 3), cfg, 0, 6, cache_dir=str(tmp_path / "c")
+            )
+            result = state.label(task)
+        finally:
+            state.close()
+        assert result.error is None and len(result.rows) == 3
+    assert calls == ["coacd", "vhacd"]
+
+
+@pytest.mark.slow
+def test_when_every_decomposition_hangs_the_hull_is_the_shape_within_the_budget(tmp_path, monkeypatch):
+    seam(monkeypatch, {"coacd": SPIN, "vhacd": SPIN})
+    config = dataclasses.replace(CONFIG, decomposition_budget=3.0, vhacd_reserve=1.0)
+    model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
+    assert [(r.method, r.outcome) for r in geometry.ladder] == [
+        ("coacd", "over budget"),
+        ("vhacd", "over budget"),
+        ("hull", "kept"),
+    ]
+    children = sum(r.cpu_seconds for r in geometry.ladder[:2])
+    assert children <= config.decomposition_budget + 1.0  # each stopped within a second of its limit
+    assert model.collision_method == "hull" and len(model.parts) == 1 and model.approximate
+
+
+def test_a_decomposition_that_hangs_without_using_cpu_is_stopped(tmp_path, monkeypatch):
+    seam(monkeypatch, {"coacd": SLEEP, "vhacd": ABORT})
+    config = dataclasses.replace(CONFIG, decomposition_timeout=1.0)
+    model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
+    assert model.collision_ladder.startswith("coacd over budget (stopped after 1 s without using CPU)")
+    assert "vhacd crashed (killed by SIGABRT" in model.collision_ladder
+    assert model.collision_method == "hull"
+
+
+def test_a_crashing_coacd_gets_vhacd(tmp_path, monkeypatch):
+    seam(monkeypatch, {"coacd": ABORT})
+    messages: list[tuple[str, str]] = []
+    model = load_object(
+        write_l(tmp_path / "corner.obj"),
+        CONFIG,
+        cache_dir=tmp_path / "c",
+        progress=lambda oid, message: messages.append((oid, message)),
+    )
+    assert model.collision_method == "vhacd"
+    assert model.collision_ladder.startswith("coacd crashed (killed by SIGABRT")
+    # the progress callback hears the start, the change of rung and the end
+    said = [m for oid, m in messages if oid == "corner"]
+    assert said[0].startswith("decomposing (") and "next: vhacd" in said[1]
+    assert said[-1].startswith("decomposed into") and "by vhacd" in said[-1]
+    record = model.geometry_record()
+    assert record["collision_method"] == "vhacd" and record["collision_ladder"] == model.collision_ladder
+    assert "CPU-s" not in record["collision_ladder"]  # the record stays the same from run to run
+
+
+@pytest.mark.slow
+def test_a_can_coacd_cannot_finish_within_its_budget_gets_vhacd(tmp_path):
+    """Real CoACD on a rimmed can (3-4 CPU-s at 0.05 here) given 1 CPU-s: stopped, V-HACD's parts."""
+    path = tmp_path / "can.stl"
+    rimmed_can().export(path)
+    config = dataclasses.replace(CONFIG, decomposition_budget=9.0, vhacd_reserve=8.0)
+    model = load_object(path, config, cache_dir=tmp_path / "c")
+    assert model.watertight and not model.convex
+    assert model.collision_ladder.startswith("coacd over budget (stopped at 1 CPU-s")
+    assert model.collision_method == "vhacd" and np.isfinite(model.collision_error.max)
+    assert model.decomposition_seconds <= config.decomposition_budget + 1.0
+
+
+# A CoACD child that finishes its first threshold (saved as the best so far, as refine_coacd's
+# callback does) and then never finishes the next one.
+FIRST_THRESHOLD_THEN_SPIN = [
+    sys.executable,
+    "-c",
+    "import sys, numpy as np, trimesh\n"
+    "from pathlib import Path\n"
+    "from annotator.objects import decomposition as d\n"
+    "from annotator.objects.fidelity import collision_error\n"
+    "job = Path(sys.argv[1])\n"
+    "z = np.load(job / 'in.npz')\n"
+    "mesh = trimesh.Trimesh(z['vertices'], z['faces'], process=False)\n"
+    "parts = [mesh.convex_hull]\n"
+    "d._save_result(job, parts, collision_error(mesh, parts, 1000), 0.05, done=False)\n"
+    "while True: pass\n",
+]
+
+
+@pytest.mark.slow
+def test_a_refinement_stopped_by_the_budget_keeps_the_best_threshold_it_finished(tmp_path, monkeypatch):
+    real = decomposition.child_command
+    monkeypatch.setattr(
+        decomposition,
+        "child_command",
+        lambda job: (
+            FIRST_THRESHOLD_THEN_SPIN + [str(job)]
+            if "coacd" in str(np.load(job / "in.npz")["rung"])
+            else real(job)
+        ),
+    )
+    config = dataclasses.replace(CONFIG, decomposition_budget=4.0, vhacd_reserve=1.0)
+    model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
+    assert model.collision_method == "coacd" and model.collision_threshold == 0.05
+    assert model.collision_ladder.startswith("coacd kept (threshold 0.05, error ")
+    # it had parts, so it used the whole budget (not leaving V-HACD's reserve), and V-HACD never ran
+    assert "over budget: stopped at 4 CPU-s" in model.collision_ladder
+    assert ";" not in model.collision_ladder
+
+
+# ---------------------------------------------------------------------------------------------- the cache
+
+
+def _write_entries(path: str, tag: float, barrier, rounds: int) -> None:
+    arrays = {"vertices": np.full((5000, 3), tag), "faces": np.arange(15000).reshape(-1, 3)}
+    barrier.wait()
+    for _ in range(rounds):
+        cache.save_arrays(Path(path), arrays)
+
+
+def _read_entries(path: str, barrier, done, out) -> None:
+    """Read the entry until the writers are done, then once more; count what was seen."""
+    seen, corrupt, reads = set(), 0, 0
+    barrier.wait()
+    while True:
+        finished = done.is_set()
+        try:
+            seen.add(float(cache.load_arrays(Path(path))["vertices"][0, 0]))
+        except FileNotFoundError:
+            pass
+        except cache.CorruptEntry:
+            corrupt += 1
+        reads += 1
+        if finished:
+            break
+    out.put((sorted(seen), corrupt, reads))
+
+
+@pytest.mark.slow
+def test_two_processes_writing_the_same_entry_at_once_leave_a_valid_entry_and_readers_never_see_half(
+    tmp_path,
+):
+    """No lock at all (as on a shared filesystem without flock): two writers and a reader in
+    three processes, started together; every read is one writer's whole entry."""
+    ctx = multiprocessing.get_context("spawn")
+    path = str(tmp_path / "entry.npz")
+    barrier, done, out = ctx.Barrier(3), ctx.Event(), ctx.Queue()
+    writers = [ctx.Process(target=_write_entries, args=(path, tag, barrier, 40)) for tag in (1.0, 2.0)]
+    reader = ctx.Process(target=_read_entries, args=(path, barrier, done, out))
+    for p in [*writers, reader]:
+        p.start()
+    for p in writers:
+        p.join(timeout=300)
+        assert p.exitcode == 0
+    done.set()
+    seen, corrupt, reads = out.get(timeout=300)
+    reader.join(timeout=60)
+    assert reader.exitcode == 0
+    assert corrupt == 0, f"{corrupt} of {reads} reads saw a half-written entry"
+    assert seen and set(seen) <= {1.0, 2.0}
+    assert float(cache.load_arrays(Path(path))["vertices"][0, 0]) in (1.0, 2.0)
+    assert [p.name for p in tmp_path.iterdir()] == ["entry.npz"]  # no temporary file left
+
+
+def _load_unlocked(path: str, cache_dir: str, barrier) -> tuple[bool, list[bytes], str]:
+    """load_object in a process whose filesystem offers no lock (advisory_lock yields False)."""
+    import contextlib
+
+    @contextlib.contextmanager
+    def no_lock(_path):
+        yield False
+
+    cache.advisory_lock = no_lock
+    barrier.wait()
+    model = load_object(Path(path), ObjectConfig(), cache_dir=Path(cache_dir))
+    return model.from_cache, [p.vertices.tobytes() for p in model.parts], model.collision_file.read_text()
+
+
+@pytest.mark.slow
+def test_two_processes_decomposing_one_new_object_without_a_lock_both_end_with_the_same_valid_entry(
+    tmp_path,
+):
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = multiprocessing.get_context("spawn")
+    path = str(write_l(tmp_path / "corner.obj"))
+    manager = ctx.Manager()
+    barrier = manager.Barrier(2)
+    with ProcessPoolExecutor(2, mp_context=ctx) as pool:
+        futures = [pool.submit(_load_unlocked, path, str(tmp_path / "c"), barrier) for _ in range(2)]
+        results = [f.result(timeout=300) for f in futures]
+    manager.shutdown()
+    (_, parts_a, obj_a), (_, parts_b, obj_b) = results
+    assert parts_a == parts_b and obj_a == obj_b and len(parts_a) > 1
+    assert len(list((tmp_path / "c").glob("*.npz"))) == 1
+    assert not list((tmp_path / "c").glob("*.tmp"))
+    again = load_object(Path(path), CONFIG, cache_dir=tmp_path / "c")
+    assert again.from_cache and [p.vertices.tobytes() for p in again.parts] == parts_a
+
+
+def test_a_corrupt_entry_is_treated_as_missing_and_made_again(tmp_path):
+    path = write_two_boxes(tmp_path / "boxes.obj")
+    first = load_object(path, CONFIG, cache_dir=tmp_path / "c")
+    entry = next((tmp_path / "c").glob("*.npz"))
+    good = entry.read_bytes()
+    for damage in ("truncated", "flipped", "foreign"):
+        if damage == "truncated":
+            entry.write_bytes(good[: len(good) // 2])
+        elif damage == "flipped":  # a byte of the stored vertices: the zip is fine, the checksum is not
+            data = bytearray(good)
+            data[len(data) // 3] ^= 0x40
+            entry.write_bytes(bytes(data))
+        else:
+            np.savez(entry, vertices=np.zeros((3, 3)))
+        with pytest.raises(cache.CorruptEntry):
+            cache.load_arrays(entry)
+        again = load_object(path, CONFIG, cache_dir=tmp_path / "c")
+        assert not again.from_cache, damage
+        assert [p.vertices.tobytes() for p in again.parts] == [p.vertices.tobytes() for p in first.parts]
+        assert again.collision_error == first.collision_error
+        assert cache.load_arrays(entry)  # whole again
+
+
+def test_the_parts_obj_is_named_by_its_text_and_a_damaged_one_is_written_again(tmp_path):
+    path = write_two_boxes(tmp_path / "boxes.obj")
+    first = load_object(path, CONFIG, cache_dir=tmp_path / "c")
+    text = decomposition.obj_text(first.parts)
+    assert first.collision_file.read_text() == text
+    first.collision_file.write_text("o broken\n")
+    again = load_object(path, CONFIG, cache_dir=tmp_path / "c")
+    assert again.from_cache and again.collision_file == first.collision_file
+    assert again.collision_file.read_text() == text
+
+
+def test_the_key_holds_the_mesh_every_setting_that_shapes_it_and_the_library_versions(monkeypatch):
+    l_mesh = trimesh.load(write_l(Path(os.environ.get("TMPDIR", "/tmp")) / "rg2-key-l.obj"), force="mesh")
+    key = decomposition.geometry_key
+    base = key(l_mesh, "coacd", CONFIG)
+    assert key(l_mesh, "coacd", CONFIG) == base
+    assert key(l_mesh, "hull", CONFIG) != base
+    assert key(l_mesh, "coacd", dataclasses.replace(CONFIG, decomposition_budget=30.0)) != base
+    assert key(l_mesh, "hull", dataclasses.replace(CONFIG, decomposition_budget=30.0)) == key(
+        l_mesh, "hull", CONFIG
+    )  # a hull does not depend on the ladder's settings
+    moved = trimesh.Trimesh(l_mesh.vertices + 1e-12, l_mesh.faces, process=False)
+    assert key(moved, "coacd", CONFIG) != base
+    versions = cache.library_versions()
+    monkeypatch.setattr(cache, "library_versions", lambda: {**versions, "coacd": "99.0"})
+    assert key(l_mesh, "coacd", CONFIG) != base
+
+
+def test_no_lock_on_the_filesystem_is_not_an_error(tmp_path, monkeypatch):
+    import errno
+    import fcntl
+
+    def flock(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", flock)
+    model = load_object(write_two_boxes(tmp_path / "boxes.obj"), CONFIG, cache_dir=tmp_path / "c")
+    assert model.collision_method == "shells" and len(model.parts) == 2 and not model.from_cache
+
+
+def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sample_objects():
+    """The error shrinks about in proportion to CoACD's threshold: from 0.05 with 4.65 mm max (the
+    YCB power drill) 0.03 cannot reach 2 mm, so 0.02 is next; the sample objects measured at 0.05
+    (banana 0.345 / 3.116 mm, bowl 0.52 / 3.154, mug 0.343 / 2.691) go to 0.03, as they always did."""
+    from annotator.objects.fidelity import CollisionError
+
+    def after_005(mean_mm: float, max_mm: float) -> float:
+        todo = (0.03, 0.02)
+        error = CollisionError(mean_mm / 1e3, max_mm / 1e3, 0.0, 0.0, 0.0, 0.0)
+        return todo[decomposition.next_threshold(todo, 0.05, error, CONFIG)]
+
+    assert after_005(0.345, 3.116) == after_005(0.52, 3.154) == after_005(0.343, 2.691) == 0.03
+    assert after_005(0.477, 4.649) == 0.02
+    assert after_005(1.2, 1.0) == 0.02  # the mean decides when it is the worse one
+    assert after_005(0.3, 40.0) == 0.02  # nothing is enough: the finest
+
+
+def test_vhacd_gives_the_same_parts_every_time(tmp_path):
+    """The second rung must be as reproducible as the first: V-HACD's voxel decomposition twice on
+    the L-block, in this process, the same float64 parts."""
+    from annotator.objects import quiet_c_output
+
+    mesh = trimesh.load(write_l(tmp_path / "corner.obj"), force="mesh")
+    runs = []
+    for i in range(2):
+        job = tmp_path / f"job{i}"
+        job.mkdir()
+        with quiet_c_output("vhacd"):  # V-HACD prints its progress from C
+            parts = decomposition.run_vhacd(mesh.vertices, mesh.faces, CONFIG, job)
+        runs.append([(p.vertices.tobytes(), p.faces.tobytes()) for p in parts])
+    assert len(runs[0]) >= 2 and runs[0] == runs[1]

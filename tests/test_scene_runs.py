@@ -1,0 +1,214 @@
+"""``annotate --scenes``: scenes as units of work, bit for bit on any worker layout, resumed mid-scene.
+
+A pile of the concave sample objects (CoACD parts: the bowl has dozens), whose trials are the
+hardest to keep deterministic (Bullet's contact memory across restoreState, docs/decisions/0006).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from helpers import run_annotate
+from scene_helpers import CONCAVE, REPO
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import load_scenes, scene_labels
+from annotator.objects import discover_objects
+from annotator.scenes import records as scene_records
+from annotator.scenes import worker
+from annotator.scenes.labels import SCENE_LABEL_COLUMNS
+from annotator.scenes.run import SCENE_CHUNK_SIZE, plan_scene_spans
+from annotator.store import MANIFEST_NAME
+
+N = 2 * SCENE_CHUNK_SIZE  # two spans per scene
+QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"
+
+
+@pytest.fixture(scope="module")
+def concave(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("concave")
+    for name in CONCAVE:
+        shutil.copy(REPO / "objects" / name, folder)
+    return folder
+
+
+def _labels(out: Path) -> pd.DataFrame:
+    return pd.read_parquet(out).sort_values(["scene_id", "grasp_id"]).reset_index(drop=True)
+
+
+def _artifacts(out: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted((out / "_views").rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_spans_plan_each_scenes_first_span_ahead():
+    todo = [(0, frozenset()), (1, frozenset({(0, 40)})), (2, frozenset())]
+    spans = [(s.scene_id, s.start) for s in plan_scene_spans(todo, 120, 40, ahead=2)]
+    assert spans == [(0, 0), (1, 40), (0, 40), (0, 80), (2, 0), (1, 80), (2, 40), (2, 80)]
+    assert len(set(spans)) == len(spans)
+
+
+def test_bad_scene_options_are_one_line(concave, tmp_path):
+    for args, text in (
+        (["--per-scene", "0"], "--per-scene"),
+        (["--per-scene", "5-3"], "--per-scene"),
+        (["--per-scene", "x"], "--per-scene"),
+    ):
+        result = run_annotate("--objects", concave, "--scenes", 1, "--out", tmp_path / "o", *args, check=2)
+        assert text in result.output and "Traceback" not in result.output
+    result = run_annotate("--objects", concave, "--out", tmp_path / "o", check=2)
+    assert "--n" in result.output
+
+
+@pytest.mark.slow
+def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
+    """A scene's spans dealt in either order to a fresh worker, or with the scene's record given
+    (as the main process passes it once the first span is back), give the same rows and the same
+    scene file."""
+    pool = tuple(discover_objects(concave))
+    job = worker.SceneJob(pool, None, "pile", 4, 4, N, seed=0)
+    config = AnnotatorConfig()
+    spans = [worker.SceneSpan(1, a, a + SCENE_CHUNK_SIZE) for a in range(0, N, SCENE_CHUNK_SIZE)]
+
+    def run(order, record=None):
+        worker.scene_worker_state().close_scene()
+        worker._State.instance = None
+        frames, files = [], {}
+        for k in order:
+            result = worker.label_scene_span(worker.SceneTask(spans[k], job, config, record=record))
+            assert result.error is None, result.error
+            frames.append(result.rows)
+            files.update(result.artifacts or {})
+        rows = pd.concat(frames).sort_values("grasp_id").reset_index(drop=True)
+        return rows, files
+
+    forward, files = run([0, 1])
+    assert set(SCENE_LABEL_COLUMNS) <= set(forward.columns)
+    assert forward["grasp_id"].tolist() == list(range(N))
+    assert (forward["outcome"] != "collision").sum() >= 3  # physics ran, not only kinematic checks
+    backward, files_back = run([1, 0])
+    pd.testing.assert_frame_equal(backward, forward, check_exact=True)
+    assert files_back == files
+    record = worker.record_from_artifact(files[worker.SCENE_FILE])
+    given, _ = run([1, 0], record)
+    pd.testing.assert_frame_equal(given, forward, check_exact=True)
+    worker._State.instance = None
+
+
+@pytest.mark.slow
+def test_scene_labels_and_views_are_identical_on_any_worker_count(concave, tmp_path):
+    config = tmp_path / "views.toml"
+    config.write_text(QUICK_VIEWS)
+    runs = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        args = ["--scenes", 2, "--per-scene", "3-4", "--n", N, "--views", 1, "--config", config]
+        run_annotate("--objects", concave, "--out", out, "--workers", workers, "--quiet", *args)
+        runs[workers] = (_labels(out), _artifacts(out))
+    pd.testing.assert_frame_equal(runs[2][0], runs[1][0], check_exact=True)
+    assert runs[1][1] and runs[2][1] == runs[1][1]
+    labels = runs[1][0]
+    assert sorted(labels["scene_id"].unique()) == [0, 1]
+    assert labels.groupby("scene_id").size().tolist() == [N, N]
+
+    # the loaders: the scene table from the scenes' artifacts, a scene's labels
+    scenes = load_scenes(tmp_path / "w1")
+    assert list(scenes.columns) == list(scene_records.SCENE_COLUMNS)
+    assert sorted(scenes["scene_id"].unique()) == [0, 1]
+    for scene_id, rows in labels.groupby("scene_id"):
+        kept = scenes[(scenes.scene_id == scene_id) & (scenes.status == "kept")]
+        assert set(rows["instance_id"]) == set(kept["instance_id"])
+        one = scene_labels(tmp_path / "w1", int(scene_id))
+        pd.testing.assert_frame_equal(
+            one.reset_index(drop=True), rows.reset_index(drop=True), check_exact=True
+        )
+    manifest = json.loads((tmp_path / "w1" / MANIFEST_NAME).read_text())
+    assert "scenes" in manifest["run"]["config"] and manifest["run"]["inputs"]["scenes"]["per_scene"] == [
+        3,
+        4,
+    ]
+
+
+def _cli_subprocess(objs: Path, out: Path) -> subprocess.Popen:
+    cmd = [sys.executable, "-c", "from annotator.cli import annotate_main; annotate_main()"]
+    cmd += ["--objects", str(objs), "--scenes", "2", "--per-scene", "3", "--n", str(N)]
+    cmd += ["--workers", "1", "--out", str(out), "--quiet"]
+    return subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ),
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
+@pytest.mark.slow
+def test_a_run_interrupted_mid_scene_resumes_bit_for_bit(concave, tmp_path):
+    """Ctrl-C once the first span of the first scene is on disk; the same command labels only the
+    rest, the scene's later span from the record its first span left (no settling again), and the
+    labels equal an uninterrupted run's."""
+    out = tmp_path / "interrupted"
+    proc = _cli_subprocess(concave, out)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.glob("scene_*.parquet")):
+            assert proc.poll() is None, f"finished before the first file:\n{proc.communicate()}"
+            assert time.monotonic() < deadline, "no label file after 120 s"
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, (proc.returncode, stderr)
+    chunk = [p for p in out.glob("scene_000000-*.parquet") if ".000000-" in p.name]
+    assert chunk, sorted(p.name for p in out.iterdir())
+    partial = pd.read_parquet(chunk[0])
+    assert sorted(partial["grasp_id"]) == list(range(SCENE_CHUNK_SIZE))
+
+    proc = _cli_subprocess(concave, out)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert manifest["chunks_done"] == {} and len(manifest["objects_done"]) == 2
+    resumed = _labels(out)
+    fresh = tmp_path / "fresh"
+    args = ["--scenes", 2, "--per-scene", 3, "--n", N, "--workers", 1, "--quiet"]
+    run_annotate("--objects", concave, "--out", fresh, *args)
+    pd.testing.assert_frame_equal(resumed, _labels(fresh), check_exact=True)
+    assert _artifacts(out) == _artifacts(fresh)
+    assert np.isfinite(resumed["disturbance"]).all()
+
+
+@pytest.mark.slow
+@pytest.mark.cluster
+def test_scene_labels_on_a_dask_cluster_equal_local_ones(concave, tmp_path):
+    """The same scenes on a Dask cluster (workers with no status folder, the default cache) as
+    with one local worker, bit for bit."""
+    distributed = pytest.importorskip("dask.distributed")
+    args = ["--scenes", 1, "--per-scene", 3, "--n", N, "--quiet"]
+    run_annotate("--objects", concave, "--out", tmp_path / "local", "--workers", 1, *args)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as c:
+        run_annotate(
+            "--objects", concave, "--out", tmp_path / "dask", "--scheduler", c.scheduler_address, *args
+        )
+    pd.testing.assert_frame_equal(_labels(tmp_path / "dask"), _labels(tmp_path / "local"), check_exact=True)
+    assert _artifacts(tmp_path / "dask") == _artifacts(tmp_path / "local")

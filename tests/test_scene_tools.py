@@ -1,0 +1,218 @@
+"""The tools on a scene run: exports read back as VGN and Contact-GraspNet read them, the scene's
+picture, clutter removal on the UR3 with each policy."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from helpers import run_annotate
+from scene_helpers import REPO
+
+from annotator.cli import main
+from annotator.config import AnnotatorConfig
+from annotator.dataset import load_scenes
+from annotator.geometry import Transform
+from annotator.objects import discover_objects, load_object
+from annotator.scenes import SceneBuilder, SceneSpec, same_scene, scenes_from_table
+from annotator.scenes.clutter import ClutterJob, clutter_removal, read_predictions, wilson
+from annotator.tools import export_cgn, export_vgn
+from annotator.tools.export import TcpDepth
+from annotator.tools.scene_labels import open_scene_labels
+
+OBJECTS = ("box.obj", "can.stl")  # graspable from above wherever they land
+N = 40
+QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"
+
+
+def annotator(*args, check: int | None = 0):
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, result.output
+    return result
+
+
+@pytest.fixture(scope="module")
+def objects(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("objects")
+    for name in OBJECTS:
+        shutil.copy(REPO / "objects" / name, folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def scene_run(objects, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("scene_run") / "labels"
+    config = out.parent / "views.toml"
+    config.write_text(QUICK_VIEWS)
+    args = ["--scenes", 2, "--per-scene", 3, "--n", N, "--views", 1, "--config", config, "--workers", 1]
+    run_annotate("--objects", objects, "--out", out, "--quiet", *args)
+    return out
+
+
+def test_vgn_export_reads_back_as_vgn_reads_it(scene_run, tmp_path):
+    out = tmp_path / "vgn"
+    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    scenes = open_scene_labels(scene_run, "test")
+    setup = export_vgn.read_setup(out)
+    views = scenes.views(0)
+    assert setup["size"] == pytest.approx(0.3) and setup["finger_depth"] == pytest.approx(0.05)
+    assert setup["intrinsic"] == views[0].depth_K
+    assert setup["max_opening_width"] == pytest.approx(TcpDepth("rg2").max_width)
+    df = export_vgn.read_grasps(out)
+    assert list(df.columns) == list(export_vgn.RAW_COLUMNS) and len(df) == 2 * N
+    for scene_id in (0, 1):
+        record, rows = scenes.records[scene_id], scenes.rows(scene_id)
+        part = df[df["scene_id"] == export_vgn.scene_name(scene_id)].reset_index(drop=True)
+        assert part["label"].tolist() == rows["success"].astype(int).tolist()
+        np.testing.assert_array_equal(part["width"].to_numpy(), rows["width"].to_numpy())
+        for k in range(len(part)):
+            T_task_vgn, _, _ = export_vgn.grasp_in_task(part.loc[k])
+            T_table_tcp = export_vgn.tcp_in_table(T_task_vgn.as_matrix(), record)
+            want = rows.loc[k, [f"table_tcp_{c}" for c in "xyz"]].to_numpy(float)
+            np.testing.assert_allclose(T_table_tcp[:3, 3], want, atol=1e-12)
+        depth, extrinsics = export_vgn.read_sensor_data(out, export_vgn.scene_name(scene_id))
+        assert depth.shape == (1, 424, 512) and depth.dtype == np.float32 and extrinsics.shape == (1, 7)
+        grid = export_vgn.read_grid(out / "dataset", export_vgn.scene_name(scene_id))
+        assert grid.shape == (1, 40, 40, 40) and (grid != 0).any()
+    dataset = export_vgn.read_grasps(out / "dataset")
+    np.testing.assert_allclose(dataset["i"].to_numpy(), df["x"].to_numpy() / (0.3 / 40), rtol=1e-12)
+
+
+def test_contact_graspnet_export_reads_back(scene_run, tmp_path):
+    out = tmp_path / "cgn"
+    annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(scene_run, "test")
+    infos = export_cgn.load_scene_contacts(out)
+    assert len(infos) == 2
+    for scene_id, info in enumerate(infos):
+        record, rows = scenes.records[scene_id], scenes.rows(scene_id)
+        held = rows[rows["success"]]
+        assert len(info["grasp_transforms"]) == len(held) > 0
+        labels = export_cgn.contact_labels(info)
+        distance = np.sort(labels["finger_distance"][::2])
+        np.testing.assert_allclose(distance, np.sort(held["width"].to_numpy()), atol=1e-12)
+        # the meshes as Contact-GraspNet's renderer poses them are where the scene has them
+        meshes = export_cgn.scene_meshes(out, info)
+        T_cgn_table = export_cgn.T_cgn_table(record)
+        for mesh, inst in zip(meshes, record.kept, strict=True):
+            original = scenes_mesh(scenes, inst.object_id)
+            want = (T_cgn_table @ inst.T_table_obj.as_matrix())[:3, :3] @ original.vertices.T
+            want = want.T + (T_cgn_table @ inst.T_table_obj.as_matrix())[:3, 3]
+            np.testing.assert_allclose(mesh.vertices, want, atol=1e-8)
+    assert sorted(p.name for p in (out / "views").iterdir()) == ["000000_00.npz", "000001_00.npz"]
+
+
+def scenes_mesh(scenes, object_id):
+    from annotator.tools.common import object_mesh
+
+    return object_mesh(scenes.path, object_id)
+
+
+def test_exports_refuse_the_other_kind_of_labels(scene_run, tmp_path):
+    result = annotator("export", scene_run, "--format", "acronym", "--out", tmp_path / "a", check=2)
+    assert "holds scenes" in result.output and "Traceback" not in result.output
+    objects_run = tmp_path / "objects_run"
+    run_annotate(
+        "--objects", REPO / "objects" / "urdf", "--n", 10, "--out", objects_run, "--quiet", "--workers", 1
+    )
+    result = annotator("export", objects_run, "--format", "vgn", "--out", tmp_path / "v", check=2)
+    assert "holds no scenes" in result.output
+
+
+def test_show_scene_draws_the_scene_and_its_grasps(scene_run, tmp_path):
+    from annotator.tools.scene_labels import open_scene_labels
+    from annotator.tools.show_scene import choose_scene_grasps, render_scene
+
+    png = tmp_path / "scene.png"
+    result = annotator("show", scene_run, "--scene", 1, "--png", png)
+    assert png.stat().st_size > 10_000 and "scene 1" in result.output
+    scenes = open_scene_labels(scene_run, "test")
+    record, rows = scenes.records[1], scenes.rows(1)
+    chosen = choose_scene_grasps(rows, 40, 0, ("success",))
+    meshes = {oid: scenes_mesh(scenes, oid) for oid in {i.object_id for i in record.kept}}
+    picture = render_scene(record, meshes, chosen, {"success": len(chosen)}, "test")
+    top = picture.instance_masks[1]
+    assert set(top) == {i.instance_id for i in record.kept} and all(m.any() for m in top.values())
+    # every success's TCP is seen on (or beside) its object from above
+    order = {g: k for k, g in enumerate(picture.overview.grasp_ids)}
+    uv = picture.overview.tcp_pixels[1]
+    for row in chosen.itertuples():
+        u, v = np.round(uv[order[row.grasp_id]]).astype(int)
+        mask = top[row.instance_id]
+        window = mask[max(0, v - 12) : v + 13, max(0, u - 12) : u + 13]
+        assert window.any(), (row.grasp_id, u, v)
+    bad = annotator("show", scene_run, "--scene", 7, "--png", png, check=2)
+    assert "no scene 7" in bad.output
+    both = annotator("show", scene_run, "--scene", 1, "--object", "box", "--png", png, check=2)
+    assert "one of them" in both.output
+
+
+def test_wilson_interval():
+    lo, hi = wilson(9, 10)
+    assert lo == pytest.approx(0.596, abs=1e-3) and hi == pytest.approx(0.982, abs=1e-3)  # Wilson 1927
+    assert wilson(0, 0) != wilson(0, 0)  # nan: no trials, no interval
+
+
+@pytest.mark.slow
+def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(objects, scene_run, tmp_path):
+    """Round 0 is scene 0 of annotate --scenes (same seed and count); the labels policy clears
+    a pile of boxes and cans; a learner's file of the scene's successes is executed best first."""
+    config = AnnotatorConfig()
+    sources = tuple(discover_objects(objects))
+    models = {s.object_id: load_object(s, config.objects) for s in sources}
+    built = SceneBuilder(models).build(SceneSpec(0, 0, "pile", 3, 3))
+    recorded = {r.scene_id: r for r in scenes_from_table(load_scenes(scene_run))}[0]
+    assert same_scene(built, recorded)
+
+    summary = clutter_removal(ClutterJob(sources, 3, 0, "labels", config), 1)
+    (round_,) = summary.rounds
+    assert round_.object_count == len(built.kept) and summary.attempts >= 1
+    assert summary.successes >= round_.object_count - 1, [
+        (a.proposal.instance_id, a.success) for a in round_.attempts
+    ]
+    again = clutter_removal(ClutterJob(sources, 3, 0, "labels", config), 1)
+    pd.testing.assert_frame_equal(again.tables()[1], summary.tables()[1], check_exact=True)
+
+    scenes = open_scene_labels(scene_run, "test")
+    held = scenes.rows(0)
+    held = held[held["success"]]
+    cols = [f"table_tcp_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw")]
+    predictions = held[cols].set_axis(["x", "y", "z", "qx", "qy", "qz", "qw"], axis=1)
+    predictions.insert(0, "round", 0)
+    predictions["width"] = held["cmd_width"].to_numpy()
+    predictions["score"] = np.linspace(1.0, 0.5, len(held))
+    path = tmp_path / "predictions.csv"
+    predictions.to_csv(path, index=False)
+    result = annotator(
+        "clutter-removal",
+        "--objects",
+        objects,
+        "--rounds",
+        1,
+        "--per-scene",
+        3,
+        "--policy",
+        path,
+        "--workers",
+        1,
+        "--out",
+        tmp_path / "cr",
+    )
+    assert "grasp success rate" in result.output and "percent cleared" in result.output
+    grasps = pd.read_csv(tmp_path / "cr" / "grasps.csv")
+    assert len(grasps) >= 1 and grasps["label"].sum() >= 1
+    assert grasps["score"].iloc[0] == pytest.approx(1.0)  # the best first
+    first = Transform(grasps.loc[0, ["x", "y", "z"]].to_numpy(float), grasps.loc[0, ["qx", "qy", "qz", "qw"]])
+    np.testing.assert_allclose(
+        first.pos, predictions.loc[predictions.index[0], ["x", "y", "z"]].to_numpy(float), atol=1e-12
+    )
+    read_predictions(path)  # the file's contract
+    broken = tmp_path / "broken.csv"
+    predictions.drop(columns=["score"]).to_csv(broken, index=False)
+    result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", broken, check=2)
+    assert "score" in result.output and "Traceback" not in result.output
