@@ -172,7 +172,7 @@ def test_a_simulated_approach_pushes_what_a_kinematic_check_calls_a_collision(tm
     pose = _pose(FROM_TOP, 0.030)  # at its equator
     pose[1, 3] = 0.012  # along the closing axis (the TCP's x is the mesh's y)
 
-    def run(config):
+    def run(config, pose=pose):
         span = GivenSpan(
             "ball", ball, None, pose[None], np.array([0.080]), np.arange(1), None, np.array([UPRIGHT])
         )
@@ -186,6 +186,11 @@ def test_a_simulated_approach_pushes_what_a_kinematic_check_calls_a_collision(tm
     assert simulated["width"] == pytest.approx(0.060, abs=2e-3)
     # the label's pose is where the pads closed: on the ball's centre, not 12 mm off it
     assert abs(simulated["y"]) < 0.003
+    # 20 mm off, a finger lands on the ball's top and the hand stops above it: no grasp
+    landed = pose.copy()
+    landed[1, 3] = 0.020
+    on_top = run(SIMULATED, landed)
+    assert on_top["outcome"] != "success" and on_top["z"] > 0.045
 
 
 @pytest.mark.slow
