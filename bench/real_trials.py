@@ -63,6 +63,9 @@ from bench.harness import ROOT, Run
 DATA_NAME = "graspa_panda_calibration"
 # m: GRASPA's TCP on the Franka hand frame's z (the data's README; hsp-panda/panda_grasp_server
 # moves the panda_tcp link there), and our Panda model's TCP, the pad-centre midpoint (its FK).
+# The public sources disagree: GRASPA's Simox gripper model puts panda_tcp 90 mm from its root
+# (hsp-iit/GRASPA-test experiment_data/panda/panda_gripper/panda_gripper.xml); --tcp-depth
+# measures the figures at another depth.
 GRASPA_TCP_DEPTH = 0.105
 # The Franka hand frame's axes seen from our Panda base frame: x = -y, y = x (Rz(-90 deg)).
 R_HAND_BASE = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -139,8 +142,9 @@ class Prepared:
     real: Path
 
 
-def prepare(data: Path, work: Path) -> Prepared:
-    """Objects, grasp tables and real outcomes in ``work`` (see the module docstring)."""
+def prepare(data: Path, work: Path, tcp_depth: float = GRASPA_TCP_DEPTH) -> Prepared:
+    """Objects, grasp tables and real outcomes in ``work`` (see the module docstring); GRASPA's
+    TCP ``tcp_depth`` (m) along the Franka hand frame's z."""
     trials = pd.read_csv(data / "trials.csv")
     layouts = {
         k: read_layout(data / "layouts" / f"layout_{k}.xml") for k in sorted(trials["layout"].unique())
@@ -160,7 +164,7 @@ def prepare(data: Path, work: Path) -> Prepared:
     T = np.tile(np.eye(4), (len(trials), 1, 1))
     T[:, :3, :] = trials[POSE].to_numpy(dtype=np.float64).reshape(-1, 3, 4)
     rest = np.array([matrix_to_quat(layouts[r.layout][r.object][:3, :3]) for r in trials.itertuples()])
-    base = T @ _tz(-GRASPA_TCP_DEPTH) @ _rot(R_HAND_BASE)
+    base = T @ _tz(-tcp_depth) @ _rot(R_HAND_BASE)
     tcp = base @ _tz(_panda_tcp_depth())
     paths = {}
     for name, poses in (("grasps_base", base), ("grasps_tcp", tcp)):
@@ -300,12 +304,18 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     ap.add_argument("--force", default="25,70,140", help="grip forces of the grid, N")
     ap.add_argument("--severity", default="0,0.5,1", help="shake severities of the grid (0: lift only)")
     ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument(
+        "--tcp-depth",
+        type=float,
+        default=GRASPA_TCP_DEPTH,
+        help="GRASPA's TCP along the Franka hand frame's z, m [default: the data's 0.105]",
+    )
     args = ap.parse_args()
     data = args.data or default_data()
     if data is None or not (data / "trials.csv").is_file():
         sys.exit(f"bench.real_trials: no trials.csv in {data or 'the default places'}; pass --data FOLDER")
     args.work.mkdir(parents=True, exist_ok=True)
-    prepared = prepare(data, args.work)
+    prepared = prepare(data, args.work, args.tcp_depth)
     real = prepared.trials["grasped"].to_numpy(dtype=bool)
     print(
         f"{len(real)} real trials on {prepared.trials.object_id.nunique()} objects, {real.mean():.1%} grasped"
@@ -386,7 +396,7 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
     sim_rg2 = rg2["success"].to_numpy(dtype=bool)
 
     always = np.ones(len(real), dtype=bool)
-    T_tcp = prepared.T_obj_graspa @ _rot(R_HAND_BASE) @ _tz(_panda_tcp_depth() - GRASPA_TCP_DEPTH)
+    T_tcp = prepared.T_obj_graspa @ _rot(R_HAND_BASE) @ _tz(_panda_tcp_depth() - args.tcp_depth)
     cone = friction_cone_baseline(prepared, T_tcp, 0.080, CONE_FRICTION)
 
     # the grid, through the command (every simulated outcome written for the figures)
