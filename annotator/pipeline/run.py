@@ -413,28 +413,10 @@ def run(
     """
     options = _check_cache(options)
     if options.scenes:  # scenes are their own units of work (annotator.scenes.run)
-        if candidates is not None:
-            raise UsageError("--scenes labels sampled candidates only")
-        named = _loaded(options.gripper).name
-        if named != "rg2":
-            raise UsageError(f"--scenes simulates the RG2 only; --gripper {named} labels objects one by one")
-        from annotator.scenes.run import run_scenes
-
-        return run_scenes(options, config)
+        return _run_scenes(options, config, candidates)
     summary = Summary()
     candidates = candidates or SampledCandidates(options.n)
-    if not 1 <= options.n <= MAX_N:
-        raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
-    if options.views and not options.cell:
-        raise UsageError("--views renders the robot cell's Kinect: it needs --cell")
-    if options.views < 0:
-        raise UsageError(f"--views must be 0 or more, got {options.views}")
-    if options.cell and not isinstance(candidates, SampledCandidates):
-        raise UsageError("--cell labels sampled candidates only")
-    if options.resting and not isinstance(candidates, GivenCandidates):
-        raise UsageError("--resting simulates given grasps only (annotator evaluate)")
-    if options.resting and options.cell:
-        raise UsageError("--resting and --cell exclude each other")
+    _check_options(options, candidates)
     gripper = _loaded(options.gripper)
     _check_workers(options)
     try:
@@ -490,6 +472,34 @@ def run(
         summary.seconds = time.perf_counter() - summary.started
         _print_summary(summary)
     return summary
+
+
+def _run_scenes(options: RunOptions, config: AnnotatorConfig, candidates) -> Summary:
+    """``annotate --scenes``: sampled candidates with the RG2 (annotator.scenes.run)."""
+    if candidates is not None:
+        raise UsageError("--scenes labels sampled candidates only")
+    named = _loaded(options.gripper).name
+    if named != "rg2":
+        raise UsageError(f"--scenes simulates the RG2 only; --gripper {named} labels objects one by one")
+    from annotator.scenes.run import run_scenes
+
+    return run_scenes(options, config)
+
+
+def _check_options(options: RunOptions, candidates: SampledCandidates | GivenCandidates) -> None:
+    """The options that exclude each other or the candidates' source; UsageError (exit 2)."""
+    if not 1 <= options.n <= MAX_N:
+        raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
+    if options.views and not options.cell:
+        raise UsageError("--views renders the robot cell's Kinect: it needs --cell")
+    if options.views < 0:
+        raise UsageError(f"--views must be 0 or more, got {options.views}")
+    if options.cell and not isinstance(candidates, SampledCandidates):
+        raise UsageError("--cell labels sampled candidates only")
+    if options.resting and not isinstance(candidates, GivenCandidates):
+        raise UsageError("--resting simulates given grasps only (annotator evaluate)")
+    if options.resting and options.cell:
+        raise UsageError("--resting and --cell exclude each other")
 
 
 def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates) -> dict:
