@@ -94,6 +94,13 @@ POSE = [f"T_obj_tcp_{i}{j}" for i in range(3) for j in range(4)]
 # this width: the gripper approaches fully open and closes from there, whatever the chord.
 PANDA_STROKE = 0.080
 STATISTICS = ("accuracy", "balanced", "precision", "recall", "f1")
+# m: Bullet resists a contact's spin with (pad spinning x object lateral + object spinning x pad
+# lateral) friction times the normal force (btManifoldResult::calculateCombinedSpinningFriction).
+# A rubber pad of 17.5 x 18.5 mm (the Panda's, assets/grippers/panda/README.md) pressed flat with
+# uniform pressure resists with mu N times the mean distance of its area from its centre, 6.90 mm;
+# with mu 1 on both sides and the objects' 0.002 m, the pad's share is 6.90 - 2.0 = 4.9 mm. An
+# upper bound: a curved object touches a smaller patch.
+FLAT_PAD_SPINNING = 0.0049
 # The analytic baseline's Coulomb coefficient: the project's antipodal test (SamplerConfig).
 CONE_FRICTION = AnnotatorConfig().sampler.friction_coefficient
 
@@ -305,6 +312,13 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     ap.add_argument("--severity", default="0,0.5,1", help="shake severities of the grid (0: lift only)")
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument(
+        "--pad-spinning-friction",
+        type=float,
+        default=None,
+        help="[gripper] pad_spinning_friction for every simulation, m [default: the description's]; "
+        f"{FLAT_PAD_SPINNING:.4f}: the Panda's rubber pad pressed flat (FLAT_PAD_SPINNING)",
+    )
+    ap.add_argument(
         "--tcp-depth",
         type=float,
         default=GRASPA_TCP_DEPTH,
@@ -322,7 +336,7 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     )
     arguments = {k: (v if k not in ("data", "work") else None) for k, v in vars(args).items()}
     arguments["data"] = data.name
-    config = execution_config(args.work)
+    config = execution_config(args.work, args.pad_spinning_friction)
     annotator_config = AnnotatorConfig.from_toml(config)
     with Run(
         "real_trials", config=arguments, annotator=annotator_config, command="python -m bench.real_trials"
@@ -347,10 +361,11 @@ def chord_check(prepared: Prepared) -> dict[str, float]:
     return out
 
 
-def execution_config(work: Path) -> Path:
-    """The trial as GRASPA's robot executed it, written for ``--config`` (docs/real_trials.md)."""
+def execution_config(work: Path, pad_spinning_friction: float | None = None) -> Path:
+    """The trial as GRASPA's robot executed it, written for ``--config`` (docs/real_trials.md);
+    ``pad_spinning_friction`` (m) overrides the gripper description's when given."""
     path = work / "execution.toml"
-    path.write_text(
+    text = (
         "# GRASPA's execution (hsp-panda/panda_grasp_server@0b0d184): the arm moves to the grasp in a\n"
         "# straight line whatever it meets (the object is not in its planning scene), then lifts slowly\n"
         "[protocol]\n"
@@ -358,6 +373,9 @@ def execution_config(work: Path) -> Path:
         f"approach_speed = {EXECUTION['approach_speed']}\n"
         f"lift_duration = {EXECUTION['lift_duration']}\n"
     )
+    if pad_spinning_friction is not None:
+        text += f"[gripper]\npad_spinning_friction = {pad_spinning_friction!r}\n"
+    path.write_text(text)
     return path
 
 
