@@ -255,6 +255,13 @@ class ProtocolConfig(_Section):
     pregrasp_clearance: float = _field(0.01, ge=0.0)  # m per side: the gripper opens to width + 2 x this
     approach_distance: float = _field(0.10, ge=0.0)  # m, straight-line approach checked behind the grasp pose
     approach_step: float = _field(0.01, gt=0.0)  # m, < the 11.45 mm pad thickness so no thin wall is skipped
+    # "kinematic": a gripper meeting anything along the approach is a collision; "simulated": it moves
+    # there in physics, pushing what it meets (real trials); docs/decisions/0212-simulated-approach.md
+    approach: str = _field("kinematic", choices=("kinematic", "simulated"))
+    approach_speed: float = _field(0.05, gt=0.0)  # m/s of a simulated approach; 0212
+    approach_force: float = _field(
+        50.0, gt=0.0
+    )  # N the gripper's carrier pushes with on a simulated approach; 0212
     # m per side outside the expected chord where the close starts (free-space travel skipped).
     # see docs/decisions/0005-close-from-outside-the-chord.md
     preclose_gap: float = _field(0.003, ge=0.0)

@@ -33,6 +33,11 @@ from annotator.sim.world import World
 log = logging.getLogger(__name__)
 
 
+# s the carrier keeps pulling at the end of a simulated approach, so that an unhindered gripper
+# reaches the grasp pose (its lag behind the moving target closes) before it is held there.
+APPROACH_HOLD = 0.1
+
+
 @dataclass(frozen=True)
 class Perturbation:
     """Changes of one robust trial: TCP pose offset (in the TCP frame), friction and mass."""
@@ -64,7 +69,8 @@ class CollisionCheck:
     ``collided``: the open gripper along the approach, or the gripper closed on the expected
     chord with a link other than its pads, touches the object or an obstacle; ``open_width``: the
     opening the approach was checked at (m; the row's ``width`` for a collision); ``stage``:
-    ``"approach"`` or ``"closed"`` where it collided; ``hit``: the body touched (PyBullet id).
+    ``"approach"`` or ``"closed"`` where it collided (``"pregrasp"``: a simulated approach's start);
+    ``hit``: the body touched (PyBullet id).
     """
 
     collided: bool
@@ -181,6 +187,32 @@ class GraspTrial:
             return CollisionCheck(True, open_width, "closed", hit)
         return CollisionCheck(False, open_width)
 
+    def _approach(self, T_obj_tcp: Transform, width: float) -> CollisionCheck:
+        """The approach as a robot executes it (``ProtocolConfig.approach = "simulated"``): the
+        gripper, open to ``width + 2 x pregrasp_clearance``, starts ``approach_distance`` back along
+        the approach (a collision if it touches anything there) and its carrier moves it to the
+        grasp pose at ``approach_speed``, pushing with at most ``approach_force``, gravity on as
+        the object rests (off for a floating one): what it meets is pushed or stops it, as a real
+        arm stops against a board or nudges a misplaced object. The close then starts where the
+        gripper came to rest; the carrier holds it there."""
+        p = self.config.protocol
+        hand = self.hand
+        open_width = min(hand.gripper.max_width, width + 2 * p.pregrasp_clearance)
+        T_world_tcp = self._T_world_obj() * T_obj_tcp
+        T_world_base = hand.T_world_base_for_tcp(T_world_tcp, width)
+        start = Transform(
+            T_world_base.pos - T_world_tcp.rotation[:, 2] * p.approach_distance, T_world_base.quat
+        )
+        hand.teleport(start, open_width)
+        hit = self._what_is_hit(skip_pads=False)
+        if hit is not None:
+            return CollisionCheck(True, open_width, "pregrasp", hit)
+        self.world.set_gravity(self.resting)
+        steps = max(1, round(p.approach_distance / p.approach_speed / self.world.dt))
+        hold = round(APPROACH_HOLD / self.world.dt)
+        hand.approach(T_world_base, steps, p.approach_force, hand.gripper.table.angle_of(open_width), hold)
+        return CollisionCheck(False, open_width)
+
     def _what_is_hit(self, skip_pads: bool) -> int | None:
         """The body the gripper as posed touches: the object first, then any obstacle; None."""
         if self._intersects(skip_pads=skip_pads):
@@ -213,7 +245,10 @@ class GraspTrial:
         T_obj_tcp = T_obj_tcp * perturbation.T_tcp_tcp
         steps0 = self.world.steps
         cfg, force = self.config.protocol, self.hand.grip_force
-        check = self.collides(T_obj_tcp, width_expected)
+        if cfg.approach == "simulated":
+            check = self._approach(T_obj_tcp, width_expected)
+        else:
+            check = self.collides(T_obj_tcp, width_expected)
         open_width = check.open_width
         if check.collided:
             return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"), check)
@@ -221,13 +256,14 @@ class GraspTrial:
         # 2. close (gravity off on a free object, on for a resting one). The fingers' travel
         # through free space has no effect but time, so they start preclose_gap outside the
         # expected chord, unless the gripper intersects the object there (a feature inside the
-        # chord): then fully open.
-        T_world_tcp = self._T_world_obj() * T_obj_tcp
-        T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
-        start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
-        self.hand.teleport(T_world_base, start_width)
-        if start_width < open_width and self._intersects():
-            self.hand.teleport(T_world_base, open_width)
+        # chord): then fully open. After a simulated approach they close from where they are.
+        if cfg.approach != "simulated":
+            T_world_tcp = self._T_world_obj() * T_obj_tcp
+            T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
+            start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
+            self.hand.teleport(T_world_base, start_width)
+            if start_width < open_width and self._intersects():
+                self.hand.teleport(T_world_base, open_width)
         self.world.set_gravity(self.resting)
         self.hand.close(force, max_steps=round(cfg.close_timeout / self.world.dt))
         width = self.hand.gripper.measured_width()

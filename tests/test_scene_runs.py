@@ -72,6 +72,11 @@ def test_bad_scene_options_are_one_line(concave, tmp_path):
         assert text in result.output and "Traceback" not in result.output
     result = run_annotate("--objects", concave, "--out", tmp_path / "o", check=2)
     assert "--n" in result.output
+    result = run_annotate(
+        "--objects", concave, "--scenes", 1, "--gripper", "panda", "--out", tmp_path / "p", check=2
+    )
+    assert "--scenes simulates the RG2 only; --gripper panda" in result.output
+    assert not (tmp_path / "p").exists()
 
 
 @pytest.mark.slow

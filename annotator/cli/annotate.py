@@ -11,6 +11,7 @@ from annotator.cli.common import (
     CACHE_OPTION,
     CONFIG_OPTION,
     CONTEXT,
+    GRIPPER_OPTION,
     SEED,
     VERBOSE_OPTION,
     load_config,
@@ -128,6 +129,7 @@ SCENE_GRASPS = 120
     show_default=True,
     help="With --scenes: dropped in a pile, packed upright (VGN), or spread on the table (ACRONYM).",
 )
+@GRIPPER_OPTION
 @CONFIG_OPTION
 @CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
@@ -149,19 +151,22 @@ def annotate_command(
     scenes: int | None,
     per_scene: tuple[int, int],
     arrangement: str,
+    gripper: str | None,
     config_file: Path | None,
     cache_dir: Path | None,
     quiet: bool,
     verbose: bool,
 ) -> None:
-    """Sample N gripper poses around every object, simulate the RG2 grasping each one
-    (close, lift, shake) and write one label row per candidate to Parquet.
+    """Sample N gripper poses around every object, simulate the gripper (the RG2 unless
+    --gripper) grasping each one (close, lift, shake) and write one label row per candidate to
+    Parquet.
 
     \b
     Example:
       annotate --objects objects/ --n 500
       python -c "import pandas; print(pandas.read_parquet('labels/').head())"
       annotate --objects objects/ --n 500 --cell --views 3 --out cell_labels/
+      annotate --objects objects/ --n 500 --gripper panda --out panda_labels/
       annotate --objects objects/ --scenes 100 --per-scene 3-8 --views 2 --out scene_labels/
 
     \b
@@ -171,9 +176,9 @@ def annotate_command(
     \b
     Labels are written every 10 candidates; re-running the same command resumes (finished
     objects and chunks are skipped, every file is checked against its checksum first), so
-    Ctrl-C loses almost nothing. One run per --out at a time. A changed seed, N, trials, scale,
-    configuration or version is refused (use --overwrite or another --out); an object whose
-    file changed is redone alone.
+    Ctrl-C loses almost nothing. One run per --out at a time. A changed gripper, seed, N,
+    trials, scale, configuration or version is refused (use --overwrite or another --out); an
+    object whose file changed is redone alone.
 
     \b
     Exit codes:
@@ -210,6 +215,7 @@ def annotate_command(
         quiet=quiet,
         cell=cell,
         views=views,
+        gripper=gripper,
         cache_dir=cache_dir,
         config=config,
         **scene_options,

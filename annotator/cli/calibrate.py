@@ -8,17 +8,28 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CONTEXT, LABELS, SEED, VERBOSE_OPTION, setup_logging
+from annotator.cli.common import (
+    CONTEXT,
+    LABELS,
+    LABELS_GRIPPER_OPTION,
+    SEED,
+    VERBOSE_OPTION,
+    positive_finite,
+    setup_logging,
+)
+from annotator.cli.evaluate import FRAME_OPTION, RESTING_GRASPS_OPTION
 from annotator.tools import calibrate as cal
 
 
-def _floats(text: str) -> tuple[float, ...]:
+def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     try:
         values = tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
         raise click.BadParameter(f"{text!r}: comma-separated numbers, e.g. 0.3,0.45,0.6") from None
-    if not values or any(not np.isfinite(v) or v <= 0 for v in values):
-        raise click.BadParameter(f"{text!r}: positive numbers, e.g. 0.3,0.45,0.6")
+    low_ok = (lambda v: v >= 0) if allow_zero else (lambda v: v > 0)
+    if not values or any(not np.isfinite(v) or not low_ok(v) for v in values):
+        what = "numbers >= 0" if allow_zero else "positive numbers"
+        raise click.BadParameter(f"{text!r}: {what}, e.g. 0.3,0.45,0.6")
     return values
 
 
@@ -40,15 +51,31 @@ def _floats(text: str) -> tuple[float, ...]:
 )
 @click.option(
     "--force",
-    default=",".join(f"{f:g}" for f in cal.DEFAULT_FORCES),
-    show_default=True,
-    help="Grip forces (N) to try; ignored when REAL.csv has a grip_force column.",
+    default=None,
+    help="Grip forces (N) to try; ignored when REAL.csv has a grip_force column [default: 50, 75 and "
+    "100 % of the gripper's default squeeze, the RG2's 20,30,40].",
 )
 @click.option(
     "--severity",
     default=",".join(map(str, cal.DEFAULT_SEVERITIES)),
     show_default=True,
-    help="Shake severities to try: factors on the shake's amplitude and angle.",
+    help="Shake severities to try: factors on the shake's amplitude and angle (0: lift only).",
+)
+@click.option(
+    "--objective",
+    type=click.Choice(cal.OBJECTIVES),
+    default="balanced",
+    show_default=True,
+    help="What the best setting maximises: balanced accuracy (the mean of the success and failure "
+    "rates recovered; not fooled by a majority class) or accuracy.",
+)
+@click.option(
+    "--folds",
+    type=click.IntRange(min=0),
+    default=cal.DEFAULT_FOLDS,
+    show_default=True,
+    help="Cross-validate the choice by object in this many folds (at most one per object; 0 or 1: no "
+    "cross-validation): the setting is chosen on the other objects' trials and scored on the fold's.",
 )
 @click.option(
     "--write-config",
@@ -59,57 +86,135 @@ def _floats(text: str) -> tuple[float, ...]:
     help="Where to write the best setting as a TOML file for annotate --config.",
 )
 @click.option(
+    "--outcomes",
+    "outcomes_out",
+    default=None,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Also write every simulated outcome of the grid here (Parquet: object_id, grasp_id, "
+    "real_success, friction, force, severity, sim_success), for analyses of your own.",
+)
+@LABELS_GRIPPER_OPTION
+@FRAME_OPTION
+@click.option(
+    "--resting",
+    is_flag=True,
+    help="Simulate each grasp on its object resting on the table, as evaluate --resting [default: as "
+    "the labels were simulated; a grasp table: floating].",
+)
+@RESTING_GRASPS_OPTION
+@click.option(
+    "--scale",
+    type=float,
+    default=None,
+    callback=positive_finite,
+    help="A grasp table's objects: scale every mesh by this factor (labels: their own object_scale).",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path, dir_okay=False, exists=True),
+    default=None,
+    help="The configuration the grid varies [default: the one recorded beside the labels, else the "
+    "defaults].",
+)
+@click.option(
     "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
 )
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the bootstrap resampling.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the bootstrap and the folds.")
 @VERBOSE_OPTION
 def calibrate_command(
-    labels, real_csv, objects_dir, friction, force, severity, config_out, workers, seed, verbose
+    labels,
+    real_csv,
+    objects_dir,
+    friction,
+    force,
+    severity,
+    objective,
+    folds,
+    config_out,
+    outcomes_out,
+    gripper,
+    frame,
+    resting,
+    resting_grasps,
+    scale,
+    config_file,
+    workers,
+    seed,
+    verbose,
 ):
-    """Fit pad friction, grip force and shake severity to real trials of labelled grasps.
+    """Fit pad friction, grip force and shake severity to real trials of grasps.
 
-    REAL.csv has one row per grasp executed on the real UR3 + RG2: object_id, grasp_id (of the
-    labels), real_success (1/0), and optionally grip_force (N, the force used). Every trial is
-    re-simulated under every setting of the grid; the agreement with the real outcomes
-    (accuracy, precision and recall of success, with 95 % bootstrap intervals) is printed per
-    setting, and the best setting is written as a TOML file for annotate --config.
+    LABELS is a labels folder or file of this tool (its commanded grasps are replayed with the
+    gripper, configuration and resting mode recorded with them) or a grasp table as evaluate reads
+    it (object_id, grasp_id, pose, optional width; --frame base for base-link poses). REAL.csv has
+    one row per grasp executed on the real robot: object_id, grasp_id, real_success (1/0), and
+    optionally grip_force (N, the force used). Every trial is re-simulated under every setting of
+    the grid; the agreement with the real outcomes (accuracy, balanced accuracy, precision and
+    recall of success, with 95 % bootstrap intervals) is printed per setting, the choice is
+    cross-validated by object (--folds), and the best setting is written as a TOML file for
+    annotate --config.
 
     \b
     Example:
       annotator calibrate labels/ real_trials.csv --objects objects/
+      annotator calibrate evaluated/ real.csv --objects ycb/ --severity 0,0.5,1 --folds 5
       annotate --objects objects/ --n 500 --config calibrated.toml --out labels_calibrated/
     """
     setup_logging(False, verbose, default=logging.WARNING)
     import os
 
-    from annotator.tools.common import check_output_file, labelling_config, read_labels
+    from annotator.tools.common import check_output_file
 
-    frictions, forces, severities = _floats(friction), _floats(force), _floats(severity)
+    frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
     check_output_file(config_out, "--write-config")  # before the simulation, not after it
-    labels_df = read_labels(labels)
-    trials = cal.read_real_trials(real_csv, labels_df)
-    chosen = labelling_config(labels)
-    click.echo(chosen.line())
-    base = chosen.config
+    if outcomes_out is not None:
+        check_output_file(outcomes_out, "--outcomes")
+    resting = resting_grasps or ("object" if resting else None)
+    source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file)
+    trials = cal.read_real_trials(real_csv, source.grasps)  # a bad file is one line, before anything else
+    click.echo(source.config_line)
+    click.echo(source.gripper_line)
+    if source.resting:
+        click.echo(f"resting: each object on the table as given, grasps in the {source.resting}'s frame")
+    base = source.config
+    forces = _floats(force) if force is not None else cal.default_forces(source.gripper)
     settings = cal.grid(frictions, forces, severities, real_force="grip_force" in trials.columns)
     click.echo(
         f"{len(trials)} real trials ({int(trials.real_success.sum())} held) on {trials.object_id.nunique()} "
         f"objects; {len(settings)} settings, {len(settings) * len(trials)} simulated grasps"
     )
-    result = cal.calibrate(trials, base, objects_dir, settings, workers or os.cpu_count() or 1, seed)
+    result = cal.calibrate(
+        trials,
+        base,
+        objects_dir,
+        settings,
+        workers or os.cpu_count() or 1,
+        seed,
+        objective=objective,
+        gripper=source.gripper,
+        resting=source.resting,
+    )
     click.echo(cal.format_table(result))
+    if folds >= 2 and trials.object_id.nunique() >= 2:
+        labelled = cal._gripper_settings(base, source.gripper)
+        cv = cal.cross_validate(trials, result.simulated, settings, labelled, folds, seed, objective)
+        click.echo(cal.format_folds(cv))
     b, a = result.best, result.best_agreement
-    force_text = "each trial's own force" if b.force is None else f"{b.force:g} N"
     click.echo(
-        f"best: pad friction {b.friction:g}, {force_text}, shake x{b.severity:g}: accuracy "
-        f"{100 * a.accuracy:.1f} % [{100 * a.accuracy_ci[0]:.0f}, {100 * a.accuracy_ci[1]:.0f}] "
-        f"over {a.n} trials"
+        f"best: {cal.setting_text(b)}: accuracy {100 * a.accuracy:.1f} % [{100 * a.accuracy_ci[0]:.0f}, "
+        f"{100 * a.accuracy_ci[1]:.0f}] over {a.n} trials; "
+        f"{cal.agreement_text(a, ('balanced', 'precision', 'recall', 'f1'))}"
     )
     header = (
-        f"annotator calibrate {labels} {real_csv}: best of {len(settings)} settings over {a.n} real trials\n"
+        f"annotator calibrate {labels} {real_csv}: best of {len(settings)} settings over {a.n} real trials "
+        f"({source.gripper.name}, {objective})\n"
         f"accuracy {a.accuracy:.3f} (95 % CI {a.accuracy_ci[0]:.3f}..{a.accuracy_ci[1]:.3f}), "
-        f"precision {a.precision:.3f}, recall {a.recall:.3f}\n"
-        "use: annotate --objects DIR --n N --config THIS_FILE"
+        f"balanced {a.balanced:.3f}, precision {a.precision:.3f}, recall {a.recall:.3f}\n"
+        f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --config THIS_FILE"
     )
     config_out.write_text(cal.config_toml(result.config, header), encoding="utf-8")
     click.echo(f"wrote {config_out}")
+    if outcomes_out is not None:
+        cal.outcomes_table(trials, result.simulated).to_parquet(outcomes_out, index=False)
+        click.echo(f"wrote {outcomes_out}")

@@ -56,6 +56,32 @@ CACHE_OPTION = click.option(
 )
 
 
+def _shipped() -> str:
+    from annotator.grippers import shipped_grippers
+
+    return ", ".join(shipped_grippers())
+
+
+# The gripper simulated by a run: a shipped description's name or a folder with gripper.toml.
+GRIPPER_OPTION = click.option(
+    "--gripper",
+    "gripper",
+    default=None,
+    metavar="NAME|DIR",
+    help=f"The gripper: a shipped one ({_shipped()}) or a folder with its gripper.toml and URDF "
+    "(docs/grippers.md) [default: rg2].",
+)
+# The gripper of a tool reading labels: the one recorded with them unless this is given.
+LABELS_GRIPPER_OPTION = click.option(
+    "--gripper",
+    "gripper",
+    default=None,
+    metavar="NAME|DIR",
+    help=f"The gripper: a shipped one ({_shipped()}) or a folder with its gripper.toml [default: "
+    "the gripper recorded with the labels, else rg2].",
+)
+
+
 def positive_finite(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
     """Reject 0, negative, inf and nan at the command line (exit 2), not per object later."""
     if value is not None and not (math.isfinite(value) and value > 0):

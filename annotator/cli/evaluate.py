@@ -10,11 +10,30 @@ import click
 from annotator.cli.common import (
     CACHE_OPTION,
     CONTEXT,
+    LABELS_GRIPPER_OPTION,
     SEED,
     VERBOSE_OPTION,
     positive_finite,
     run_pipeline,
     setup_logging,
+)
+
+RESTING_GRASPS_OPTION = click.option(
+    "--resting-grasps",
+    "resting_grasps",
+    type=click.Choice(["object", "table"]),
+    default=None,
+    help="With --resting (implied): whether the grasps move with the object as it settles "
+    "(object, the default) or stay where they were given in the table frame (table: as a robot "
+    "executes them in its own frame when the object came to rest elsewhere than it was believed).",
+)
+FRAME_OPTION = click.option(
+    "--frame",
+    type=click.Choice(["tcp", "base"]),
+    default="tcp",
+    show_default=True,
+    help="What the pose columns are: the TCP's pose (the labels' convention) or the gripper's base "
+    "link's (ACRONYM's and GraspGen's: T_obj_tcp = T_obj_base * T_base_tcp(width), the model's FK).",
 )
 
 
@@ -58,6 +77,16 @@ from annotator.cli.common import (
     help="TOML file overriding constants, as for annotate [default: the configuration recorded "
     "beside GRASPS when it is a labels folder or file of this tool, else the defaults].",
 )
+@LABELS_GRIPPER_OPTION
+@FRAME_OPTION
+@click.option(
+    "--resting",
+    is_flag=True,
+    help="Each object rests on the table (the cell's) under its lowest point in the orientation "
+    "of its mesh frame (z up), or the one GRASPS gives (rest_qx rest_qy rest_qz rest_qw), settles, and "
+    "the grasps move with it; the gripper closes with gravity on [default: floating, gravity off].",
+)
+@RESTING_GRASPS_OPTION
 @CACHE_OPTION
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
 @VERBOSE_OPTION
@@ -72,6 +101,10 @@ def evaluate_command(
     scale,
     overwrite,
     config_file,
+    gripper,
+    frame,
+    resting,
+    resting_grasps,
     cache_dir,
     quiet,
     verbose,
@@ -80,13 +113,16 @@ def evaluate_command(
 
     GRASPS is a Parquet or CSV file (or a labels folder) with object_id, the TCP pose as the
     labels give it (x y z, qx qy qz qw in the object's mesh frame, metres, xyzw) and optionally
-    width (m, the opening at the grasp; measured on the mesh when missing) and grasp_id. The
-    output is what annotate writes (same columns, resume, determinism, workers); grasps keep their
+    width (m, the opening at the grasp; measured on the mesh when missing) and grasp_id. With
+    --frame base the pose is the gripper's base link's (ACRONYM's and GraspGen's convention).
+    The output is what annotate writes (same columns, resume, determinism, workers; with
+    --resting also rest_q*, the settled object pose obj_x .. obj_qw and settle_drift); grasps keep their
     grasp_id when those are 0..k-1 per object, else they are numbered in the order of the file.
 
     \b
     Example:
       annotator evaluate predictions.parquet --objects objects/ --out evaluated/
+      annotator evaluate acronym_grasps.csv --frame base --gripper panda --objects objects/ --out ev/
       python -c "import pandas; print(pandas.read_parquet('evaluated/').outcome.value_counts())"
 
     Exit codes as annotate's: 0 all objects done, 1 some failed, 2 usage error, 3 output
@@ -94,16 +130,28 @@ def evaluate_command(
     """
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.pipeline.worker import max_width
-    from annotator.tools.common import labelling_config
+    from annotator.tools.common import labelling_config, labelling_gripper, labels_resting
     from annotator.tools.evaluate import given_candidates, read_grasps
 
-    grasps = read_grasps(grasps_file)
+    grasps = read_grasps(grasps_file, frame)
     chosen = labelling_config(grasps_file, config_file)
     config = chosen.config
     click.echo(chosen.line(), err=True)
+    hand = labelling_gripper(grasps_file, gripper)
+    click.echo(hand.line(), err=True)
+    resting = resting_grasps or ("object" if resting else None)
+    recorded = labels_resting(grasps_file)
+    if resting is None and recorded is not None:
+        resting = recorded
+        click.echo(
+            f"resting: on the table, grasps in the {recorded}'s frame, as the labels were simulated", err=True
+        )
     if not Path(objects_dir).is_dir():
         raise click.UsageError(f"objects folder not found: {objects_dir}")
-    candidates, renumbered = given_candidates(grasps, objects_dir, config, scale, max_width(config))
+    stroke = max_width(config, hand.description)
+    candidates, renumbered = given_candidates(
+        grasps, objects_dir, config, scale, stroke, gripper=hand.description, frame=frame, resting=resting
+    )
     if renumbered:
         click.echo(f"grasp ids of {len(renumbered)} object(s) renumbered 0..k-1 in file order", err=True)
     run_pipeline(
@@ -119,6 +167,8 @@ def evaluate_command(
         overwrite=overwrite,
         repair=False,
         quiet=quiet,
+        gripper=hand.description,
+        resting=resting,
         cache_dir=cache_dir,
         config=config,
         candidates=candidates,

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import click
 
-from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION, setup_logging
+from annotator.cli.common import (
+    CONTEXT,
+    LABELS,
+    LABELS_GRIPPER_OPTION,
+    OBJECTS_OPTION,
+    VERBOSE_OPTION,
+    setup_logging,
+)
 
 
 @click.command("export", context_settings=CONTEXT)
@@ -30,13 +37,16 @@ from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION
     help="Replace an earlier export in --out (only the files it wrote are removed).",
 )
 @click.option("--partial", is_flag=True, help="Export the labels of a run that has not finished.")
+@LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
-def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, partial, verbose):
+def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, partial, gripper, verbose):
     """The labels in the formats existing grasp learners read, with each object's mesh.
 
-    Both formats store the pose of the RG2's base frame (rg2_base_link: on the tool flange,
-    +z approach, +x closing), not our TCP: T_obj_base = T_obj_tcp * T_base_tcp(width)^-1, with
-    the width of each grasp stored beside it (docs/tools.md, "Export").
+    Both formats store the pose of the gripper's base frame (the RG2's rg2_base_link: on the
+    tool flange, +z approach, +x closing; each gripper's [base] link), not our TCP:
+    T_obj_base = T_obj_tcp * T_base_tcp(width)^-1, with the width of each grasp stored beside it,
+    and the gripper's type (docs/tools.md, "Export"). The gripper is the one recorded with the
+    labels unless --gripper.
 
     \b
     Example:
@@ -55,10 +65,20 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
         result = export_scenes(labels, fmt, out_dir, objects_dir, overwrite=overwrite, partial=partial)
         click.echo(f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) to {out_dir}")
         return
+    from annotator.tools.common import labelling_gripper
     from annotator.tools.export import export
 
+    hand = labelling_gripper(labels, gripper)
+    click.echo(hand.line(), err=True)
     result = export(
-        labels, fmt, out_dir, objects_dir, tuple(object_ids), overwrite=overwrite, partial=partial
+        labels,
+        fmt,
+        out_dir,
+        objects_dir,
+        tuple(object_ids),
+        hand.description,
+        overwrite=overwrite,
+        partial=partial,
     )
     click.echo(
         f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) and their meshes to {out_dir}"

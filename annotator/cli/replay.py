@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CACHE_OPTION, CONTEXT
+from annotator.cli.common import CACHE_OPTION, CONTEXT, LABELS_GRIPPER_OPTION
 
 
 def _fmt_q(q: np.ndarray) -> str:
@@ -45,6 +45,7 @@ def _fmt_q(q: np.ndarray) -> str:
     type=click.Path(path_type=Path, dir_okay=False, exists=True),
     help="Simulate with this TOML file [default: the configuration recorded beside the labels].",
 )
+@LABELS_GRIPPER_OPTION
 @CACHE_OPTION
 def replay_command(
     labels: Path,
@@ -56,9 +57,11 @@ def replay_command(
     hold: float | None,
     size: tuple[int, int],
     config_file: Path | None,
+    gripper: str | None,
     cache_dir: Path | None,
 ) -> None:
-    """Execute one label with the UR3 + RG2 in the seed's cell (table, Kinect) and say what happened.
+    """Execute one label with the UR3 and the labels' gripper in the seed's cell (table, Kinect)
+    and say what happened.
 
     \b
     The object rests on the table: at the label's own placement (labels of `annotate --cell`), or,
@@ -77,7 +80,7 @@ def replay_command(
     from annotator.objects import ObjectDiscoveryError, ObjectError, create_body, discover_objects
     from annotator.pipeline.prepare import load_prepared
     from annotator.render import write_gif
-    from annotator.tools.common import check_output_file, labelling_config, read_labels
+    from annotator.tools.common import check_output_file, labelling_config, labelling_gripper, read_labels
     from annotator.tools.replay import (
         default_camera,
         frames_every,
@@ -91,11 +94,14 @@ def replay_command(
         check_output_file(gif_path, "--gif")
     chosen = labelling_config(labels, config_file)
     config = chosen.config
+    table = read_labels(labels)
     try:
-        row = label_row(read_labels(labels), object_id, grasp_id)
+        row = label_row(table, object_id, grasp_id)
     except KeyError as exc:
         raise click.UsageError(f"{labels}: {exc.args[0] if exc.args else exc}") from exc
+    hand = labelling_gripper(labels, gripper, table)
     click.echo(chosen.line())
+    click.echo(hand.line())
     try:
         sources = {s.object_id: s for s in discover_objects(objects_dir)}
     except ObjectDiscoveryError as exc:
@@ -115,7 +121,13 @@ def replay_command(
     width_mm = float(row["width"]) * 1000
     click.echo(f"label: {object_id} #{grasp_id}: {row['outcome']}, width {width_mm:.1f} mm")
     with replay_world(model, config, gui=gui) as world:  # a light object at its finer time step
-        cell = build_cell(world, config.cell, gripper=config.gripper, kinect_config=config.kinect)
+        cell = build_cell(
+            world,
+            config.cell,
+            gripper=config.gripper,
+            kinect_config=config.kinect,
+            description=hand.description,
+        )
         obj = create_body(world.client, model)
         plan = plan_replay(cell, model, obj, row, config)
         click.echo(plan.note)

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import click
 
-from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION, setup_logging
+from annotator.cli.common import (
+    CONTEXT,
+    LABELS,
+    LABELS_GRIPPER_OPTION,
+    OBJECTS_OPTION,
+    VERBOSE_OPTION,
+    setup_logging,
+)
 
 
 @click.command("report", context_settings=CONTEXT)
@@ -28,8 +35,9 @@ from annotator.cli.common import CONTEXT, LABELS, OBJECTS_OPTION, VERBOSE_OPTION
     type=click.IntRange(min=0),
     help="Objects shown with pictures (those with the most successes); 0 for none.",
 )
+@LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
-def report_command(labels, html_path, objects_dir, picture_objects, verbose):
+def report_command(labels, html_path, objects_dir, picture_objects, gripper, verbose):
     """A dataset at a glance: one self-contained HTML file (pictures embedded, no network).
 
     The run's configuration and versions (from _manifest.json), objects that failed and why,
@@ -44,7 +52,7 @@ def report_command(labels, html_path, objects_dir, picture_objects, verbose):
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.tools.report import report
 
-    result = report(labels, html_path, objects_dir, picture_objects)
+    result = report(labels, html_path, objects_dir, picture_objects, gripper=gripper)
     counts = f"{result.n_objects} objects, {result.n_grasps} grasps, {result.pictures} pictures"
     click.echo(f"wrote {result.path}: {counts}")
     if result.run_state != "finished":

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CONTEXT
+from annotator.cli.common import CONTEXT, GRIPPER_OPTION
 
 
 @click.command("scene", context_settings=CONTEXT)
@@ -77,6 +77,7 @@ from annotator.cli.common import CONTEXT
     help="GUI: Enter captures the current grasp on the object, runs the label protocol on it and "
     "appends the row here.",
 )
+@GRIPPER_OPTION
 def scene_command(
     headless: bool,
     gif_path: Path | None,
@@ -92,8 +93,10 @@ def scene_command(
     demo: bool,
     object_path: Path | None,
     capture_out: Path,
+    gripper: str | None,
 ) -> None:
-    """The seed scene: UR3 + RG2 at the origin, table, cube and a Kinect looking down at the table.
+    """The seed scene: UR3 + RG2 (or --gripper) at the origin, table, cube and a Kinect looking
+    down at the table.
 
     \b
     GUI (default): sliders for the six arm joints (+-pi, starting at 0, -pi/2, 0, 0, pi/2, 0) and
@@ -125,6 +128,7 @@ def scene_command(
     """
     from annotator.cell.kinect import write_depth_png
     from annotator.config import AnnotatorConfig
+    from annotator.grippers import DescriptionError, load_gripper
     from annotator.objects import ObjectError
     from annotator.render import write_gif, write_png
     from annotator.scene.capture import Capturer, load_capture_object
@@ -132,7 +136,11 @@ def scene_command(
     from annotator.scene.gui import run_gui
     from annotator.scene.model import SceneConfig, build_scene, open_world
 
-    config = SceneConfig()
+    try:
+        description = load_gripper(gripper)
+    except DescriptionError as exc:
+        raise click.UsageError(f"--gripper: {exc}") from exc
+    config = SceneConfig(description=description)
     labels_config = AnnotatorConfig()
     try:
         obj = load_capture_object(object_path, labels_config, config.cube_urdf)
@@ -142,7 +150,7 @@ def scene_command(
     if not headless:
         if gif_path or png_path or kinect_path or kinect_depth_path:
             raise click.UsageError("--gif, --png, --kinect-png and --kinect-depth need --headless")
-        capturer = Capturer(obj, labels_config, capture_out)
+        capturer = Capturer(obj, labels_config, capture_out, description)
         try:
             run_gui(config, seconds, screenshot_path, screenshot_at, demo, capturer, scene_obj)
         finally:
@@ -153,7 +161,13 @@ def scene_command(
     with open_world(config, gui=False) as world:
         scene = build_scene(world, config, scene_obj)
         camera = scene.seed_camera(*size, fov=fov) if (gif_path or png_path) else None
-        script = demo_script(scene)
+        try:
+            script = demo_script(scene)
+        except ValueError as exc:  # the seed's cube lies beyond the arm's reach with a shorter gripper
+            raise click.UsageError(
+                f"the scripted demo cannot reach the seed's cube with the {description.name} ({exc}); "
+                "it is laid out for the RG2's reach: use the GUI (without --headless)"
+            ) from exc
         rec = run_script(scene, script, camera, frames if gif_path else 2)
         if gif_path:
             write_gif(rec.frames, gif_path, fps=len(rec.frames) / script.duration)

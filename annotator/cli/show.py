@@ -10,6 +10,7 @@ import click
 from annotator.cli.common import (
     CONTEXT,
     LABELS,
+    LABELS_GRIPPER_OPTION,
     OBJECTS_OPTION,
     OUTCOMES,
     SEED,
@@ -53,11 +54,23 @@ from annotator.cli.common import (
     help="Overview picture to write [default: <png>-overview.png].",
 )
 @OBJECTS_OPTION
+@LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
 def show_command(
-    labels, object_id, scene_id, png, outcomes, grasp_ids, n, seed, overview_png, objects_dir, verbose
+    labels,
+    object_id,
+    scene_id,
+    png,
+    outcomes,
+    grasp_ids,
+    n,
+    seed,
+    overview_png,
+    objects_dir,
+    gripper,
+    verbose,
 ):
-    """Pictures of labelled grasps: the RG2 at each label's pose and width around the object.
+    """Pictures of labelled grasps: the labels' gripper at each label's pose and width around the object.
 
     Writes a sheet of N grasps (front and side view each, titled with grasp id, outcome and
     width) and an overview of every grasp of the object as a small gripper glyph coloured by
@@ -85,14 +98,28 @@ def show_command(
         done = show_scene(labels, scene_id, png, count, seed, tuple(outcomes), objects_dir)
         click.echo(f"wrote {done.png} (scene {scene_id}: {done.kept} objects, {done.n_grasps} grasps)")
         return
-    from annotator.tools.common import labelling_config
+    from annotator.tools.common import labelling_config, labelling_gripper, read_labels
     from annotator.tools.show import show
 
     source = labelling_config(labels).line()
+    table = read_labels(labels)
+    hand = labelling_gripper(labels, gripper, table)
     result = show(
-        labels, object_id, png, n, seed, tuple(outcomes), tuple(grasp_ids), objects_dir, overview_png
+        labels,
+        object_id,
+        png,
+        n,
+        seed,
+        tuple(outcomes),
+        tuple(grasp_ids),
+        objects_dir,
+        overview_png,
+        labels=table,
+        gripper=hand.description,
     )
-    click.echo(f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}; {source}")
+    click.echo(
+        f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}; {source}; {hand.line()}"
+    )
 
 
 def _given(n_option: str) -> bool:

@@ -18,18 +18,23 @@ from annotator.grippers.description import (
     GripperDescription,
     read_description,
 )
+from annotator.grippers.package import GripperFiles, gripper_record, is_shipped, resolve_gripper
 from annotator.grippers.urdf import Mimic, read_mimic_table, read_urdf
 
 __all__ = [
     "DEFAULT_GRIPPER",
     "DescriptionError",
     "GripperDescription",
+    "GripperFiles",
     "Mimic",
     "default_gripper",
     "gripper_dir",
+    "gripper_record",
+    "is_shipped",
     "load_gripper",
     "read_mimic_table",
     "read_urdf",
+    "resolve_gripper",
     "shipped_grippers",
 ]
 

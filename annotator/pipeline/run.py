@@ -31,6 +31,14 @@ from pathlib import Path
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
+from annotator.grippers import (
+    DescriptionError,
+    GripperDescription,
+    GripperFiles,
+    gripper_record,
+    is_shipped,
+    load_gripper,
+)
 from annotator.objects import (
     ObjectDiscoveryError,
     ObjectError,
@@ -100,6 +108,11 @@ class RunOptions:
     quiet: bool = False
     cell: bool = False  # objects rest on the seed's table; UR3 reachability columns
     views: int = 0  # Kinect views per placement (--cell only), per scene with --scenes
+    # the gripper simulated: a description, a shipped name or a folder (None: the RG2)
+    gripper: GripperDescription | str | None = None
+    # given grasps on objects resting on the table (evaluate --resting): False, True / "object" (the
+    # grasps move with the settling object) or "table" (they stay in the table frame)
+    resting: bool | str = False
     # annotate --scenes N: N scenes of per_scene (min, max) objects in the arrangement, n grasps
     # per scene (annotator.scenes.run)
     scenes: int = 0
@@ -400,21 +413,11 @@ def run(
     """
     options = _check_cache(options)
     if options.scenes:  # scenes are their own units of work (annotator.scenes.run)
-        if candidates is not None:
-            raise UsageError("--scenes labels sampled candidates only")
-        from annotator.scenes.run import run_scenes
-
-        return run_scenes(options, config)
+        return _run_scenes(options, config, candidates)
     summary = Summary()
     candidates = candidates or SampledCandidates(options.n)
-    if not 1 <= options.n <= MAX_N:
-        raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
-    if options.views and not options.cell:
-        raise UsageError("--views renders the robot cell's Kinect: it needs --cell")
-    if options.views < 0:
-        raise UsageError(f"--views must be 0 or more, got {options.views}")
-    if options.cell and not isinstance(candidates, SampledCandidates):
-        raise UsageError("--cell labels sampled candidates only")
+    _check_options(options, candidates)
+    gripper = _loaded(options.gripper)
     _check_workers(options)
     try:
         sources = discover_objects(options.objects_dir, config.objects)
@@ -438,6 +441,7 @@ def run(
         chunk,
         config.to_dict(),
         inputs=_inputs(options, candidates),
+        gripper=gripper_record(gripper),
     )
     store = Store(options.out_dir, spec)
     try:
@@ -454,7 +458,7 @@ def run(
     with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
         signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates)
+        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates, gripper)
     except (OutputError, SchedulerLost) as exc:
         summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
         raise
@@ -470,6 +474,34 @@ def run(
     return summary
 
 
+def _run_scenes(options: RunOptions, config: AnnotatorConfig, candidates) -> Summary:
+    """``annotate --scenes``: sampled candidates with the RG2 (annotator.scenes.run)."""
+    if candidates is not None:
+        raise UsageError("--scenes labels sampled candidates only")
+    named = _loaded(options.gripper).name
+    if named != "rg2":
+        raise UsageError(f"--scenes simulates the RG2 only; --gripper {named} labels objects one by one")
+    from annotator.scenes.run import run_scenes
+
+    return run_scenes(options, config)
+
+
+def _check_options(options: RunOptions, candidates: SampledCandidates | GivenCandidates) -> None:
+    """The options that exclude each other or the candidates' source; UsageError (exit 2)."""
+    if not 1 <= options.n <= MAX_N:
+        raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
+    if options.views and not options.cell:
+        raise UsageError("--views renders the robot cell's Kinect: it needs --cell")
+    if options.views < 0:
+        raise UsageError(f"--views must be 0 or more, got {options.views}")
+    if options.cell and not isinstance(candidates, SampledCandidates):
+        raise UsageError("--cell labels sampled candidates only")
+    if options.resting and not isinstance(candidates, GivenCandidates):
+        raise UsageError("--resting simulates given grasps only (annotator evaluate)")
+    if options.resting and options.cell:
+        raise UsageError("--resting and --cell exclude each other")
+
+
 def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates) -> dict:
     """RunSpec.inputs: the candidate source's, and the cell mode when on (a floating run records
     nothing new, so folders made before the cell existed still resume; a floating folder never
@@ -478,7 +510,27 @@ def _inputs(options: RunOptions, candidates: SampledCandidates | GivenCandidates
     cell = options.cell_options()
     if cell is not None:
         inputs["cell"] = cell.to_json()
+    if options.resting:
+        from annotator.cell.resting import resting_mode
+
+        mode = resting_mode(options.resting)
+        inputs["resting"] = True if mode == "object" else mode  # True: as folders before "table" existed
     return inputs
+
+
+def _loaded(spec: GripperDescription | str | None) -> GripperDescription:
+    """The gripper description ``spec`` names; a bad one is a usage error (exit 2)."""
+    try:
+        return load_gripper(spec)
+    except DescriptionError as exc:
+        raise UsageError(f"--gripper: {exc}") from exc
+
+
+def _gripper_files(gripper: GripperDescription) -> GripperFiles:
+    try:
+        return GripperFiles.of(gripper)
+    except DescriptionError as exc:
+        raise UsageError(f"--gripper: {exc}") from exc
 
 
 def _raise_terminated(signum, frame) -> None:
@@ -486,10 +538,20 @@ def _raise_terminated(signum, frame) -> None:
 
 
 def _run(
-    options, config, summary: Summary, store: Store, resume, sources, digests, status_dir: str, candidates
+    options,
+    config,
+    summary: Summary,
+    store: Store,
+    resume,
+    sources,
+    digests,
+    status_dir: str,
+    candidates,
+    gripper: GripperDescription,
 ) -> None:
     """The body of :func:`run` once the folder is open and matched to the objects (``resume``)."""
     store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
+    store.manifest.gripper_folder = None if is_shipped(gripper) else str(gripper.folder.resolve())
     for oid, error in summary.failed.items():
         store.fail_object(oid, error)
     for oid in sorted(resume.done):
@@ -520,7 +582,7 @@ def _run(
             total,
         )
     if total > 0:
-        _label(options, config, summary, store, digests, status_dir, planned, remaining, total)
+        _label(options, config, summary, store, digests, status_dir, planned, remaining, total, gripper)
 
 
 def _label(
@@ -533,8 +595,10 @@ def _label(
     planned: list[PlannedObject],
     remaining: dict[str, int],
     total: int,
+    gripper: GripperDescription,
 ) -> None:
-    """Decompose and label the ``planned`` objects with spans ``remaining`` on the run's workers."""
+    """Decompose and label the ``planned`` objects with spans ``remaining`` on the run's workers
+    with ``gripper``."""
     n, chunk = options.n, store.spec.chunk_size
     workers = Workers(options, status_dir)
     todo = [p for p in planned if remaining[p.source.object_id] > 0]
@@ -552,6 +616,8 @@ def _label(
         remaining,
         {p.source.object_id: candidates_to_do(p, n, chunk) for p in todo},
     )
+    # a cluster's workers may not see the gripper's folder: they get its files (GripperFiles)
+    sent = gripper if workers.client is None else _gripper_files(gripper)
 
     def make_task(unit: Span | Prepare) -> SpanTask:
         return SpanTask(
@@ -566,6 +632,8 @@ def _label(
             status_dir=status_dir if workers.client is None else None,
             cache_dir=None if cache_dir is None else str(cache_dir),
             cell=cell,
+            gripper=sent,
+            resting=options.resting,
         )
 
     def on_tick() -> None:

@@ -57,7 +57,8 @@ class GivenCandidates:
     def given(self, object_id: str, start: int, stop: int) -> GivenGrasps:
         g = self.grasps[object_id]
         quat = None if g.quat is None else np.asarray(g.quat[start:stop])
-        return GivenGrasps(np.asarray(g.T_obj_tcp[start:stop]), np.asarray(g.width[start:stop]), quat)
+        rest = None if g.rest_quat is None else np.asarray(g.rest_quat[start:stop])
+        return GivenGrasps(np.asarray(g.T_obj_tcp[start:stop]), np.asarray(g.width[start:stop]), quat, rest)
 
     def select(self, sources: Sequence[ObjectSource]) -> tuple[list[ObjectSource], dict[str, str]]:
         """The objects that have given grasps; ids with grasps but no object are failures."""

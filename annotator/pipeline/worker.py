@@ -34,7 +34,7 @@ import pandas as pd
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
-from annotator.grippers import GripperDescription, load_gripper
+from annotator.grippers import DEFAULT_GRIPPER, GripperDescription, GripperFiles, resolve_gripper
 from annotator.objects import (
     ObjectError,
     ObjectModel,
@@ -51,6 +51,7 @@ from annotator.trial import GraspTrial, Perturbation
 
 if TYPE_CHECKING:
     from annotator.cell.batch import CellObject, CellWorlds
+    from annotator.cell.resting import RestingObject, RestingWorld
 
 log = logging.getLogger(__name__)
 
@@ -78,11 +79,26 @@ class GivenGrasps:
     T_obj_tcp : (k, 4, 4) float, TCP poses in the object's mesh frame; width : (k,) float, the
     expected chord between the contacts (m). quat : (k, 4) float xyzw or None: the rotations bit
     for bit (a label's ``cmd_q*`` replayed exactly); without it they come from ``T_obj_tcp``.
+    rest_quat : (k, 4) float xyzw or None: with ``--resting``, the orientation each grasp's object
+    rests in on the table (its mesh frame in the table frame); None: the mesh frame's own, +z up.
     """
 
     T_obj_tcp: np.ndarray
     width: np.ndarray
     quat: np.ndarray | None = None
+    rest_quat: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SpanGrasps:
+    """The grasps a worker simulates for one span: as :class:`GivenGrasps`, plus ``placements``
+    (k,) int, the cell placement each sampled candidate rests in (None: not in the cell)."""
+
+    T_obj_tcp: np.ndarray
+    width: np.ndarray
+    quat: np.ndarray | None = None
+    placements: np.ndarray | None = None
+    rest_quat: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -155,7 +171,11 @@ class SpanTask:
     exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
     doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
     default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper);
-    ``gripper``: the gripper simulated (None: the default, the RG2).
+    ``gripper``: the gripper simulated (None: the default, the RG2), or its files
+    (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache);
+    ``resting``: the object rests on the cell's table while the given grasps close (``evaluate
+    --resting``, :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it
+    settles; ``"table"``, they stay where they were given in the table frame.
     """
 
     span: Span | Prepare
@@ -169,7 +189,8 @@ class SpanTask:
     status_dir: str | None = None
     cache_dir: str | None = None
     cell: CellOptions | None = None
-    gripper: GripperDescription | None = None
+    gripper: GripperDescription | GripperFiles | None = None
+    resting: bool | str = False
 
 
 @dataclass(frozen=True)
@@ -259,20 +280,25 @@ class SpanResult:
 @dataclass
 class LoadedObject:
     """The object a worker has in its world: model, body, trial runner, sampled candidates;
-    ``cell``: its placements on the table (``--cell``), whose trials replace ``trial``."""
+    ``cell``: its placements on the table (``--cell``), whose trials replace ``trial``;
+    ``resting``: the object resting on the table in the orientations given (``evaluate --resting``),
+    whose trials replace ``trial`` (then None)."""
 
     key: tuple
     model: ObjectModel
     uid: int
-    trial: GraspTrial
+    trial: GraspTrial | None
     candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)  # (seed, n) -> ...
     cell: CellObject | None = None
+    resting: RestingObject | None = None
 
     def release(self) -> None:
         """Free its snapshots (and the cell's copy of it); the trial world's body is the caller's."""
         if self.cell is not None:
             self.cell.close()
-        else:
+        elif self.resting is not None:
+            self.resting.close()
+        elif self.trial is not None:
             self.trial.close()
 
 
@@ -329,11 +355,12 @@ class WorkerState:
 
     def __init__(self) -> None:
         self.config: AnnotatorConfig | None = None
-        self.cell_mode = False
+        self.mode: tuple[bool, str | None] = (False, None)  # (cell, resting mode) of the world built
         self.world = None  # annotator.sim.world.World
         self.hand = None  # annotator.sim.hand.FloatingGripper
         self.gripper_key: tuple[str, str] | None = None  # (name, digest) of the gripper in the world
         self.cell: CellWorlds | None = None  # the table and the arm world, --cell only
+        self.resting: RestingWorld | None = None  # the table, evaluate --resting only
         self.obj: LoadedObject | None = None
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
@@ -345,16 +372,37 @@ class WorkerState:
     # --- the world ------------------------------------------------------------------------------
 
     def world_for(
-        self, config: AnnotatorConfig, cell: bool = False, gripper: GripperDescription | None = None
+        self,
+        config: AnnotatorConfig,
+        cell: bool = False,
+        gripper: GripperDescription | GripperFiles | None = None,
+        cache_dir: str | None = None,
+        resting: bool | str = False,
     ):
         """The world and floating gripper for ``config`` (rebuilt only when the config, the gripper
         or the mode changes: a floating world never holds the table)."""
+        from annotator.cell.resting import resting_mode
         from annotator.sim.hand import FloatingGripper
         from annotator.sim.world import World
 
-        gripper = load_gripper(gripper)
+        resting = resting_mode(resting)
+
+        if isinstance(gripper, GripperFiles) and self.hand is not None and gripper.key == self.gripper_key:
+            gripper = self.hand.description  # unpacked already
+        else:
+            gripper = resolve_gripper(gripper, cache_dir)
         changed = self.config != config or self.gripper_key != gripper.key
-        if changed or self.cell_mode != cell or self.world is None:
+        if changed or self.mode != (cell, resting) or self.world is None:
+            # loaded models and candidates depend on these only: a calibration grid, which changes
+            # the gripper's or the protocol's numbers from task to task, keeps them
+            kept = (config.objects, config.sampler, config.cell, gripper.key, cell, resting)
+            previous = None
+            if self.config is not None:
+                previous = (self.config.objects, self.config.sampler, self.config.cell, self.gripper_key)
+                previous += self.mode
+            if previous == kept and self.obj is not None:
+                # its model and candidates serve the new world too
+                self._keep(self.obj.key, self.obj.model, self.obj.candidates)
             self.close()
             self.world = World(config.physics)
             self.hand = FloatingGripper(self.world, config.gripper, gripper)
@@ -363,10 +411,15 @@ class WorkerState:
                 from annotator.cell.batch import CellWorlds
 
                 self.cell = CellWorlds(self.world, self.hand, config)
+            elif resting:
+                from annotator.cell.resting import RestingWorld
+
+                self.resting = RestingWorld(self.world, self.hand, config, resting)
             self.config = config
-            self.cell_mode = cell
-            self.failed = {}
-            self.recent.clear()  # the keys do not hold the configuration
+            self.mode = (cell, resting)
+            if previous != kept:  # the keys do not hold the configuration
+                self.failed = {}
+                self.recent.clear()
         return self.world, self.hand
 
     def close(self) -> None:
@@ -374,13 +427,15 @@ class WorkerState:
             self.cell.close()
         if self.world is not None:
             self.world.close()
-        self.world = self.hand = self.obj = self.cell = None
+        self.world = self.hand = self.obj = self.cell = self.resting = None
 
     # --- objects ---------------------------------------------------------------------------------
 
     def object_for(self, task: SpanTask) -> LoadedObject:
         """The span's object in this world (its body is created once per object); ObjectError."""
-        world, _ = self.world_for(task.config, cell=task.cell is not None, gripper=task.gripper)
+        world, _ = self.world_for(
+            task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting
+        )
         key = self._key(task)
         if key in self.failed:
             raise ObjectError(self.failed[key])
@@ -453,7 +508,7 @@ class WorkerState:
         unit = task.span
         try:
             self._check_versions(task.versions)
-            self.world_for(task.config, cell=task.cell is not None, gripper=task.gripper)
+            self.world_for(task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting)
             key = self._key(task)
             if key in self.failed:
                 raise ObjectError(self.failed[key])
@@ -486,6 +541,8 @@ class WorkerState:
             world.configure()
         hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
+        if self.resting is not None:
+            return LoadedObject(key, model, uid, None, candidates, resting=self.resting.load(model, uid))
         if self.cell is None:
             world.set_gravity(False)
             return LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config), candidates)
@@ -523,33 +580,29 @@ class WorkerState:
         try:
             self._check_versions(task.versions)
             loaded = self.object_for(task)
-            if span.given is None:
-                cands = self.candidates(loaded, task.seed, task.n, task.config)
-                poses = cands.T_obj_tcp[span.start : span.stop]
-                widths = cands.width_expected[span.start : span.stop]
-                quats = None
-                placements = None if cands.placement is None else cands.placement[span.start : span.stop]
-            else:
-                poses, widths, quats = span.given.T_obj_tcp, span.given.width, span.given.quat
-                placements = None
+            grasps = self._grasps(task, loaded)
         except ObjectError as exc:
             return SpanResult(span, None, str(exc), self._stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
             log.exception("%s: unexpected error while loading", span.object_id)
             return SpanResult(span, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
         status.write(task.status_dir, f"simulating {span.object_id}")
-        steps0 = loaded.trial.world.step_seconds
+        world = self.world
+        assert world is not None and self.hand is not None
+        steps0 = world.step_seconds
         rows = simulate(
             loaded,
-            poses,
-            widths,
+            grasps.T_obj_tcp,
+            grasps.width,
             span.start,
             task.config,
             task.seed,
             task.trials,
             span.object_id,
-            quats,
-            placements=placements,
+            grasps.quat,
+            placements=grasps.placements,
+            rest_quats=grasps.rest_quat,
+            gripper=self.hand.description.name,
         )
         artifacts = None
         if task.cell is not None and task.cell.views > 0 and loaded.cell is not None:
@@ -560,7 +613,7 @@ class WorkerState:
                 if span.start <= min(p, task.n - 1) < span.stop:
                     status.write(task.status_dir, f"rendering {span.object_id}")
                     artifacts.update(loaded.cell.render_views(p, task.cell.views, task.seed))
-        stats = self._stats(t0, loaded.trial.world.step_seconds - steps0)
+        stats = self._stats(t0, world.step_seconds - steps0)
         status.write(task.status_dir, None)
         info = object_info(loaded.model)
         if loaded.cell is not None:
@@ -574,6 +627,25 @@ class WorkerState:
                 for p in loaded.cell.placements
             ]
         return SpanResult(span, rows, None, stats, info, artifacts)
+
+    def _grasps(self, task: SpanTask, loaded: LoadedObject) -> SpanGrasps:
+        """What the span simulates: its share of the object's sampled candidates, or its given grasps."""
+        span = task.span
+        if span.given is not None:
+            g = span.given
+            if loaded.resting is None and g.rest_quat is not None:
+                raise ObjectError("grasps given with resting orientations, but the run is not --resting")
+            return SpanGrasps(g.T_obj_tcp, g.width, g.quat, None, g.rest_quat)
+        if loaded.resting is not None:
+            raise ObjectError("--resting simulates given grasps only")
+        cands = self.candidates(loaded, task.seed, task.n, task.config)
+        placements = None if cands.placement is None else cands.placement[span.start : span.stop]
+        return SpanGrasps(
+            cands.T_obj_tcp[span.start : span.stop],
+            cands.width_expected[span.start : span.stop],
+            None,
+            placements,
+        )
 
     def _stats(self, t0: float, step_seconds: float) -> WorkerStats:
         seconds = time.perf_counter() - t0
@@ -622,11 +694,15 @@ def simulate(
     quats: np.ndarray | None = None,
     *,
     placements: np.ndarray | None = None,
+    rest_quats: np.ndarray | None = None,
+    gripper: str = DEFAULT_GRIPPER,
 ) -> pd.DataFrame:
     """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
     from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
     ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
-    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`).
+    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
+    ``rest_quats`` (k, 4): resting (``loaded.resting``), the orientation each grasp's object rests
+    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column.
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -647,58 +723,114 @@ def simulate(
         else:  # a recorded commanded pose: the very transform of the trial that recorded it
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
-        if loaded.cell is None:
-            trial = loaded.trial
-        elif placements is not None:  # the placement the candidate was sampled for
-            placement = int(placements[k])
-            trial = loaded.cell.trials[placement]
-        else:  # a given grasp: where it comes most from above
-            placement = loaded.cell.placement_for(T)
-            trial = loaded.cell.trials[placement]
-        try:
-            r = trial.run(T, width_expected)
-            outcome, T_label, width, steps, slip = r.outcome, r.T_obj_tcp, r.width, r.steps, r.slip
-            held = int(outcome == Outcome.SUCCESS)
-            if outcome != Outcome.COLLISION and trials > 1:
-                rng = trial_rng(seed, object_id, grasp_id)
-                for _ in range(trials - 1):
-                    p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
-                    held += int(p.outcome == Outcome.SUCCESS)
-                    steps += p.steps
-        except Exception as exc:  # a physics failure on one candidate must not lose the others
-            log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
-            outcome, T_label, width, steps, slip = Outcome.ERROR, T, width_expected, 0, np.nan
-            held = 0
-        rows.append(
-            {
-                "object_id": object_id,
-                "grasp_id": grasp_id,
-                **dict(zip(("x", "y", "z"), T_label.pos.tolist(), strict=True)),
-                **dict(zip(("qx", "qy", "qz", "qw"), _canonical(T_label.quat).tolist(), strict=True)),
-                "width": width,
-                "success": outcome == Outcome.SUCCESS,
-                "outcome": outcome.label,
-                "score": held / trials,
-                "object_scale": model.scale,
-                "mesh_sha256": model.mesh_sha256,
-                "seed": seed,
-                "sim_steps": steps,
-                "slip": slip,
-                "object_mass": model.mass,
-                # the commanded grasp: the TCP pose the gripper was placed at before closing (quaternion
-                # as simulated, not sign-canonicalised) and the expected chord the close started
-                # from; ``evaluate`` replays a label exactly from these
-                **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
-                **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
-                "cmd_width": width_expected,
-                # distance between the simulated collision shape and the mesh surface (m)
-                "collision_error": model.collision_error.max,
-                "collision_error_mean": model.collision_error.mean,
-            }
-        )
+        rest = None if loaded.resting is None else (UPRIGHT if rest_quats is None else rest_quats[k])
+        trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
+        run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
+        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
+        rows.append(_row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials))
         if loaded.cell is not None:  # placement, object pose on the table, reachability
             rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))
+        elif loaded.resting is not None:  # the object's settled pose on the table
+            rows[-1].update(loaded.resting.columns(rest))
     return pd.DataFrame(rows)
+
+
+# The orientation an object rests in when none is given: its mesh frame's own (+z up), xyzw.
+UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _trial_for(
+    loaded: LoadedObject, T: Transform, placement: int | None, rest: np.ndarray | None
+) -> tuple[GraspTrial, int]:
+    """The trial a grasp runs in, and its cell placement (0 outside the cell)."""
+    if loaded.resting is not None:
+        return loaded.resting.trial_for(rest)[0], 0
+    if loaded.cell is None:
+        assert loaded.trial is not None
+        return loaded.trial, 0
+    if placement is None:  # a given grasp: where it comes most from above
+        placement = loaded.cell.placement_for(T)
+    return loaded.cell.trials[placement], placement  # else the placement it was sampled for
+
+
+@dataclass(frozen=True)
+class _Trials:
+    """What a candidate's trials gave: trial 0's outcome, pose, width and slip; all steps; how many held."""
+
+    outcome: Outcome
+    T_label: Transform
+    width: float
+    steps: int
+    slip: float
+    held: int
+
+
+def _run_trials(
+    trial: GraspTrial,
+    T: Transform,
+    width_expected: float,
+    config: AnnotatorConfig,
+    seed: int,
+    trials: int,
+    object_id: str,
+    grasp_id: int,
+) -> _Trials:
+    """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
+    an ``error`` row, never the loss of the other candidates."""
+    try:
+        r = trial.run(T, width_expected)
+        held = int(r.outcome == Outcome.SUCCESS)
+        steps = r.steps
+        if r.outcome != Outcome.COLLISION and trials > 1:
+            rng = trial_rng(seed, object_id, grasp_id)
+            for _ in range(trials - 1):
+                p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
+                held += int(p.outcome == Outcome.SUCCESS)
+                steps += p.steps
+        return _Trials(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held)
+    except Exception as exc:  # a physics failure on one candidate must not lose the others
+        log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
+        return _Trials(Outcome.ERROR, T, width_expected, 0, np.nan, 0)
+
+
+def _row(
+    r: _Trials,
+    T: Transform,
+    width_expected: float,
+    model: ObjectModel,
+    seed: int,
+    object_id: str,
+    grasp_id: int,
+    gripper: str,
+    trials: int,
+) -> dict[str, Any]:
+    """One label row (the columns of docs/labels.md, in their order)."""
+    return {
+        "object_id": object_id,
+        "grasp_id": grasp_id,
+        **dict(zip(("x", "y", "z"), r.T_label.pos.tolist(), strict=True)),
+        **dict(zip(("qx", "qy", "qz", "qw"), _canonical(r.T_label.quat).tolist(), strict=True)),
+        "width": r.width,
+        "success": r.outcome == Outcome.SUCCESS,
+        "outcome": r.outcome.label,
+        "score": r.held / trials,
+        "object_scale": model.scale,
+        "mesh_sha256": model.mesh_sha256,
+        "seed": seed,
+        "sim_steps": r.steps,
+        "slip": r.slip,
+        "object_mass": model.mass,
+        # the commanded grasp: the TCP pose the gripper was placed at before closing (quaternion
+        # as simulated, not sign-canonicalised) and the expected chord the close started
+        # from; ``evaluate`` replays a label exactly from these
+        **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
+        **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
+        "cmd_width": width_expected,
+        # distance between the simulated collision shape and the mesh surface (m)
+        "collision_error": model.collision_error.max,
+        "collision_error_mean": model.collision_error.mean,
+        "gripper": gripper,  # the gripper description's name (docs/grippers.md)
+    }
 
 
 class _State:

@@ -142,6 +142,7 @@ class Capturer:
             "sim_steps": result.steps,
             "slip": result.slip,
             "object_mass": self.model.mass,
+            "gripper": self.gripper.name,
         }
         return validate_labels(pd.DataFrame([data]))
 

@@ -173,6 +173,32 @@ class FloatingGripper:
         quat = _slerp(start.quat, T_world_base_goal.quat, s)
         return self._follow(pos, quat, force, on_step)
 
+    def approach(
+        self, T_world_base_goal: Transform, steps: int, max_force: float, open_angle: float, hold: int = 0
+    ) -> int:
+        """Move the carrier straight to the goal in ``steps`` steps at constant speed, pulling with
+        at most ``max_force`` N (what resists more stops the gripper), the fingers held open at
+        ``open_angle``; keep pulling towards the goal for ``hold`` more steps (the carrier's lag
+        closes when nothing is in the way); then hold the gripper where it came to rest. Returns
+        the steps simulated."""
+        start = self.target
+        grip = self.gripper.grip_force
+        cid, client = self._constraint, self.client
+        quat = T_world_base_goal.quat.tolist()
+        for i in range(1, steps + hold + 1):
+            pos = start.pos + (T_world_base_goal.pos - start.pos) * (min(i, steps) / steps)
+            pb.changeConstraint(
+                cid,
+                jointChildPivot=pos.tolist(),
+                jointChildFrameOrientation=quat,
+                maxForce=max_force,
+                physicsClientId=client,
+            )
+            self.gripper.hold_position(open_angle, grip)
+            self.world.step()
+        self.set_target(self.base_pose())
+        return steps + hold
+
     def shake(
         self,
         amplitude: float,

@@ -15,6 +15,7 @@ import hashlib
 import importlib.metadata
 import json
 import platform
+import re
 import stat
 import uuid
 from dataclasses import dataclass, field
@@ -88,7 +89,9 @@ def _json_default(obj: Any) -> Any:
 class RunSpec:
     """Everything that changes a label, bound by the manifest: a resume must match it exactly.
 
-    ``inputs``: more inputs of a command (e.g. the digest of the grasps ``evaluate`` simulates).
+    ``inputs``: more inputs of a command (e.g. the digest of the grasps ``evaluate`` simulates);
+    ``gripper``: the gripper simulated, ``{"name": ..., "digest": ...}`` (its description's name and
+    content digest, :mod:`annotator.grippers`); None in folders written before grippers were data.
     """
 
     seed: int
@@ -99,9 +102,13 @@ class RunSpec:
     config: dict[str, Any]
     versions: dict[str, str] = field(default_factory=bound_versions)
     inputs: dict[str, Any] = field(default_factory=dict)
+    gripper: dict[str, str] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return canonical(dataclasses.asdict(self))
+        data = canonical(dataclasses.asdict(self))
+        if data.get("gripper") is None:  # absent rather than null, as folders of earlier versions
+            data.pop("gripper", None)
+        return data
 
     def count(self, object_id: str) -> int:
         """Candidates of one object: N, or its own count when the run's grasps are given."""
@@ -116,6 +123,11 @@ class RunSpec:
         """What differs between the run recorded in a manifest and this one, one item each."""
         mine = self.to_json()
         diffs = []
+        if recorded.get("gripper") != mine.get("gripper"):
+            diffs.append(
+                f"gripper {gripper_text(recorded.get('gripper'))} in the folder, "
+                f"{gripper_text(mine.get('gripper'))} now"
+            )
         for name in ("seed", "n", "trials", "scale", "chunk_size"):
             if recorded.get(name) != mine[name]:
                 diffs.append(f"{name} {recorded.get(name)} in the folder, {mine[name]} now")
@@ -130,6 +142,13 @@ class RunSpec:
                 if old.get(key) != mine[name].get(key):
                     diffs.append(f"{key} {old.get(key)} in the folder, {mine[name].get(key)} now")
         return diffs
+
+
+def gripper_text(record: dict[str, str] | None) -> str:
+    """A recorded gripper for people: ``panda (digest 1a2b3c4d5e6f)``, or ``none recorded``."""
+    if not record:
+        return "none recorded"
+    return f"{record.get('name')} (digest {str(record.get('digest'))[:12]})"
 
 
 # ------------------------------------------------------------------------------------ the schema
@@ -157,6 +176,12 @@ _CHUNKS = Record(
         "files": Map(_FILE_RECORD, key=Str(lambda k: _range(k) is not None, "start-stop")),
     }
 )
+_GRIPPER = Record(
+    {
+        "name": Str(lambda s: re.fullmatch(r"[a-z0-9_]+", s) is not None, "a gripper name ([a-z0-9_])"),
+        "digest": _HEX64,
+    }
+)
 _RUN = Record(
     {
         "seed": Int(),
@@ -167,7 +192,9 @@ _RUN = Record(
         "config": Map(Map(Any_())),
         "versions": Map(Str()),
         "inputs": Map(Any_()),
-    }
+    },
+    # the gripper simulated (absent in folders written before grippers were data)
+    optional={"gripper": _GRIPPER},
 )
 MANIFEST_SCHEMA = Record(
     optional={
@@ -176,6 +203,9 @@ MANIFEST_SCHEMA = Record(
         "run_id": Str(lambda s: len(s) == 32 and all(c in "0123456789abcdef" for c in s), "a run id"),
         # every object id of the run's inputs, so readers can tell a finished run from one that stopped
         "objects_planned": Seq(Str()),
+        # where the run's gripper description was read from when it is not a shipped one (informative:
+        # the run binds the gripper by name and digest, run.gripper; the tools look for it here)
+        "gripper_folder": Str(),
     },
     required={
         "tool": Str(lambda s: s == TOOL, f"{TOOL!r}"),
@@ -244,6 +274,7 @@ class Manifest:
     tool: str = TOOL
     run_id: str | None = None
     objects_planned: list[str] | None = None
+    gripper_folder: str | None = None
 
     @classmethod
     def fresh(cls, spec: RunSpec, run_id: str | None = None) -> Manifest:

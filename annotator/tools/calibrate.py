@@ -1,12 +1,20 @@
 """Fit the uncertain physics to real trials: pad friction, grip force and shake severity.
 
-The user executes some labelled grasps on their real UR3 + RG2 and records ``object_id,
-grasp_id, real_success`` (optionally ``grip_force``, N, the force they used). Each of those grasps
-is re-simulated (:mod:`annotator.tools.given`: the grasp the label records as commanded, as the
-robot executes it) under every setting of a grid, and the simulated outcome is compared with the real one:
-accuracy, precision and recall of "success", with percentile bootstrap confidence intervals
-over the trials. The best setting (highest accuracy; ties: higher balanced accuracy, then the
-setting nearest the labelling configuration) is written as a TOML file for ``--config``.
+The user executes some grasps on their real robot and records ``object_id, grasp_id,
+real_success`` (optionally ``grip_force``, N, the force they used). The grasps are labels of this
+tool (their commanded grasps, as the robot executes them) or a grasp table as ``evaluate`` reads
+it (TCP or base-link poses). Each is re-simulated (:mod:`annotator.tools.given`) with the
+gripper the labels were made with, floating or resting on the table as they were, under every
+setting of a grid, and the simulated outcome is compared with the real one: accuracy, balanced
+accuracy, precision, recall and F1 of "success", with percentile bootstrap confidence intervals
+over the trials. The best setting (highest ``objective``, balanced accuracy by default; ties:
+the other of accuracy and balanced accuracy, then the setting nearest the labelling
+configuration) is written as a TOML file for ``--config``.
+
+Few trials on few objects are easy to over-fit, so the choice of setting is cross-validated by
+object (:func:`cross_validate`): the objects are split into folds; for each fold the best setting
+is chosen on the other objects' trials alone and scored on the fold's. The held-out outcomes of
+all folds, pooled, say how well the procedure predicts trials on objects it has not seen.
 """
 
 from __future__ import annotations
@@ -27,11 +35,15 @@ if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` sta
 log = logging.getLogger(__name__)
 
 DEFAULT_FRICTIONS = (0.3, 0.45, 0.6, 0.8, 1.0)  # pad friction; OnRobot's own model uses 0.4, ACRONYM 1.0
-DEFAULT_FORCES = (20.0, 30.0, 40.0)  # N; the RG2 drives 3..40 N
+# Grip forces tried, as shares of the gripper's default squeeze: the RG2's 20, 30 and 40 N of its 3..40 N.
+DEFAULT_FORCE_SHARES = (0.5, 0.75, 1.0)
+DEFAULT_FORCES = (20.0, 30.0, 40.0)  # N: the RG2's (DEFAULT_FORCE_SHARES of its 40 N)
 DEFAULT_SEVERITIES = (0.5, 1.0, 1.5)  # x the shake's amplitude and angle
 BOOTSTRAP_SAMPLES = 2000
 CONFIDENCE = 0.95
 REAL_COLUMNS = ("object_id", "grasp_id", "real_success")
+OBJECTIVES = ("balanced", "accuracy")  # what the best setting maximises
+DEFAULT_FOLDS = 5  # object-wise cross-validation folds (at most one per object)
 
 
 @dataclass(frozen=True)
@@ -63,7 +75,7 @@ class Agreement:
     """Agreement of simulated with real outcomes; each statistic with its (low, high) interval.
 
     Positive is "success". ``nan`` where undefined (no simulated successes for precision, no real
-    ones for recall).
+    ones for recall, neither for F1). ``balanced``: the mean of recall and specificity.
     """
 
     n: int
@@ -74,10 +86,23 @@ class Agreement:
     accuracy_ci: tuple[float, float]
     precision_ci: tuple[float, float]
     recall_ci: tuple[float, float]
+    balanced_ci: tuple[float, float] = (float("nan"), float("nan"))
+    f1: float = float("nan")
+    f1_ci: tuple[float, float] = (float("nan"), float("nan"))
+
+    def value(self, name: str) -> float:
+        """A statistic by name (``accuracy``, ``balanced``, ``precision``, ``recall``, ``f1``)."""
+        return float(getattr(self, name))
+
+    def interval(self, name: str) -> tuple[float, float]:
+        return getattr(self, f"{name}_ci")
+
+
+STATISTICS = ("accuracy", "precision", "recall", "balanced", "f1")  # the columns of _rates
 
 
 def _rates(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
-    """(..., 4) accuracy, precision, recall, balanced accuracy over the last axis of bool arrays."""
+    """(..., 5) accuracy, precision, recall, balanced accuracy, F1 over the last axis of bool arrays."""
     tp = np.sum(real & sim, axis=-1)
     tn = np.sum(~real & ~sim, axis=-1)
     fp = np.sum(~real & sim, axis=-1)
@@ -89,7 +114,8 @@ def _rates(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
         rec = tp / (tp + fn)
         spec = tn / (tn + fp)
         bal = np.where(np.isnan(spec), rec, np.where(np.isnan(rec), spec, (rec + spec) / 2))
-    return np.stack(np.broadcast_arrays(acc, prec, rec, bal), axis=-1)
+        f1 = 2 * tp / (2 * tp + fp + fn)
+    return np.stack(np.broadcast_arrays(acc, prec, rec, bal, f1), axis=-1)
 
 
 def agreement(
@@ -102,34 +128,109 @@ def agreement(
     """
     real, sim = np.asarray(real, bool), np.asarray(sim, bool)
     n = len(real)
+    k = len(STATISTICS)
     point = _rates(real, sim)
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), n, 0x43414C])))
     idx = rng.integers(0, n, size=(samples, n))
     boot = _rates(real[idx], sim[idx])
     alpha = (1 - CONFIDENCE) / 2
-    lo, hi = np.full(4, np.nan), np.full(4, np.nan)
-    defined = ~np.all(np.isnan(boot), axis=0) if n else np.zeros(4, bool)  # e.g. precision, no successes
+    lo, hi = np.full(k, np.nan), np.full(k, np.nan)
+    defined = ~np.all(np.isnan(boot), axis=0) if n else np.zeros(k, bool)  # e.g. precision, no successes
     if defined.any():
         lo[defined] = np.nanquantile(boot[:, defined], alpha, axis=0)
         hi[defined] = np.nanquantile(boot[:, defined], 1 - alpha, axis=0)
-    return Agreement(
-        n,
-        *(float(v) for v in point),
-        (float(lo[0]), float(hi[0])),
-        (float(lo[1]), float(hi[1])),
-        (float(lo[2]), float(hi[2])),
-    )
+    ci = [(float(lo[i]), float(hi[i])) for i in range(k)]
+    acc, prec, rec, bal, f1 = (float(v) for v in point)
+    return Agreement(n, acc, prec, rec, bal, ci[0], ci[1], ci[2], ci[3], f1, ci[4])
 
 
 @dataclass
 class CalibrationResult:
-    """Every setting's agreement (``table``: one row per setting) and the best one."""
+    """Every setting's agreement (``table``: one row per setting) and the best one by ``objective``."""
 
     table: pd.DataFrame
     best: Setting
     best_agreement: Agreement
     config: AnnotatorConfig
     simulated: dict[Setting, np.ndarray]
+    objective: str = "balanced"
+
+
+@dataclass(frozen=True)
+class CalibrationGrasps:
+    """The grasps real trials were run with, ready to replay: ``grasps`` has ``object_id``,
+    ``grasp_id``, the commanded grasps (``cmd_*``), ``object_scale`` (NaN: the objects' own) and,
+    resting, ``rest_q*``; with the configuration, gripper and resting mode to simulate them with
+    and the lines that say where each came from."""
+
+    grasps: pd.DataFrame
+    config: AnnotatorConfig
+    config_line: str
+    gripper: object  # annotator.grippers.GripperDescription
+    gripper_line: str
+    resting: str | None  # None: floating; "object" or "table" (annotator.cell.resting)
+
+
+def _is_label_table(path: Path) -> bool:
+    """A labels folder, or a Parquet file with the label columns (else: a grasp table)."""
+    if path.is_dir():
+        return True
+    if path.suffix.lower() != ".parquet":
+        return False
+    import pyarrow.parquet as pq
+
+    from annotator.dataset import COLUMNS
+
+    try:
+        names = set(pq.read_schema(path).names)
+    except Exception:  # unreadable: read_grasps names the problem
+        return False
+    return set(COLUMNS) <= names
+
+
+def calibration_grasps(
+    labels: Path,
+    objects_dir: Path,
+    gripper=None,
+    frame: str = "tcp",
+    resting: bool | str = False,
+    scale: float | None = None,
+    config_file: Path | None = None,
+) -> CalibrationGrasps:
+    """What ``calibrate`` replays: a labels folder or file of this tool (with the gripper,
+    configuration and resting mode recorded with it unless given), or a grasp table read as
+    ``evaluate`` reads it (:func:`annotator.tools.evaluate.read_grasps`, ``frame``) and turned
+    into the commanded grasps a run would simulate."""
+    from annotator.cell.resting import resting_mode
+    from annotator.tools.common import labelling_config, labelling_gripper, labels_resting, read_labels
+    from annotator.tools.evaluate import commanded_table, read_grasps
+
+    labels = Path(labels)
+    chosen = labelling_config(labels, config_file)
+    if _is_label_table(labels):
+        from annotator.tools.common import ToolError
+
+        if frame != "tcp":
+            raise ToolError(f"{labels} holds labels: their poses are TCP poses; drop --frame {frame}")
+        table = read_labels(labels)
+        hand = labelling_gripper(labels, gripper, table)
+        return CalibrationGrasps(
+            table,
+            chosen.config,
+            chosen.line(),
+            hand.description,
+            hand.line(),
+            resting_mode(resting) or labels_resting(labels),
+        )
+    hand = labelling_gripper(None, gripper)
+    grasps = read_grasps(labels, frame)
+    stroke = _max_width(chosen.config, hand.description)
+    table = commanded_table(
+        grasps, objects_dir, chosen.config, scale, stroke, gripper=hand.description, frame=frame
+    )
+    return CalibrationGrasps(
+        table, chosen.config, chosen.line(), hand.description, hand.line(), resting_mode(resting)
+    )
 
 
 def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
@@ -194,10 +295,21 @@ def grid(
     return [Setting(float(mu), f, float(s)) for mu in frictions for f in force_axis for s in severities]
 
 
-def _simulate_task(setting, base, span, force, seed):
+def default_forces(gripper=None) -> tuple[float, ...]:
+    """The grip forces tried by default: DEFAULT_FORCE_SHARES of the gripper's default squeeze, N
+    (the RG2: 20, 30, 40; the Panda: 35, 52.5, 70), each within its force range."""
+    from annotator.grippers import load_gripper
+
+    d = load_gripper(gripper)
+    return tuple(
+        min(d.grip_force_max, max(d.grip_force_min, share * d.grip_force)) for share in DEFAULT_FORCE_SHARES
+    )
+
+
+def _simulate_task(setting, base, span, force, seed, gripper, resting):
     from annotator.tools.given import simulate_given
 
-    rows, error = simulate_given(span, setting.config(base, force), seed)
+    rows, error = simulate_given(span, setting.config(base, force), seed, gripper=gripper, resting=resting)
     return setting, span.object_id, force, rows, error
 
 
@@ -208,8 +320,11 @@ def simulate_grid(
     objects_dir: Path,
     workers: int = 1,
     seed: int = 0,
+    gripper=None,
+    resting: bool | str | None = False,
 ) -> dict[Setting, np.ndarray]:
-    """Simulated success of every trial (row order of ``trials``) under every setting."""
+    """Simulated success of every trial (row order of ``trials``) under every setting, with
+    ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's ``rest_q*``)."""
     import joblib
 
     from annotator.objects import ObjectDiscoveryError, discover_objects
@@ -225,18 +340,37 @@ def simulate_grid(
         raise ToolError(f"object(s) {missing} are not in {objects_dir}")
     has_force = "grip_force" in trials.columns
     groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
-    stroke = _max_width(base)
-    tasks, where = [], {}
+    stroke = _max_width(base, gripper)
+    rest_columns = ["rest_qx", "rest_qy", "rest_qz", "rest_qw"]
+    spans, where = [], {}
     for key, idx in groups.indices.items():
         key = key if isinstance(key, tuple) else (key,)
         oid, force = str(key[0]), (float(key[1]) if has_force else None)
         rows = trials.iloc[idx]
         scale = float(rows["object_scale"].iloc[0])
         T, width, quat = replay_grasps(rows, base, stroke)
-        span = GivenSpan(oid, sources[oid], scale, T, width, rows["grasp_id"].to_numpy(), quat)
+        rest = (
+            rows[rest_columns].to_numpy(dtype=np.float64) if set(rest_columns) <= set(rows.columns) else None
+        )
+        span = GivenSpan(
+            oid,
+            sources[oid],
+            None if np.isnan(scale) else scale,
+            T,
+            width,
+            rows["grasp_id"].to_numpy(),
+            quat,
+            rest,
+        )
         where[(oid, force)] = idx
-        for setting in settings:
-            tasks.append(joblib.delayed(_simulate_task)(setting, base, span, force, seed))
+        spans.append((span, force))
+    # setting after setting: a worker rebuilds its world when the configuration changes, and keeps
+    # the objects it had while it does not (annotator.pipeline.worker.WorkerState)
+    tasks = [
+        joblib.delayed(_simulate_task)(setting, base, span, force, seed, gripper, resting)
+        for setting in settings
+        for span, force in spans
+    ]
     out = {s: np.zeros(len(trials), dtype=bool) for s in settings}
     for setting, oid, force, rows, error in joblib.Parallel(n_jobs=workers, return_as="generator_unordered")(
         tasks
@@ -247,19 +381,71 @@ def simulate_grid(
     return out
 
 
-def _gripper_settings(config: AnnotatorConfig):
-    """The grip force and pad friction ``config`` simulates the gripper (the RG2) with: its
+def _gripper_settings(config: AnnotatorConfig, gripper=None):
+    """The grip force and pad friction ``config`` simulates ``gripper`` (None: the RG2) with: its
     description's unless the configuration sets them."""
-    from annotator.grippers import default_gripper
+    from annotator.grippers import load_gripper
     from annotator.sim.gripper import GripperSettings
 
-    return GripperSettings.resolve(default_gripper(), config.gripper)
+    return GripperSettings.resolve(load_gripper(gripper), config.gripper)
 
 
-def _max_width(config: AnnotatorConfig) -> float:
+def _max_width(config: AnnotatorConfig, gripper=None) -> float:
     from annotator.pipeline.worker import max_width
 
-    return max_width(config)
+    return max_width(config, gripper)
+
+
+def _nearness(s: Setting, labelled) -> float:
+    """How far a setting is from the labelling configuration: summed |log ratios| of its parameters."""
+    near = abs(np.log(s.friction / labelled.pad_lateral_friction)) + abs(np.log(max(s.severity, 1e-3)))
+    if s.force is not None:
+        near += abs(np.log(s.force / labelled.grip_force))
+    return float(near)
+
+
+def rank(table: pd.DataFrame, objective: str = "balanced") -> pd.DataFrame:
+    """The settings of a calibration table best first: ``objective`` (balanced accuracy or
+    accuracy) highest, then the other one, then nearest the labelling configuration."""
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective {objective!r}: choose from {', '.join(OBJECTIVES)}")
+    other = "accuracy" if objective == "balanced" else "balanced"
+    return table.sort_values([objective, other, "_near"], ascending=[False, False, True], kind="stable")
+
+
+def _record(s: Setting, sim: np.ndarray, a: Agreement, near: float) -> dict:
+    record = {
+        "friction": s.friction,
+        "force": np.nan if s.force is None else s.force,
+        "severity": s.severity,
+        "sim_success": float(sim.mean()) if len(sim) else float("nan"),
+    }
+    for name in STATISTICS:
+        record[name] = a.value(name)
+        record[f"{name}_lo"], record[f"{name}_hi"] = a.interval(name)
+    record.update({"_near": near, "_agreement": a, "_setting": s})
+    return record
+
+
+def score_settings(
+    real: np.ndarray,
+    simulated: dict[Setting, np.ndarray],
+    settings: list[Setting],
+    labelled,
+    bootstrap: int = BOOTSTRAP_SAMPLES,
+    seed: int = 0,
+    rows: np.ndarray | None = None,
+) -> pd.DataFrame:
+    """One row per setting: its agreement with ``real`` on the trials ``rows`` (index array; all
+    when None), with the private columns ``_near``, ``_agreement`` and ``_setting``."""
+    import pandas as pd
+
+    rows = np.arange(len(real)) if rows is None else np.asarray(rows)
+    records = []
+    for s in settings:
+        sim = simulated[s][rows]
+        records.append(_record(s, sim, agreement(real[rows], sim, bootstrap, seed), _nearness(s, labelled)))
+    return pd.DataFrame(records)
 
 
 def calibrate(
@@ -270,57 +456,117 @@ def calibrate(
     workers: int = 1,
     seed: int = 0,
     bootstrap: int = BOOTSTRAP_SAMPLES,
+    *,
+    objective: str = "balanced",
+    gripper=None,
+    resting: bool | str | None = False,
+    simulated: dict[Setting, np.ndarray] | None = None,
 ) -> CalibrationResult:
-    """Simulate ``trials`` (from :func:`read_real_trials`) under every setting and rank them."""
-    simulated = simulate_grid(trials, settings, base, objects_dir, workers, seed)
+    """Simulate ``trials`` (from :func:`read_real_trials`) under every setting and rank them by
+    ``objective``; ``simulated``: outcomes already simulated (as :func:`simulate_grid` gives)."""
+    if simulated is None:
+        simulated = simulate_grid(trials, settings, base, objects_dir, workers, seed, gripper, resting)
     real = trials["real_success"].to_numpy(dtype=bool)
-    records = []
-    labelled = _gripper_settings(base)
-    for s in settings:
-        a = agreement(real, simulated[s], bootstrap, seed)
-        # nearness to the labelling configuration, for ties: log ratios of each parameter
-        near = abs(np.log(s.friction / labelled.pad_lateral_friction)) + abs(np.log(s.severity))
-        if s.force is not None:
-            near += abs(np.log(s.force / labelled.grip_force))
-        records.append(
-            {
-                "friction": s.friction,
-                "force": np.nan if s.force is None else s.force,
-                "severity": s.severity,
-                "sim_success": float(simulated[s].mean()),
-                "accuracy": a.accuracy,
-                "accuracy_lo": a.accuracy_ci[0],
-                "accuracy_hi": a.accuracy_ci[1],
-                "precision": a.precision,
-                "precision_lo": a.precision_ci[0],
-                "precision_hi": a.precision_ci[1],
-                "recall": a.recall,
-                "recall_lo": a.recall_ci[0],
-                "recall_hi": a.recall_ci[1],
-                "balanced": a.balanced,
-                "_near": near,
-                "_agreement": a,
-                "_setting": s,
-            }
-        )
-    import pandas as pd
-
-    table = pd.DataFrame(records)
-    ranked = table.sort_values(
-        ["accuracy", "balanced", "_near"], ascending=[False, False, True], kind="stable"
-    )
-    best_row = ranked.iloc[0]
+    table = score_settings(real, simulated, settings, _gripper_settings(base, gripper), bootstrap, seed)
+    best_row = rank(table, objective).iloc[0]
     best = best_row["_setting"]
     forces = trials["grip_force"].unique() if "grip_force" in trials.columns else []
     force = float(forces[0]) if best.force is None and len(forces) == 1 else None
-    result = CalibrationResult(
+    return CalibrationResult(
         table.drop(columns=["_near", "_agreement", "_setting"]),
         best,
         best_row["_agreement"],
         best.config(base, force),
         simulated,
+        objective,
     )
-    return result
+
+
+# ------------------------------------------------------------------------------------ cross-validation
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One fold of the object-wise cross-validation: the objects held out, the setting chosen on
+    the other objects' trials (and its agreement there), and its agreement on the held-out ones."""
+
+    index: int
+    held_out: tuple[str, ...]
+    fitted_on: tuple[str, ...]
+    best: Setting
+    fit: Agreement
+    held: Agreement
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """Folds, and the held-out predictions of all folds pooled (``predicted``, row order of the
+    trials) with their agreement: what the calibration predicts on objects it has not seen."""
+
+    folds: tuple[Fold, ...]
+    predicted: np.ndarray
+    pooled: Agreement
+
+
+def object_folds(object_ids, folds: int, seed: int = 0) -> list[tuple[str, ...]]:
+    """The objects split into ``min(folds, number of objects)`` groups of (nearly) equal size:
+    sorted ids in a seeded random order, dealt out in turn. Depends only on the ids and ``seed``."""
+    from annotator.rng import keyed_rng
+
+    ids = sorted({str(o) for o in object_ids})
+    k = max(1, min(int(folds), len(ids)))
+    order = keyed_rng("calibrate-folds", seed, len(ids)).permutation(len(ids))
+    return [tuple(sorted(ids[i] for i in order[f::k])) for f in range(k)]
+
+
+def cross_validate(
+    trials: pd.DataFrame,
+    simulated: dict[Setting, np.ndarray],
+    settings: list[Setting],
+    labelled,
+    folds: int = DEFAULT_FOLDS,
+    seed: int = 0,
+    objective: str = "balanced",
+    bootstrap: int = BOOTSTRAP_SAMPLES,
+) -> CrossValidation:
+    """Object-wise cross-validation of the choice of setting: for each fold, the best setting by
+    ``objective`` on the trials of the other objects, scored on the fold's own trials. Needs at
+    least two objects. ``labelled``: the labelling configuration's gripper settings (ties)."""
+    real = trials["real_success"].to_numpy(dtype=bool)
+    objects = trials["object_id"].astype(str).to_numpy()
+    groups = object_folds(objects, folds, seed)
+    if len(groups) < 2:
+        raise ValueError("cross-validation by object needs trials on at least two objects")
+    predicted = np.zeros(len(trials), dtype=bool)
+    out = []
+    for f, held_out in enumerate(groups):
+        held = np.isin(objects, held_out)
+        fit_rows, held_rows = np.flatnonzero(~held), np.flatnonzero(held)
+        table = score_settings(real, simulated, settings, labelled, bootstrap, seed, fit_rows)
+        best_row = rank(table, objective).iloc[0]
+        best = best_row["_setting"]
+        predicted[held_rows] = simulated[best][held_rows]
+        fitted_on = tuple(sorted(set(objects[fit_rows])))
+        held_agreement = agreement(real[held_rows], simulated[best][held_rows], bootstrap, seed)
+        out.append(Fold(f, tuple(held_out), fitted_on, best, best_row["_agreement"], held_agreement))
+    return CrossValidation(tuple(out), predicted, agreement(real, predicted, bootstrap, seed))
+
+
+def outcomes_table(trials: pd.DataFrame, simulated: dict[Setting, np.ndarray]) -> pd.DataFrame:
+    """Every simulated outcome of the grid, one row per (setting, trial): ``object_id``,
+    ``grasp_id``, ``real_success``, ``friction``, ``force`` (NaN: each trial's own), ``severity``,
+    ``sim_success``."""
+    import pandas as pd
+
+    parts = []
+    for s, sim in simulated.items():
+        part = trials[["object_id", "grasp_id", "real_success"]].reset_index(drop=True).copy()
+        part["friction"] = s.friction
+        part["force"] = np.nan if s.force is None else s.force
+        part["severity"] = s.severity
+        part["sim_success"] = np.asarray(sim, dtype=bool)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
 
 
 # ------------------------------------------------------------------------------------ output
@@ -350,17 +596,17 @@ def config_toml(config: AnnotatorConfig, header: str = "") -> str:
     return "\n".join(lines).lstrip("\n") + "\n"
 
 
+def _pct(v: float, lo: float, hi: float, width: int = 17) -> str:
+    if not np.isfinite(v):
+        return f"{'n/a':>{width}}"
+    return f"{100 * v:5.1f} [{100 * lo:3.0f},{100 * hi:4.0f}]".rjust(width)
+
+
 def format_table(result: CalibrationResult) -> str:
     """The grid as text, best setting marked, intervals in brackets."""
-
-    def pct(v: float, lo: float, hi: float) -> str:
-        if not np.isfinite(v):
-            return f"{'n/a':>19}"
-        return f"{100 * v:5.1f} [{100 * lo:4.0f},{100 * hi:4.0f}]".rjust(19)
-
     head = (
         f"  {'friction':>8} {'force N':>7} {'shake':>5} {'sim ok':>6} "
-        f"{'accuracy % [95% CI]':>19} {'precision %':>19} {'recall %':>19}"
+        f"{'accuracy % [95% CI]':>19} {'balanced %':>17} {'precision %':>17} {'recall %':>17}"
     )
     lines = [head]
     t = result.table
@@ -372,10 +618,46 @@ def format_table(result: CalibrationResult) -> str:
             and ((np.isnan(r.force) and s.force is None) or r.force == s.force)
             else " "
         )
-        force = "real" if np.isnan(r.force) else f"{r.force:.0f}"
+        force = "real" if np.isnan(r.force) else f"{r.force:g}"
         lines.append(
             f"{mark} {r.friction:>8.2f} {force:>7} {r.severity:>5.2f} {100 * r.sim_success:>5.0f}% "
-            f"{pct(r.accuracy, r.accuracy_lo, r.accuracy_hi)} "
-            f"{pct(r.precision, r.precision_lo, r.precision_hi)} {pct(r.recall, r.recall_lo, r.recall_hi)}"
+            f"{_pct(r.accuracy, r.accuracy_lo, r.accuracy_hi, 19)} "
+            f"{_pct(r.balanced, r.balanced_lo, r.balanced_hi)} "
+            f"{_pct(r.precision, r.precision_lo, r.precision_hi)} {_pct(r.recall, r.recall_lo, r.recall_hi)}"
         )
+    return "\n".join(lines)
+
+
+def setting_text(s: Setting) -> str:
+    """``pad friction 0.6, 70 N, shake x1``."""
+    force = "each trial's own force" if s.force is None else f"{s.force:g} N"
+    return f"pad friction {s.friction:g}, {force}, shake x{s.severity:g}"
+
+
+def agreement_text(
+    a: Agreement, names: tuple[str, ...] = ("accuracy", "balanced", "precision", "recall")
+) -> str:
+    """``accuracy 80.0 % [70, 88], balanced 75.1 % [..]`` over the named statistics."""
+    parts = []
+    for name in names:
+        v, (lo, hi) = a.value(name), a.interval(name)
+        parts.append(
+            f"{name} n/a"
+            if not np.isfinite(v)
+            else f"{name} {100 * v:.1f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
+        )
+    return ", ".join(parts)
+
+
+def format_folds(cv: CrossValidation) -> str:
+    """Each fold (objects held out, the setting chosen on the others, its agreement on the held-out
+    trials), then the pooled held-out agreement."""
+    lines = []
+    for f in cv.folds:
+        lines.append(
+            f"fold {f.index + 1}/{len(cv.folds)}: fit on {len(f.fitted_on)} objects ({f.fit.n} trials) -> "
+            f"{setting_text(f.best)}; held out {', '.join(f.held_out)} ({f.held.n} trials): "
+            f"{agreement_text(f.held, ('accuracy', 'balanced', 'precision'))}"
+        )
+    lines.append(f"cross-validated by object, {cv.pooled.n} held-out trials: {agreement_text(cv.pooled)}")
     return "\n".join(lines)

@@ -249,6 +249,110 @@ def labelling_config(labels: str | Path | None, config_file: Path | None = None)
         raise ToolError(f"{labels}: the manifest's configuration is not this version's ({exc})") from None
 
 
+@dataclass(frozen=True)
+class LabellingGripper:
+    """The gripper to simulate or draw labels with, and where that choice came from (said to the user)."""
+
+    description: Any  # annotator.grippers.GripperDescription
+    source: str
+
+    def line(self) -> str:
+        return f"gripper: {self.description.name} ({self.source})"
+
+
+def labelling_gripper(
+    labels: str | Path | None, gripper: str | os.PathLike | None = None, rows: pd.DataFrame | None = None
+) -> LabellingGripper:
+    """The gripper the labels were made with, unless ``gripper`` (--gripper) is given.
+
+    Recorded with the labels: the run's manifest binds the gripper's name and digest (and where a
+    gripper of the user's own was read from); a label file without a manifest has a ``gripper``
+    column (``rows``, read from ``labels`` when not given). A shipped gripper is found by its name;
+    one of the user's own at the folder the manifest names, if it is still that gripper (the same
+    digest), else a :class:`ToolError` asking for ``--gripper``. Nothing recorded: the RG2, said so.
+    """
+    from annotator.grippers import DescriptionError, load_gripper
+
+    recorded = _recorded_gripper(labels, rows)
+    if gripper is not None:
+        try:
+            description = load_gripper(gripper)
+        except DescriptionError as exc:
+            raise ToolError(f"--gripper: {exc}") from None
+        note = ""
+        if recorded is not None and recorded[0].get("name") != description.name:
+            note = f"; the labels were made with {recorded[0].get('name')}"
+        return LabellingGripper(description, f"--gripper {gripper}{note}")
+    if recorded is None:
+        return LabellingGripper(load_gripper(None), "the default: no gripper recorded with the labels")
+    return _resolve_recorded(*recorded)
+
+
+def _recorded_gripper(
+    labels: str | Path | None, rows: pd.DataFrame | None
+) -> tuple[dict[str, str | None], str] | None:
+    """``({"name", "digest", "folder"}, where)`` recorded with the labels, or None."""
+    if labels is None or not Path(labels).exists():
+        return None
+    manifest = read_manifest(labels)
+    record = run_settings(manifest).get("gripper")
+    if record:
+        return {**record, "folder": (manifest or {}).get("gripper_folder")}, str(_manifest_path(Path(labels)))
+    if rows is None and manifest is None and Path(labels).is_file() and Path(labels).suffix == ".parquet":
+        try:
+            rows = pd.read_parquet(labels, columns=["gripper"])
+        except Exception:  # no such column, or not Parquet: nothing recorded
+            return None
+    if rows is None or "gripper" not in rows.columns or rows.empty:
+        return None
+    names = sorted(set(rows["gripper"].astype(str)))
+    if len(names) > 1:
+        raise ToolError(f"{labels}: labels of several grippers ({', '.join(names)}); pass --gripper")
+    return {"name": names[0], "digest": None, "folder": None}, f"the labels' gripper column ({labels})"
+
+
+def _resolve_recorded(record: dict[str, str | None], where: str) -> LabellingGripper:
+    """The description of a recorded gripper (see :func:`labelling_gripper`)."""
+    from annotator.grippers import DescriptionError, load_gripper, shipped_grippers
+
+    name, digest, folder = record.get("name"), record.get("digest"), record.get("folder")
+    if folder:
+        try:
+            description = load_gripper(folder)
+        except DescriptionError:
+            description = None
+        if description is not None and description.digest == digest:
+            return LabellingGripper(description, f"the labels' own, from {folder}")
+        raise ToolError(
+            f"the labels were made with gripper {name!r} (digest {str(digest)[:12]}) from {folder}, which "
+            "is no longer there or has changed; pass --gripper DIR (its folder)"
+        )
+    if name not in shipped_grippers():
+        raise ToolError(
+            f"the labels were made with gripper {name!r}, which is not shipped; pass --gripper DIR"
+        )
+    description = load_gripper(name)
+    source = f"the labels' own, recorded in {where}"
+    if digest is not None and description.digest != digest:
+        source += (
+            f"; its description has changed since (digest {str(digest)[:12]} then, "
+            f"{description.digest[:12]} now): simulating today's"
+        )
+        log.warning("gripper %s: the shipped description changed since these labels were made", name)
+    return LabellingGripper(description, source)
+
+
+def labels_resting(labels: str | Path | None) -> str | None:
+    """How these labels' objects rested on the table (``evaluate --resting``): ``"object"`` (the
+    grasps moved with them), ``"table"`` (the grasps stayed in the table frame) or None (floating)."""
+    if labels is None or not Path(labels).exists():
+        return None
+    value = (run_settings(read_manifest(labels)).get("inputs") or {}).get("resting")
+    if not value:
+        return None
+    return "object" if value is True else str(value)
+
+
 def object_info(manifest: dict | None, object_id: str) -> dict:
     """What the run recorded about an object as simulated (mass, friction, ...), or {}."""
     return ((manifest or {}).get("objects_info") or {}).get(object_id) or {}

@@ -1,10 +1,17 @@
-"""Simulating grasps someone else proposed (a network's predictions, hand-picked poses).
+"""Simulating grasps someone else proposed (a network's predictions, hand-picked poses, real trials).
 
 Input: a Parquet or CSV file with ``object_id``, the TCP pose as the labels give it (``x y z``,
 ``qx qy qz qw`` in the object's mesh frame, metres, xyzw) and optionally ``width`` (m, the opening
 at the grasp: the chord between the pads) and ``grasp_id``. Output: the label columns for every
 row, written by the job's own pipeline (spans of given poses instead of sampled candidates), with
 the same resume, determinism and worker behaviour as ``annotate``.
+
+With ``frame="base"`` the pose columns are the pose of the gripper's base link instead (ACRONYM's
+and GraspGen's convention): each becomes a TCP pose through the gripper model's own forward
+kinematics, ``T_obj_tcp = T_obj_base · T_base_tcp(width)`` (:func:`tcp_from_base`). With
+``--resting`` a table may also give ``rest_qx rest_qy rest_qz rest_qw``: the orientation the
+object rests in on the table (its mesh frame in the table frame, :mod:`annotator.cell.resting`;
+a cell label's settled ``obj_q*`` serve when those are absent).
 
 A grasp is executed as a sampled candidate whose expected chord is ``width``: the RG2 is placed so
 that its TCP at that opening is at the pose, opened ``2 x pregrasp_clearance`` wider, checked along
@@ -31,15 +38,27 @@ log = logging.getLogger(__name__)
 # A quaternion this far from unit norm is renormalised silently (float32 predictions); further
 # off is an error in the input, not noise.
 QUAT_RENORMALISE_TOL = 1e-3
+# The orientation an object rests in (evaluate --resting): its mesh frame in the table frame, xyzw;
+# a cell label's settled orientation (obj_q*, the world's axes are the table's) serves without them.
+REST_COLUMNS = ("rest_qx", "rest_qy", "rest_qz", "rest_qw")
+CELL_ORIENTATION_COLUMNS = ("obj_qx", "obj_qy", "obj_qz", "obj_qw")
+FRAMES = ("tcp", "base")  # what the pose columns of a grasp table are the pose of
 
 
-def read_grasps(path: str | Path) -> pd.DataFrame:
+def read_grasps(path: str | Path, frame: str = "tcp") -> pd.DataFrame:
     """The proposed grasps, validated: ``object_id`` (str), pose columns (float64, unit xyzw),
     ``width`` (float64, NaN where not given) and ``grasp_id`` (int64, unique per object; the row
     number within its object when not given); a label table's commanded grasps (``cmd_*``) and
-    ``outcome`` are kept. Raises :class:`annotator.tools.common.ToolError` naming the file and
+    ``outcome`` are kept, and so are resting orientations (``rest_q*``, or a cell label's ``obj_q*``,
+    as ``rest_q*``; unit xyzw). ``frame``: what
+    the pose columns hold, the TCP's pose or the gripper base link's (``"base"``; a label table's
+    are always TCP poses). Raises :class:`annotator.tools.common.ToolError` naming the file and
     the first bad row: nothing is dropped or replaced silently.
     """
+    from annotator.tools.common import ToolError
+
+    if frame not in FRAMES:
+        raise ToolError(f"--frame {frame!r}: choose from {', '.join(FRAMES)}")
     path = Path(path)
     df = _read_table(path)
     out = pd.DataFrame({"object_id": df["object_id"].astype(str).to_numpy(dtype=object)})
@@ -47,10 +66,20 @@ def read_grasps(path: str | Path) -> pd.DataFrame:
     out[["qx", "qy", "qz", "qw"]] = _unit_quaternions(out[["qx", "qy", "qz", "qw"]].to_numpy(), path, "")
     out["width"] = _widths(df, path)
     out["grasp_id"] = _grasp_ids(df, out, path)
+    labels = any(c in df.columns for c in CMD_COLUMNS) or "outcome" in df.columns
+    if labels and frame != "tcp":
+        raise ToolError(f"{path} is a label table: its poses are TCP poses; drop --frame {frame}")
     if any(c in df.columns for c in CMD_COLUMNS):  # a label table: its commanded grasps, bit for bit
         _commanded(df, out, path)
     if "outcome" in df.columns:
         out["outcome"] = df["outcome"].astype(str).to_numpy(dtype=object)
+    for columns, prefix in ((REST_COLUMNS, "rest_"), (CELL_ORIENTATION_COLUMNS, "obj_")):
+        if any(c in df.columns for c in columns):
+            missing = [c for c in columns if c not in df.columns]
+            if missing:
+                raise ToolError(f"{path}: has some of {list(columns)} but not {missing}; give all or none")
+            out[list(REST_COLUMNS)] = _unit_quaternions(_numbers(df, columns, path), path, prefix)
+            break
     return out
 
 
@@ -174,7 +203,47 @@ def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float) -> np.ndarray:
     return np.where(ok, np.clip(width, 0.0, max_width), 0.0)
 
 
-def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: float | None, max_width: float):
+def tcp_from_base(
+    T_obj_base: np.ndarray, width: np.ndarray, depth, mesh=None, iterations: int = 4
+) -> tuple[np.ndarray, np.ndarray]:
+    """TCP poses (n, 4, 4) and chords (n,) of grasps given as base-link poses ``T_obj_base`` (n, 4, 4).
+
+    ``T_obj_tcp = T_obj_base · T_base_tcp(width)`` with the gripper model's FK (``depth``: an
+    :class:`annotator.tools.export.TcpDepth`). Where ``width`` is NaN the chord is measured on
+    ``mesh`` (:func:`expected_width`) at the TCP of the opening found so far, from the full stroke
+    on: a linkage's TCP moves along the approach as it opens, so this is repeated ``iterations``
+    times (a sliding gripper's TCP does not move: once is exact); 0 where the pads meet nothing.
+    """
+    T_obj_base = np.asarray(T_obj_base, dtype=np.float64).reshape(-1, 4, 4)
+    width = np.asarray(width, dtype=np.float64).copy()
+    todo = ~np.isfinite(width)
+    if todo.any():
+        if mesh is None:
+            raise ValueError("widths to measure but no mesh")
+        guess = np.full(int(todo.sum()), depth.max_width)
+        for _ in range(iterations):
+            T_tcp = T_obj_base[todo] @ depth.T_base_tcp(guess)
+            found = expected_width(mesh, T_tcp, depth.max_width)
+            converged = np.array_equal(found, guess)
+            guess = found
+            if converged:
+                break
+        width[todo] = guess
+    width = np.clip(width, 0.0, depth.max_width)
+    return T_obj_base @ depth.T_base_tcp(width), width
+
+
+def given_candidates(
+    grasps: pd.DataFrame,
+    objects_dir: Path,
+    config,
+    scale: float | None,
+    max_width: float,
+    *,
+    gripper=None,
+    frame: str = "tcp",
+    resting: bool = False,
+):
     """The grasps as the pipeline's :class:`GivenCandidates`, and the renumbering applied.
 
     Per object the grasps keep their ``grasp_id`` when those are exactly 0..k-1 (a label table, or
@@ -182,41 +251,136 @@ def given_candidates(grasps: pd.DataFrame, objects_dir: Path, config, scale: flo
     table (an ``outcome`` column) are replayed (:func:`annotator.tools.given.replay_grasps`: their
     commanded grasps bit for bit, so their outcomes are reproduced exactly). Missing widths are
     measured on the mesh (:func:`expected_width`; read, not decomposed: :func:`read_object_mesh`).
+    ``frame="base"``: the poses are the gripper's base link's (``gripper``: its description), turned
+    into TCP poses (:func:`tcp_from_base`).
+    ``resting``: each grasp carries the orientation its object rests in (``rest_q*``, else upright).
     Returns ``(candidates, renumbered object ids)``.
     """
     import hashlib
 
-    from annotator.dataset import poses_as_matrices
-    from annotator.objects import ObjectError, discover_objects, read_object_mesh
     from annotator.pipeline.source import GivenCandidates
-    from annotator.pipeline.worker import GivenGrasps
-    from annotator.tools.common import ToolError
 
-    sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
-    out: dict[str, GivenGrasps] = {}
+    sources = _sources(objects_dir)
+    out = {}
     renumbered: list[str] = []
     digest = hashlib.sha256()
+    depth = None
+    if frame == "base":
+        from annotator.tools.export import TcpDepth
+
+        depth = TcpDepth(gripper, config.gripper)
     for oid, rows in grasps.groupby("object_id", sort=True):
         ids = rows["grasp_id"].to_numpy()
         if np.array_equal(np.sort(ids), np.arange(len(rows))):
             rows = rows.sort_values("grasp_id", kind="stable")
         else:
             renumbered.append(str(oid))
-        if records_commands(rows) or "outcome" in rows.columns:  # label rows: replay them
-            T, width, quat = replay_grasps(rows, config, max_width)
-            out[str(oid)] = GivenGrasps(T, width, quat)
-            digest.update(str(oid).encode() + b"\0" + T.tobytes() + width.tobytes())
-            continue
-        T = poses_as_matrices(rows)
-        width = rows["width"].to_numpy(dtype=np.float64).copy()
-        todo = ~np.isfinite(width)
-        if todo.any() and oid in sources:
-            try:
-                mesh = read_object_mesh(sources[oid], config.objects, scale=scale)
-            except ObjectError as exc:
-                raise ToolError(f"{oid}: {exc}") from None
-            width[todo] = expected_width(mesh, T[todo], max_width)
-        width = np.clip(np.nan_to_num(width, nan=0.0), 0.0, max_width)
-        out[str(oid)] = GivenGrasps(T, width)
-        digest.update(str(oid).encode() + b"\0" + T.tobytes() + width.tobytes())
+        given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth)
+        if resting:
+            given = _with_rest(given, rows)
+        out[str(oid)] = given
+        digest.update(str(oid).encode() + b"\0" + given.T_obj_tcp.tobytes() + given.width.tobytes())
+        if given.rest_quat is not None:
+            digest.update(given.rest_quat.tobytes())
     return GivenCandidates(out, digest.hexdigest()), renumbered
+
+
+def _sources(objects_dir: Path) -> dict:
+    from annotator.objects import ObjectDiscoveryError, discover_objects
+    from annotator.tools.common import ToolError
+
+    try:
+        return {s.object_id: s for s in discover_objects(Path(objects_dir))}
+    except ObjectDiscoveryError as exc:
+        raise ToolError(str(exc)) from None
+
+
+def _object_grasps(oid: str, rows: pd.DataFrame, sources: dict, config, scale, max_width: float, depth):
+    """One object's grasps as the worker's GivenGrasps (label rows replayed, widths measured)."""
+    from annotator.dataset import poses_as_matrices
+    from annotator.pipeline.worker import GivenGrasps
+
+    if records_commands(rows) or "outcome" in rows.columns:  # label rows: replay them
+        T, width, quat = replay_grasps(rows, config, max_width)
+        return GivenGrasps(T, width, quat)
+    T = poses_as_matrices(rows)
+    width = rows["width"].to_numpy(dtype=np.float64).copy()
+    todo = ~np.isfinite(width)
+    mesh = _mesh(oid, sources, config, scale) if todo.any() and oid in sources else None
+    if depth is not None:
+        if todo.any() and mesh is None:  # an unknown object: the run names it; no chord to find
+            width[todo] = 0.0
+        T, width = tcp_from_base(T, width, depth, mesh)
+        return GivenGrasps(T, width)
+    if mesh is not None:
+        width[todo] = expected_width(mesh, T[todo], max_width)
+    width = np.clip(np.nan_to_num(width, nan=0.0), 0.0, max_width)
+    return GivenGrasps(T, width)
+
+
+def _mesh(oid: str, sources: dict, config, scale):
+    """The object's mesh as the poses see it; not weighed nor decomposed (the workers do that)."""
+    from annotator.objects import ObjectError, read_object_mesh
+    from annotator.tools.common import ToolError
+
+    try:
+        return read_object_mesh(sources[oid], config.objects, scale=scale)
+    except ObjectError as exc:
+        raise ToolError(f"{oid}: {exc}") from None
+
+
+def _with_rest(given, rows: pd.DataFrame):
+    """``given`` with the resting orientation of each row (upright where the table gives none)."""
+    from annotator.pipeline.worker import GivenGrasps
+
+    if all(c in rows.columns for c in REST_COLUMNS):
+        rest = rows[list(REST_COLUMNS)].to_numpy(dtype=np.float64)
+    else:
+        rest = np.tile([0.0, 0.0, 0.0, 1.0], (len(rows), 1))
+    return GivenGrasps(given.T_obj_tcp, given.width, given.quat, np.ascontiguousarray(rest))
+
+
+def commanded_table(
+    grasps: pd.DataFrame,
+    objects_dir: Path,
+    config,
+    scale: float | None,
+    max_width: float,
+    *,
+    gripper=None,
+    frame: str = "tcp",
+) -> pd.DataFrame:
+    """The grasps of :func:`read_grasps` as the commanded grasps a run simulates, one row each in
+    the table's order: ``object_id``, ``grasp_id`` (as read), ``cmd_x .. cmd_qw`` and ``cmd_width``
+    (the very floats a worker commands: base poses turned into TCP poses, missing widths measured),
+    ``object_scale`` (``scale``, NaN: the objects' own) and ``rest_q*`` when given. Replaying these
+    rows (:func:`annotator.tools.given.replay_grasps`) simulates exactly what ``evaluate`` does.
+    """
+    from annotator.geometry import Transform, matrix_to_quat
+
+    sources = _sources(objects_dir)
+    depth = None
+    if frame == "base":
+        from annotator.tools.export import TcpDepth
+
+        depth = TcpDepth(gripper, config.gripper)
+    parts = []
+    for oid, rows in grasps.groupby("object_id", sort=True):
+        given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth)
+        T = np.asarray(given.T_obj_tcp)
+        if given.quat is not None:  # label rows: their commanded rotations bit for bit
+            quat = np.asarray(given.quat, dtype=np.float64).reshape(-1, 4)
+        else:  # as simulate() builds each pose: Transform(pos, quat) normalises the quaternion
+            raw = matrix_to_quat(T[:, :3, :3]).reshape(-1, 4)
+            quat = np.array([Transform(T[k, :3, 3], raw[k]).quat for k in range(len(T))]).reshape(-1, 4)
+        part = pd.DataFrame(
+            {"object_id": rows["object_id"].to_numpy(dtype=object), "grasp_id": rows["grasp_id"].to_numpy()}
+        )
+        part[list(CMD_COLUMNS[:3])] = T[:, :3, 3]
+        part[list(CMD_COLUMNS[3:7])] = quat
+        part["cmd_width"] = np.asarray(given.width, dtype=np.float64)
+        part["object_scale"] = np.nan if scale is None else float(scale)
+        if all(c in rows.columns for c in REST_COLUMNS):
+            part[list(REST_COLUMNS)] = rows[list(REST_COLUMNS)].to_numpy(dtype=np.float64)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)

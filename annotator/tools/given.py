@@ -34,7 +34,8 @@ CMD_COLUMNS = ("cmd_x", "cmd_y", "cmd_z", "cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"
 @dataclass(frozen=True)
 class GivenSpan:
     """Given grasps of one object: ``T_obj_tcp`` (n, 4, 4), ``width`` (n,) m, ``grasp_id`` (n,);
-    ``quat`` (n, 4) the rotations bit for bit, or None."""
+    ``quat`` (n, 4) the rotations bit for bit, or None; ``rest_quat`` (n, 4): the orientation the
+    object rests in for each grasp (resting trials; None: upright)."""
 
     object_id: str
     source: object  # an annotator.objects.ObjectSource
@@ -43,6 +44,7 @@ class GivenSpan:
     width: np.ndarray
     grasp_id: np.ndarray
     quat: np.ndarray | None = None
+    rest_quat: np.ndarray | None = None
 
 
 def records_commands(rows: pd.DataFrame) -> bool:
@@ -73,17 +75,38 @@ def replay_grasps(
     return poses_as_matrices(rows), np.maximum(width, 0.0), None
 
 
-def simulate_given(span: GivenSpan, config: AnnotatorConfig, seed: int = 0, trials: int = 1):
+def simulate_given(
+    span: GivenSpan,
+    config: AnnotatorConfig,
+    seed: int = 0,
+    trials: int = 1,
+    gripper=None,
+    resting: bool | str = False,
+):
     """Label rows (the job's columns) for the given grasps of one object; runs in a worker.
 
+    ``gripper``: the gripper simulated (a description, name or folder; None: the RG2); ``resting``:
+    the object rests on the table (:mod:`annotator.cell.resting`) in ``span.rest_quat``, the
+    grasps moving with it (True, ``"object"``) or staying in the table frame (``"table"``).
     Returns ``(rows, error)``: rows with ``grasp_id`` from the span, or ``(None, reason)`` when the
     object cannot be loaded. The worker's world is the job's (:mod:`annotator.pipeline.worker`).
     """
     from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 
     k = len(span.width)
-    given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64), span.quat)
-    task = SpanTask(Span(span.object_id, span.source, span.scale, 0, k, given), config, seed, k, trials)
+    rest = None
+    if resting:
+        rest = np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)) if span.rest_quat is None else np.asarray(span.rest_quat)
+    given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64), span.quat, rest)
+    task = SpanTask(
+        Span(span.object_id, span.source, span.scale, 0, k, given),
+        config,
+        seed,
+        k,
+        trials,
+        gripper=gripper,
+        resting=resting,
+    )
     result = label_span(task)
     if result.error is not None:
         return None, result.error

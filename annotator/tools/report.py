@@ -267,13 +267,17 @@ def per_object_table(df: pd.DataFrame, manifest: dict | None = None) -> pd.DataF
 # ------------------------------------------------------------------------------------ sections
 
 
-def _run_section(manifest: dict | None) -> str:
+def _run_section(manifest: dict | None, gripper_line: str = "") -> str:
     if manifest is None:
-        return "<p class='muted'>No <code>_manifest.json</code> beside the labels: run settings unknown.</p>"
+        return (
+            "<p class='muted'>No <code>_manifest.json</code> beside the labels: run settings unknown.</p>"
+            + (f"<p>{_e(gripper_line)}</p>" if gripper_line else "")
+        )
     from annotator.tools.common import run_settings
 
     run = run_settings(manifest)
     rows = [
+        ("gripper", gripper_line.removeprefix("gripper: ")),
         ("seed", run.get("seed")),
         ("candidates per object (n)", run.get("n")),
         ("trials per candidate", run.get("trials")),
@@ -374,9 +378,16 @@ def _histograms_section(df: pd.DataFrame, max_width: float | None) -> str:
 
 
 def _pictures_section(
-    labels_dir: Path, df: pd.DataFrame, objects_dir: Path | None, n_objects: int, n_grasps: int, seed: int
+    labels_dir: Path,
+    df: pd.DataFrame,
+    objects_dir: Path | None,
+    n_objects: int,
+    n_grasps: int,
+    seed: int,
+    gripper=None,
 ) -> tuple[str, int]:
-    """``show`` pictures of the objects with the most successes (ties: object id)."""
+    """``show`` pictures of the objects with the most successes (ties: object id), drawn with
+    ``gripper`` (a description; default the RG2)."""
     from annotator.tools.common import ToolError, object_mesh
     from annotator.tools.show import GraspRenderer, choose_grasps, grasp_sheet, overview
 
@@ -392,7 +403,7 @@ def _pictures_section(
             continue
         outcomes = ("success",) if rows["success"].any() else ()
         picked = choose_grasps(rows, n_grasps, seed, outcomes)
-        with GraspRenderer(mesh) as renderer:
+        with GraspRenderer(mesh, description=gripper) as renderer:
             sheet = grasp_sheet(renderer, picked)
             ov = overview(renderer, rows)
         counts = rows["outcome"].value_counts().to_dict()
@@ -417,18 +428,21 @@ def report(
     picture_objects: int = 3,
     picture_grasps: int = 4,
     seed: int = 0,
+    gripper=None,
 ) -> ReportResult:
     """Write the HTML report of the labels in ``labels_dir`` to ``out``.
 
     ``picture_objects``: how many objects get ``show`` pictures (those with the most successes);
     0 for none. Pictures need the meshes: ``objects_dir`` or the geometry the labels carry.
+    ``gripper``: a name, folder or description to draw (default: the one recorded with the labels).
     """
     from annotator import __version__
-    from annotator.tools.common import check_output_file, open_labels
+    from annotator.tools.common import check_output_file, labelling_gripper, open_labels
 
     out = check_output_file(out, "--html")
     run = open_labels(labels_dir)
     df, manifest = run.labels, run.manifest
+    hand = labelling_gripper(labels_dir, gripper, df)
     table = per_object_table(df, manifest)
     n, rate = len(df), float(df["success"].mean()) if len(df) else 0.0
     max_width = None
@@ -436,7 +450,7 @@ def report(
     pictures, n_pictures = ("", 0)
     if picture_objects > 0:
         pictures, n_pictures = _pictures_section(
-            Path(labels_dir), df, objects_dir, picture_objects, picture_grasps, seed
+            Path(labels_dir), df, objects_dir, picture_objects, picture_grasps, seed, hand.description
         )
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     page = f"""<!DOCTYPE html>
@@ -449,7 +463,7 @@ def report(
 <p class="muted">rg2-annotator {__version__}, report written {now}</p>{state}
 <p><b>{df["object_id"].nunique()}</b> objects, <b>{n}</b> grasps, <b>{rate:.1%}</b> success
 ({int(df["success"].sum())} held after the shake).</p>
-<h2>Run</h2>{_run_section(manifest)}
+<h2>Run</h2>{_run_section(manifest, hand.line())}
 <h2>Failures</h2>{_failures_section(manifest, df)}
 <h2>Objects</h2>{_objects_section(table)}
 <h2>Width and score</h2>{_histograms_section(df, max_width)}

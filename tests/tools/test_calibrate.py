@@ -104,3 +104,42 @@ def test_calibrate_bad_real_trials_are_one_line(labelled, tmp_path: Path, text: 
     result = CliRunner().invoke(main, [*args, "--write-config", str(tmp_path / "c.toml")])
     assert result.exit_code == 2 and message in result.output, result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_folds_split_by_object_and_cover_each_once() -> None:
+    ids = [f"obj{i}" for i in range(14)]
+    folds = cal.object_folds(ids * 3, 5, seed=0)  # repeated ids (one per trial) are one object
+    assert len(folds) == 5 and sorted(o for f in folds for o in f) == sorted(ids)
+    assert {len(f) for f in folds} == {2, 3}
+    assert cal.object_folds(ids, 5, seed=0) == folds and cal.object_folds(ids, 5, seed=1) != folds
+    assert len(cal.object_folds(["a", "b"], 5)) == 2  # at most one fold per object
+
+
+def test_cross_validation_chooses_each_folds_setting_without_its_objects() -> None:
+    """Setting A reproduces the real outcomes of objects a..d, B only those of object e: the fold
+    holding e out must choose A (from a..d alone) and so predict e wrongly, while the setting
+    fitted on everything would be judged on trials it was chosen with."""
+    import pandas as pd
+
+    objects = np.repeat(list("abcde"), 6)
+    real = np.tile([True, True, True, False, False, True], 5)
+    trials = pd.DataFrame({"object_id": objects, "grasp_id": np.arange(30) % 6, "real_success": real})
+    a, b = cal.Setting(1.0, 40.0, 1.0), cal.Setting(0.5, 40.0, 1.0)
+    sim_a = real.copy()
+    sim_a[objects == "e"] = ~real[objects == "e"]
+    sim_b = ~real
+    sim_b[objects == "e"] = real[objects == "e"]
+    labelled = cal._gripper_settings(AnnotatorConfig())
+    cv = cal.cross_validate(trials, {a: sim_a, b: sim_b}, [a, b], labelled, folds=5, seed=0, bootstrap=100)
+    assert len(cv.folds) == 5
+    for fold in cv.folds:
+        assert not set(fold.held_out) & set(fold.fitted_on)  # no object in both
+        assert sorted(fold.held_out + fold.fitted_on) == list("abcde")
+        assert fold.best == a  # four objects of A's against at most one of B's
+        held = np.isin(objects, fold.held_out)
+        assert fold.held.n == held.sum()
+        np.testing.assert_array_equal(cv.predicted[held], sim_a[held])
+    assert cv.pooled.accuracy == pytest.approx(24 / 30)
+    assert "held out" in cal.format_folds(
+        cv
+    ) and "cross-validated by object, 30 held-out trials" in cal.format_folds(cv)

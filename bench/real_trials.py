@@ -1,0 +1,576 @@
+"""Simulated grasps against real ones: GRASPA's Franka Panda trials through evaluate and calibrate.
+
+    python -m bench.real_trials [--data FOLDER] [--work FOLDER] [--workers 2]
+
+The data folder holds GRASPA's real Franka Panda trials of two planners (dexnet, gpd): 200 grasps
+on 14 YCB objects lying on a board, each with the gripper's pose relative to the object and the
+real outcome (``grasped``: lifted, GRASPA's S4; ``stability``: the share of a shaking motion it
+stayed in the hand, S5), the board layouts (each object's pose on the board, millimetres) and the
+YCB meshes (gzipped STL, metres); its README gives the frames. Default: the folder
+``graspa_panda_calibration`` under ``real`` of the folder ``shared`` beside the repository or
+beside its parent. It is read, never copied into the project; nothing here is a test.
+
+What is built in ``--work`` (a scratch folder, default under the system's temporary folder):
+
+- ``objects/``: the meshes gunzipped, and ``objects.toml`` with the YCB masses the data's README
+  gives (the YCB object set's table).
+- ``grasps_base.csv``: each trial's grasp as the pose of the Panda hand's base frame in the
+  object's mesh frame, ``T_obj_base = T_obj_graspa · Tz(-105 mm) · Rz(-90 deg)``: GRASPA's TCP is
+  the Franka hand frame moved 105 mm along its z (the approach) and its fingers close along its y,
+  our Panda base frame is Franka's hand frame with x = -y, y = x (ACRONYM's axes, the fingers
+  along x). Each row also carries the object's orientation on the board (``rest_q*``: the
+  layout's rotation, orthonormalised), so an object whose mesh z pointed down rests upside down.
+- ``grasps_tcp.csv``: the same grasps as TCP poses of our Panda model (its pad-centre midpoint,
+  103.65 mm along the base's z: ``T_obj_graspa · Rz(-90 deg) · Tz(-1.35 mm)``), for the RG2 at
+  the same TCP poses.
+- ``real.csv``: ``object_id, grasp_id, real_success`` (= ``grasped``).
+
+Then ``annotator evaluate --gripper panda --frame base --resting`` (the default model),
+``annotator evaluate --gripper rg2 --resting`` at the TCP poses, and ``annotator calibrate``
+over a grid of pad friction, grip force and shake severity on the Panda's labels, cross-validated
+by object, with every simulated outcome written for the figures. Printed and recorded, each with a
+95 % percentile bootstrap interval over the trials: accuracy, balanced accuracy, precision,
+recall and F1 of simulated ``success`` against real ``grasped``, for the default Panda, the
+setting calibrated by object-wise cross-validation (the held-out predictions of every fold,
+pooled), the setting fitted on all trials (optimistic: chosen and scored on the same trials), two
+baselines (always "success"; an analytic check on the mesh: the contacts of the pads' centre
+line both inside a friction cone) and the RG2; per object; the folds; and the rows where the
+calibrated simulation and reality disagree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import math
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from annotator.config import AnnotatorConfig
+from annotator.geometry import matrix_to_quat
+from bench.harness import ROOT, Run
+
+DATA_NAME = "graspa_panda_calibration"
+# m: GRASPA's TCP on the Franka hand frame's z (the data's README; hsp-panda/panda_grasp_server
+# moves the panda_tcp link there), and our Panda model's TCP, the pad-centre midpoint (its FK).
+# The public sources disagree: GRASPA's Simox gripper model puts panda_tcp 90 mm from its root
+# (hsp-iit/GRASPA-test experiment_data/panda/panda_gripper/panda_gripper.xml); --tcp-depth
+# measures the figures at another depth.
+GRASPA_TCP_DEPTH = 0.105
+# The Franka hand frame's axes seen from our Panda base frame: x = -y, y = x (Rz(-90 deg)).
+R_HAND_BASE = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+# kg, the YCB object set's published masses, as the data's README lists them.
+MASSES = {
+    "banana": 0.066,
+    "cracker_box": 0.411,
+    "foam_brick": 0.028,
+    "gelatin_box": 0.097,
+    "hammer": 0.665,
+    "medium_clamp": 0.059,
+    "mustard_bottle": 0.603,
+    "pear": 0.049,
+    "potted_meat_can": 0.370,
+    "power_drill": 0.895,
+    "scissors": 0.082,
+    "strawberry": 0.018,
+    "tennis_ball": 0.058,
+    "tomato_soup_can": 0.349,
+    "chips_can": 0.205,
+    "master_chef_can": 0.414,
+}
+POSE = [f"T_obj_tcp_{i}{j}" for i in range(3) for j in range(4)]
+# m: the Panda hand's stroke. GRASPA's grasp server opens the hand fully (0.079 m) before each
+# approach (hsp-panda/panda_grasp_server@0b0d184, open_gripper), so the Panda's grasps are given
+# this width: the gripper approaches fully open and closes from there, whatever the chord.
+PANDA_STROKE = 0.080
+STATISTICS = ("accuracy", "balanced", "precision", "recall", "f1")
+# m: Bullet resists a contact's spin with (pad spinning x object lateral + object spinning x pad
+# lateral) friction times the normal force (btManifoldResult::calculateCombinedSpinningFriction).
+# A rubber pad of 17.5 x 18.5 mm (the Panda's, assets/grippers/panda/README.md) pressed flat with
+# uniform pressure resists with mu N times the mean distance of its area from its centre, 6.90 mm;
+# with mu 1 on both sides and the objects' 0.002 m, the pad's share is 6.90 - 2.0 = 4.9 mm. An
+# upper bound: a curved object touches a smaller patch.
+FLAT_PAD_SPINNING = 0.0049
+# The analytic baseline's Coulomb coefficient: the project's antipodal test (SamplerConfig).
+CONE_FRICTION = AnnotatorConfig().sampler.friction_coefficient
+
+
+def default_data() -> Path | None:
+    """The data folder beside the repository or beside its parent, if there is one."""
+    for base in (ROOT.parent, ROOT.parent.parent):
+        folder = base.joinpath("shared", "real", DATA_NAME)
+        if (folder / "trials.csv").is_file():
+            return folder
+    return None
+
+
+# --- the data ------------------------------------------------------------------------------------
+
+
+def read_layout(path: Path) -> dict[str, np.ndarray]:
+    """Object (YCB name) -> ``T_board_obj`` (4, 4), metres, rotation orthonormalised (the files
+    give some rotations to four digits)."""
+    out = {}
+    for obj in ET.parse(path).getroot().iter("ManipulationObject"):
+        name = obj.find("File").text.split("/")[-2]
+        matrix = obj.find("GlobalPose/Transform/Matrix4x4")
+        T = np.eye(4)
+        for i in range(4):
+            row = matrix.find(f"row{i + 1}")
+            for j in range(4):
+                T[i, j] = float(re.sub(r"[^0-9eE.+-]", "", row.get(f"c{j + 1}")))
+        U, _, Vt = np.linalg.svd(T[:3, :3])
+        T[:3, :3] = U @ Vt
+        T[:3, 3] /= 1000.0
+        out[name] = T
+    return out
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """The trials (``trials``: one row per trial with its ``object_id`` and ``grasp_id`` in the
+    tables below, ``T_obj_graspa`` (n, 4, 4)), and the files written for the commands."""
+
+    trials: pd.DataFrame
+    T_obj_graspa: np.ndarray
+    objects: Path
+    grasps_base: Path
+    grasps_tcp: Path
+    real: Path
+
+
+def prepare(data: Path, work: Path, tcp_depth: float = GRASPA_TCP_DEPTH) -> Prepared:
+    """Objects, grasp tables and real outcomes in ``work`` (see the module docstring); GRASPA's
+    TCP ``tcp_depth`` (m) along the Franka hand frame's z."""
+    trials = pd.read_csv(data / "trials.csv")
+    layouts = {
+        k: read_layout(data / "layouts" / f"layout_{k}.xml") for k in sorted(trials["layout"].unique())
+    }
+    objects = work / "objects"
+    objects.mkdir(parents=True, exist_ok=True)
+    for name in sorted(trials["object"].unique()):
+        target = objects / f"{name}.stl"
+        if not target.is_file():
+            with gzip.open(data / "meshes" / f"{name}.stl.gz", "rb") as src, open(target, "wb") as dst:
+                shutil.copyfileobj(src, dst)
+    toml = "".join(f'["{n}"]\nmass = {MASSES[n]}\n' for n in sorted(trials["object"].unique()))
+    (objects / "objects.toml").write_text(toml)
+
+    trials = trials.assign(object_id=trials["object"])
+    trials["grasp_id"] = trials.groupby("object_id").cumcount()
+    T = np.tile(np.eye(4), (len(trials), 1, 1))
+    T[:, :3, :] = trials[POSE].to_numpy(dtype=np.float64).reshape(-1, 3, 4)
+    rest = np.array([matrix_to_quat(layouts[r.layout][r.object][:3, :3]) for r in trials.itertuples()])
+    base = T @ _tz(-tcp_depth) @ _rot(R_HAND_BASE)
+    tcp = base @ _tz(_panda_tcp_depth())
+    paths = {}
+    for name, poses in (("grasps_base", base), ("grasps_tcp", tcp)):
+        table = _pose_table(trials, poses, rest)
+        if name == "grasps_base":  # GRASPA's robot opened the hand fully before every approach
+            table["width"] = PANDA_STROKE
+        paths[name] = work / f"{name}.csv"
+        table.to_csv(paths[name], index=False, float_format="%.17g")
+    real = work / "real.csv"
+    trials.assign(real_success=trials["grasped"])[["object_id", "grasp_id", "real_success"]].to_csv(
+        real, index=False
+    )
+    return Prepared(trials, T, objects, paths["grasps_base"], paths["grasps_tcp"], real)
+
+
+def _tz(z: float) -> np.ndarray:
+    T = np.eye(4)
+    T[2, 3] = z
+    return T
+
+
+def _rot(R: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    return T
+
+
+def _panda_tcp_depth() -> float:
+    from annotator.tools.export import TcpDepth
+
+    return float(TcpDepth("panda").T_base_tcp(np.array([0.04]))[0][2, 3])
+
+
+def _pose_table(trials: pd.DataFrame, T: np.ndarray, rest: np.ndarray) -> pd.DataFrame:
+    from annotator.dataset import pose_columns
+
+    table = pose_columns(T)
+    table.insert(0, "object_id", trials["object_id"].to_numpy())
+    table.insert(1, "grasp_id", trials["grasp_id"].to_numpy())
+    table[["rest_qx", "rest_qy", "rest_qz", "rest_qw"]] = rest
+    return table
+
+
+# --- running the commands -------------------------------------------------------------------------
+
+
+def annotator(*args: object) -> str:
+    """Run ``annotator ARGS`` in a child process (this interpreter); its output, echoed."""
+    cmd = [sys.executable, "-c", "from annotator.cli import main; main()", *map(str, args)]
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    output = done.stdout + done.stderr
+    print(output, end="", flush=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"annotator {args[0]} exited {done.returncode}")
+    print(f"[annotator {args[0]}: {time.perf_counter() - t0:.0f} s]", flush=True)
+    return output
+
+
+def evaluate(
+    prepared: Prepared, out: Path, gripper: str, frame: str, workers: int, config=None
+) -> pd.DataFrame:
+    """``annotator evaluate --resting`` of one grasp table; the rows in the trials' order."""
+    table = prepared.grasps_base if frame == "base" else prepared.grasps_tcp
+    args = ["evaluate", table, "--objects", prepared.objects, "--out", out, "--gripper", gripper]
+    args += ["--frame", frame, "--resting-grasps", "table", "--workers", workers, "--quiet", "--overwrite"]
+    if config is not None:
+        args += ["--config", config]
+    annotator(*args)
+    rows = pd.read_parquet(out)
+    return prepared.trials[["object_id", "grasp_id"]].merge(rows, on=["object_id", "grasp_id"], how="left")
+
+
+# --- figures ---------------------------------------------------------------------------------------
+
+
+def stats(real: np.ndarray, sim: np.ndarray, bootstrap: int, seed: int = 0):
+    from annotator.tools.calibrate import agreement
+
+    return agreement(np.asarray(real, bool), np.asarray(sim, bool), bootstrap, seed)
+
+
+def stat_row(name: str, a, **extra) -> dict:
+    row = {"predictor": name, **extra, "n": a.n}
+    for s in STATISTICS:
+        row[s] = a.value(s)
+        row[f"{s}_lo"], row[f"{s}_hi"] = a.interval(s)
+    return row
+
+
+def show(row: dict) -> str:
+    parts = []
+    for s in STATISTICS:
+        v = row[s]
+        parts.append(
+            f"{s} n/a"
+            if not math.isfinite(v)
+            else f"{s} {100 * v:.1f} [{100 * row[s + '_lo']:.0f}, {100 * row[s + '_hi']:.0f}]"
+        )
+    return f"{row['predictor']:>28}: " + ", ".join(parts)
+
+
+def friction_cone_baseline(prepared: Prepared, tcp: np.ndarray, stroke: float, mu: float) -> np.ndarray:
+    """An analytic check on the mesh: the pads' centre line (the TCP's x through the TCP) meets the
+    mesh on both sides within the stroke, and the closing line lies inside the friction cone
+    (half-angle atan ``mu``) of both contacts. Scanned meshes' faces may be wound either way: the
+    cone test takes the normal's line, not its side."""
+    import trimesh
+
+    from annotator.sampler import _first_hits
+
+    out = np.zeros(len(tcp), dtype=bool)
+    cos_cone = 1.0 / math.sqrt(1.0 + mu**2)
+    for oid, idx in prepared.trials.groupby("object_id").indices.items():
+        mesh = trimesh.load(prepared.objects / f"{oid}.stl", force="mesh")
+        tri = np.asarray(mesh.triangles)
+        normals = np.asarray(mesh.face_normals)
+        T = tcp[idx]
+        x, p = T[:, :3, 0], T[:, :3, 3]
+        half = stroke / 2
+        t1, f1 = _first_hits(tri, p - half * x, x)
+        t2, f2 = _first_hits(tri, p + half * x, -x)
+        reach = (t1 <= half) & (t2 <= half)
+        n1 = np.abs(np.sum(normals[np.maximum(f1, 0)] * x, axis=1))
+        n2 = np.abs(np.sum(normals[np.maximum(f2, 0)] * x, axis=1))
+        out[idx] = reach & (f1 >= 0) & (f2 >= 0) & (n1 >= cos_cone) & (n2 >= cos_cone)
+    return out
+
+
+def main() -> None:  # noqa: C901 - a script: one pass from the data to the record
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=None, help="the trials' folder [default: see above]")
+    ap.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "rg2-real-trials")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--bootstrap", type=int, default=2000)
+    ap.add_argument("--friction", default="0.5,1.0,2.0", help="pad friction coefficients of the grid")
+    ap.add_argument("--force", default="25,70,140", help="grip forces of the grid, N")
+    ap.add_argument("--severity", default="0,0.5,1", help="shake severities of the grid (0: lift only)")
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument(
+        "--pad-spinning-friction",
+        type=float,
+        default=None,
+        help="[gripper] pad_spinning_friction for every simulation, m [default: the description's]; "
+        f"{FLAT_PAD_SPINNING:.4f}: the Panda's rubber pad pressed flat (FLAT_PAD_SPINNING)",
+    )
+    ap.add_argument(
+        "--tcp-depth",
+        type=float,
+        default=GRASPA_TCP_DEPTH,
+        help="GRASPA's TCP along the Franka hand frame's z, m [default: the data's 0.105]",
+    )
+    args = ap.parse_args()
+    data = args.data or default_data()
+    if data is None or not (data / "trials.csv").is_file():
+        sys.exit(f"bench.real_trials: no trials.csv in {data or 'the default places'}; pass --data FOLDER")
+    args.work.mkdir(parents=True, exist_ok=True)
+    prepared = prepare(data, args.work, args.tcp_depth)
+    real = prepared.trials["grasped"].to_numpy(dtype=bool)
+    print(
+        f"{len(real)} real trials on {prepared.trials.object_id.nunique()} objects, {real.mean():.1%} grasped"
+    )
+    arguments = {k: (v if k not in ("data", "work") else None) for k, v in vars(args).items()}
+    arguments["data"] = data.name
+    config = execution_config(args.work, args.pad_spinning_friction)
+    annotator_config = AnnotatorConfig.from_toml(config)
+    with Run(
+        "real_trials", config=arguments, annotator=annotator_config, command="python -m bench.real_trials"
+    ) as run:
+        report(run, prepared, real, args, config)
+
+
+def chord_check(prepared: Prepared) -> dict[str, float]:
+    """Which of GRASPA's TCP axes the fingers close along: the share of grasps whose pads, closing
+    along the axis through the TCP, meet the mesh on both sides within the Panda's 80 mm."""
+    import trimesh
+
+    from annotator.tools.evaluate import expected_width
+
+    out = {}
+    for axis, R in (("y", _rot(R_HAND_BASE)), ("x", np.eye(4))):
+        found = 0
+        for oid, idx in prepared.trials.groupby("object_id").indices.items():
+            mesh = trimesh.load(prepared.objects / f"{oid}.stl", force="mesh")
+            found += int((expected_width(mesh, prepared.T_obj_graspa[idx] @ R, 0.080) > 0).sum())
+        out[axis] = found / len(prepared.trials)
+    return out
+
+
+def execution_config(work: Path, pad_spinning_friction: float | None = None) -> Path:
+    """The trial as GRASPA's robot executed it, written for ``--config`` (docs/real_trials.md);
+    ``pad_spinning_friction`` (m) overrides the gripper description's when given."""
+    path = work / "execution.toml"
+    text = (
+        "# GRASPA's execution (hsp-panda/panda_grasp_server@0b0d184): the arm moves to the grasp in a\n"
+        "# straight line whatever it meets (the object is not in its planning scene), then lifts slowly\n"
+        "[protocol]\n"
+        'approach = "simulated"\n'
+        f"approach_speed = {EXECUTION['approach_speed']}\n"
+        f"lift_duration = {EXECUTION['lift_duration']}\n"
+    )
+    if pad_spinning_friction is not None:
+        text += f"[gripper]\npad_spinning_friction = {pad_spinning_friction!r}\n"
+    path.write_text(text)
+    return path
+
+
+# The execution settings of docs/real_trials.md: a simulated approach at 0.1 m/s, a 10 cm lift in 0.5 s.
+EXECUTION = {"approach_speed": 0.1, "lift_duration": 0.5}
+
+
+def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -> None:  # noqa: C901
+    from annotator.tools import calibrate as cal
+
+    work, boot = args.work, args.bootstrap
+    trials = prepared.trials
+    chords = chord_check(prepared)
+    print(
+        f"closing along GRASPA's y: a chord within 80 mm for {chords['y']:.0%} of grasps; "
+        f"along x: {chords['x']:.0%}"
+    )
+    run.figure(
+        "chord_share_closing_y",
+        chords["y"],
+        note="grasps whose pads, closing along GRASPA's TCP y, meet the mesh within 80 mm",
+    )
+    run.figure("chord_share_closing_x", chords["x"], note="the same along GRASPA's TCP x")
+
+    rows: list[dict] = []
+    panda = evaluate(prepared, work / "ev_panda", "panda", "base", args.workers, config)
+    sim_panda = panda["success"].to_numpy(dtype=bool)
+    rows.append(stat_row("panda (as shipped)", stats(real, sim_panda, boot)))
+
+    # the RG2 at the same TCP poses, closing on the chord the Panda's pads found there
+    tcp = pd.read_csv(prepared.grasps_tcp)
+    closed = panda["outcome"].ne("collision") & panda["width"].gt(0.001)
+    tcp["width"] = np.where(closed, panda["width"], np.nan)
+    tcp.to_csv(prepared.grasps_tcp, index=False, float_format="%.17g")
+    rg2 = evaluate(prepared, work / "ev_rg2", "rg2", "tcp", args.workers, config)
+    sim_rg2 = rg2["success"].to_numpy(dtype=bool)
+
+    always = np.ones(len(real), dtype=bool)
+    T_tcp = prepared.T_obj_graspa @ _rot(R_HAND_BASE) @ _tz(_panda_tcp_depth() - args.tcp_depth)
+    cone = friction_cone_baseline(prepared, T_tcp, 0.080, CONE_FRICTION)
+
+    # the grid, through the command (every simulated outcome written for the figures)
+    outcomes_path, toml = work / "grid.parquet", work / "calibrated.toml"
+    annotator(
+        "calibrate",
+        work / "ev_panda",
+        prepared.real,
+        "--objects",
+        prepared.objects,
+        "--friction",
+        args.friction,
+        "--force",
+        args.force,
+        "--severity",
+        args.severity,
+        "--folds",
+        args.folds,
+        "--workers",
+        args.workers,
+        "--write-config",
+        toml,
+        "--outcomes",
+        outcomes_path,
+    )
+    grid = pd.read_parquet(outcomes_path)
+    order = trials[["object_id", "grasp_id"]]
+    simulated = {}
+    for (mu, force, sev), part in grid.groupby(["friction", "force", "severity"], sort=True):
+        part = order.merge(part, on=["object_id", "grasp_id"], how="left")
+        simulated[cal.Setting(float(mu), float(force), float(sev))] = part["sim_success"].to_numpy(dtype=bool)
+    settings = sorted(simulated, key=lambda s: (s.friction, s.force, s.severity))
+    labelled = cal._gripper_settings(AnnotatorConfig(), "panda")
+    table = trials[["object_id", "grasp_id"]].assign(real_success=real)
+    cv = cal.cross_validate(table, simulated, settings, labelled, args.folds, 0, "balanced", boot)
+    fitted = cal.rank(cal.score_settings(real, simulated, settings, labelled, boot), "balanced").iloc[0]
+    best = fitted["_setting"]
+    rows.append(stat_row("panda, calibrated (CV by object)", cv.pooled))
+    rows.append(
+        stat_row("panda, fitted on all (optimistic)", fitted["_agreement"], setting=cal.setting_text(best))
+    )
+    before = cal.Setting(1.0, 70.0, 1.0)
+    if before in simulated:
+        rows.append(stat_row("panda, before (mu 1, 70 N, x1)", stats(real, simulated[before], boot)))
+    rows.append(stat_row("always success", stats(real, always, boot)))
+    rows.append(stat_row(f"friction cone (mu {CONE_FRICTION:g})", stats(real, cone, boot)))
+    rows.append(stat_row("rg2 at the same TCP poses", stats(real, sim_rg2, boot)))
+    print("\nagreement with the real grasped, % [95 % bootstrap interval]:")
+    for row in rows:
+        print(show(row))
+    run.table(
+        "agreement",
+        rows,
+        note="simulated or predicted success against real grasped; *_lo/*_hi: 95 % bootstrap",
+    )
+    for row in rows:
+        key = re.sub(r"[^a-z0-9]+", "_", row["predictor"].lower()).strip("_")
+        for s_name in ("balanced", "precision"):
+            run.figure(
+                f"{key}_{s_name}"[:60],
+                row[s_name],
+                note=f"{row['predictor']}: {s_name}, 95 % CI "
+                f"{row[s_name + '_lo']:.3f}..{row[s_name + '_hi']:.3f}",
+            )
+    print("\n" + cal.format_folds(cv))
+    run.table(
+        "folds",
+        [
+            {
+                "fold": f.index + 1,
+                "held_out": " ".join(f.held_out),
+                "n_fit": f.fit.n,
+                "setting": cal.setting_text(f.best),
+                "fit_balanced": f.fit.balanced,
+                "held_n": f.held.n,
+                "held_accuracy": f.held.accuracy,
+                "held_balanced": f.held.balanced,
+                "held_precision": f.held.precision,
+            }
+            for f in cv.folds
+        ],
+        note="object-wise cross-validation: the setting chosen on the other objects, scored on the held-out "
+        "ones",
+    )
+    run.table(
+        "outcomes", _outcome_counts(panda, rg2), note="simulated outcomes of the shipped Panda and the RG2"
+    )
+    run.table("per_object", _per_object(trials, real, sim_panda, cv.predicted, always, cone, sim_rg2, boot))
+    run.table(
+        "disagreements",
+        _disagreements(trials, panda, real),
+        note="rows where the shipped Panda's success and real grasped differ",
+    )
+    run.ratio(
+        "rg2_collision_share_vs_panda",
+        (rg2["outcome"].eq("collision").mean() + 1e-9) / (panda["outcome"].eq("collision").mean() + 1e-9),
+        note="share of collision outcomes, RG2 over the Panda, the same grasps",
+    )
+
+
+def _outcome_counts(panda: pd.DataFrame, rg2: pd.DataFrame) -> list[dict]:
+    out = []
+    for outcome in ("success", "collision", "no_contact", "slipped_lift", "slipped_shake", "error"):
+        out.append(
+            {
+                "outcome": outcome,
+                "panda": int(panda["outcome"].eq(outcome).sum()),
+                "rg2": int(rg2["outcome"].eq(outcome).sum()),
+            }
+        )
+    return out
+
+
+def _per_object(trials, real, sim, cv, always, cone, rg2, boot) -> list[dict]:
+    out = []
+    for oid, idx in trials.groupby("object_id").indices.items():
+        a = stats(real[idx], sim[idx], boot)
+        out.append(
+            {
+                "object": oid,
+                "n": len(idx),
+                "real_grasped": float(real[idx].mean()),
+                "panda_success": float(sim[idx].mean()),
+                "panda_accuracy": a.accuracy,
+                "panda_accuracy_lo": a.accuracy_ci[0],
+                "panda_accuracy_hi": a.accuracy_ci[1],
+                "cv_accuracy": float((cv[idx] == real[idx]).mean()),
+                "always_accuracy": float((always[idx] == real[idx]).mean()),
+                "cone_accuracy": float((cone[idx] == real[idx]).mean()),
+                "rg2_accuracy": float((rg2[idx] == real[idx]).mean()),
+            }
+        )
+    return out
+
+
+def _disagreements(trials: pd.DataFrame, panda: pd.DataFrame, real: np.ndarray) -> list[dict]:
+    sim = panda["success"].to_numpy(dtype=bool)
+    out = []
+    for k in np.flatnonzero(sim != real):
+        t, p = trials.iloc[k], panda.iloc[k]
+        out.append(
+            {
+                "object": t["object_id"],
+                "grasp_id": int(t["grasp_id"]),
+                "planner": t["planner"],
+                "layout": int(t["layout"]),
+                "grasp": t["grasp_name"],
+                "real_grasped": int(t["grasped"]),
+                "real_stability": float(t["stability"]),
+                "sim_outcome": p["outcome"],
+                "sim_width_mm": 1000 * float(p["width"]),
+                "settle_drift_mm": 1000 * float(p["settle_drift"]),
+            }
+        )
+    return out
+
+
+if __name__ == "__main__":
+    main()
