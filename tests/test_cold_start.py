@@ -112,6 +112,30 @@ def test_one_worker_labels_an_object_before_decomposing_the_next():
     ]
 
 
+def test_a_warm_cache_keeps_the_decompositions_no_further_ahead_than_one_object_per_worker():
+    """Decomposition tasks that come back at once (a warm cache: each only reads its object) do not
+    run through every object ahead of the labelling (a worker keeps only so many objects, so the
+    labelling would load them again): with two objects ready and none of their spans handed out,
+    a free worker labels; one more decomposition goes out as soon as the labelling starts one of
+    them."""
+    schedule = Schedule(_planned(5), 20, 10, None, workers=2)
+    for unit in [schedule.next(), schedule.next()]:  # both workers decompose first
+        schedule.record(_ok(unit))  # o0 and o1 ready, no span of either handed out
+    assert _key(schedule.next()) == ("span", "o0", 0)  # not the decomposition of o2
+    assert _key(schedule.next()) == ("prepare", "o2", -1)  # o0 started: one object waits unstarted
+    schedule.record(_ok(Prepare("o2", None, None)))
+    got = [_key(schedule.next()) for _ in range(3)]  # o1 and o2 ready and unstarted: labelling
+    assert got == [("span", "o0", 10), ("span", "o1", 0), ("prepare", "o3", -1)]
+    # nothing left to label: a second decomposition alongside the first, as without a warm cache
+    order = [_key(u) for u in iter(schedule.next, None)]
+    assert order == [("span", "o1", 10), ("span", "o2", 0), ("span", "o2", 10), ("prepare", "o4", -1)]
+    schedule.record(_ok(Prepare("o3", None, None)))
+    schedule.record(_ok(Prepare("o4", None, None)))
+    order = [_key(u) for u in iter(schedule.next, None)]
+    assert order == [("span", "o3", 0), ("span", "o3", 10), ("span", "o4", 0), ("span", "o4", 10)]
+    assert schedule.exhausted
+
+
 def test_a_span_that_fails_stops_its_objects_other_spans():
     schedule = Schedule(_planned(1), 40, 10, None, workers=1)
     prepare = schedule.next()

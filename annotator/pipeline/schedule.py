@@ -8,16 +8,21 @@ another is decomposing, and no worker waits for one. The main process never load
 
 What a free worker gets, in this order of preference:
 
-1. while objects wait for their decomposition and none is running, and there is more than one
-   worker: the next decomposition (one worker keeps decomposing alongside the labelling, so the
-   decompositions do not all wait for the end);
+1. while objects wait for their decomposition and none is running, there is more than one
+   worker and fewer ready objects than workers have no span started yet: the next decomposition
+   (one worker keeps decomposing alongside the labelling, so the decompositions do not all wait
+   for the end, but no further ahead of it than one object per worker);
 2. a label span of the first object in plan order whose decomposition has finished;
 3. the next decomposition, when no span can start (at most one per worker at a time).
 
 So at the start every worker decomposes a different object (the objects the first spans need
 first, in plan order); as soon as the first object is ready its spans start, while the other
-decompositions go on. Spans are generated lazily per object (memory independent of N); an object
-that fails (its decomposition or a span) hands out nothing more.
+decompositions go on. The limit in 1. is for a warm cache, where a decomposition task only reads
+its object (a fraction of a CPU-second): without it one worker ran through every object's task
+ahead of the labelling, and a worker keeps only so many objects
+(:data:`~annotator.pipeline.worker.RECENT_OBJECT_BYTES`), so the labelling loaded most of them
+again. Spans are generated lazily per object (memory independent of N); an object that fails
+(its decomposition or a span) hands out nothing more.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ class _Ready:
     index: int
     head: Span = field(compare=False)
     rest: Iterator[Span] = field(compare=False)
+    started: bool = field(default=False, compare=False)  # a span of it handed out
 
 
 @dataclass
@@ -70,7 +76,7 @@ class Schedule:
 
     def next(self) -> Prepare | Span | None:
         """The next unit to submit, or None when nothing can start until a result comes back."""
-        if self.waiting and not self.preparing and self.workers > 1:
+        if self.waiting and not self.preparing and self.workers > 1 and self._ahead() < self.workers:
             return self._prepare()  # one worker keeps decomposing alongside the labelling
         span = self._span()
         if span is not None:
@@ -95,6 +101,10 @@ class Schedule:
             self.failed.add(oid)
             self.ready = [r for r in self.ready if r.index != self._index.get(oid)]
 
+    def _ahead(self) -> int:
+        """Ready objects none of whose spans has been handed out yet."""
+        return sum(1 for r in self.ready if not r.started)
+
     def _prepare(self) -> Prepare:
         obj = self.objects[self.waiting.popleft()]
         self.preparing.add(obj.source.object_id)
@@ -104,6 +114,7 @@ class Schedule:
         if not self.ready:
             return None
         first = self.ready[0]
+        first.started = True
         span, following = first.head, next(first.rest, None)
         if following is None:
             self.ready.pop(0)
