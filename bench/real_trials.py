@@ -59,6 +59,7 @@ import pandas as pd
 from annotator.config import AnnotatorConfig
 from annotator.geometry import matrix_to_quat
 from bench.harness import ROOT, Run
+from bench.object_sets import YCB_MASSES  # kg, the YCB set's published masses
 
 DATA_NAME = "graspa_panda_calibration"
 # m: GRASPA's TCP on the Franka hand frame's z (the data's README; hsp-panda/panda_grasp_server
@@ -69,25 +70,6 @@ DATA_NAME = "graspa_panda_calibration"
 GRASPA_TCP_DEPTH = 0.105
 # The Franka hand frame's axes seen from our Panda base frame: x = -y, y = x (Rz(-90 deg)).
 R_HAND_BASE = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-# kg, the YCB object set's published masses, as the data's README lists them.
-MASSES = {
-    "banana": 0.066,
-    "cracker_box": 0.411,
-    "foam_brick": 0.028,
-    "gelatin_box": 0.097,
-    "hammer": 0.665,
-    "medium_clamp": 0.059,
-    "mustard_bottle": 0.603,
-    "pear": 0.049,
-    "potted_meat_can": 0.370,
-    "power_drill": 0.895,
-    "scissors": 0.082,
-    "strawberry": 0.018,
-    "tennis_ball": 0.058,
-    "tomato_soup_can": 0.349,
-    "chips_can": 0.205,
-    "master_chef_can": 0.414,
-}
 POSE = [f"T_obj_tcp_{i}{j}" for i in range(3) for j in range(4)]
 # m: the Panda hand's stroke. GRASPA's grasp server opens the hand fully (0.079 m) before each
 # approach (hsp-panda/panda_grasp_server@0b0d184, open_gripper), so the Panda's grasps are given
@@ -163,7 +145,7 @@ def prepare(data: Path, work: Path, tcp_depth: float = GRASPA_TCP_DEPTH) -> Prep
         if not target.is_file():
             with gzip.open(data / "meshes" / f"{name}.stl.gz", "rb") as src, open(target, "wb") as dst:
                 shutil.copyfileobj(src, dst)
-    toml = "".join(f'["{n}"]\nmass = {MASSES[n]}\n' for n in sorted(trials["object"].unique()))
+    toml = "".join(f'["{n}"]\nmass = {YCB_MASSES[n]}\n' for n in sorted(trials["object"].unique()))
     (objects / "objects.toml").write_text(toml)
 
     trials = trials.assign(object_id=trials["object"])

@@ -443,22 +443,39 @@ def run(
         inputs=_inputs(options, candidates),
         gripper=gripper_record(gripper),
     )
+    store, resume = open_store(options, spec, digests)
+    with running(store, summary) as status_dir:
+        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates, gripper)
+    return summary
+
+
+def open_store(options: RunOptions, spec: RunSpec, units: dict[str, str]):
+    """The output folder opened for ``spec`` and reconciled with the run's units of work (object
+    or scene id -> digest); returns ``(store, what to resume)``. A folder that cannot be opened or
+    reconciled is a usage error."""
     store = Store(options.out_dir, spec)
     try:
         store.open(overwrite=options.overwrite, repair=options.repair)
     except StoreError as exc:
         raise UsageError(str(exc)) from exc
     try:
-        resume = store.reconcile(digests)
+        return store, store.reconcile(units)
     except StoreError as exc:
         store.close()
         raise UsageError(str(exc)) from exc
+
+
+@contextlib.contextmanager
+def running(store: Store, summary: Summary) -> Iterator[str]:
+    """The body of a run, object or scene: yields a status folder for its workers, with SIGTERM
+    raised as :class:`Terminated`; however the body ends, the store is closed, the summary gets the
+    store's notes and its time, and is printed. A lost output or scheduler is noted as stopping it."""
     status_dir = tempfile.mkdtemp(prefix="rg2-status-")
     previous_term = signal.getsignal(signal.SIGTERM)
     with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
         signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        _run(options, config, summary, store, resume, sources, digests, status_dir, candidates, gripper)
+        yield status_dir
     except (OutputError, SchedulerLost) as exc:
         summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
         raise
@@ -471,7 +488,6 @@ def run(
         summary.notes = store.notes + summary.notes
         summary.seconds = time.perf_counter() - summary.started
         _print_summary(summary)
-    return summary
 
 
 def _run_scenes(options: RunOptions, config: AnnotatorConfig, candidates) -> Summary:

@@ -20,9 +20,6 @@ import hashlib
 import json
 import logging
 import math
-import shutil
-import signal
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -42,14 +39,13 @@ from annotator.pipeline.progress import Progress
 from annotator.pipeline.run import (
     STATUS_AFTER,
     RunOptions,
-    SchedulerLost,
     Terminated,
     UsageError,
     Workers,
     _check_workers,
-    _print_summary,
-    _raise_terminated,
     execute,
+    open_store,
+    running,
 )
 from annotator.pipeline.summary import ObjectStats, Summary
 from annotator.pipeline.worker import SpanResult
@@ -63,7 +59,7 @@ from annotator.scenes.worker import (
     label_scene_span,
     record_from_artifact,
 )
-from annotator.store import OutputError, RunSpec, Store, StoreError
+from annotator.store import RunSpec, Store
 from annotator.store.names import scene_unit
 
 log = logging.getLogger(__name__)
@@ -173,35 +169,10 @@ def run_scenes(options: RunOptions, config: AnnotatorConfig) -> Summary:
         config.to_dict(scenes=True),
         inputs={"scenes": job.to_json()},
     )
-    store = Store(options.out_dir, spec)
-    try:
-        store.open(overwrite=options.overwrite, repair=options.repair)
-    except StoreError as exc:
-        raise UsageError(str(exc)) from exc
     units = {scene_unit(s): pool_digest(digests) for s in range(options.scenes)}
-    try:
-        resume = store.reconcile(units)
-    except StoreError as exc:
-        store.close()
-        raise UsageError(str(exc)) from exc
-    status_dir = tempfile.mkdtemp(prefix="rg2-status-")
-    previous_term = signal.getsignal(signal.SIGTERM)
-    with contextlib.suppress(ValueError):  # not the main thread: leave SIGTERM alone
-        signal.signal(signal.SIGTERM, _raise_terminated)
-    try:
+    store, resume = open_store(options, spec, units)
+    with running(store, summary) as status_dir:
         _SceneRun(options, config, summary, store, job, units, status_dir).run(resume)
-    except (OutputError, SchedulerLost) as exc:
-        summary.stopped = f"{exc}; what was written is kept: run the same command again to resume"
-        raise
-    finally:
-        with contextlib.suppress(ValueError):
-            signal.signal(signal.SIGTERM, previous_term)
-        shutil.rmtree(status_dir, ignore_errors=True)
-        with contextlib.suppress(OutputError):
-            store.close()
-        summary.notes = store.notes + summary.notes
-        summary.seconds = time.perf_counter() - summary.started
-        _print_summary(summary)
     return summary
 
 
