@@ -195,15 +195,23 @@ class ObjectConfig(_Section):
     collision_margin: float = _field(0.0, ge=0.0)  # m
     # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
-    # CoACD concavity thresholds, the first down to the last, x 0.6 each (0.05, 0.03, 0.02), until
-    # the collision error is within its limits or the budget is spent (0101-collision-ladder).
+    # CoACD concavity thresholds, the first down to the last, x 0.6 each to one significant digit
+    # (0.05, 0.03, 0.02, 0.01), until the collision error is within its limits or the budget is
+    # spent (0101-collision-ladder).
     decomposition_threshold: float = _field(0.05, gt=0.0, le=1.0)
-    decomposition_min_threshold: float = _field(0.02, gt=0.0, le=1.0)
+    decomposition_min_threshold: float = _field(0.01, gt=0.0, le=1.0)
+    # CoACD's tree-search iterations per cut (its own default 150): the search bounded so a scan's
+    # refinement fits the budget (0101-collision-ladder).
+    coacd_search_iterations: int = _field(60, ge=1, le=10_000)
     # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
-    # the full mesh (0101-collision-ladder).
+    # the full mesh. A mesh with more faces is cut as the smallest copy of max_faces, doubled up to
+    # copy_max_faces, that strays at most copy_tolerance from it (0101-collision-ladder).
     decomposition_max_faces: int = _field(5_000, ge=4)
-    # CPU seconds per object for the whole decomposition ladder (CoACD, V-HACD, hull), 1-3600
-    # (0101-collision-ladder); CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
+    decomposition_copy_max_faces: int = _field(20_000, ge=4)
+    decomposition_copy_tolerance: float = _field(0.001, gt=0.0)  # m
+    # CPU seconds per object for its whole load: reading, repair and the decomposition ladder
+    # (CoACD, V-HACD, hull), 1-3600 (0101-collision-ladder); CoACD leaves vhacd_reserve of it for
+    # V-HACD until it has parts.
     decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
     vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s
     vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)

@@ -6,7 +6,9 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing
 import os
+import re
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -204,13 +206,62 @@ def test_a_refinement_stopped_by_the_budget_keeps_the_best_threshold_it_finished
             else real(job)
         ),
     )
-    config = dataclasses.replace(CONFIG, decomposition_budget=4.0, vhacd_reserve=1.0)
+    config = dataclasses.replace(CONFIG, decomposition_budget=6.0, vhacd_reserve=2.0)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
     assert model.collision_method == "coacd" and model.collision_threshold == 0.05
     assert model.collision_ladder.startswith("coacd kept (threshold 0.05, error ")
-    # it had parts, so it used the whole budget (not leaving V-HACD's reserve), and V-HACD never ran
-    assert "over budget: stopped at 4 CPU-s" in model.collision_ladder
+    # it had parts, so it used the rest of the budget (past the point where it would have left
+    # V-HACD its reserve, 2 CPU-s before the end), and V-HACD never ran
+    stopped = re.search(r"over budget: stopped at (\d+) CPU-s", model.collision_ladder)
+    assert stopped is not None, model.collision_ladder
+    limit = config.decomposition_budget - decomposition.AFTER_LADDER_SECONDS
+    assert limit - config.vhacd_reserve < int(stopped.group(1)) <= limit
     assert ";" not in model.collision_ladder
+
+
+def test_the_budget_counts_the_whole_load_and_a_spent_one_starts_no_decomposition(tmp_path, monkeypatch):
+    """The budget bounds the object's whole load: the CPU its reading and repair took comes off
+    the ladder's share. A load that has used it all gets the hull at once, no child started."""
+    calls: list[str] = []
+    seam(monkeypatch, {}, calls)
+    mesh = trimesh.load(write_l(tmp_path / "corner.obj"), force="mesh")
+    spent_all = time.process_time() - CONFIG.decomposition_budget
+    geometry = decomposition.collision_geometry(mesh, "coacd", CONFIG, tmp_path / "c", load_started=spent_all)
+    assert [(r.method, r.outcome, r.cpu_seconds) for r in geometry.ladder] == [
+        ("coacd", "over budget", 0.0),
+        ("vhacd", "over budget", 0.0),
+        ("hull", "kept", geometry.ladder[-1].cpu_seconds),
+    ]
+    assert geometry.method == "hull" and len(geometry.parts) == 1 and calls == []
+    assert "0.0 CPU-s left" in geometry.ladder_summary()
+
+
+def test_a_scan_is_cut_as_the_smallest_copy_that_stays_within_the_tolerance():
+    """Parts cannot follow the mesh more closely than the copy they are cut from: above
+    ``decomposition_max_faces`` the copy doubles (up to ``decomposition_copy_max_faces``) until it
+    strays no more than ``decomposition_copy_tolerance`` from the mesh."""
+    from annotator.objects.fidelity import surface_deviation
+
+    dense = trimesh.creation.torus(0.036, 0.009, major_sections=128, minor_sections=64)  # 16,384 faces
+    config = dataclasses.replace(CONFIG, decomposition_max_faces=500, decomposition_copy_max_faces=2000)
+    assert decomposition.copy_sizes(config) == (500, 1000, 2000)
+
+    def copy(tolerance: float) -> decomposition.Copy:
+        return decomposition.decomposition_copy(
+            dense.vertices, dense.faces, dataclasses.replace(config, decomposition_copy_tolerance=tolerance)
+        )
+
+    coarse, finest = copy(1.0), copy(1e-9)
+    assert len(coarse.faces) <= 500 < 1000 < len(finest.faces) <= 2000
+    assert coarse.deviation > finest.deviation > 0.0
+    middle = copy((coarse.deviation + copy(1e-9).deviation) / 2)
+    assert 500 < len(middle.faces) and middle.deviation <= (coarse.deviation + finest.deviation) / 2
+    assert surface_deviation(dense, dense, 500) < 1e-9  # the measure itself: a mesh against itself
+    # a mesh within max_faces is cut as itself
+    small = trimesh.creation.torus(0.036, 0.009, major_sections=16, minor_sections=8)  # 256 faces
+    itself = decomposition.decomposition_copy(small.vertices, small.faces, config)
+    np.testing.assert_array_equal(itself.faces, small.faces)
+    assert itself.deviation == 0.0
 
 
 # ---------------------------------------------------------------------------------------------- the cache
@@ -381,6 +432,14 @@ def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sam
     assert after_005(0.477, 4.649) == 0.02
     assert after_005(1.2, 1.0) == 0.02  # the mean decides when it is the worse one
     assert after_005(0.3, 40.0) == 0.02  # nothing is enough: the finest
+
+    # with 0.01 left too, one step skips at most one threshold: the cracker box's 5.06 mm at 0.05
+    # (0.0198 would be enough) goes to 0.02, not to 0.01
+    finer = (0.03, 0.02, 0.01)
+    cracker = CollisionError(0.32e-3, 5.06e-3, 0.0, 0.0, 0.0, 0.0)
+    assert finer[decomposition.next_threshold(finer, 0.05, cracker, CONFIG)] == 0.02
+    hammer = CollisionError(0.25e-3, 2.78e-3, 0.0, 0.0, 0.0, 0.0)
+    assert decomposition.next_threshold((0.01,), 0.02, hammer, CONFIG) == 0
 
 
 def test_vhacd_gives_the_same_parts_every_time(tmp_path):

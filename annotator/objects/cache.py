@@ -34,7 +34,7 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 # Bump when an entry's content changes meaning (it is part of every key).
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 # The libraries whose versions shape an entry: CoACD and PyBullet's V-HACD cut the parts,
 # fast-simplification decimates CoACD's input, trimesh and SciPy (Qhull) make the parts' hulls and
 # sample the error, NumPy computes it.

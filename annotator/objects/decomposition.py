@@ -2,13 +2,15 @@
 ladder of decompositions within a CPU budget, each with its error against the mesh; computed once
 per geometry and kept in the content-addressed cache (:mod:`annotator.objects.cache`).
 
-The ladder (a concave object), inside ``ObjectConfig.decomposition_budget`` CPU seconds in all:
+The ladder (a concave object), inside ``ObjectConfig.decomposition_budget`` CPU seconds for the
+object's whole load (what its reading and repair used comes off the ladder's share):
 
 1. CoACD at each of :func:`thresholds` (coarse to fine) until the collision error is within
-   ``collision_mean_limit`` / ``collision_max_limit``, the best so far kept (CoACD 1.0's default
-   search settings, seed 0, in a child process limited to the budget; stopped at the budget less
-   ``vhacd_reserve`` if it has finished no threshold by then); a refinement stopped by the budget
-   keeps the best threshold it finished;
+   ``collision_mean_limit`` / ``collision_max_limit``, the best so far kept (CoACD 1.0's tree
+   search bounded to ``coacd_search_iterations``, seed 0, on the mesh or the smallest simplified
+   copy that follows it within ``decomposition_copy_tolerance``, in a child process limited to the
+   budget; stopped at the budget less ``vhacd_reserve`` if it has finished no threshold by then); a
+   refinement stopped by the budget keeps the best threshold it finished;
 2. V-HACD (pybullet.vhacd, bullet3's V-HACD 2.2) when CoACD finished no threshold, in a child
    process limited to what is left;
 3. the convex hull, in this process, when neither gave parts.
@@ -52,7 +54,7 @@ from annotator.config import ObjectConfig
 from annotator.objects import cache
 from annotator.objects.cache import default_cache_dir
 from annotator.objects.errors import NotDecomposed
-from annotator.objects.fidelity import CollisionError, collision_error
+from annotator.objects.fidelity import CollisionError, collision_error, surface_deviation
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +62,8 @@ METHOD = "coacd"  # what load_object asks for a concave object: the ladder, CoAC
 LADDER = ("coacd", "vhacd", "hull")
 # Called as progress(object_id, message) when a decomposition starts, moves down the ladder and ends.
 Progress = Callable[[str, str], None]
+# Surface points per side measuring how far a simplified copy strays from the mesh (seeded).
+COPY_SAMPLES = 4_000
 # How often (s) the parent looks at its decomposition child.
 POLL_SECONDS = 0.05
 
@@ -142,14 +146,14 @@ class CollisionGeometry:
 
 
 def thresholds(config: ObjectConfig) -> tuple[float, ...]:
-    """CoACD thresholds to try, coarse to fine: the first, x 0.6 each, then the last (a step to it
-    shorter than 1.2 x is not taken: 0.05, 0.03, 0.018, 0.01 down to 0.01; 0.05, 0.03, 0.02 down
-    to 0.02)."""
+    """CoACD thresholds to try, coarse to fine: the first, x 0.6 each to one significant digit,
+    then the last (a step to it shorter than 1.2 x is not taken: 0.05, 0.03, 0.02, 0.01 down to
+    0.01; 0.05, 0.03, 0.02 down to 0.02)."""
     last = config.decomposition_min_threshold
     out, t = [], config.decomposition_threshold
     while t > last * (1 + 1e-9):
         out.append(round(t, 6))
-        t *= 0.6
+        t = float(f"{t * 0.6:.1g}")
         if t < last * 1.2:
             break
     out.append(last)
@@ -163,6 +167,7 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple:
         return error
     ladder: tuple = (
         thresholds(config),
+        config.coacd_search_iterations,
         config.collision_mean_limit,
         config.collision_max_limit,
         config.decomposition_budget,
@@ -170,7 +175,8 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple:
         config.vhacd_resolution,
     )
     if len(mesh.faces) > config.decomposition_max_faces:
-        ladder += (config.decomposition_max_faces,)  # shapes only what it simplifies
+        # shape only what is simplified
+        ladder += (copy_sizes(config), config.decomposition_copy_tolerance, COPY_SAMPLES)
     return error + ladder
 
 
@@ -281,6 +287,48 @@ def decomposition_input(
     return np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int32)
 
 
+@dataclass(frozen=True)
+class Copy:
+    """What CoACD cuts: ``vertices`` (n, 3) float64 and ``faces`` (m, 3) int32 (metres, mesh
+    frame), the mesh itself or a simplified copy, and ``deviation`` (m), how far the copy strays
+    from the mesh (0 for the mesh itself)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    deviation: float
+
+
+def copy_sizes(config: ObjectConfig) -> tuple[int, ...]:
+    """Face counts of the copies to consider, smallest first: ``decomposition_max_faces``, doubled
+    up to ``decomposition_copy_max_faces`` (5,000, 10,000, 20,000)."""
+    sizes = [config.decomposition_max_faces]
+    while sizes[-1] * 2 <= config.decomposition_copy_max_faces:
+        sizes.append(sizes[-1] * 2)
+    return tuple(sizes)
+
+
+def decomposition_copy(vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig) -> Copy:
+    """The copy CoACD cuts: the mesh itself when it has at most ``decomposition_max_faces`` faces,
+    else the smallest copy of :func:`copy_sizes` within ``decomposition_copy_tolerance`` of the
+    mesh (:func:`~annotator.objects.fidelity.surface_deviation`), else the largest.
+
+    Parts cut from a copy cannot follow the mesh more closely than the copy does: quadric
+    decimation to 5,000 faces moves the rims of the YCB chips can 1.5 mm and those of the power
+    drill 1.2 mm, most of the 2 mm the collision error may have (0101-collision-ladder).
+    """
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    copy = Copy(*decomposition_input(vertices, faces, config.decomposition_max_faces), 0.0)
+    if len(faces) <= config.decomposition_max_faces:
+        return copy
+    for size in copy_sizes(config):
+        v, f = decomposition_input(vertices, faces, size)
+        deviation = surface_deviation(mesh, trimesh.Trimesh(v, f, process=False), COPY_SAMPLES)
+        copy = Copy(v, f, deviation)
+        if deviation <= config.decomposition_copy_tolerance:
+            break
+    return copy
+
+
 Found = Callable[[list[trimesh.Trimesh], CollisionError, float], None]
 
 
@@ -289,19 +337,23 @@ def next_threshold(
 ) -> int:
     """Index in ``todo`` (the finer thresholds left, coarse to fine) of the one to try after
     ``threshold`` gave ``error``: the coarsest at or below ``threshold`` x (limit / error) for the
-    worse of mean and max, the finest when none is.
+    worse of mean and max, the finest when none is; never more than one threshold skipped.
 
     CoACD's threshold bounds each part's concavity relative to the mesh's size, so the error
     shrinks about in proportion to it: a threshold that the error says cannot be enough is skipped
     (the YCB power drill at 0.05, 4.65 mm max: straight to 0.02, not 0.03 first). The sample
     objects that refine (banana 3.12 mm, bowl 3.15 mm, mug 2.69 mm at 0.05) still go to 0.03.
+    The proportion is only about right and the finer thresholds cost the most, so one step skips
+    at most one threshold: the YCB cracker box at 0.05 (5.06 mm, the bounded search) goes to 0.02
+    (1.97 mm when measured), not to 0.01, which its budget could not finish.
     """
     ratio = min(
         config.collision_mean_limit / max(error.mean, 1e-300),
         config.collision_max_limit / max(error.max, 1e-300),
     )
     enough = threshold * ratio * (1 + 1e-9)
-    return next((i for i, t in enumerate(todo) if t <= enough), len(todo) - 1)
+    coarsest_enough = next((i for i, t in enumerate(todo) if t <= enough), len(todo) - 1)
+    return min(coarsest_enough, 1)
 
 
 def refine_coacd(
@@ -317,16 +369,17 @@ def refine_coacd(
 
     coacd.set_log_level("error")
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    coacd_vertices, coacd_faces = decomposition_input(vertices, faces, config.decomposition_max_faces)
+    copy = decomposition_copy(vertices, faces, config)
     best: tuple[list[trimesh.Trimesh], CollisionError, float] | None = None
     todo = thresholds(config)
     while todo:
         threshold, todo = todo[0], todo[1:]
         result = coacd.run_coacd(
-            coacd.Mesh(coacd_vertices, coacd_faces),
+            coacd.Mesh(copy.vertices, copy.faces),
             threshold=float(threshold),
             # the mesh is cleaned and watertight: CoACD's manifold remeshing would only move its surface
             preprocess_mode="off",
+            mcts_iterations=config.coacd_search_iterations,
             seed=0,
         )
         parts = [trimesh.Trimesh(v, f).convex_hull for v, f in result]
@@ -601,26 +654,39 @@ def _child_rung(
     return _Found(rung, geometry.parts, geometry.error, geometry.threshold)
 
 
+# CPU seconds the ladder leaves for what follows it in a load: writing the cache entry, reading it
+# back and writing the parts' .obj (a 100-part entry of the YCB meshes: about 0.1 CPU-s).
+AFTER_LADDER_SECONDS = 0.5
+
+
 def _ladder(
-    mesh: trimesh.Trimesh, config: ObjectConfig, label: str, progress: Progress | None
+    mesh: trimesh.Trimesh, config: ObjectConfig, label: str, progress: Progress | None, spent: float = 0.0
 ) -> tuple[_Found, tuple[Rung, ...]]:
-    """The ladder within the budget: CoACD, V-HACD, the hull; the first rung with parts."""
-    budget = config.decomposition_budget
+    """The ladder within what is left of the budget (``spent``: CPU seconds the load used before
+    it; the ladder's own work in this process counts too): CoACD, V-HACD, the hull; the first rung
+    with parts."""
+    budget = config.decomposition_budget - spent - AFTER_LADDER_SECONDS
+    start = time.process_time()
     rungs: list[Rung] = []
-    used = 0.0
+    children = 0.0
     for method in LADDER:
+        used = children + (time.process_time() - start)
         if method == "hull":
-            start = time.process_time()
+            hull_started = time.process_time()
             parts = [mesh.convex_hull]
             error = collision_error(mesh, parts, config.collision_error_samples)
-            found = _Found(Rung("hull", "kept", time.process_time() - start, 0.0, error), parts, error)
+            found = _Found(Rung("hull", "kept", time.process_time() - hull_started, 0.0, error), parts, error)
+        elif budget - used < 1.0:  # the load spent the budget before this rung: no child at all
+            left = f"{max(0.0, budget - used):.1f} CPU-s left"
+            found = _Found(Rung(method, "over budget", 0.0, detail=left))
         else:
             # CoACD may use the whole budget once it has parts; until then it leaves V-HACD its reserve
             reserve = config.vhacd_reserve if method == "coacd" else 0.0
-            limit = max(1.0, math.floor(budget - used))  # whole seconds, within the budget
+            limit = math.floor(budget - used)  # whole seconds, within the budget
             found = _child_rung(mesh, config, method, limit, reserve)
         rungs.append(found.rung)
-        used += found.rung.cpu_seconds
+        if method != "hull":
+            children += found.rung.cpu_seconds
         if found.parts:
             return found, tuple(rungs)
         _say(progress, label, f"{found.rung.summary()}; next: {LADDER[LADDER.index(method) + 1]}")
@@ -640,15 +706,19 @@ def _compute(
     shells: list[trimesh.Trimesh],
     label: str,
     progress: Progress | None,
+    load_started: float | None = None,
 ) -> dict[str, np.ndarray]:
-    """The entry's arrays for ``method``: computed here (hull, shells) or by the ladder."""
+    """The entry's arrays for ``method``: computed here (hull, shells) or by the ladder, which
+    counts the CPU this process used since ``load_started`` (``time.process_time()``) against the
+    budget."""
     if method != METHOD:
         start = time.process_time()
         parts = [mesh.convex_hull] if method == "hull" else [shell.convex_hull for shell in shells]
         error = collision_error(mesh, parts, config.collision_error_samples)
         return _arrays(parts, error, method, 0.0, time.process_time() - start)
     _say(progress, label, f"decomposing ({len(mesh.faces)} faces) into convex parts")
-    found, rungs = _ladder(mesh, config, label, progress)
+    spent = 0.0 if load_started is None else max(0.0, time.process_time() - load_started)
+    found, rungs = _ladder(mesh, config, label, progress, spent)
     seconds = sum(r.cpu_seconds for r in rungs)
     kept = rungs[-1]
     return _arrays(found.parts, found.error, kept.method, found.threshold, seconds, rungs)
@@ -663,6 +733,7 @@ def collision_geometry(
     shells: list[trimesh.Trimesh] = (),
     progress: Progress | None = None,
     decompose: bool = True,
+    load_started: float | None = None,
 ) -> CollisionGeometry:
     """The object's collision geometry by ``method``, cached: ``hull`` (the convex hull),
     ``shells`` (the hulls of the mesh's own convex ``shells``: a file written as convex parts,
@@ -674,6 +745,9 @@ def collision_geometry(
     a decomposition that crashes or runs over its budget: the next rung's shape is the result.
     ``decompose=False``: :class:`NotDecomposed` instead of running the ladder when the cache does
     not hold its result (a hull or shells are still made here: they take a fraction of a second).
+    ``load_started``: ``time.process_time()`` when the load began; the CPU this process used since
+    then (reading, cleaning, repairing the mesh) is taken from the ladder's budget, so the whole
+    load stays within ``decomposition_budget``.
     """
     if method not in ("hull", "shells", METHOD):
         raise ValueError(f"unknown collision method {method!r}")
@@ -689,7 +763,7 @@ def collision_geometry(
         geometry = _read_entry(path, label)  # another process may have made it while this one waited
         if geometry is not None:
             return geometry
-        cache.save_arrays(path, _compute(mesh, method, config, list(shells), label, progress))
+        cache.save_arrays(path, _compute(mesh, method, config, list(shells), label, progress, load_started))
     geometry = _read_entry(path, label)  # fresh and cached: the same float64 entry
     if geometry is None:  # pragma: no cover - removed or damaged between the write and the read
         raise OSError(f"{label}: the collision cache entry {path} vanished after it was written")

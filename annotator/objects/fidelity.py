@@ -199,3 +199,16 @@ def collision_error(
         mean_inward=float(d_in.mean()),
         max_inward=float(d_in.max()),
     )
+
+
+def surface_deviation(a: trimesh.Trimesh, b: trimesh.Trimesh, samples: int, seed: int = 0) -> float:
+    """The largest distance (m) from a point of either surface to the other, from ``samples``
+    seeded points on each: how far a simplified copy ``b`` strays from the mesh ``a`` (both
+    metres, one frame; neither need be convex or closed)."""
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    for src, dst in ((a, b), (b, a)):
+        points, _ = trimesh.sample.sample_surface(src, samples, seed=int(rng.integers(2**31)))
+        distance, _ = closest_distance(np.asarray(dst.triangles, dtype=np.float64), points)
+        worst = max(worst, float(distance.max()))
+    return worst

@@ -11,6 +11,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -467,6 +468,7 @@ def load_object(
     ``decompose=False``: raise :class:`NotDecomposed` rather than decompose a concave object whose
     decomposition the cache does not hold (a process that leaves decompositions to its workers).
     """
+    load_started = time.process_time()
     source = _as_source(source)
     props = source.properties
     name = source.object_id
@@ -474,7 +476,7 @@ def load_object(
     weighed = _weigh(read, props, config)
     method, convex = _collision_method(read, config)
     geometry = collision_geometry(
-        read.mesh, method, config, cache_dir, name, read.shells, progress, decompose=decompose
+        read.mesh, method, config, cache_dir, name, read.shells, progress, decompose, load_started
     )
     warnings = read.warnings + _geometry_warnings(geometry, config)
     for warning in warnings:
