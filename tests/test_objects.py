@@ -775,7 +775,8 @@ def test_two_workers_decompose_a_new_object_once_and_agree_bit_for_bit(tmp_path)
 
 @pytest.mark.slow
 def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_models):
-    assert shipped_models["banana"].collision_threshold == 0.03  # refined: 0.05 misses the limits
+    # refined: at 0.05 the banana misses the limits
+    assert shipped_models["banana"].collision_threshold < CONFIG.decomposition_threshold
     for oid, model in shipped_models.items():
         record = model.geometry_record()
         mean, worst = record["collision_error_mean"], record["collision_error_max"]
