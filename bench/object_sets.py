@@ -6,6 +6,7 @@ a free step and to the code before.
     python -m bench.object_sets --ycb DIR --pybullet-data --samples --baseline COMMIT
     python -m bench.object_sets --samples --cold-start samples --n 20      # quick
     python -m bench.object_sets --compare before.jsonl after.jsonl         # a markdown table
+    python -m bench.object_sets --compare RECORD.json RECORD.json          # ... of two records
 
 Sets (each optional; the data folders are arguments, nothing is copied into the project):
 
@@ -30,7 +31,8 @@ Parts, each on copies of the sets in one scratch folder:
    their ratio; each object's decomposition as the parallel run made it.
 3. **Warm throughput** (``--n N``, 0 skips): ``annotate --n N`` on the mix of every set, warm,
    ``--repeat`` times; with ``--baseline COMMIT`` alternating with that commit's code (its
-   ``annotator/`` extracted by ``git archive``, same libraries, same cache): candidates per
+   ``annotator/`` extracted by ``git archive``, same libraries, same cache, each code's entries
+   filled by a run of its own first, so no measured run decomposes): candidates per
    CPU-second of the command and its workers, per object candidates per second per core (worker
    seconds), and each as free steps (``bench/reference.py``, measured before each run) per
    candidate; the ratio of this code's throughput to the baseline's in the same bench.
@@ -493,7 +495,8 @@ def warm_throughput(args, mix: Path, cache: Path, work: Path, baseline: Path | N
     versions = [("this", None)] + ([("baseline", baseline)] if baseline is not None else [])
     count = len(object_ids(mix))
     print(f"\n== warm throughput: annotate --n {args.n} on the mix ({count} objects)", flush=True)
-    run_job(mix, 1, args.workers, cache, work)  # fills the cache where the loads did not
+    for _, tree in versions:  # fills each code's cache where the loads did not (keys differ by version)
+        run_job(mix, 1, args.workers, cache, work, tree)
     per_cpu: dict[str, list[float]] = {v: [] for v, _ in versions}
     steps: dict[str, list[float]] = {v: [] for v, _ in versions}
     seconds: dict[str, list[float]] = {}
@@ -624,12 +627,27 @@ def _cell(r: Load | None) -> str:
     return f"{r.method} {r.parts}, {r.error_mean_mm:.2f} / {r.error_max_mm:.2f} mm, {r.cpu_s:.1f} CPU-s"
 
 
+def read_loads(path: Path) -> list[Load]:
+    """The loads of a ``--json`` file (one JSON line per load) or of a bench record (its ``loads``
+    table, as written under bench/results/object_sets/)."""
+    text = path.read_text()
+    try:
+        record = json.loads(text)
+    except json.JSONDecodeError:
+        record = None
+    if isinstance(record, dict) and "tables" in record:
+        table = next(t for t in record["tables"] if t["name"] == "loads")
+        rows = [dict(zip(table["columns"], row, strict=True)) for row in table["rows"]]
+        return [Load.from_json({**row, "object_id": row["object"]}) for row in rows]
+    return [Load.from_json(json.loads(line)) for line in text.splitlines() if line.strip()]
+
+
 def compare(before: Path, after: Path) -> list[str]:
     """A markdown table, cold loads, per object of both runs: method and parts, collision error mean /
     max (mm), CPU-s of the load; then the totals of each set."""
     runs = []
     for path in (before, after):
-        rows = [Load.from_json(json.loads(line)) for line in path.read_text().splitlines() if line.strip()]
+        rows = read_loads(path)
         runs.append({(r.set, r.object_id): r for r in rows if r.phase == "cold"})
     keys = sorted(set(runs[0]) | set(runs[1]))
     out = ["| set | object | before | after |", "|---|---|---|---|"]
