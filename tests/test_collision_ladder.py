@@ -442,6 +442,63 @@ def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sam
     assert decomposition.next_threshold((0.01,), 0.02, hammer, CONFIG) == 0
 
 
+def test_a_near_miss_is_one_within_the_retry_margin_of_the_limits():
+    """The measured figures at 0.02 with the bounded search: the cracker box's 2.03 mm and the
+    scissors' 2.06 mm are near misses of the 2 mm limit (cut again with CoACD's own search: 1.97 and
+    1.91 mm); the hammer's 2.84 mm is not (0.01 is next); a shape within the limits is not either."""
+    from annotator.objects.fidelity import CollisionError
+
+    def error(mean_mm: float, max_mm: float) -> CollisionError:
+        return CollisionError(mean_mm / 1e3, max_mm / 1e3, 0.0, 0.0, 0.0, 0.0)
+
+    assert decomposition.near_miss(error(0.10, 2.03), CONFIG)
+    assert decomposition.near_miss(error(0.23, 2.06), CONFIG)
+    assert not decomposition.near_miss(error(0.29, 2.84), CONFIG)
+    assert not decomposition.near_miss(error(0.10, 1.97), CONFIG)
+    assert decomposition.near_miss(error(0.54, 1.0), CONFIG)  # the mean can be the near miss
+    assert not decomposition.near_miss(error(0.10, 2.03), dataclasses.replace(CONFIG, coacd_retry_margin=0.0))
+
+
+def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_own_search(monkeypatch):
+    """Real CoACD on a coarse torus at 0.05 only, the limits set from its measured error: missed by
+    5 %, the threshold is cut again with CoACD's own 150 iterations and the better of the two kept;
+    missed by 20 %, it is not."""
+    import coacd
+
+    torus = trimesh.creation.torus(0.04, 0.012, major_sections=16, minor_sections=8)
+    only = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, coacd_retry_margin=0.0)
+    _, bounded, _ = decomposition.refine_coacd(torus.vertices, torus.faces, only)
+    own_config = dataclasses.replace(only, coacd_search_iterations=decomposition.COACD_OWN_SEARCH_ITERATIONS)
+    _, own, _ = decomposition.refine_coacd(torus.vertices, torus.faces, own_config)
+    assert bounded.max > 0.0
+
+    calls: list[tuple[float, int]] = []
+    run = coacd.run_coacd
+
+    def recording(*args, **kwargs):
+        calls.append((kwargs["threshold"], kwargs["mcts_iterations"]))
+        return run(*args, **kwargs)
+
+    monkeypatch.setattr(coacd, "run_coacd", recording)
+    retry = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, collision_mean_limit=1.0)
+    near = dataclasses.replace(retry, collision_max_limit=bounded.max / 1.05)
+    kept = []
+    _, error, threshold = decomposition.refine_coacd(
+        torus.vertices, torus.faces, near, lambda parts, e, t: kept.append(e.max)
+    )
+    assert calls == [
+        (0.05, CONFIG.coacd_search_iterations),
+        (0.05, decomposition.COACD_OWN_SEARCH_ITERATIONS),
+    ]
+    assert threshold == 0.05 and error.max == min(bounded.max, own.max)
+    assert kept[0] == bounded.max  # the bounded cut was saved before the retry started
+
+    calls.clear()
+    far = dataclasses.replace(retry, collision_max_limit=bounded.max / 1.2)
+    _, error, _ = decomposition.refine_coacd(torus.vertices, torus.faces, far)
+    assert calls == [(0.05, CONFIG.coacd_search_iterations)] and error.max == bounded.max
+
+
 def test_vhacd_gives_the_same_parts_every_time(tmp_path):
     """The second rung must be as reproducible as the first: V-HACD's voxel decomposition twice on
     the L-block, in this process, the same float64 parts."""
