@@ -205,7 +205,7 @@ class ObjectConfig(_Section):
     coacd_search_iterations: int = _field(60, ge=1, le=10_000)
     # A threshold whose bounded search misses the error limits by at most this share of them is cut
     # again with CoACD's own search before a finer one (0101-collision-ladder).
-    coacd_retry_margin: float = _field(0.1, ge=0.0, le=1.0)
+    coacd_retry_margin: float = _field(0.05, ge=0.0, le=1.0)
     # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
     # the full mesh. A mesh with more faces is cut as the smallest copy of max_faces, doubled up to
     # copy_max_faces, that strays at most copy_tolerance from it (0101-collision-ladder).
