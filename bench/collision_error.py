@@ -104,7 +104,7 @@ def measure(
             continue
         seconds = time.perf_counter() - t0
         err = model.collision_error
-        threshold = f"{model.collision_threshold:g}" if model.collision_method == "coacd" else "-"
+        threshold = f"{model.collision_threshold:g}" if model.collision_method.startswith("coacd") else "-"
         within += not model.approximate
         line = (
             f"{source.object_id:<34} {len(model.mesh.faces):>7} {model.mass_model:>10}"
@@ -119,7 +119,7 @@ def measure(
             "grams": model.mass * 1e3,
             "method": model.collision_method,
             "parts": len(model.parts),
-            "threshold": model.collision_threshold if model.collision_method == "coacd" else None,
+            "threshold": model.collision_threshold if model.collision_method.startswith("coacd") else None,
             "mean_mm": err.mean * 1e3,
             "max_mm": err.max * 1e3,
             "within": not model.approximate,

@@ -334,6 +334,8 @@ def why_beyond(r: Load, config: ObjectConfig) -> str:
         return "CoACD at its finest threshold: the decomposition, not the mesh, is the limit"
     if r.method == "coacd":
         return "CoACD kept a coarser threshold: the finer ones did not measure better"
+    if r.method == "coacd-remeshed":
+        return "CoACD cut only the remeshed mesh within the budget: its surface moved by the remeshing"
     if r.method == "vhacd":
         return "CoACD finished no threshold within the budget: V-HACD's parts"
     return f"{r.method}: the ladder gave no better parts ({r.ladder})"

@@ -90,9 +90,12 @@ def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_a
     config = dataclasses.replace(CONFIG, decomposition_budget=7.0, vhacd_reserve=6.0)
     model = load_object(write_l(tmp_path / "objects" / "corner.obj"), config, cache_dir=tmp_path / "c")
     geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")  # its entry
-    coacd, vhacd = geometry.ladder
+    coacd, remeshed, vhacd = geometry.ladder
     assert coacd.method == "coacd" and coacd.outcome == "over budget" and coacd.error is None
     assert 0.9 <= coacd.cpu_seconds <= 2.5  # its share: the budget less the V-HACD reserve, 1 CPU-s
+    # what is left is V-HACD's reserve: no remeshed CoACD is started
+    assert (remeshed.method, remeshed.outcome, remeshed.cpu_seconds) == ("coacd-remeshed", "over budget", 0.0)
+    assert "V-HACD's reserve 6" in remeshed.detail
     assert vhacd.method == "vhacd" and vhacd.outcome == "kept" and vhacd.error is not None
     assert coacd.cpu_seconds + vhacd.cpu_seconds <= config.decomposition_budget + 1.0
     assert model.collision_method == "vhacd" and len(model.parts) >= 1
@@ -126,25 +129,27 @@ def test_when_every_decomposition_hangs_the_hull_is_the_shape_within_the_budget(
     geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
     assert [(r.method, r.outcome) for r in geometry.ladder] == [
         ("coacd", "over budget"),
+        ("coacd-remeshed", "over budget"),
         ("vhacd", "over budget"),
         ("hull", "kept"),
     ]
-    children = sum(r.cpu_seconds for r in geometry.ladder[:2])
+    children = sum(r.cpu_seconds for r in geometry.ladder[:3])
     assert children <= config.decomposition_budget + 1.0  # each stopped within a second of its limit
     assert model.collision_method == "hull" and len(model.parts) == 1 and model.approximate
 
 
 def test_a_decomposition_that_hangs_without_using_cpu_is_stopped(tmp_path, monkeypatch):
-    seam(monkeypatch, {"coacd": SLEEP, "vhacd": ABORT})
+    seam(monkeypatch, {"coacd": SLEEP, "coacd-remeshed": SLEEP, "vhacd": ABORT})
     config = dataclasses.replace(CONFIG, decomposition_timeout=1.0)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
     assert model.collision_ladder.startswith("coacd over budget (stopped after 1 s without using CPU)")
+    assert "coacd-remeshed over budget (stopped after 1 s without using CPU)" in model.collision_ladder
     assert "vhacd crashed (killed by SIGABRT" in model.collision_ladder
     assert model.collision_method == "hull"
 
 
 def test_a_crashing_coacd_gets_vhacd(tmp_path, monkeypatch):
-    seam(monkeypatch, {"coacd": ABORT})
+    seam(monkeypatch, {"coacd": ABORT, "coacd-remeshed": ABORT})
     messages: list[tuple[str, str]] = []
     model = load_object(
         write_l(tmp_path / "corner.obj"),
@@ -156,7 +161,8 @@ def test_a_crashing_coacd_gets_vhacd(tmp_path, monkeypatch):
     assert model.collision_ladder.startswith("coacd crashed (killed by SIGABRT")
     # the progress callback hears the start, the change of rung and the end
     said = [m for oid, m in messages if oid == "corner"]
-    assert said[0].startswith("decomposing (") and "next: vhacd" in said[1]
+    assert said[0].startswith("decomposing (") and "next: coacd-remeshed" in said[1]
+    assert said[2].startswith("coacd-remeshed crashed") and "next: vhacd" in said[2]
     assert said[-1].startswith("decomposed into") and "by vhacd" in said[-1]
     record = model.geometry_record()
     assert record["collision_method"] == "vhacd" and record["collision_ladder"] == model.collision_ladder
@@ -174,6 +180,66 @@ def test_a_can_coacd_cannot_finish_within_its_budget_gets_vhacd(tmp_path):
     assert model.collision_ladder.startswith("coacd over budget (stopped at 1 CPU-s")
     assert model.collision_method == "vhacd" and np.isfinite(model.collision_error.max)
     assert model.decomposition_seconds <= config.decomposition_budget + 1.0
+
+
+def test_each_coacd_rung_must_have_parts_by_its_point_of_the_budget():
+    """CoACD as the mesh is: 0.3 of the 60 CPU-s budget (at the latest V-HACD's reserve before its
+    limit); CoACD remeshed: V-HACD's reserve before its limit; V-HACD: its whole limit."""
+    assert decomposition.first_parts_by("coacd", 59, CONFIG) == pytest.approx(18.0)
+    assert decomposition.first_parts_by("coacd-remeshed", 39, CONFIG) == 31
+    assert decomposition.first_parts_by("vhacd", 39, CONFIG) is None
+    whole = dataclasses.replace(CONFIG, coacd_first_cut_share=1.0)
+    assert decomposition.first_parts_by("coacd", 59, whole) == 51
+    assert decomposition.first_parts_by("coacd", 5, CONFIG) == -3  # started with less: stopped at 1 CPU-s
+    no_reserve = dataclasses.replace(CONFIG, vhacd_reserve=0.0, coacd_first_cut_share=1.0)
+    assert decomposition.first_parts_by("coacd-remeshed", 39, no_reserve) is None
+
+
+@pytest.mark.slow
+def test_a_coacd_finishing_no_threshold_by_its_share_gets_coacd_on_the_remeshed_mesh(tmp_path, monkeypatch):
+    """CoACD on the mesh as it is never ends: stopped at its share of the budget (3 of 12 CPU-s),
+    CoACD cuts the mesh its preprocessing remeshed (real CoACD), and V-HACD never runs. (Remeshed,
+    the L's faces move about half a millimetre: the refinement goes on to finer thresholds until
+    the budget stops it, keeping the best it finished.)"""
+    calls: list[str] = []
+    seam(monkeypatch, {"coacd": SPIN}, calls)
+    config = dataclasses.replace(
+        CONFIG, decomposition_budget=12.0, vhacd_reserve=4.0, coacd_first_cut_share=0.25
+    )
+    model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
+    coacd, remeshed = geometry.ladder
+    assert (coacd.method, coacd.outcome) == ("coacd", "over budget") and 2.5 <= coacd.cpu_seconds <= 4.5
+    assert (remeshed.method, remeshed.outcome) == ("coacd-remeshed", "kept")
+    assert remeshed.threshold in decomposition.thresholds(config)
+    assert calls == ["coacd", "coacd-remeshed"]
+    assert model.collision_method == "coacd-remeshed" and len(model.parts) >= 2  # the L's two arms
+    # the error is measured against the mesh itself, not against the remeshed copy CoACD cut
+    assert model.collision_error == collision_error(model.mesh, model.parts, config.collision_error_samples)
+    assert model.collision_error.max < 0.004  # the 60 x 50 mm L within a few millimetres
+    assert any(w.startswith("collision shape by coacd-remeshed: coacd over budget") for w in model.warnings)
+
+
+@pytest.mark.slow
+def test_a_remeshed_coacd_that_never_ends_leaves_vhacd_its_reserve(tmp_path, monkeypatch):
+    """Both CoACD rungs never end: the first is stopped at its share, the second at its limit less
+    V-HACD's reserve, and V-HACD's parts are the shape, the whole ladder within the budget."""
+    calls: list[str] = []
+    seam(monkeypatch, {"coacd": SPIN, "coacd-remeshed": SPIN}, calls)
+    config = dataclasses.replace(
+        CONFIG, decomposition_budget=12.0, vhacd_reserve=4.0, coacd_first_cut_share=0.25
+    )
+    model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
+    assert [(r.method, r.outcome) for r in geometry.ladder] == [
+        ("coacd", "over budget"),
+        ("coacd-remeshed", "over budget"),
+        ("vhacd", "kept"),
+    ]
+    coacd, remeshed, vhacd = (r.cpu_seconds for r in geometry.ladder)
+    assert 2.5 <= coacd <= 4.5 and 3.0 <= remeshed <= 5.5  # 3 CPU-s; then 8 left less the reserve 4
+    assert coacd + remeshed + vhacd <= config.decomposition_budget + 1.0
+    assert calls == ["coacd", "coacd-remeshed", "vhacd"] and model.collision_method == "vhacd"
 
 
 # A CoACD child that finishes its first threshold (saved as the best so far, as refine_coacd's
@@ -229,6 +295,7 @@ def test_the_budget_counts_the_whole_load_and_a_spent_one_starts_no_decompositio
     geometry = decomposition.collision_geometry(mesh, "coacd", CONFIG, tmp_path / "c", load_started=spent_all)
     assert [(r.method, r.outcome, r.cpu_seconds) for r in geometry.ladder] == [
         ("coacd", "over budget", 0.0),
+        ("coacd-remeshed", "over budget", 0.0),
         ("vhacd", "over budget", 0.0),
         ("hull", "kept", geometry.ladder[-1].cpu_seconds),
     ]

@@ -10,12 +10,16 @@ object's whole load (what its reading and repair used comes off the ladder's sha
    search bounded to ``coacd_search_iterations``, seed 0, on the mesh or the smallest simplified
    copy that follows it within ``decomposition_copy_tolerance``, in a child process limited to the
    budget; a threshold that misses the limits by at most ``coacd_retry_margin`` is cut again with
-   CoACD's own search before a finer one; stopped at the budget less ``vhacd_reserve`` if it has
-   finished no threshold by then); a refinement stopped by the budget keeps the best threshold it
-   finished;
-2. V-HACD (pybullet.vhacd, bullet3's V-HACD 2.2) when CoACD finished no threshold, in a child
-   process limited to what is left;
-3. the convex hull, in this process, when neither gave parts.
+   CoACD's own search before a finer one; stopped at ``coacd_first_cut_share`` of the budget if it
+   has finished no threshold by then); a refinement stopped by the budget keeps the best threshold
+   it finished;
+2. when that finished no threshold: CoACD again, the same thresholds, on the mesh remeshed by
+   CoACD's own manifold preprocessing (``coacd_remesh_resolution``, tree search bounded to
+   ``coacd_remesh_search_iterations``), in a child process limited to what is left, stopped at that
+   less ``vhacd_reserve`` if it has finished no threshold by then;
+3. V-HACD (pybullet.vhacd, bullet3's V-HACD 2.2) when neither CoACD finished a threshold, in a
+   child process limited to what is left;
+4. the convex hull, in this process, when none gave parts.
 
 Every step reports what it did (:class:`Rung`: kept, over budget, crashed, no parts) with its CPU
 seconds and error. Running over the budget or crashing is a normal result, the next rung's turn:
@@ -61,7 +65,8 @@ from annotator.objects.fidelity import CollisionError, collision_error, surface_
 log = logging.getLogger(__name__)
 
 METHOD = "coacd"  # what load_object asks for a concave object: the ladder, CoACD first
-LADDER = ("coacd", "vhacd", "hull")
+REMESHED = "coacd-remeshed"  # the second rung: CoACD on the mesh remeshed by its preprocessing
+LADDER = ("coacd", REMESHED, "vhacd", "hull")
 # Called as progress(object_id, message) when a decomposition starts, moves down the ladder and ends.
 Progress = Callable[[str, str], None]
 # Surface points per side measuring how far a simplified copy strays from the mesh (seeded).
@@ -79,7 +84,7 @@ __all__ = ["CollisionGeometry", "Progress", "Rung", "collision_geometry", "defau
 class Rung:
     """One step of the ladder as it went.
 
-    ``method``: coacd, vhacd or hull; ``outcome``: ``kept`` (its parts are the shape), ``over
+    ``method``: coacd, coacd-remeshed, vhacd or hull; ``outcome``: ``kept`` (its parts are the shape), ``over
     budget`` (stopped by the CPU budget before it had parts), ``crashed`` (its process died; the
     reason in ``detail``) or ``no parts``; ``cpu_seconds`` it took; ``threshold`` (CoACD: of its
     parts; 0 otherwise) and ``error`` of its parts (None without parts).
@@ -125,10 +130,11 @@ class Rung:
 class CollisionGeometry:
     """Convex ``parts`` (metres, mesh frame), their ``error`` against the mesh, how they were made.
 
-    ``method``: hull, shells, coacd or vhacd (the rung that gave the parts); ``threshold``: CoACD's
-    concavity threshold of the parts (0 otherwise); ``seconds``: CPU seconds it took to make them
-    (all rungs); ``ladder``: the rungs tried, in order (empty for hull and shells); ``file``: the
-    cache entry; ``obj_file``: the multi-part .obj PyBullet loads (None for one part).
+    ``method``: hull, shells, coacd, coacd-remeshed or vhacd (the rung that gave the parts);
+    ``threshold``: CoACD's concavity threshold of the parts (0 otherwise); ``seconds``: CPU seconds
+    it took to make them (all rungs); ``ladder``: the rungs tried, in order (empty for hull and
+    shells); ``file``: the cache entry; ``obj_file``: the multi-part .obj PyBullet loads (None for
+    one part).
     """
 
     parts: list[trimesh.Trimesh]
@@ -174,6 +180,9 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple:
         thresholds(config),
         config.coacd_search_iterations,
         config.coacd_retry_margin,
+        config.coacd_first_cut_share,
+        config.coacd_remesh_resolution,
+        config.coacd_remesh_search_iterations,
         config.collision_mean_limit,
         config.collision_max_limit,
         config.decomposition_budget,
@@ -376,16 +385,23 @@ def _cut_coacd(
     threshold: float,
     iterations: int,
     config: ObjectConfig,
+    remesh: bool = False,
 ) -> tuple[list[trimesh.Trimesh], CollisionError] | None:
     """CoACD's parts of ``copy`` at ``threshold`` with ``iterations`` of tree search per cut (seed 0),
-    as convex hulls, and their error against ``mesh``; None when it gives no part with volume."""
+    as convex hulls, and their error against ``mesh``; None when it gives no part with volume.
+    ``remesh``: CoACD remeshes ``copy`` first (its manifold preprocessing at
+    ``coacd_remesh_resolution``); otherwise it cuts ``copy`` as it is (cleaned and watertight: the
+    remeshing would only move its surface)."""
+    if remesh:
+        preprocess = {"preprocess_mode": "on", "preprocess_resolution": int(config.coacd_remesh_resolution)}
+    else:
+        preprocess = {"preprocess_mode": "off"}
     result = coacd.run_coacd(
         coacd.Mesh(copy.vertices, copy.faces),
         threshold=float(threshold),
-        # the mesh is cleaned and watertight: CoACD's manifold remeshing would only move its surface
-        preprocess_mode="off",
         mcts_iterations=int(iterations),
         seed=0,
+        **preprocess,
     )
     parts = [trimesh.Trimesh(v, f).convex_hull for v, f in result]
     parts = [p for p in parts if p.volume > 0]
@@ -395,7 +411,11 @@ def _cut_coacd(
 
 
 def refine_coacd(
-    vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig, found: Found | None = None
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    config: ObjectConfig,
+    found: Found | None = None,
+    remesh: bool = False,
 ) -> tuple[list[trimesh.Trimesh], CollisionError, float]:
     """CoACD at thresholds coarse to fine (:func:`thresholds`, skipping those :func:`next_threshold`
     finds too coarse) until within the error limits; the best (lowest max) otherwise. A threshold
@@ -405,6 +425,9 @@ def refine_coacd(
     the budget; the scissors at 0.02, 2.06 mm, 1.91 mm and 28 parts, where 0.01 gives 97. A wider
     miss goes finer: the master chef can at 0.03, 2.13 mm, is still 2.04 mm with the own search
     (23 CPU-s more), and 0.02 then no longer fits the budget (1.68 mm when it does).
+
+    ``remesh``: each cut on the mesh remeshed by CoACD's manifold preprocessing, its search bounded
+    to ``coacd_remesh_search_iterations`` and never retried (the ladder's second rung).
 
     Returns (parts, error, threshold); ``found(parts, error, threshold)`` is called each time the
     best so far improves (the child saves it, so a refinement stopped by the budget keeps it).
@@ -424,13 +447,14 @@ def refine_coacd(
                 found(*best)  # saved before anything else is tried
 
     todo = thresholds(config)
+    iterations = config.coacd_remesh_search_iterations if remesh else config.coacd_search_iterations
+    retry = not remesh and iterations < COACD_OWN_SEARCH_ITERATIONS
     while todo:
         threshold, todo = todo[0], todo[1:]
-        cut = _cut_coacd(coacd, mesh, copy, threshold, config.coacd_search_iterations, config)
+        cut = _cut_coacd(coacd, mesh, copy, threshold, iterations, config, remesh)
         keep(cut, threshold)
-        own = COACD_OWN_SEARCH_ITERATIONS
-        if cut is not None and near_miss(cut[1], config) and config.coacd_search_iterations < own:
-            again = _cut_coacd(coacd, mesh, copy, threshold, own, config)
+        if cut is not None and retry and near_miss(cut[1], config):
+            again = _cut_coacd(coacd, mesh, copy, threshold, COACD_OWN_SEARCH_ITERATIONS, config)
             keep(again, threshold)
             if again is not None and again[1].max < cut[1].max:
                 cut = again
@@ -504,9 +528,9 @@ def child_main(job: str) -> None:
         cpu_limit = float(z["cpu_limit"])
     _limit_own_cpu(cpu_limit)
     config = dataclasses.replace(ObjectConfig(), **fields)
-    if rung == "coacd":
+    if rung in (METHOD, REMESHED):
         parts, error, threshold = refine_coacd(
-            vertices, faces, config, lambda p, e, t: _save_result(src, p, e, t, done=False)
+            vertices, faces, config, lambda p, e, t: _save_result(src, p, e, t, done=False), rung == REMESHED
         )
         _save_result(src, parts, error, threshold, done=True)
         return
@@ -657,11 +681,15 @@ class _Found:
 
 
 def _child_rung(
-    mesh: trimesh.Trimesh, config: ObjectConfig, method: str, cpu_limit: float, reserve: float = 0.0
+    mesh: trimesh.Trimesh,
+    config: ObjectConfig,
+    method: str,
+    cpu_limit: float,
+    first_parts: float | None = None,
 ) -> _Found:
-    """One rung (coacd or vhacd) in a limited child process; whatever it gave within the limit.
-    With a ``reserve``, it is stopped ``reserve`` CPU-s before its limit unless it has parts by then
-    (the next rung needs that reserve only if this one gives nothing)."""
+    """One rung (coacd, coacd-remeshed or vhacd) in a limited child process; whatever it gave within
+    the limit. With ``first_parts`` (CPU-s, below the limit), it is stopped there unless it has
+    parts by then (the next rungs need the rest only if this one gives nothing)."""
     with tempfile.TemporaryDirectory(prefix="rg2-decompose-") as tmp:
         job = Path(tmp)
         np.savez(
@@ -673,8 +701,8 @@ def _child_rung(
             cpu_limit=np.array(cpu_limit),
         )
         checkpoint = None
-        if reserve > 0:
-            checkpoint = Checkpoint(max(1.0, cpu_limit - reserve), (job / "out.npz").is_file)
+        if first_parts is not None and first_parts < cpu_limit:
+            checkpoint = Checkpoint(max(1.0, first_parts), (job / "out.npz").is_file)
         run = run_limited(child_command(job), cpu_limit, config.decomposition_timeout, job, checkpoint)
         try:
             out = cache.load_arrays(job / "out.npz")
@@ -705,12 +733,25 @@ def _child_rung(
 AFTER_LADDER_SECONDS = 0.5
 
 
+def first_parts_by(method: str, limit: float, config: ObjectConfig) -> float | None:
+    """CPU-s of its own by which a rung given ``limit`` CPU-s must have parts or be stopped (None:
+    no such point). CoACD as the mesh is: ``coacd_first_cut_share`` of the budget, and at the
+    latest ``vhacd_reserve`` before its limit; CoACD remeshed: ``vhacd_reserve`` before its limit."""
+    if method not in (METHOD, REMESHED):
+        return None
+    stop = limit - config.vhacd_reserve
+    if method == METHOD:
+        stop = min(stop, config.coacd_first_cut_share * config.decomposition_budget)
+    return stop if stop < limit else None
+
+
 def _ladder(
     mesh: trimesh.Trimesh, config: ObjectConfig, label: str, progress: Progress | None, spent: float = 0.0
 ) -> tuple[_Found, tuple[Rung, ...]]:
     """The ladder within what is left of the budget (``spent``: CPU seconds the load used before
-    it; the ladder's own work in this process counts too): CoACD, V-HACD, the hull; the first rung
-    with parts."""
+    it; the ladder's own work in this process counts too): CoACD, CoACD remeshed, V-HACD, the hull;
+    the first rung with parts. CoACD remeshed starts only with more than a CPU-s beyond V-HACD's
+    reserve left."""
     budget = config.decomposition_budget - spent - AFTER_LADDER_SECONDS
     start = time.process_time()
     rungs: list[Rung] = []
@@ -725,11 +766,13 @@ def _ladder(
         elif budget - used < 1.0:  # the load spent the budget before this rung: no child at all
             left = f"{max(0.0, budget - used):.1f} CPU-s left"
             found = _Found(Rung(method, "over budget", 0.0, detail=left))
+        elif method == REMESHED and budget - used - config.vhacd_reserve < 1.0:
+            left = f"{max(0.0, budget - used):.1f} CPU-s left, V-HACD's reserve {config.vhacd_reserve:g}"
+            found = _Found(Rung(method, "over budget", 0.0, detail=left))
         else:
-            # CoACD may use the whole budget once it has parts; until then it leaves V-HACD its reserve
-            reserve = config.vhacd_reserve if method == "coacd" else 0.0
+            # CoACD may use the whole budget once it has parts; until then it leaves the next rungs theirs
             limit = math.floor(budget - used)  # whole seconds, within the budget
-            found = _child_rung(mesh, config, method, limit, reserve)
+            found = _child_rung(mesh, config, method, limit, first_parts_by(method, limit, config))
         rungs.append(found.rung)
         if method != "hull":
             children += found.rung.cpu_seconds

@@ -42,12 +42,13 @@ class ObjectModel:
     shape (one, the hull, for a convex object). ``collision_file`` : the multi-part .obj (``o``
     group per part) PyBullet loads as a compound, ``None`` for a single hull.
     ``collision_error`` : distance between collision shape and mesh surface (mean, max, m);
-    ``approximate`` : beyond the configured limits. ``collision_method`` : hull, shells, coacd or
-    vhacd; ``collision_ladder`` : the decomposition rungs tried and how each went (empty for a hull
-    or shells). ``mass_model`` : solid, shell, urdf or given. ``digest`` : :func:`source_digest` of
-    the source. ``warnings`` : one line each (without the object id) for what a user should know
-    about this object (holes filled, a mesh simplified, an approximate collision shape, a URDF
-    inertia replaced); collected here, not logged, so a caller reports each once per object.
+    ``approximate`` : beyond the configured limits. ``collision_method`` : hull, shells, coacd,
+    coacd-remeshed or vhacd; ``collision_ladder`` : the decomposition rungs tried and how each went
+    (empty for a hull or shells). ``mass_model`` : solid, shell, urdf or given. ``digest`` :
+    :func:`source_digest` of the source. ``warnings`` : one line each (without the object id) for
+    what a user should know about this object (holes filled, a mesh simplified, an approximate
+    collision shape, a URDF inertia replaced); collected here, not logged, so a caller reports each
+    once per object.
     """
 
     object_id: str
