@@ -67,7 +67,7 @@ def main() -> None:
         f"max <= {config.collision_max_limit * 1e3:g} mm; cache {cache}"
     )
     head = (
-        f"{'object':<34} {'faces':>7} {'mass model':>10} {'g':>7} {'method':>6} {'parts':>5} {'thr':>5}"
+        f"{'object':<34} {'faces':>7} {'mass model':>10} {'g':>7} {'method':>14} {'parts':>5} {'thr':>5}"
         f" {'mean':>6} {'max':>6} {'within':>6} {'load s':>7}"
         + ("  before: parts mean max" if with_before else "")
     )
@@ -104,11 +104,12 @@ def measure(
             continue
         seconds = time.perf_counter() - t0
         err = model.collision_error
-        threshold = f"{model.collision_threshold:g}" if model.collision_method.startswith("coacd") else "-"
+        threshold = model.collision_threshold or None  # a CoACD rung's; 0 for every other method
         within += not model.approximate
         line = (
             f"{source.object_id:<34} {len(model.mesh.faces):>7} {model.mass_model:>10}"
-            f" {model.mass * 1e3:7.1f} {model.collision_method:>6} {len(model.parts):>5} {threshold:>5}"
+            f" {model.mass * 1e3:7.1f} {model.collision_method:>14} {len(model.parts):>5}"
+            f" {threshold or '-':>5}"
             f" {err.mean * 1e3:6.2f} {err.max * 1e3:6.2f}"
             f" {'yes' if not model.approximate else 'NO':>6} {seconds:7.1f}"
         )
@@ -119,7 +120,7 @@ def measure(
             "grams": model.mass * 1e3,
             "method": model.collision_method,
             "parts": len(model.parts),
-            "threshold": model.collision_threshold if model.collision_method.startswith("coacd") else None,
+            "threshold": threshold,
             "mean_mm": err.mean * 1e3,
             "max_mm": err.max * 1e3,
             "within": not model.approximate,

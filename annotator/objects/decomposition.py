@@ -84,10 +84,11 @@ __all__ = ["CollisionGeometry", "Progress", "Rung", "collision_geometry", "defau
 class Rung:
     """One step of the ladder as it went.
 
-    ``method``: coacd, coacd-remeshed, vhacd or hull; ``outcome``: ``kept`` (its parts are the shape), ``over
-    budget`` (stopped by the CPU budget before it had parts), ``crashed`` (its process died; the
-    reason in ``detail``) or ``no parts``; ``cpu_seconds`` it took; ``threshold`` (CoACD: of its
-    parts; 0 otherwise) and ``error`` of its parts (None without parts).
+    ``method``: coacd, coacd-remeshed, vhacd or hull; ``outcome``: ``kept`` (its parts are the
+    shape), ``over budget`` (stopped by the CPU budget before it had parts), ``crashed`` (its
+    process died; the reason in ``detail``) or ``no parts``; ``cpu_seconds`` it took;
+    ``threshold`` (CoACD: of its parts; 0 otherwise) and ``error`` of its parts (None without
+    parts).
     """
 
     method: str
