@@ -3,7 +3,8 @@
 A variant is a comma-separated list of ``section.field=value`` (or ``field=value`` when the field
 name is unique across sections) applied to the default configuration; values are TOML literals
 (``100``, ``0.5``, ``false``, ``"simulated"``). An optional ``name:`` prefix labels it in the output.
-Used by ``bench.fidelity --variant``, ``bench.peers --variant`` and ``bench.light_threshold --set``.
+Used by ``bench.fidelity --variant``, ``bench.peers --variant`` and
+``bench.experiments.light_threshold --set``.
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -40,6 +41,25 @@ ORDER = (
     "arm_agreement",
 )
 MAX_ROWS = 40  # rows of a table shown; the record keeps them all
+EXPERIMENTS = ROOT / "bench" / "experiments"
+
+
+def current_command(command: str) -> str:
+    """The record's command as it runs today: ``python -m bench.NAME`` becomes
+    ``python -m bench.experiments.NAME`` for a script that has since moved among the experiments."""
+
+    def moved(match: re.Match[str]) -> str:
+        name = match.group(1)
+        if not (ROOT / "bench" / f"{name}.py").is_file() and (EXPERIMENTS / f"{name}.py").is_file():
+            return f"bench.experiments.{name}"
+        return match.group(0)
+
+    return re.sub(r"\bbench\.(\w+)\b", moved, command, count=1)
+
+
+def is_experiment(record: Mapping[str, Any]) -> bool:
+    """Whether a record comes from a one-off experiment (``bench/experiments/``), not a standing benchmark."""
+    return "bench.experiments." in current_command(record["command"])
 
 
 def fmt(value: Any) -> str:
@@ -93,7 +113,7 @@ def provenance(record: Mapping[str, Any]) -> list[str]:
     )
     date = record["date"].replace("T", " ").replace("Z", " UTC")
     return [
-        f"- Command: `{record['command']}`",
+        f"- Command: `{current_command(record['command'])}`",
         f"- Commit `{record['commit'][:7]}` (working tree {state}); started {date}, took "
         f"{fmt(record['seconds'])} s",
         f"- Machine: {m['cpu']}, {m['cores']} cores ({m['usable_cores']} usable), "
@@ -106,9 +126,9 @@ def provenance(record: Mapping[str, Any]) -> list[str]:
     ]
 
 
-def section(record: Mapping[str, Any]) -> list[str]:
+def section(record: Mapping[str, Any], level: int = 2) -> list[str]:
     """One benchmark's part of the page: provenance, ratios, figures, tables."""
-    lines = [f"## {record['benchmark']}", ""]
+    lines = [f"{'#' * level} {record['benchmark']}", ""]
     if record["about"]:
         lines += [record["about"], ""]
     lines += [*provenance(record), ""]
@@ -138,6 +158,19 @@ def ordered(records: Mapping[str, Mapping[str, Any]]) -> list[Mapping[str, Any]]
     return known + [records[name] for name in sorted(records) if name not in ORDER]
 
 
+def _overview(records: list[Mapping[str, Any]]) -> list[list[Any]]:
+    return [
+        [
+            f"[{r['benchmark']}](#{r['benchmark']})",
+            r["about"],
+            r["date"][:10],
+            f"`{r['commit'][:7]}`" + (" (changed)" if r["dirty"] else ""),
+            f"{fmt(r['load']['before'][0])} / {fmt(r['load']['after'][0])}",
+        ]
+        for r in records
+    ]
+
+
 def render(records: Mapping[str, Mapping[str, Any]]) -> str:
     """The page for ``{benchmark: newest record}``."""
     lines = [
@@ -157,19 +190,30 @@ def render(records: Mapping[str, Mapping[str, Any]]) -> str:
         "",
     ]
     records_in_order = ordered(records)
-    rows = [
-        [
-            f"[{r['benchmark']}](#{r['benchmark']})",
-            r["about"],
-            r["date"][:10],
-            f"`{r['commit'][:7]}`" + (" (changed)" if r["dirty"] else ""),
-            f"{fmt(r['load']['before'][0])} / {fmt(r['load']['after'][0])}",
+    standing = [r for r in records_in_order if not is_experiment(r)]
+    experiments = [r for r in records_in_order if is_experiment(r)]
+    head = ["benchmark", "measures", "date", "commit", "load before / after"]
+    lines += ["Standing benchmarks, re-run to track the product:", "", *_table(head, _overview(standing)), ""]
+    if experiments:
+        lines += [
+            "[One-off experiments](#one-off-experiments), each run to decide a constant or a design "
+            "(the decision record that cites it keeps its reasoning):",
+            "",
+            *_table(head, _overview(experiments)),
+            "",
         ]
-        for r in records_in_order
-    ]
-    lines += _table(["benchmark", "measures", "date", "commit", "load before / after"], rows) + [""]
-    for record in records_in_order:
+    for record in standing:
         lines += section(record)
+    if experiments:
+        lines += [
+            "## One-off experiments",
+            "",
+            "Scripts in `bench/experiments/`: nothing re-runs them to track the product; each record is "
+            "the measurement a decision was made on.",
+            "",
+        ]
+        for record in experiments:
+            lines += section(record, level=3)
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

@@ -147,13 +147,10 @@ def command_line(argv: Sequence[str] | None = None) -> str:
     argv = list(sys.argv if argv is None else argv)
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     module = spec.name if spec is not None and spec.name.startswith("bench.") else None
-    if (
-        module is None
-        and argv
-        and argv[0].endswith(".py")
-        and Path(argv[0]).resolve().parent == ROOT / "bench"
-    ):
-        module = f"bench.{Path(argv[0]).stem}"
+    if module is None and argv and argv[0].endswith(".py"):
+        script = Path(argv[0]).resolve()
+        if script.parent in (ROOT / "bench", ROOT / "bench" / "experiments"):
+            module = ".".join(script.relative_to(ROOT).with_suffix("").parts)
     if module is None:
         return shlex.join(argv)
     return shlex.join(["python", "-m", module, *argv[1:]])

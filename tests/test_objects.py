@@ -792,9 +792,10 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
     mesh gives the RG2's flat pads within ObjectConfig.collision_max_limit (2 mm).
 
     On a concave surface a flat pad rests on its edges, so the chord through the TCP is no yardstick
-    there (up to 4 mm below the width on the mug's wall, 12 mm on the banana: bench/widths.py); the
-    pads' opening on the mesh is. With CoACD once at 0.05 (before the refinement) 9 of 127 banana
-    successes were 2.1-2.9 mm wider than that; now the worst is 1.2 mm (bench/widths.py).
+    there (up to 4 mm below the width on the mug's wall, 12 mm on the banana:
+    bench/experiments/widths.py); the pads' opening on the mesh is. With CoACD once at 0.05 (before the
+    refinement) 9 of 127 banana successes were 2.1-2.9 mm wider than that; now the worst is 1.2 mm
+    (bench/experiments/widths.py).
     """
     config = AnnotatorConfig()
     stroke = hand.rg2.max_width

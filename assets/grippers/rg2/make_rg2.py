@@ -59,7 +59,7 @@ PAD_MASS = 0.005  # [C] rubber-faced pad
 # a small DC rotor (~1e-7..1e-6 kg m^2) behind a ~1:30..1:100 reduction reflects 1e-4..1e-2
 # kg m^2 at the link; 1e-3 sits in that range. Without it the 5..25 g links (~4e-6 kg m^2)
 # let the gear coupling buckle by 15-40 deg under a 40 N squeeze; with it the followers stay
-# within 0.5 deg (bench/rg2_coupling.py).
+# within 0.5 deg (bench/experiments/rg2_coupling.py).
 ARMATURE = 1e-3  # kg m^2
 LINK_THICKNESS = 0.006  # [C] link plate thickness (along x at phi = 0)
 LINK_WIDTH = 0.016  # [C] link plate width (along y)

@@ -1,7 +1,7 @@
 """The UR3's closed-form IK: speed (one pose, a batch), round-trip error, solutions per pose.
 
-    python -m bench.ur3_ik                 # 20,000 random configurations, 1,000 one at a time
-    python -m bench.ur3_ik --n 2000 --single 200
+    python -m bench.experiments.ur3_ik                 # 20,000 random configurations, 1,000 one at a time
+    python -m bench.experiments.ur3_ik --n 2000 --single 200
 
 Prints figures and writes a record (bench/harness.py); never a test. The speed comes first as the
 ratio of one pose at a time to the batched solver, both timed in this run.

@@ -1,7 +1,7 @@
 """The RG2 model: follower error under a 40 N squeeze (gear vs per-step position coupling), width
 error over the stroke, squeeze force, and the UR3's FK error.
 
-    python -m bench.rg2_coupling
+    python -m bench.experiments.rg2_coupling
 
 Prints figures and writes a record (bench/harness.py); never a test. No timing: nothing here moves
 with the machine's speed.

@@ -1,14 +1,14 @@
 """Labels replayed through ``annotator evaluate``: how many rows come back bit for bit.
 
-    python -m bench.evaluate_replay               # --n 60 per object
-    python -m bench.evaluate_replay --n 20        # a quick look
+    python -m bench.experiments.evaluate_replay               # --n 60 per object
+    python -m bench.experiments.evaluate_replay --n 20        # a quick look
 
 Runs the real commands as subprocesses: ``annotate`` into a temporary folder, then ``annotator
 evaluate`` on the label table (replaying each row's commanded grasp, ``cmd_*``), and, for
 comparison, on the same table without the ``cmd_*`` columns (replaying the end-of-close pose and
 width instead). Prints rows identical, outcomes equal and the wall time of each evaluation, and
 writes a record (bench/harness.py) with each evaluation's time as a ratio to the labelling's.
-(Replaying labels on the UR3 arm instead is ``bench.arm_agreement``.)
+(Replaying labels on the UR3 arm instead is ``bench.experiments.arm_agreement``.)
 """
 
 from __future__ import annotations

@@ -5,11 +5,11 @@ replayed on the UR3 + RG2 in the cell (annotator.tools.replay: the placement tha
 come most from above while reachable); the floating ``success`` is compared with the replay's
 *held*. Unreachable labels are counted apart, with their reasons.
 
-    python -m bench.arm_agreement                      # labels objects/ with --n 40 first
-    python -m bench.arm_agreement --labels labels/ --objects objects/ --per-object 8
+    python -m bench.experiments.arm_agreement                      # labels objects/ with --n 40 first
+    python -m bench.experiments.arm_agreement --labels labels/ --objects objects/ --per-object 8
 
 Prints figures and writes a record (bench/harness.py); never a test. (Replaying labels through
-``annotator evaluate`` bit for bit is ``bench.evaluate_replay``.)
+``annotator evaluate`` bit for bit is ``bench.experiments.evaluate_replay``.)
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Face-to-face grasps on a light, thin plate: how many hold and how deep the pads end, per object
 mass and simulation time step (the measurement behind PhysicsConfig.light_object_mass).
 
-    python -m bench.light_objects                         # 4 g and 40 g, 1/240 s and as simulated
-    python -m bench.light_objects --grams 4 14 27 --hz 240 480 760 1000
+    python -m bench.experiments.light_objects                         # 4 g and 40 g, 1/240 s and as simulated
+    python -m bench.experiments.light_objects --grams 4 14 27 --hz 240 480 760 1000
 
 The plate is 48 x 24 x 6.35 mm (a domino); its candidates come from the sampler (seed 0) and only
 those closing across the 6.35 mm faces that pass the collision check are simulated. "as

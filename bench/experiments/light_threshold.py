@@ -1,9 +1,9 @@
 """Where a light object stops needing a finer time step: labels at 1/240 s against a fine step,
 per object mass, over several shapes and seeds (the derivation of PhysicsConfig.light_object_mass).
 
-    python -m bench.light_threshold                               # the default grid, 2 processes
-    python -m bench.light_threshold --grams 24 32 40 --seeds 0 --shapes domino cube40
-    python -m bench.light_threshold --grams 40 80 --set physics.contact_breaking_threshold=0.01
+    python -m bench.experiments.light_threshold                               # the default grid, 2 processes
+    python -m bench.experiments.light_threshold --grams 24 32 40 --seeds 0 --shapes domino cube40
+    python -m bench.experiments.light_threshold --grams 40 80 --set physics.contact_breaking_threshold=0.01
 
 For every (shape, mass, seed) the object's sampled candidates that pass the kinematic collision
 check are simulated twice with the current default gripper and protocol: at ``time_step`` (one
@@ -27,7 +27,7 @@ Shapes (the first four are the default set; ``--shapes all`` adds eleven more):
   sphere40 sphere 40 mm across           stick    100 x 15 x 8 mm bar
   mug, banana   the sample objects' meshes (objects/), at the masses of the grid
 
-    python -m bench.light_threshold --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
+    python -m bench.experiments.light_threshold --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ import trimesh
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from bench._variants import parse_variant
+from bench.experiments.light_objects import simulated_trials
 from bench.harness import Run
-from bench.light_objects import simulated_trials
 
 OBJECTS = Path(__file__).resolve().parents[1] / "objects"
 box, cylinder = trimesh.creation.box, trimesh.creation.cylinder

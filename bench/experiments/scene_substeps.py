@@ -1,6 +1,6 @@
 """The light-object step in a scene: the target's substeps against the lightest object's, per trial.
 
-    python -m bench.scene_substeps [--scenes 16] [--n 60] [--per-scene 5] [--objects objects/]
+    python -m bench.experiments.scene_substeps [--scenes 16] [--n 60] [--per-scene 5] [--objects objects/]
 
 A scene's trials share one world, so one step serves every object in it. An object under
 ``[physics] light_object_mass`` needs a finer step when it is *squeezed*
@@ -30,7 +30,7 @@ from annotator.scenes import SceneBuilder, SceneSpec
 from annotator.scenes.labels import SceneTrials, label_scene
 from bench.harness import Run
 
-WIDTH_TOLERANCE = 0.0002  # m, as bench/light_threshold.py compares widths
+WIDTH_TOLERANCE = 0.0002  # m, as bench/experiments/light_threshold.py compares widths
 
 
 def with_scenes(config: AnnotatorConfig, **changes) -> AnnotatorConfig:

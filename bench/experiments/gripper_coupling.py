@@ -1,6 +1,6 @@
 """What each gripper's coupling holds under its squeeze, lifted and shaken (gear vs position control).
 
-    python -m bench.gripper_coupling [rg2 panda robotiq_2f85] [--force N] [--mass KG]
+    python -m bench.experiments.gripper_coupling [rg2 panda robotiq_2f85] [--force N] [--mass KG]
         [--non-contact-iterations K] [--solver-iterations K]
 
 For each gripper, coupling ("gear", "position") and passive-link mode ("kinematic": the annotation

@@ -1,9 +1,9 @@
 """Do the widths of successful grasps match the mesh? Per object, label N candidates as `annotate`
 does and compare each success's width with the opening the mesh implies for the RG2's flat pads.
 
-    python -m bench.widths                                 # bowl, mug and banana of objects/
-    python -m bench.widths --objects DIR --only mug --n 400
-    python -m bench.widths --coarse          # CoACD once at 0.05, as before the threshold ladder
+    python -m bench.experiments.widths                                 # bowl, mug and banana of objects/
+    python -m bench.experiments.widths --objects DIR --only mug --n 400
+    python -m bench.experiments.widths --coarse          # CoACD once at 0.05, as before the threshold ladder
 
 Three columns per object, in mm, over its successes (mean and max of |difference| or signed range):
 
