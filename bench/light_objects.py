@@ -22,9 +22,9 @@ import numpy as np
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectProperties, ObjectSource, contact_substeps, create_body, load_object
+from annotator.outcome import Outcome
 from annotator.pipeline.worker import PARKED
 from annotator.sampler import object_rng, sample_candidates
 from annotator.sim.hand import FloatingRG2

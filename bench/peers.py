@@ -85,9 +85,9 @@ import numpy as np
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
+from annotator.outcome import Outcome
 from annotator.pipeline.worker import object_candidates
 from annotator.sampler import Candidates
 from annotator.sim import pb

@@ -22,9 +22,10 @@ from annotator.cell.reach import REASONS
 from annotator.cell.views import OBJECT_POSE_COLUMNS, SEG_OBJECT, load_cameras, open_view
 from annotator.cli import annotate_command
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome, load_labels
+from annotator.dataset import load_labels
 from annotator.geometry import Transform
 from annotator.objects import create_body, load_object, reset_object_pose
+from annotator.outcome import Outcome
 from annotator.sim import ur3
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World

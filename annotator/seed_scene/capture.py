@@ -23,10 +23,11 @@ import pybullet_data
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome, pose_columns, validate_labels
+from annotator.dataset import pose_columns, validate_labels
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.objects import ObjectModel, create_body, get_object_pose, load_object, physics_for
+from annotator.outcome import Outcome
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult

@@ -38,9 +38,10 @@ from annotator.cell.placement import place, stable_poses
 from annotator.cell.reach import READY, Reach, check_reach
 from annotator.cell.world import Cell
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome, poses_as_matrices
+from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, get_object_pose, physics_for, reset_object_pose
+from annotator.outcome import Outcome
 from annotator.render import Camera, orbit_camera, render_rgb
 from annotator.sim import pb
 from annotator.sim.world import World
