@@ -25,11 +25,12 @@ import functools
 import hashlib
 import logging
 import os
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
+from annotator.files import atomic_write_bytes
 
 log = logging.getLogger(__name__)
 
@@ -87,17 +88,7 @@ def _checksum(arrays: dict[str, np.ndarray]) -> str:
 
 def write_atomic(path: Path, data: bytes) -> None:
     """``data`` at ``path`` via a temporary file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())  # on a shared filesystem the rename must not overtake the data
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_bytes(path, data, make_parents=True)
 
 
 def save_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
