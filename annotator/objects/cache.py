@@ -21,7 +21,6 @@ waits for it (to save the work, not for correctness); where locking fails it is 
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
 import logging
 import os
@@ -30,16 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
+from annotator import versions as label_versions
 from annotator.files import atomic_write_bytes
 
 log = logging.getLogger(__name__)
 
-# Bump when an entry's content changes meaning (it is part of every key).
-CACHE_VERSION = 4
-# The libraries whose versions shape an entry: CoACD and PyBullet's V-HACD cut the parts,
-# fast-simplification decimates CoACD's input, trimesh and SciPy (Qhull) make the parts' hulls and
-# sample the error, NumPy computes it.
-LIBRARIES = ("coacd", "pybullet", "fast_simplification", "trimesh", "scipy", "numpy")
+# Bump when an entry's content changes meaning (it is part of every key). 5: the libraries are
+# annotator.versions.LABEL_LIBRARIES (pymeshfix and manifold3d added, which shape the cleaned mesh).
+CACHE_VERSION = 5
 
 
 def default_cache_dir() -> Path:
@@ -48,24 +45,10 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "rg2-annotator"
 
 
-@functools.cache
-def library_versions() -> dict[str, str]:
-    """The installed versions of :data:`LIBRARIES` (``"none"`` for one that is missing)."""
-    from importlib import metadata
-
-    names = {"fast_simplification": "fast-simplification"}
-    out = {}
-    for lib in LIBRARIES:
-        try:
-            out[lib] = metadata.version(names.get(lib, lib))
-        except metadata.PackageNotFoundError:
-            out[lib] = "none"
-    return out
-
-
 def entry_key(method: str, arrays: list[np.ndarray], settings: tuple) -> str:
     """Hex key of an entry: the cache version, the method, the bytes of ``arrays`` (little-endian,
-    with their shapes), the ``settings`` that shape the result and the library versions."""
+    with their shapes), the ``settings`` that shape the result and the versions of
+    :data:`annotator.versions.LABEL_LIBRARIES`."""
     h = hashlib.sha256(f"rg2-annotator collision v{CACHE_VERSION}\0{method}\0".encode())
     for a in arrays:
         a = np.ascontiguousarray(a)
@@ -73,7 +56,7 @@ def entry_key(method: str, arrays: list[np.ndarray], settings: tuple) -> str:
         h.update(f"{a.dtype.str}{a.shape}\0".encode())
         h.update(a.tobytes())
     h.update(repr(settings).encode())
-    h.update(repr(sorted(library_versions().items())).encode())
+    h.update(repr(sorted(label_versions.library_versions().items())).encode())
     return h.hexdigest()[:32]
 
 
