@@ -11,6 +11,9 @@ every shared filesystem:
   succeed and one of their files stays, each valid;
 - reads are verified: an entry carries the SHA-256 of its payload and a reader that finds a
   truncated, corrupt or foreign file treats it as missing (it is recomputed and replaced);
+- an entry names what it is: it stores its key's inputs (:class:`EntryInputs`: the mesh's digest,
+  the settings, the library versions), and a reader that finds other inputs than the key's (a
+  valid entry copied under another object's name) treats it as missing too, and says so once;
 - the multi-part ``.obj`` PyBullet loads is named by the hash of its own text, written from the
   entry that was read, so it always matches the parts the reader simulates.
 
@@ -21,10 +24,13 @@ waits for it (to save the work, not for correctness); where locking fails it is 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
+import json
 import logging
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,19 +51,61 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "rg2-annotator"
 
 
+@dataclass(frozen=True)
+class EntryInputs:
+    """What an entry is made from: its key is the hash of these, and the entry stores them, so a
+    reader checks that the entry it found is the one it asked for (a valid entry copied under
+    another object's key is a miss, never used)."""
+
+    version: int  # CACHE_VERSION
+    method: str  # "hull", "shells" or "coacd" (the ladder)
+    arrays: tuple[str, ...]  # per input array: dtype, shape and SHA-256 of its little-endian bytes
+    settings: str  # repr of every setting that shapes the result (cleaning, the ladder, the error)
+    libraries: tuple[tuple[str, str], ...]  # (distribution, version), sorted
+
+    def text(self) -> str:
+        """The canonical JSON an entry stores."""
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @property
+    def key(self) -> str:
+        """The entry's name: 32 hex digits of the SHA-256 of :meth:`text`."""
+        return hashlib.sha256(self.text().encode()).hexdigest()[:32]
+
+    def differences(self, stored: str) -> list[str]:
+        """The fields in which an entry's stored inputs (``stored``, its :meth:`text`) differ."""
+        try:
+            other = json.loads(stored)
+        except ValueError:
+            return ["unreadable inputs"]
+        mine = json.loads(self.text())
+        if not isinstance(other, dict):
+            return ["unreadable inputs"]
+        return [name for name in mine if other.get(name) != mine[name]] or ["inputs"]
+
+
+def _array_digest(a: np.ndarray) -> str:
+    a = np.ascontiguousarray(a)
+    a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+    return f"{a.dtype.str}{a.shape} {hashlib.sha256(a.tobytes()).hexdigest()}"
+
+
+def entry_inputs(method: str, arrays: list[np.ndarray], settings: tuple) -> EntryInputs:
+    """What makes an entry: the cache version, the method, the bytes of ``arrays`` (the cleaned,
+    scaled mesh's vertices and faces, little-endian, with their shapes), the ``settings`` that shape
+    the result and the versions of :data:`annotator.versions.LABEL_LIBRARIES`."""
+    return EntryInputs(
+        CACHE_VERSION,
+        method,
+        tuple(_array_digest(a) for a in arrays),
+        repr(settings),
+        tuple(sorted(label_versions.library_versions().items())),
+    )
+
+
 def entry_key(method: str, arrays: list[np.ndarray], settings: tuple) -> str:
-    """Hex key of an entry: the cache version, the method, the bytes of ``arrays`` (little-endian,
-    with their shapes), the ``settings`` that shape the result and the versions of
-    :data:`annotator.versions.LABEL_LIBRARIES`."""
-    h = hashlib.sha256(f"rg2-annotator collision v{CACHE_VERSION}\0{method}\0".encode())
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
-        h.update(f"{a.dtype.str}{a.shape}\0".encode())
-        h.update(a.tobytes())
-    h.update(repr(settings).encode())
-    h.update(repr(sorted(label_versions.library_versions().items())).encode())
-    return h.hexdigest()[:32]
+    """Hex key of an entry: the hash of its :func:`entry_inputs`."""
+    return entry_inputs(method, arrays, settings).key
 
 
 def _checksum(arrays: dict[str, np.ndarray]) -> str:
@@ -74,10 +122,16 @@ def write_atomic(path: Path, data: bytes) -> None:
     atomic_write_bytes(path, data, make_parents=True)
 
 
-def save_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """``arrays`` as an ``.npz`` entry with their checksum, written atomically."""
+INPUTS = "inputs"  # the array of an entry that holds its EntryInputs.text()
+
+
+def save_arrays(path: Path, arrays: dict[str, np.ndarray], inputs: EntryInputs | None = None) -> None:
+    """``arrays`` as an ``.npz`` entry with their checksum, written atomically; with ``inputs``,
+    the entry names what it was made from (checked by :func:`load_arrays`, covered by the checksum)."""
     import io
 
+    if inputs is not None:
+        arrays = {**arrays, INPUTS: np.array(inputs.text())}
     buffer = io.BytesIO()
     np.savez(buffer, checksum=np.array(_checksum(arrays)), **arrays)
     write_atomic(path, buffer.getvalue())
@@ -87,9 +141,15 @@ class CorruptEntry(ValueError):
     """An entry that cannot be read or whose checksum does not match: treat it as missing."""
 
 
-def load_arrays(path: Path) -> dict[str, np.ndarray]:
+class ForeignEntry(CorruptEntry):
+    """A whole entry made from other inputs than the key's (copied or written under another
+    object's name): treat it as missing."""
+
+
+def load_arrays(path: Path, inputs: EntryInputs | None = None) -> dict[str, np.ndarray]:
     """The arrays of an entry written by :func:`save_arrays`, verified; :class:`CorruptEntry`
-    for a truncated, corrupt or foreign file, FileNotFoundError when there is none."""
+    for a truncated, corrupt or foreign file, :class:`ForeignEntry` when ``inputs`` are given and
+    the entry does not name the same, FileNotFoundError when there is none."""
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {name: z[name] for name in z.files}
@@ -100,6 +160,13 @@ def load_arrays(path: Path) -> dict[str, np.ndarray]:
     stored = arrays.pop("checksum", None)
     if stored is None or str(stored) != _checksum(arrays):
         raise CorruptEntry("checksum mismatch")
+    named = arrays.pop(INPUTS, None)
+    if inputs is not None:
+        if named is None:
+            raise ForeignEntry("the entry does not name its inputs")
+        if str(named) != inputs.text():
+            differ = ", ".join(inputs.differences(str(named)))
+            raise ForeignEntry(f"made from other inputs (its {differ} differ)")
     return arrays
 
 
