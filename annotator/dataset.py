@@ -1,4 +1,6 @@
-"""Reading grasp labels: the schema (``Outcome``, columns), validation, loading and splitting.
+"""Reading grasp labels: the schema (columns), validation, loading and splitting.
+
+The outcomes (``Outcome``, ``OUTCOMES``) are :mod:`annotator.outcome`, re-exported here.
 
 This is the side of the dataset a learner uses; it does not import pybullet. Writing labels (atomic
 files, the manifest, the lock, resume) is :mod:`annotator.store`.
@@ -10,7 +12,6 @@ start with ``.``.
 
 from __future__ import annotations
 
-import enum
 import logging
 from pathlib import Path
 
@@ -18,36 +19,11 @@ import numpy as np
 import pandas as pd
 
 from annotator.geometry import matrix_to_quat, quat_to_matrix
+from annotator.outcome import OUTCOMES, Outcome  # noqa: F401  (re-exported: the schema's outcomes)
 from annotator.rng import keyed_rng
 
 log = logging.getLogger(__name__)
 
-
-class Outcome(enum.IntEnum):
-    """How a grasp trial ended; the stages of the protocol in order, then ``ERROR``."""
-
-    SUCCESS = 0
-    COLLISION = 1
-    NO_CONTACT = 2
-    SLIPPED_LIFT = 3
-    SLIPPED_SHAKE = 4
-    ERROR = 5
-
-    @property
-    def label(self) -> str:
-        """The string stored in the ``outcome`` column, e.g. ``"slipped_lift"``."""
-        return self.name.lower()
-
-    @classmethod
-    def from_label(cls, label: str) -> Outcome:
-        """The :class:`Outcome` stored as ``label`` in the ``outcome`` column; ValueError if unknown."""
-        try:
-            return cls[label.upper()]
-        except KeyError:
-            raise ValueError(f"unknown outcome {label!r}; expected one of {OUTCOMES}") from None
-
-
-OUTCOMES: tuple[str, ...] = tuple(o.label for o in Outcome)
 
 # Required columns in order, with their pandas dtype names (docs/labels.md, "Columns").
 STRING = "string"

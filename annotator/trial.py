@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from annotator.config import AnnotatorConfig, RobustConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform, axis_angle_to_matrix
+from annotator.outcome import Outcome
 from annotator.rng import trial_rng  # noqa: F401  (re-exported)
 from annotator.sim import pb
 from annotator.sim.contacts import closest_points, touching

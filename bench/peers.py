@@ -85,13 +85,13 @@ import numpy as np
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
+from annotator.outcome import Outcome
 from annotator.pipeline.worker import object_candidates
 from annotator.sampler import Candidates
 from annotator.sim import pb
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial
 from bench._variants import parse_variant
@@ -302,7 +302,7 @@ class Ours(Tool):
         self.world = CpuWorld(config.physics)
         self.client = self.world.client
         self.contact_breaking_threshold = config.physics.contact_breaking_threshold
-        self.hand = FloatingRG2(self.world, config.gripper)
+        self.hand = FloatingGripper(self.world, config.gripper)
         self.trial: GraspTrial | None = None
         self.uid: int | None = None
 
@@ -311,7 +311,7 @@ class Ours(Tool):
         if self.world.physics != physics:
             self.world.physics = physics
             self.world.configure()
-        self.hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), self.hand.rg2.max_width)  # parked
+        self.hand.teleport(Transform([0.0, 0.0, 2.0], [0, 0, 0, 1]), self.hand.gripper.max_width)  # parked
         self.uid = create_body(self.world.client, model, config=self.config.objects)
         self.world.set_gravity(False)
         self.trial = GraspTrial(self.world, self.hand, self.uid, self.config)
@@ -787,7 +787,7 @@ def main() -> None:
             tools.append(Ours(variant, name=f"ours[{label}]"))
         if not args.no_peers:
             tools += [VGN(folder), AdaGrasp(folder)]
-        max_width = tools[0].hand.rg2.max_width
+        max_width = tools[0].hand.gripper.max_width
         work: Work = []
         for source in bench_objects(folder):
             model = load_object(source, config.objects)

@@ -25,7 +25,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import create_body, load_object
 from annotator.sim import pb
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,7 +58,7 @@ def free_step(config: AnnotatorConfig | None = None, steps: int = 240, blocks: i
     """Time ``blocks`` x ``steps`` steps of the gripper holding the box (module docstring)."""
     config = config or AnnotatorConfig()
     with World(config.physics) as world:
-        hand = FloatingRG2(world, config.gripper)
+        hand = FloatingGripper(world, config.gripper)
         model = load_object(BOX, config.objects)
         uid = create_body(world.client, model)
         world.set_gravity(False)

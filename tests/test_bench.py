@@ -61,10 +61,10 @@ def test_profiler_attributes_samples_to_the_innermost_process(tmp_path, monkeypa
         span,
         "simulate (w.py:1)",
         "GraspTrial.run (t.py:2)",
-        "FloatingRG2.shake (h.py:3)",
+        "FloatingGripper.shake (h.py:3)",
         "x (y.py:4)",
     )
-    assert profile_worker.phase(shaking) == "trial: FloatingRG2.shake"
+    assert profile_worker.phase(shaking) == "trial: FloatingGripper.shake"
     assert profile_worker.owner(("a (lib.py:1)", "_first_hits (annotator/sampler.py:90)", "b (np.py:2)")) == (
         "_first_hits (annotator/sampler.py)"
     )

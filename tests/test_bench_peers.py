@@ -32,7 +32,7 @@ def turns(tmp_path_factory):
     work = []
     for source in peers.bench_objects(folder, ("cube40", "cylinder66x120")):
         model = load_object(source, objects, cache_dir=folder / "cache")
-        work.append((model, object_candidates(model, CANDIDATES, 0, config, tools[0].hand.rg2.max_width)))
+        work.append((model, object_candidates(model, CANDIDATES, 0, config, tools[0].hand.gripper.max_width)))
     steps: collections.Counter = collections.Counter()  # client -> stepSimulation calls
     seen: dict[str, list] = collections.defaultdict(list)  # tool -> [(T_obj_tcp, width, steps taken)]
     step = pb.stepSimulation

@@ -16,9 +16,9 @@ import pytest
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels, poses_as_matrices
 from annotator.geometry import Transform
-from annotator.scene import SceneConfig, build_scene
-from annotator.scene.capture import Capturer, capture_now, load_capture_object
-from annotator.scene.demo import CUBE_SIZE
+from annotator.seed_scene import SeedSceneConfig, build_scene
+from annotator.seed_scene.capture import Capturer, capture_now, load_capture_object
+from annotator.seed_scene.demo import CUBE_SIZE
 from annotator.sim.world import World
 
 SAMPLES = Path(__file__).resolve().parent.parent / "objects"
@@ -37,7 +37,7 @@ def _pose_gripper(scene, T_world_tcp: Transform, width: float, opening: float) -
 
 
 def test_capture_key_path_appends_a_label_row(tmp_path):
-    config = SceneConfig()
+    config = SeedSceneConfig()
     labels_config = AnnotatorConfig()
     out = tmp_path / "captures.parquet"
     capturer = Capturer(load_capture_object(None, labels_config), labels_config, out)
@@ -72,7 +72,7 @@ def test_capture_key_path_appends_a_label_row(tmp_path):
 def test_capture_on_a_chosen_object(tmp_path):
     labels_config = AnnotatorConfig()
     model = load_capture_object(SAMPLES / "box.obj", labels_config)
-    config = SceneConfig()
+    config = SeedSceneConfig()
     out = tmp_path / "box.parquet"
     capturer = Capturer(model, labels_config, out)
     try:
@@ -106,7 +106,7 @@ def test_a_light_objects_capture_is_the_batch_jobs_label(tmp_path):
 
     from annotator.objects import discover_objects
     from annotator.pipeline import worker
-    from annotator.scene.capture import Candidate
+    from annotator.seed_scene.capture import Candidate
 
     config = AnnotatorConfig()
     trimesh.creation.box((0.03, 0.03, 0.022)).export(tmp_path / "block.obj")
@@ -138,7 +138,8 @@ def test_enter_key_captures_in_the_gui(tmp_path):
     script = tmp_path / "press.sh"
     script.write_text(
         "#!/bin/sh\n"
-        f"{sys.executable} -m annotator.scene --seconds 60 --capture-out {out} > {tmp_path}/log.txt 2>&1 &\n"
+        f"{sys.executable} -m annotator.seed_scene --seconds 60 --capture-out {out}"
+        f" > {tmp_path}/log.txt 2>&1 &\n"
         "pid=$!\n"
         "w=''\n"
         "for i in $(seq 1 240); do\n"

@@ -22,9 +22,10 @@ from annotator.cell.reach import REASONS
 from annotator.cell.views import OBJECT_POSE_COLUMNS, SEG_OBJECT, load_cameras, open_view
 from annotator.cli import annotate_command
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome, load_labels
+from annotator.dataset import load_labels
 from annotator.geometry import Transform
 from annotator.objects import create_body, load_object, reset_object_pose
+from annotator.outcome import Outcome
 from annotator.sim import ur3
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
@@ -292,7 +293,8 @@ def test_a_cell_run_resumes_and_refuses_other_cell_settings(cell_run, tmp_path):
 
 def test_a_cell_success_replays_on_the_arm_at_its_placement_with_its_q_grasp(cell_run):
     """The arm reaches a cell label's commanded grasp with the label's own joints, and lifts."""
-    from annotator.tools.replay import plan_replay, replay
+    from annotator.cell.execute import execute_plan
+    from annotator.tools.replay import plan_replay
 
     _, out = cell_run
     labels = load_labels(out)
@@ -305,5 +307,5 @@ def test_a_cell_success_replays_on_the_arm_at_its_placement_with_its_q_grasp(cel
         plan = plan_replay(cell, model, obj, row, config)
         assert plan.note == "placement: the label's own"
         np.testing.assert_allclose(plan.reach.q_grasp, row[list(JOINT_COLUMNS)].to_numpy(float), atol=1e-9)
-        result = replay(cell, obj, plan, config, camera=None)
+        result = execute_plan(cell, obj, plan, config, camera=None)
     assert result.held(config.protocol.lift_height, config.protocol.max_slip)

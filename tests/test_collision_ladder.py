@@ -16,6 +16,7 @@ import pytest
 import trimesh
 from helpers import write_l
 
+from annotator import versions as label_versions
 from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.objects import cache, decomposition, discover_objects, load_object
 from annotator.objects.fidelity import collision_error
@@ -467,9 +468,10 @@ def test_the_key_holds_the_mesh_every_setting_that_shapes_it_and_the_library_ver
     )  # a hull does not depend on the ladder's settings
     moved = trimesh.Trimesh(l_mesh.vertices + 1e-12, l_mesh.faces, process=False)
     assert key(moved, "coacd", CONFIG) != base
-    versions = cache.library_versions()
-    monkeypatch.setattr(cache, "library_versions", lambda: {**versions, "coacd": "99.0"})
-    assert key(l_mesh, "coacd", CONFIG) != base
+    versions = label_versions.library_versions()
+    for library in label_versions.LABEL_LIBRARIES:
+        monkeypatch.setattr(label_versions, "library_versions", lambda lib=library: {**versions, lib: "99.0"})
+        assert key(l_mesh, "coacd", CONFIG) != base, library
 
 
 def test_no_lock_on_the_filesystem_is_not_an_error(tmp_path, monkeypatch):

@@ -798,7 +798,7 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
     (bench/experiments/widths.py).
     """
     config = AnnotatorConfig()
-    stroke = hand.rg2.max_width
+    stroke = hand.gripper.max_width
     checked = {}
     walls = [  # the mug's wall, gripped from above (rim grasps); any of the banana's candidates
         ("mug", MUG_CONFIG, lambda c: (c.width_expected < 0.006) & (c.T_obj_tcp[:, 2, 2] < -0.8)),
@@ -822,7 +822,7 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
         wins = rows[rows["success"]]
         triangles = np.asarray(model.mesh.triangles)
         gap = [
-            row.width - pad_opening(triangles, T, row.width, hand.rg2.pad_face)
+            row.width - pad_opening(triangles, T, row.width, hand.gripper.pad_face)
             for T, row in zip(poses_as_matrices(wins), wins.itertuples(), strict=True)
         ]
         checked[oid] = np.round(np.asarray(gap) * 1e3, 2)

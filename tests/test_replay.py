@@ -12,13 +12,14 @@ from click.testing import CliRunner
 from PIL import Image, ImageSequence
 
 from annotator.cell import build_cell
+from annotator.cell.execute import execute_plan
 from annotator.cli.replay import replay_command
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.objects import create_body, load_object
 from annotator.pipeline.run import RunOptions, run
 from annotator.sim.world import World
-from annotator.tools.replay import PLACEMENT_COLUMNS, plan_replay, replay
+from annotator.tools.replay import PLACEMENT_COLUMNS, plan_replay
 
 CONFIG = AnnotatorConfig()
 SAMPLES = Path(__file__).resolve().parent.parent / "objects"
@@ -60,7 +61,7 @@ def test_a_reachable_box_success_lifts_the_box(box_labels):
         np.testing.assert_allclose(
             cell.tcp_pose(plan.reach.q_grasp, plan.width).pos, plan.T_world_tcp.pos, atol=1e-9
         )
-        result = replay(cell, obj, plan, CONFIG)
+        result = execute_plan(cell, obj, plan, CONFIG)
         assert result.approach_contacts == []
         assert result.pads_touching == 2
         assert result.closed_width == pytest.approx(float(row["width"]), abs=0.003)
@@ -81,7 +82,7 @@ def test_a_collision_row_reports_the_contact(box_labels):
                 break
         else:  # the sample gives reachable collision rows; a sampler change must not turn this off
             pytest.fail(f"none of the {len(collisions)} collision rows is reachable in any placement")
-        result = replay(cell, obj, plan, CONFIG)
+        result = execute_plan(cell, obj, plan, CONFIG)
         assert any("the object" in c for c in result.approach_contacts), result.approach_contacts
 
 

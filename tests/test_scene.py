@@ -20,7 +20,7 @@ from annotator.cli.scene import scene_command
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.grippers import default_gripper
-from annotator.scene import SceneConfig, build_scene
+from annotator.seed_scene import SeedSceneConfig, build_scene
 from annotator.sim.ur3 import JOINT_NAMES
 from annotator.sim.width_table import fk_table
 from annotator.sim.world import World
@@ -147,7 +147,7 @@ def test_seed_script_runs_on_combined_model_as_written(position, yaw):
     with World(PhysicsConfig(gravity=-9.8)) as world:
         seed = SeedScript(world.client, urdf, position, orientation)
         base0 = seed.base_pose()
-        target = np.asarray(SceneConfig().initial_arm) + np.array([0.5, 0.4, -0.8, 0.3, -0.4, 0.6])
+        target = np.asarray(SeedSceneConfig().initial_arm) + np.array([0.5, 0.4, -0.8, 0.3, -0.4, 0.6])
         widths = {}
         for angle in (0.8, 0.0, 0.4):  # the seed's slider spans 0 .. 0.8 rad
             for _ in range(480):  # 2 s: the gripper moves at most 1.2 rad/s
@@ -173,7 +173,7 @@ def test_gui_under_xvfb(tmp_path):
     png = tmp_path / "window.png"
     command = [
         "xvfb-run", "-a", "-s", "-screen 0 1280x1024x24",
-        sys.executable, "-m", "annotator.scene",
+        sys.executable, "-m", "annotator.seed_scene",
         "--demo", "--seconds", "1.5", "--screenshot-at", "1", "--screenshot", str(png),
     ]  # fmt: skip
     # Slow part: in GUI mode every PyBullet call waits for the window thread, and building the RG2's
@@ -187,7 +187,7 @@ def test_gui_under_xvfb(tmp_path):
     width, height = int(match.group(1)), int(match.group(2))
     q = np.array([float(v) for v in match.group(3).split(",")])
     # The demo had moved the arm away from the seed's initial pose when the screenshot was taken.
-    assert np.abs(q - np.asarray(SceneConfig().initial_arm)).max() > 0.3
+    assert np.abs(q - np.asarray(SeedSceneConfig().initial_arm)).max() > 0.3
     with Image.open(png) as im:
         assert im.size == (width, height)
         pixels = np.asarray(im.convert("RGB"))
@@ -196,7 +196,7 @@ def test_gui_under_xvfb(tmp_path):
 
 
 def test_build_scene_matches_seed_numbers():
-    config = SceneConfig()
+    config = SeedSceneConfig()
     with World(config.physics) as world:
         scene = build_scene(world, config)
         assert pb.getPhysicsEngineParameters(physicsClientId=world.client)["gravityAccelerationZ"] == -9.8

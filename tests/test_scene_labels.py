@@ -11,8 +11,8 @@ from scene_helpers import CONVEX, load_models
 
 from annotator.cell.world import build_cell
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
+from annotator.outcome import Outcome
 from annotator.scenes import SceneBuilder, SceneSpec
 from annotator.scenes.arrange import workspace_on
 from annotator.scenes.labels import (

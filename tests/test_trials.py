@@ -14,9 +14,9 @@ import pytest
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource, create_body, load_object
+from annotator.outcome import Outcome
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates

@@ -14,11 +14,11 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from annotator import paths
+from annotator.files import atomic_write_text
 from annotator.grippers import DescriptionError, GripperDescription, load_gripper
 from annotator.grippers.urdf import read_urdf
 
@@ -52,15 +52,7 @@ def mounted_urdf(
     path = folder / f"ur3_{description.name}_{digest}.urdf"
     if path.is_file() and path.read_text() == text:
         return path
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".mount-", suffix=".urdf")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)  # atomic: a concurrent writer writes the same text
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, text, make_parents=True)  # a concurrent writer writes the same text
     log.debug("wrote %s", path)
     return path
 

@@ -143,11 +143,6 @@ class Cell:
         return robot_mount_pose(self.config)
 
     @property
-    def rg2(self) -> ParallelGripper | None:
-        """The gripper on the arm (the name this attribute had when the RG2 was the only one)."""
-        return self.gripper
-
-    @property
     def frames(self) -> ur3.ArmFrames:
         """The arm's fixed frames and its gripper's tool point (from the model's own FK)."""
         if self.gripper is None:

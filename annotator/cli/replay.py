@@ -77,18 +77,12 @@ def replay_command(
       annotator replay labels/ --object mug --grasp 17 --gui
     """
     from annotator.cell import build_cell
+    from annotator.cell.execute import execute_plan, frames_every
     from annotator.objects import ObjectDiscoveryError, ObjectError, create_body, discover_objects
     from annotator.pipeline.prepare import load_prepared
     from annotator.render import write_gif
     from annotator.tools.common import check_output_file, labelling_config, labelling_gripper, read_labels
-    from annotator.tools.replay import (
-        default_camera,
-        frames_every,
-        label_row,
-        plan_replay,
-        replay,
-        replay_world,
-    )
+    from annotator.tools.replay import default_camera, label_row, plan_replay, replay_world
 
     if gif_path is not None:
         check_output_file(gif_path, "--gif")
@@ -137,7 +131,7 @@ def replay_command(
         click.echo(f"arm: pregrasp {_fmt_q(plan.reach.q_pregrasp)} -> grasp {_fmt_q(plan.reach.q_grasp)}")
         camera = default_camera(plan.T_world_obj, size) if gif_path else None
         every = frames_every(world.dt)
-        result = replay(cell, obj, plan, config, camera=camera, frame_every=every, realtime=gui)
+        result = execute_plan(cell, obj, plan, config, camera=camera, frame_every=every, realtime=gui)
         if result.approach_contacts:
             click.echo("contact during the approach: " + "; ".join(result.approach_contacts))
         else:

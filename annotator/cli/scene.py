@@ -131,16 +131,16 @@ def scene_command(
     from annotator.grippers import DescriptionError, load_gripper
     from annotator.objects import ObjectError
     from annotator.render import write_gif, write_png
-    from annotator.scene.capture import Capturer, load_capture_object
-    from annotator.scene.demo import demo_script, run_script
-    from annotator.scene.gui import run_gui
-    from annotator.scene.model import SceneConfig, build_scene, open_world
+    from annotator.seed_scene.capture import Capturer, load_capture_object
+    from annotator.seed_scene.demo import demo_script, run_script
+    from annotator.seed_scene.gui import run_gui
+    from annotator.seed_scene.model import SeedSceneConfig, build_scene, open_world
 
     try:
         description = load_gripper(gripper)
     except DescriptionError as exc:
         raise click.UsageError(f"--gripper: {exc}") from exc
-    config = SceneConfig(description=description)
+    config = SeedSceneConfig(description=description)
     labels_config = AnnotatorConfig()
     try:
         obj = load_capture_object(object_path, labels_config, config.cube_urdf)

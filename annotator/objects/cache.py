@@ -11,6 +11,9 @@ every shared filesystem:
   succeed and one of their files stays, each valid;
 - reads are verified: an entry carries the SHA-256 of its payload and a reader that finds a
   truncated, corrupt or foreign file treats it as missing (it is recomputed and replaced);
+- an entry names what it is: it stores its key's inputs (:class:`EntryInputs`: the mesh's digest,
+  the settings, the library versions), and a reader that finds other inputs than the key's (a
+  valid entry copied under another object's name) treats it as missing too, and says so once;
 - the multi-part ``.obj`` PyBullet loads is named by the hash of its own text, written from the
   entry that was read, so it always matches the parts the reader simulates.
 
@@ -21,24 +24,25 @@ waits for it (to save the work, not for correctness); where locking fails it is 
 from __future__ import annotations
 
 import contextlib
-import functools
+import dataclasses
 import hashlib
+import json
 import logging
 import os
-import tempfile
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from annotator import versions as label_versions
+from annotator.files import atomic_write_bytes
+
 log = logging.getLogger(__name__)
 
-# Bump when an entry's content changes meaning (it is part of every key).
-CACHE_VERSION = 4
-# The libraries whose versions shape an entry: CoACD and PyBullet's V-HACD cut the parts,
-# fast-simplification decimates CoACD's input, trimesh and SciPy (Qhull) make the parts' hulls and
-# sample the error, NumPy computes it.
-LIBRARIES = ("coacd", "pybullet", "fast_simplification", "trimesh", "scipy", "numpy")
+# Bump when an entry's content changes meaning (it is part of every key). 5: the libraries are
+# annotator.versions.LABEL_LIBRARIES (pymeshfix and manifold3d added, which shape the cleaned mesh).
+CACHE_VERSION = 5
 
 
 def default_cache_dir() -> Path:
@@ -47,33 +51,61 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "rg2-annotator"
 
 
-@functools.cache
-def library_versions() -> dict[str, str]:
-    """The installed versions of :data:`LIBRARIES` (``"none"`` for one that is missing)."""
-    from importlib import metadata
+@dataclass(frozen=True)
+class EntryInputs:
+    """What an entry is made from: its key is the hash of these, and the entry stores them, so a
+    reader checks that the entry it found is the one it asked for (a valid entry copied under
+    another object's key is a miss, never used)."""
 
-    names = {"fast_simplification": "fast-simplification"}
-    out = {}
-    for lib in LIBRARIES:
+    version: int  # CACHE_VERSION
+    method: str  # "hull", "shells" or "coacd" (the ladder)
+    arrays: tuple[str, ...]  # per input array: dtype, shape and SHA-256 of its little-endian bytes
+    settings: str  # repr of every setting that shapes the result (cleaning, the ladder, the error)
+    libraries: tuple[tuple[str, str], ...]  # (distribution, version), sorted
+
+    def text(self) -> str:
+        """The canonical JSON an entry stores."""
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @property
+    def key(self) -> str:
+        """The entry's name: 32 hex digits of the SHA-256 of :meth:`text`."""
+        return hashlib.sha256(self.text().encode()).hexdigest()[:32]
+
+    def differences(self, stored: str) -> list[str]:
+        """The fields in which an entry's stored inputs (``stored``, its :meth:`text`) differ."""
         try:
-            out[lib] = metadata.version(names.get(lib, lib))
-        except metadata.PackageNotFoundError:
-            out[lib] = "none"
-    return out
+            other = json.loads(stored)
+        except ValueError:
+            return ["unreadable inputs"]
+        mine = json.loads(self.text())
+        if not isinstance(other, dict):
+            return ["unreadable inputs"]
+        return [name for name in mine if other.get(name) != mine[name]] or ["inputs"]
+
+
+def _array_digest(a: np.ndarray) -> str:
+    a = np.ascontiguousarray(a)
+    a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+    return f"{a.dtype.str}{a.shape} {hashlib.sha256(a.tobytes()).hexdigest()}"
+
+
+def entry_inputs(method: str, arrays: list[np.ndarray], settings: tuple) -> EntryInputs:
+    """What makes an entry: the cache version, the method, the bytes of ``arrays`` (the cleaned,
+    scaled mesh's vertices and faces, little-endian, with their shapes), the ``settings`` that shape
+    the result and the versions of :data:`annotator.versions.LABEL_LIBRARIES`."""
+    return EntryInputs(
+        CACHE_VERSION,
+        method,
+        tuple(_array_digest(a) for a in arrays),
+        repr(settings),
+        tuple(sorted(label_versions.library_versions().items())),
+    )
 
 
 def entry_key(method: str, arrays: list[np.ndarray], settings: tuple) -> str:
-    """Hex key of an entry: the cache version, the method, the bytes of ``arrays`` (little-endian,
-    with their shapes), the ``settings`` that shape the result and the library versions."""
-    h = hashlib.sha256(f"rg2-annotator collision v{CACHE_VERSION}\0{method}\0".encode())
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
-        h.update(f"{a.dtype.str}{a.shape}\0".encode())
-        h.update(a.tobytes())
-    h.update(repr(settings).encode())
-    h.update(repr(sorted(library_versions().items())).encode())
-    return h.hexdigest()[:32]
+    """Hex key of an entry: the hash of its :func:`entry_inputs`."""
+    return entry_inputs(method, arrays, settings).key
 
 
 def _checksum(arrays: dict[str, np.ndarray]) -> str:
@@ -87,23 +119,19 @@ def _checksum(arrays: dict[str, np.ndarray]) -> str:
 
 def write_atomic(path: Path, data: bytes) -> None:
     """``data`` at ``path`` via a temporary file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())  # on a shared filesystem the rename must not overtake the data
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_bytes(path, data, make_parents=True)
 
 
-def save_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """``arrays`` as an ``.npz`` entry with their checksum, written atomically."""
+INPUTS = "inputs"  # the array of an entry that holds its EntryInputs.text()
+
+
+def save_arrays(path: Path, arrays: dict[str, np.ndarray], inputs: EntryInputs | None = None) -> None:
+    """``arrays`` as an ``.npz`` entry with their checksum, written atomically; with ``inputs``,
+    the entry names what it was made from (checked by :func:`load_arrays`, covered by the checksum)."""
     import io
 
+    if inputs is not None:
+        arrays = {**arrays, INPUTS: np.array(inputs.text())}
     buffer = io.BytesIO()
     np.savez(buffer, checksum=np.array(_checksum(arrays)), **arrays)
     write_atomic(path, buffer.getvalue())
@@ -113,9 +141,15 @@ class CorruptEntry(ValueError):
     """An entry that cannot be read or whose checksum does not match: treat it as missing."""
 
 
-def load_arrays(path: Path) -> dict[str, np.ndarray]:
+class ForeignEntry(CorruptEntry):
+    """A whole entry made from other inputs than the key's (copied or written under another
+    object's name): treat it as missing."""
+
+
+def load_arrays(path: Path, inputs: EntryInputs | None = None) -> dict[str, np.ndarray]:
     """The arrays of an entry written by :func:`save_arrays`, verified; :class:`CorruptEntry`
-    for a truncated, corrupt or foreign file, FileNotFoundError when there is none."""
+    for a truncated, corrupt or foreign file, :class:`ForeignEntry` when ``inputs`` are given and
+    the entry does not name the same, FileNotFoundError when there is none."""
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {name: z[name] for name in z.files}
@@ -126,6 +160,13 @@ def load_arrays(path: Path) -> dict[str, np.ndarray]:
     stored = arrays.pop("checksum", None)
     if stored is None or str(stored) != _checksum(arrays):
         raise CorruptEntry("checksum mismatch")
+    named = arrays.pop(INPUTS, None)
+    if inputs is not None:
+        if named is None:
+            raise ForeignEntry("the entry does not name its inputs")
+        if str(named) != inputs.text():
+            differ = ", ".join(inputs.differences(str(named)))
+            raise ForeignEntry(f"made from other inputs (its {differ} differ)")
     return arrays
 
 

@@ -196,15 +196,22 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple:
     return error + ladder
 
 
-def geometry_key(
+def geometry_inputs(
     mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: list[trimesh.Trimesh] = ()
-) -> str:
-    """The cache key: the exact vertices and faces (of the mesh and of the ``shells`` that give the
-    parts), every setting that shapes the result and the library versions."""
+) -> cache.EntryInputs:
+    """What the cache entry is made from: the exact vertices and faces (of the mesh and of the
+    ``shells`` that give the parts), every setting that shapes the result and the library versions."""
     arrays = []
     for m in [mesh, *shells]:
         arrays += [np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)]
-    return cache.entry_key(method, arrays, settings(method, mesh, config))
+    return cache.entry_inputs(method, arrays, settings(method, mesh, config))
+
+
+def geometry_key(
+    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: list[trimesh.Trimesh] = ()
+) -> str:
+    """The cache key: the hash of :func:`geometry_inputs`."""
+    return geometry_inputs(mesh, method, config, shells).key
 
 
 # --------------------------------------------------------------------------------------------------
@@ -269,14 +276,21 @@ def obj_text(parts: list[trimesh.Trimesh]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _read_entry(path: Path, label: str) -> CollisionGeometry | None:
-    """The verified entry at ``path`` with its .obj in place; None when missing or broken."""
+_REPORTED: set[tuple[str, str]] = set()  # (entry, problem) already logged by this process
+
+
+def _read_entry(path: Path, label: str, inputs: cache.EntryInputs | None = None) -> CollisionGeometry | None:
+    """The verified entry at ``path`` (made from ``inputs`` when given) with its .obj in place;
+    None when missing, broken or made from other inputs (logged once per entry and problem)."""
     try:
-        geometry = _geometry(cache.load_arrays(path), path)
+        geometry = _geometry(cache.load_arrays(path, inputs), path)
     except FileNotFoundError:
         return None
     except (cache.CorruptEntry, ValueError, KeyError, TypeError) as exc:
-        log.warning("%s: broken collision cache entry %s (%s); making it again", label, path.name, exc)
+        what = "foreign" if isinstance(exc, cache.ForeignEntry) else "broken"
+        if (str(path), str(exc)) not in _REPORTED:
+            _REPORTED.add((str(path), str(exc)))
+            log.warning("%s: %s collision cache entry %s (%s); making it again", label, what, path.name, exc)
         return None
     if len(geometry.parts) > 1:
         geometry.obj_file = cache.write_obj(path.parent, path.stem, obj_text(geometry.parts))
@@ -842,19 +856,21 @@ def collision_geometry(
     if method not in ("hull", "shells", METHOD):
         raise ValueError(f"unknown collision method {method!r}")
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    path = root / f"{geometry_key(mesh, method, config, shells if method == 'shells' else ())}.npz"
+    inputs = geometry_inputs(mesh, method, config, shells if method == "shells" else ())
+    path = root / f"{inputs.key}.npz"
     label = object_id or path.stem[:12]
-    geometry = _read_entry(path, label)
+    geometry = _read_entry(path, label, inputs)
     if geometry is not None:
         return geometry
     if not decompose and method == METHOD:
         raise NotDecomposed(f"{label}: its decomposition is not in the cache {root}")
     with cache.advisory_lock(path.with_suffix(".lock")):
-        geometry = _read_entry(path, label)  # another process may have made it while this one waited
+        geometry = _read_entry(path, label, inputs)  # another process may have made it meanwhile
         if geometry is not None:
             return geometry
-        cache.save_arrays(path, _compute(mesh, method, config, list(shells), label, progress, load_started))
-    geometry = _read_entry(path, label)  # fresh and cached: the same float64 entry
+        computed = _compute(mesh, method, config, list(shells), label, progress, load_started)
+        cache.save_arrays(path, computed, inputs)
+    geometry = _read_entry(path, label, inputs)  # fresh and cached: the same float64 entry
     if geometry is None:  # pragma: no cover - removed or damaged between the write and the read
         raise OSError(f"{label}: the collision cache entry {path} vanished after it was written")
     geometry.from_cache = False

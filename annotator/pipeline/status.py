@@ -13,6 +13,8 @@ import os
 import time
 from pathlib import Path
 
+from annotator.files import atomic_write_text
+
 
 def write(folder: str | None, text: str | None) -> None:
     """Say what this process is doing (``None``: nothing worth showing)."""
@@ -23,9 +25,7 @@ def write(folder: str | None, text: str | None) -> None:
         if text is None:
             path.unlink(missing_ok=True)
         else:
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(f"{time.time():.1f} {text}")
-            os.replace(tmp, path)
+            atomic_write_text(path, f"{time.time():.1f} {text}", durable=False)
 
 
 STOP_NAME = "stop"

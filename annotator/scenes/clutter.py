@@ -303,7 +303,8 @@ class Round:
 
     def execute(self, proposal: Proposal) -> tuple[bool, int]:
         """Execute ``proposal`` on the arm from a snapshot of the scene as it is; (held, instance held)."""
-        from annotator.tools.replay import Plan, replay
+        from annotator.cell.execute import Plan
+        from annotator.cell.execute import execute_plan as replay
 
         target = proposal.instance_id if proposal.instance_id in self.present else self._nearest(proposal)
         if target < 0:

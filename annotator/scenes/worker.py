@@ -318,14 +318,14 @@ def _empty_scene(record: SceneRecord) -> str:
     return f"no object stayed on the table ({why}); nothing to label"
 
 
-class _State:
+class _SceneWorkerSlot:
     instance: SceneWorkerState | None = None
 
 
 def scene_worker_state() -> SceneWorkerState:
-    if _State.instance is None:
-        _State.instance = SceneWorkerState()
-    return _State.instance
+    if _SceneWorkerSlot.instance is None:
+        _SceneWorkerSlot.instance = SceneWorkerState()
+    return _SceneWorkerSlot.instance
 
 
 def label_scene_span(task: SceneTask) -> SpanResult:

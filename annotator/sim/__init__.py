@@ -1,4 +1,13 @@
-"""PyBullet simulation: a world per process, bodies with joints by name, the RG2 gripper.
+"""PyBullet simulation: a world per process, bodies with joints by name, any parallel gripper.
+
+Modules: ``world`` (a physics client and its settings, one per process), ``body`` (a loaded URDF
+with its joints and links by name), ``contacts`` (contact and distance queries), ``width_table``
+(a gripper's opening against its driven joint, from forward kinematics), ``gripper`` (the
+:class:`~annotator.sim.gripper.ParallelGripper` any gripper description is simulated as), ``hand``
+(the floating gripper the object trials move by a constraint), ``ur3`` (the arm: names, DH
+kinematics, closed-form IK). The grippers themselves are data (:mod:`annotator.grippers`,
+``assets/grippers/``). The package imports nothing above it but ``config``, ``geometry`` and the
+gripper descriptions (docs/architecture.md, "Floors").
 
 Import pybullet through this package (``from annotator.sim import pb``): it is imported here with
 its C-level "pybullet build time" banner silenced.

@@ -61,11 +61,6 @@ class FloatingGripper:
         return self.body.uid
 
     @property
-    def rg2(self) -> ParallelGripper:
-        """The gripper (the name this attribute had when the RG2 was the only one)."""
-        return self.gripper
-
-    @property
     def grip_force(self) -> float:
         """The run's squeeze, N per pad (the description's default unless configured)."""
         return self.gripper.grip_force
@@ -238,10 +233,6 @@ class FloatingGripper:
         steps = self._follow(positions, matrix_to_quat(R_deltas @ R), force, on_step)
         self.set_target(centre)
         return steps
-
-
-# The name the floating gripper had when the RG2 was the only one.
-FloatingRG2 = FloatingGripper
 
 
 def _smoothstep(s: np.ndarray) -> np.ndarray:

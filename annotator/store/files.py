@@ -9,7 +9,6 @@ manifest is ``_manifest.json`` and temporary files start with ``.``.
 
 from __future__ import annotations
 
-import contextlib
 import enum
 import errno
 import hashlib
@@ -18,7 +17,6 @@ import json
 import logging
 import os
 import stat
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +27,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from annotator import files
 from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
 from annotator.store.names import (
     chunk_filename,
@@ -59,52 +58,17 @@ def output_error(path: Path | str, exc: OSError) -> OutputError:
     return err
 
 
-def _fsync_dir(path: Path) -> None:
-    """Make a rename in ``path`` durable (a no-op where directories cannot be opened)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _current_umask()
-
-
 def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Write ``path`` whole or not at all: hidden temp file in the same dir, fsync, os.replace.
+    """Write ``path`` whole or not at all (:func:`annotator.files.atomic_write`: a hidden temporary
+    file in the same folder, fsync, os.replace).
 
     An OSError (disk full, read-only, permission) becomes :class:`OutputError` naming ``path``;
     the temporary file is removed.
     """
-    tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # mkstemp creates 0600; a dataset is meant to be shared: the usual 0666 minus the umask
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        files.atomic_write(path, write)
     except OSError as exc:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
         raise output_error(path, exc) from exc
-    except BaseException:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise
-    _fsync_dir(path.parent)
 
 
 def is_temp_file(path: Path) -> bool:

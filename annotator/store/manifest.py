@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from annotator import __version__
+from annotator import versions as label_versions
 from annotator.store.errors import ManifestUnreadableError
 from annotator.store.files import atomic_write
 from annotator.store.names import (
@@ -38,8 +39,8 @@ from annotator.store.schema import Any_, Int, Invalid, Map, Num, Record, Seq, St
 
 TOOL = "rg2-annotator"
 MANIFEST_VERSION = 3  # 3: run binding, per-file checksums, source digests, marked files
-# Libraries whose version can change a label: a resume with another version would mix datasets.
-BOUND_DISTRIBUTIONS = {"pybullet": "pybullet", "numpy": "numpy", "trimesh": "trimesh", "coacd": "coacd"}
+# Libraries whose version can change a label (a resume with another version would mix datasets):
+# annotator.versions.LABEL_LIBRARIES, the list the decomposition cache's key uses too.
 # Informative only (recorded, never compared).
 OTHER_DISTRIBUTIONS = {"pandas": "pandas", "pyarrow": "pyarrow", "joblib": "joblib"}
 # A manifest larger than this is not one the tool wrote (a million objects take ~0.5 GB).
@@ -58,8 +59,8 @@ def _version(dist: str) -> str:
 
 
 def bound_versions() -> dict[str, str]:
-    """Versions that shape labels: this package and the libraries in BOUND_DISTRIBUTIONS."""
-    return {"annotator": __version__, **{k: _version(d) for k, d in BOUND_DISTRIBUTIONS.items()}}
+    """Versions that shape labels: this package and :data:`annotator.versions.LABEL_LIBRARIES`."""
+    return {"annotator": __version__, **label_versions.library_versions()}
 
 
 def collect_versions() -> dict[str, str]:

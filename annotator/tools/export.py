@@ -27,7 +27,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import poses_as_matrices
+from annotator.files import atomic_write_path
 from annotator.grippers import GripperDescription
 
 log = logging.getLogger(__name__)
@@ -108,13 +108,7 @@ def tcp_poses(T_obj_base: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.
 
 def _write_atomically(path: Path, write) -> None:
     """``write(tmp_path)`` then rename over ``path``: a file appears whole or not at all."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write_path(path, write, make_parents=True)
 
 
 EXPORT_RECORD = "_export.json"  # what an export wrote into its folder: the only files --overwrite removes

@@ -1,9 +1,9 @@
 """Floating verdicts against the UR3 arm: how often the arm's replay holds what the label says.
 
 For each object, up to K labels that reached the physics (every outcome but ``collision``) are
-replayed on the UR3 + RG2 in the cell (annotator.tools.replay: the placement that makes the grasp
-come most from above while reachable); the floating ``success`` is compared with the replay's
-*held*. Unreachable labels are counted apart, with their reasons.
+replayed on the UR3 + RG2 in the cell (annotator.tools.replay places the object so that the grasp
+comes most from above while reachable, annotator.cell.execute runs the arm); the floating
+``success`` is compared with the replay's *held*. Unreachable labels are counted apart, with their reasons.
 
     python -m bench.experiments.arm_agreement                      # labels objects/ with --n 40 first
     python -m bench.experiments.arm_agreement --labels labels/ --objects objects/ --per-object 8
@@ -21,11 +21,12 @@ import time
 from pathlib import Path
 
 from annotator.cell import build_cell
+from annotator.cell.execute import execute_plan
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.objects import create_body, discover_objects, load_object
 from annotator.pipeline.run import RunOptions, run
-from annotator.tools.replay import plan_replay, replay, replay_world
+from annotator.tools.replay import plan_replay, replay_world
 from bench.harness import Run
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,7 +70,7 @@ def measure(args: argparse.Namespace, config: AnnotatorConfig, record: Run) -> N
                     counts["unreachable"] += 1
                     reasons[plan.reach.reason] += 1
                     continue
-                result = replay(cell, obj, plan, config)
+                result = execute_plan(cell, obj, plan, config)
             held = result.held(config.protocol.lift_height, config.protocol.max_slip)
             counts[("agree" if held == bool(row["success"]) else "disagree")] += 1
             floating = "success" if row["success"] else "failure"

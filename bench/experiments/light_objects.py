@@ -22,12 +22,12 @@ import numpy as np
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
 from annotator.objects import ObjectProperties, ObjectSource, contact_substeps, create_body, load_object
+from annotator.outcome import Outcome
 from annotator.pipeline.worker import PARKED
 from annotator.sampler import object_rng, sample_candidates
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
 from bench.harness import Run
@@ -55,8 +55,8 @@ def simulated_trials(
     model = load_object(source, config.objects, cache_dir=folder / "cache")
     cands = sample_candidates(model.mesh, n, object_rng(seed, name), config.sampler, 0.110)
     with World(config.physics) as world:
-        hand = FloatingRG2(world, config.gripper)
-        hand.teleport(PARKED, hand.rg2.max_width)
+        hand = FloatingGripper(world, config.gripper)
+        hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
         world.set_gravity(False)
         trial = GraspTrial(world, hand, uid, config)

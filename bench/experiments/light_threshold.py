@@ -42,7 +42,7 @@ import numpy as np
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
+from annotator.outcome import Outcome
 from bench._variants import parse_variant
 from bench.experiments.light_objects import simulated_trials
 from bench.harness import Run

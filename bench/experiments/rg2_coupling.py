@@ -17,8 +17,8 @@ from annotator.geometry import Transform
 from annotator.grippers import default_gripper
 from annotator.sim import pb
 from annotator.sim.body import Body
-from annotator.sim.hand import FloatingRG2
-from annotator.sim.rg2 import RG2
+from annotator.sim.gripper import ParallelGripper
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.ur3 import JOINT_NAMES, dh_forward_kinematics
 from annotator.sim.world import World
 from bench.harness import Run
@@ -35,7 +35,7 @@ def squeeze(
     kinematic (the annotation gripper, in an annotation world)."""
     physics = PhysicsConfig() if passive == "kinematic" else PhysicsConfig().whole_linkage()
     with World(physics) as world:
-        hand = FloatingRG2(world, GripperConfig(coupling=coupling, passive_links=passive))
+        hand = FloatingGripper(world, GripperConfig(coupling=coupling, passive_links=passive))
         col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[size / 2] * 3, physicsClientId=world.client)
         box = pb.createMultiBody(0.05, col, -1, [0, 0, 0.1], physicsClientId=world.client)
         pb.changeDynamics(box, -1, lateralFriction=1.0, physicsClientId=world.client)
@@ -44,13 +44,13 @@ def squeeze(
         hand.close(force, 480)
         errors = []
         for _ in range(240):
-            hand.rg2.command(-1.0, force)
+            hand.gripper.command(-1.0, force)
             world.step()
-            errors.append(hand.rg2.follower_errors().max())
+            errors.append(hand.gripper.follower_errors().max())
         drift = np.linalg.norm(
             np.asarray(pb.getBasePositionAndOrientation(box, physicsClientId=world.client)[0]) - [0, 0, 0.1]
         )
-        return float(np.degrees(max(errors))), hand.rg2.pad_normal_forces(box), drift * 1000
+        return float(np.degrees(max(errors))), hand.gripper.pad_normal_forces(box), drift * 1000
 
 
 def width_errors() -> np.ndarray:
@@ -58,7 +58,7 @@ def width_errors() -> np.ndarray:
     with World(PhysicsConfig().whole_linkage()) as world:
         world.set_gravity(False)
         body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
-        rg2 = RG2(body, default_gripper().urdf, GripperConfig())
+        rg2 = ParallelGripper(body, default_gripper(), GripperConfig(), urdf=default_gripper().urdf)
         out = []
         for width in np.linspace(0.0, 0.110, 23):
             for _ in range(240):
@@ -119,7 +119,7 @@ def main() -> None:
         run.figure("width_error_mean", float(errs.mean()), "mm")
         with World(PhysicsConfig()) as world:
             body = Body.load(world.client, default_gripper().urdf, fixed_base=True)
-            rg2 = RG2(body, default_gripper().urdf, GripperConfig())
+            rg2 = ParallelGripper(body, default_gripper(), GripperConfig(), urdf=default_gripper().urdf)
             print(f"stroke from FK: {rg2.table.min_width * 1000:.2f} .. {rg2.max_width * 1000:.2f} mm")
             run.figure("stroke_min", rg2.table.min_width * 1000, "mm", note="pad separation from FK")
             run.figure("stroke_max", rg2.max_width * 1000, "mm")

@@ -36,7 +36,7 @@ from annotator.dataset import poses_as_matrices
 from annotator.objects import discover_objects, load_object
 from annotator.pipeline.worker import Span, SpanTask, label_span
 from annotator.sampler import _first_hits, pad_opening
-from annotator.sim.hand import FloatingRG2
+from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from bench.harness import Run
 
@@ -64,7 +64,7 @@ def main() -> None:
         objects = dataclasses.replace(config.objects, decomposition_min_threshold=0.05)
         config = dataclasses.replace(config, objects=objects)
     with World(config.physics) as world:
-        pad_face = FloatingRG2(world, config.gripper).rg2.pad_face
+        pad_face = FloatingGripper(world, config.gripper).gripper.pad_face
     sources = [
         s for s in discover_objects(args.objects, config.objects) if not args.only or s.object_id in args.only
     ]

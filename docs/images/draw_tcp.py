@@ -1,6 +1,6 @@
 """Render the RG2 with its TCP frame (x red, y green, z blue) to ``tcp_frame.png`` beside this file.
 
-python assets/rg2/draw_tcp.py
+python docs/images/draw_tcp.py
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import numpy as np
 
 from annotator.geometry import Transform
 from annotator.render import Camera, render_rgb
-from annotator.scene.model import Scene
+from annotator.seed_scene.model import Scene
 
 CUBE_SIZE = 0.05  # m, the edge of pybullet_data's cube_small.urdf (the seed's cube)
 

@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class SceneConfig:
+class SeedSceneConfig:
     """The seed scene beyond the cell, number for number (docs/robots.md, "The seed scene").
 
     Positions are metres in the world frame, camera angles degrees (as PyBullet's debug camera).
@@ -65,7 +65,7 @@ class Scene:
     still called ``cube``)."""
 
     cell: Cell
-    config: SceneConfig
+    config: SeedSceneConfig
     cube: Body
 
     # --- the cell's parts, by name -------------------------------------------------------------
@@ -146,19 +146,19 @@ class Scene:
         return q
 
 
-def open_world(config: SceneConfig, *, gui: bool) -> World:
+def open_world(config: SeedSceneConfig, *, gui: bool) -> World:
     """A world with the seed's physics settings (gravity -9.8)."""
     return World(config.physics.whole_linkage(), gui=gui)
 
 
-def build_scene(world: World, config: SceneConfig | None = None, obj: ObjectModel | None = None) -> Scene:
+def build_scene(world: World, config: SeedSceneConfig | None = None, obj: ObjectModel | None = None) -> Scene:
     """Load the seed scene into ``world`` and put the arm in the seed's initial pose.
 
     ``obj``: an object to use instead of the seed's cube, resting on the table in its most
     probable stable pose with its centre of mass over the cell's placement point (0.35 m in front
     of the arm, where it can be grasped from above; the seed's cube at 0.7 m only from the side).
     """
-    config = config or SceneConfig()
+    config = config or SeedSceneConfig()
     cell = build_cell(world, config.cell, gripper=config.gripper, description=config.description)
     if obj is None:
         data = Path(pybullet_data.getDataPath())

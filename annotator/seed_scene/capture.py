@@ -12,8 +12,6 @@ to the capture file (``grasp_id`` counts the object's captures; ``seed`` is 0: n
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,10 +21,12 @@ import pybullet_data
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome, pose_columns, validate_labels
+from annotator.dataset import pose_columns, validate_labels
+from annotator.files import atomic_write_path
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.objects import ObjectModel, create_body, get_object_pose, load_object, physics_for
+from annotator.outcome import Outcome
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
@@ -173,22 +173,7 @@ def read_captures(path: Path) -> pd.DataFrame | None:
 
 def _write_atomic(df: pd.DataFrame, path: Path) -> None:
     """Write the whole table to ``path`` at once (a temporary file beside it, then a rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
-    try:
-        df.to_parquet(tmp, index=False)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    atomic_write_path(path, lambda tmp: df.to_parquet(tmp, index=False), make_parents=True)
 
 
 def load_capture_object(

@@ -10,9 +10,9 @@ import numpy as np
 
 from annotator.objects import ObjectModel
 from annotator.render import Camera, render_rgb, write_png
-from annotator.scene.capture import Capturer, capture_now
-from annotator.scene.demo import demo_script
-from annotator.scene.model import Scene, SceneConfig, build_scene, open_world
+from annotator.seed_scene.capture import Capturer, capture_now
+from annotator.seed_scene.demo import demo_script
+from annotator.seed_scene.model import Scene, SeedSceneConfig, build_scene, open_world
 from annotator.sim import pb
 from annotator.sim.ur3 import JOINT_NAMES
 
@@ -65,7 +65,7 @@ def _capture(scene: Scene, capturer: Capturer) -> None:
 
 
 def run_gui(
-    config: SceneConfig,
+    config: SeedSceneConfig,
     seconds: float | None,
     screenshot_path: Path | None,
     screenshot_at: float,
@@ -76,7 +76,7 @@ def run_gui(
     """The seed's slider loop at real time until the window closes or ``seconds`` of sim time pass.
 
     With a ``capturer``, the capture key (Enter) runs the current grasp through the protocol and
-    appends its label row (:func:`annotator.scene.capture.capture_now`). ``obj`` replaces the cube.
+    appends its label row (:func:`annotator.seed_scene.capture.capture_now`). ``obj`` replaces the cube.
     """
     world = open_world(config, gui=True)
     client = world.client

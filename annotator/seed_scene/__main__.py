@@ -1,4 +1,4 @@
-"""``python -m annotator.scene`` runs ``annotator scene``."""
+"""``python -m annotator.seed_scene`` runs ``annotator scene``."""
 
 from annotator.cli.scene import scene_command
 

@@ -7,6 +7,6 @@ DIRECT mode and records it with the software renderer. Parts: ``model`` (the sce
 hand); the click command is :mod:`annotator.cli.scene`.
 """
 
-from annotator.scene.model import Scene, SceneConfig, build_scene, open_world
+from annotator.seed_scene.model import Scene, SeedSceneConfig, build_scene, open_world
 
-__all__ = ["Scene", "SceneConfig", "build_scene", "open_world"]
+__all__ = ["Scene", "SeedSceneConfig", "build_scene", "open_world"]
