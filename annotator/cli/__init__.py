@@ -21,6 +21,7 @@ from annotator.cli.replay import replay_command
 from annotator.cli.report import report_command
 from annotator.cli.scene import scene_command
 from annotator.cli.show import show_command
+from annotator.cli.trials import trials_group
 
 
 @click.group(context_settings=CONTEXT)
@@ -42,6 +43,7 @@ def main() -> None:
     annotator evaluate predictions.parquet --objects objects/ --out evaluated/
     annotator calibrate labels/ real_trials.csv --objects objects/
     annotator gripper check my_gripper/             a gripper of your own, checked before it labels
+    annotator trials sheet labels/ --out sheet.csv  grasps to execute on your robot, read back
 
     \b
     Scenes of several objects (annotate --scenes N, docs/scenes.md):
@@ -62,6 +64,7 @@ for _command in (
     calibrate_command,
     clutter_removal_command,
     gripper_group,
+    trials_group,
 ):
     main.add_command(_command)
 
