@@ -223,7 +223,8 @@ def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float, pads: PadFace 
     TCP, clear the object: twice the farthest the mesh reaches from the TCP along the closing axis
     (the TCP's x), over the pad face swept along that axis (``pads``: the prism ``|y| <= width/2``,
     ``|z| <= length/2`` of the TCP's frame, exactly, triangle by triangle; None: the one line
-    through the TCP), counting only the surface between the fully open pads (``|x| <= max_width/2``).
+    through the TCP: the chord the open pads meet moving towards the TCP, 0 when one meets nothing
+    before it), counting only the surface between the fully open pads (``|x| <= max_width/2``).
 
     0 when the mesh meets the swept face nowhere between the open pads (nothing to close on: such
     a row comes back ``no_contact``); ``max_width`` when the object reaches the open pads (the
@@ -304,19 +305,17 @@ def _x_range_in_prism(tri: np.ndarray, a: float, b: float) -> tuple[np.ndarray, 
 
 
 def _line_width(triangles: np.ndarray, T: np.ndarray, max_width: float) -> np.ndarray:
-    """:func:`expected_width` along the one line through each TCP: the open pads moved towards
-    the TCP until each meets the mesh; the farther of the two surfaces sets the opening."""
+    """The chord along the one line through each TCP: the fully open pads moved towards the TCP
+    until each meets the mesh; 0 when one meets nothing before the TCP."""
     from annotator.sampler import _first_hits
 
     x, p = T[:, :3, 0], T[:, :3, 3]
     half = max_width / 2
-    t1, _ = _first_hits(triangles, p - half * x, x)  # from pad 1 (at -x) along +x
-    t2, _ = _first_hits(triangles, p + half * x, -x)  # from pad 2 (at +x) along -x
-    reach = np.maximum(
-        np.where(t1 <= max_width, np.abs(half - t1), -np.inf),
-        np.where(t2 <= max_width, np.abs(half - t2), -np.inf),
-    )
-    return np.where(np.isfinite(reach), np.clip(2.0 * reach, 0.0, max_width), 0.0)
+    t1, _ = _first_hits(triangles, p - half * x, x)  # pad 1 moving along +x
+    t2, _ = _first_hits(triangles, p + half * x, -x)  # pad 2 moving along -x
+    width = max_width - t1 - t2
+    ok = (t1 <= half) & (t2 <= half) & np.isfinite(width)
+    return np.where(ok, np.clip(width, 0.0, max_width), 0.0)
 
 
 def tcp_from_base(
