@@ -165,6 +165,8 @@ def make_sheet(labels: pd.DataFrame, settings: SheetSettings, *, config, depth) 
     from annotator.tools.common import ToolError
     from annotator.tools.given import CMD_COLUMNS, records_commands
 
+    if "scene_id" in labels.columns:
+        raise ToolError("scene labels: a sheet takes object labels (annotate, annotate --cell, evaluate)")
     if not records_commands(labels):
         raise ToolError("the labels do not record their commanded grasps (cmd_*): label them again")
     rows = select_grasps(labels, settings)

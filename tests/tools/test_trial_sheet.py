@@ -153,3 +153,18 @@ def test_a_cell_sheet_gives_the_flange_the_arm_reaches(tmp_path: Path) -> None:
         q = sheet.loc[k, [f"q_grasp_{i}" for i in range(6)]].to_numpy(dtype=np.float64)
         T_baselink_tool0 = np.asarray(ur3.T_BASELINK_BASE) @ ur3.dh_forward_kinematics(q)
         np.testing.assert_allclose(flange[k], T_baselink_tool0, atol=1e-6)
+
+
+def test_scene_labels_and_labels_without_commands_are_refused(labelled) -> None:
+    from annotator.config import AnnotatorConfig
+    from annotator.tools.common import ToolError
+    from annotator.tools.trial_sheet import SheetSettings, make_sheet
+
+    depth = TcpDepth("rg2")
+    with pytest.raises(ToolError, match="scene labels"):
+        make_sheet(labelled.df.assign(scene_id=0), SheetSettings(), config=AnnotatorConfig(), depth=depth)
+    with pytest.raises(ToolError, match="do not record their commanded grasps"):
+        make_sheet(labelled.df.drop(columns="cmd_x"), SheetSettings(), config=AnnotatorConfig(), depth=depth)
+    collisions = labelled.df.assign(outcome="collision", success=False)
+    with pytest.raises(ToolError, match="no grasp to execute"):
+        make_sheet(collisions, SheetSettings(), config=AnnotatorConfig(), depth=depth)
