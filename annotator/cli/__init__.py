@@ -16,10 +16,12 @@ from annotator.cli.clutter_removal import clutter_removal_command
 from annotator.cli.common import CONTEXT
 from annotator.cli.evaluate import evaluate_command
 from annotator.cli.export import export_command
+from annotator.cli.gripper import gripper_group
 from annotator.cli.replay import replay_command
 from annotator.cli.report import report_command
 from annotator.cli.scene import scene_command
 from annotator.cli.show import show_command
+from annotator.cli.trials import trials_group
 
 
 @click.group(context_settings=CONTEXT)
@@ -40,6 +42,8 @@ def main() -> None:
     annotator export labels/ --format acronym --objects objects/ --out acronym/
     annotator evaluate predictions.parquet --objects objects/ --out evaluated/
     annotator calibrate labels/ real_trials.csv --objects objects/
+    annotator gripper check my_gripper/             a gripper of your own, checked before it labels
+    annotator trials sheet labels/ --out sheet.csv  grasps to execute on your robot, read back
 
     \b
     Scenes of several objects (annotate --scenes N, docs/scenes.md):
@@ -59,6 +63,8 @@ for _command in (
     evaluate_command,
     calibrate_command,
     clutter_removal_command,
+    gripper_group,
+    trials_group,
 ):
     main.add_command(_command)
 

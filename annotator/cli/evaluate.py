@@ -113,11 +113,14 @@ def evaluate_command(
 
     GRASPS is a Parquet or CSV file (or a labels folder) with object_id, the TCP pose as the
     labels give it (x y z, qx qy qz qw in the object's mesh frame, metres, xyzw) and optionally
-    width (m, the opening at the grasp; measured on the mesh when missing) and grasp_id. With
-    --frame base the pose is the gripper's base link's (ACRONYM's and GraspGen's convention).
-    The output is what annotate writes (same columns, resume, determinism, workers; with
-    --resting also rest_q*, the settled object pose obj_x .. obj_qw and settle_drift); grasps keep their
-    grasp_id when those are 0..k-1 per object, else they are numbered in the order of the file.
+    width (m, the opening at the grasp; when missing, measured on the mesh over the pads' faces so
+    that the open pads clear the object) and grasp_id. With --frame base the pose is the gripper's
+    base link's (ACRONYM's and GraspGen's convention). The output is what annotate writes (same
+    columns, resume, determinism, workers), plus why a collision is one (collided_with: object or
+    table; collision_stage: approach, closed or pregrasp); with --resting also rest_q*, the settled
+    object pose obj_x .. obj_qw and settle_drift. Grasps keep their grasp_id when those are 0..k-1
+    per object, else they are numbered in the order of the file. Grasps a real robot executed
+    (off-centre, on misplaced objects) want [protocol] approach = "simulated" (docs/tools.md).
 
     \b
     Example:

@@ -47,7 +47,7 @@ from annotator.pipeline import status
 from annotator.rng import object_rng, trial_rng
 from annotator.sampler import Candidates, sample_candidates
 from annotator.store.manifest import bound_versions
-from annotator.trial import GraspTrial, Perturbation
+from annotator.trial import CollisionCheck, GraspTrial, Perturbation
 
 if TYPE_CHECKING:
     from annotator.cell.batch import CellObject, CellWorlds
@@ -603,6 +603,7 @@ class WorkerState:
             placements=grasps.placements,
             rest_quats=grasps.rest_quat,
             gripper=self.hand.description.name,
+            reasons=span.given is not None,
         )
         artifacts = None
         if task.cell is not None and task.cell.views > 0 and loaded.cell is not None:
@@ -696,13 +697,16 @@ def simulate(
     placements: np.ndarray | None = None,
     rest_quats: np.ndarray | None = None,
     gripper: str = DEFAULT_GRIPPER,
+    reasons: bool = False,
 ) -> pd.DataFrame:
     """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
     from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
     ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
     where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
     ``rest_quats`` (k, 4): resting (``loaded.resting``), the orientation each grasp's object rests
-    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column.
+    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column;
+    ``reasons``: each row also says why a ``collision`` is one (:data:`REASON_COLUMNS`; given
+    grasps only: sampled labels keep their columns).
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -728,6 +732,8 @@ def simulate(
         run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
         result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
         rows.append(_row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials))
+        if reasons:
+            rows[-1].update(_reasons(result.check, trial))
         if loaded.cell is not None:  # placement, object pose on the table, reachability
             rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))
         elif loaded.resting is not None:  # the object's settled pose on the table
@@ -755,7 +761,8 @@ def _trial_for(
 
 @dataclass(frozen=True)
 class _Trials:
-    """What a candidate's trials gave: trial 0's outcome, pose, width and slip; all steps; how many held."""
+    """What a candidate's trials gave: trial 0's outcome, pose, width and slip; all steps; how many
+    held; trial 0's kinematic check (None after an error)."""
 
     outcome: Outcome
     T_label: Transform
@@ -763,6 +770,21 @@ class _Trials:
     steps: int
     slip: float
     held: int
+    check: CollisionCheck | None = None
+
+
+# Why a given grasp's row is a collision (the names of a scene row's: docs/scenes.md):
+# collided_with, what the gripper touched ("object", "table"; "" when no collision) and
+# collision_stage, the check that found it ("approach", "closed", "pregrasp"; "").
+REASON_COLUMNS = ("collided_with", "collision_stage")
+
+
+def _reasons(check: CollisionCheck | None, trial: GraspTrial) -> dict[str, str]:
+    """The :data:`REASON_COLUMNS` of one row from trial 0's kinematic check."""
+    if check is None or not check.collided:
+        return {"collided_with": "", "collision_stage": ""}
+    hit = "object" if check.hit == trial.obj else "table" if check.hit in trial.obstacles else "other"
+    return {"collided_with": hit, "collision_stage": check.stage or ""}
 
 
 def _run_trials(
@@ -787,7 +809,7 @@ def _run_trials(
                 p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
                 held += int(p.outcome == Outcome.SUCCESS)
                 steps += p.steps
-        return _Trials(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held)
+        return _Trials(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held, r.check)
     except Exception as exc:  # a physics failure on one candidate must not lose the others
         log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
         return _Trials(Outcome.ERROR, T, width_expected, 0, np.nan, 0)

@@ -15,9 +15,12 @@ a cell label's settled ``obj_q*`` serve when those are absent).
 
 A grasp is executed as a sampled candidate whose expected chord is ``width``: the RG2 is placed so
 that its TCP at that opening is at the pose, opened ``2 x pregrasp_clearance`` wider, checked along
-the approach and closed from ``width + 2 x preclose_gap``. Without a ``width`` column the chord is
-measured on the mesh: the two pads, fully open, are moved towards the TCP along the closing axis
-until they meet the surface (:func:`expected_width`); 0 when they meet nothing. The mesh is read
+the approach and closed from ``width + 2 x preclose_gap``. Without a ``width`` column the opening is
+measured on the mesh over the pads' faces (:func:`expected_width`): the pad face (its width
+across, its length along the approach: :func:`pad_face`) is swept along the closing axis between
+the fully open pads, and the opening is twice the farthest the object reaches from the TCP there,
+so that the open pads, centred on the TCP, clear it, also where the TCP's own line misses the
+object (an off-centre grasp); 0 when the pads would close on nothing. The mesh is read
 and cleaned here, as the workers see it, but never decomposed: the decompositions are the
 workers' (:mod:`annotator.pipeline.schedule`).
 """
@@ -25,6 +28,7 @@ workers' (:mod:`annotator.pipeline.schedule`).
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -185,17 +189,128 @@ def _commanded(df: pd.DataFrame, out: pd.DataFrame, path: Path) -> None:
     out[list(CMD_COLUMNS)] = cmd
 
 
-def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float) -> np.ndarray:
-    """The chord each grasp closes on, (n,) m: the fully open pads (``max_width`` apart along the
-    TCP's x axis) moved towards the TCP until each meets the mesh; 0 when one meets nothing before
-    the TCP. ``mesh`` : trimesh.Trimesh in the object frame; ``T_obj_tcp`` : (n, 4, 4).
+@dataclass(frozen=True)
+class PadFace:
+    """The part of a pad that meets the object, in the TCP's axes: ``width`` (m) across (y) and
+    ``length`` (m) along the approach (z), centred on the TCP's (y, z) (the TCP is the pad-centre
+    midpoint)."""
+
+    width: float
+    length: float
+
+
+def pad_face(gripper=None, config=None) -> PadFace:
+    """The pad face of a gripper model (a description, name or folder; None: the RG2): the
+    description's ``[pads] size``, else the pad link's collision box (a private DIRECT client)."""
+    from annotator.config import GripperConfig
+    from annotator.grippers import load_gripper
+    from annotator.sim.body import Body
+    from annotator.sim.gripper import ParallelGripper
+    from annotator.sim.world import World
+
+    description = load_gripper(gripper)
+    if description.pad_size is not None:
+        extents = description.pad_size
+    else:
+        with World() as world:
+            body = Body.load(world.client, description.urdf, fixed_base=True)
+            extents = ParallelGripper(body, description, config or GripperConfig())._pad_extents()
+    return PadFace(float(extents[1]), float(extents[2]))
+
+
+def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float, pads: PadFace | None = None) -> np.ndarray:
+    """The opening each grasp needs, (n,) m, so that the pads, open that wide and centred on the
+    TCP, clear the object: twice the farthest the mesh reaches from the TCP along the closing axis
+    (the TCP's x), over the pad face swept along that axis (``pads``: the prism ``|y| <= width/2``,
+    ``|z| <= length/2`` of the TCP's frame, exactly, triangle by triangle; None: the one line
+    through the TCP: the chord the open pads meet moving towards the TCP, 0 when one meets nothing
+    before it), counting only the surface between the fully open pads (``|x| <= max_width/2``).
+
+    0 when the mesh meets the swept face nowhere between the open pads (nothing to close on: such
+    a row comes back ``no_contact``); ``max_width`` when the object reaches the open pads (the
+    row is then a collision of the approach with the object). For a grasp centred on its chord,
+    the chord. ``mesh`` : trimesh.Trimesh in the object frame; ``T_obj_tcp`` : (n, 4, 4).
     """
+    T = np.asarray(T_obj_tcp, dtype=np.float64).reshape(-1, 4, 4)
+    triangles = np.asarray(mesh.triangles, dtype=np.float64)
+    half = max_width / 2
+    if pads is None:
+        return _line_width(triangles, T, max_width)
+    a, b = pads.width / 2, pads.length / 2
+    centres = triangles.mean(axis=1)
+    radius = np.linalg.norm(triangles - centres[:, None, :], axis=2).max(axis=1)
+    out = np.zeros(len(T))
+    for k in range(len(T)):
+        R, p = T[k, :3, :3], T[k, :3, 3]
+        c = (centres - p) @ R  # triangle centres in the TCP frame
+        near = (np.abs(c[:, 1]) <= a + radius) & (np.abs(c[:, 2]) <= b + radius)
+        near &= np.abs(c[:, 0]) <= half + radius
+        if not near.any():
+            continue
+        local = (triangles[near] - p) @ R  # (f, 3, 3)
+        lo, hi = _x_range_in_prism(local, a, b)
+        meets = np.isfinite(lo) & (hi >= -half) & (lo <= half)
+        if meets.any():
+            reach = np.minimum(np.maximum(np.abs(lo[meets]), np.abs(hi[meets])), half)
+            # a triangle spanning the TCP plane's far side has its nearest point inside: its
+            # farthest is what the pad must clear
+            out[k] = 2.0 * float(reach.max())
+    return np.clip(out, 0.0, max_width)
+
+
+def _x_range_in_prism(tri: np.ndarray, a: float, b: float) -> tuple[np.ndarray, np.ndarray]:
+    """For triangles ``tri`` (f, 3, 3) in the TCP frame, the range (lo, hi) (f,) of x over each
+    one's part inside the prism ``|y| <= a, |z| <= b`` (inf, -inf where it has none): the extremes
+    of x over that convex polygon are at its corners, which are the triangle's corners inside the
+    prism, its edges' crossings of the prism's four faces, and the prism's four edges' crossings
+    of the triangle."""
+    f = tri.shape[0]
+    lo, hi = np.full(f, np.inf), np.full(f, -np.inf)
+
+    def take(x: np.ndarray, ok: np.ndarray) -> None:  # x, ok : (f, k)
+        nonlocal lo, hi
+        lo = np.minimum(lo, np.where(ok, x, np.inf).min(axis=1))
+        hi = np.maximum(hi, np.where(ok, x, -np.inf).max(axis=1))
+
+    eps = 1e-12
+    y, z = tri[:, :, 1], tri[:, :, 2]
+    take(tri[:, :, 0], (np.abs(y) <= a + eps) & (np.abs(z) <= b + eps))  # corners inside
+    p0, p1 = tri, np.roll(tri, -1, axis=1)  # the three edges, (f, 3, 3) each
+    d = p1 - p0
+    for axis, bound, other, other_bound in ((1, a, 2, b), (2, b, 1, a)):
+        for plane in (-bound, bound):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (plane - p0[:, :, axis]) / d[:, :, axis]
+            ok = (t >= 0) & (t <= 1)
+            t = np.where(ok, t, 0.0)
+            hit = p0 + t[:, :, None] * d
+            take(hit[:, :, 0], ok & (np.abs(hit[:, :, other]) <= other_bound + eps))
+    # the prism's edges (lines along x at y = +-a, z = +-b) through each triangle: barycentric
+    # coordinates of (y, z) in the triangle's projection on the yz plane
+    e1, e2 = tri[:, 1, 1:] - tri[:, 0, 1:], tri[:, 2, 1:] - tri[:, 0, 1:]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    flat = np.abs(det) < 1e-18  # the triangle contains the x direction: its edges bound it
+    det = np.where(flat, 1.0, det)
+    xs, oks = [], []
+    for cy in (-a, a):
+        for cz in (-b, b):
+            q = np.array([cy, cz]) - tri[:, 0, 1:]
+            u = (q[:, 0] * e2[:, 1] - q[:, 1] * e2[:, 0]) / det
+            v = (e1[:, 0] * q[:, 1] - e1[:, 1] * q[:, 0]) / det
+            ok = ~flat & (u >= 0) & (v >= 0) & (u + v <= 1)
+            xs.append(tri[:, 0, 0] + u * (tri[:, 1, 0] - tri[:, 0, 0]) + v * (tri[:, 2, 0] - tri[:, 0, 0]))
+            oks.append(ok)
+    take(np.stack(xs, axis=1), np.stack(oks, axis=1))
+    return lo, hi
+
+
+def _line_width(triangles: np.ndarray, T: np.ndarray, max_width: float) -> np.ndarray:
+    """The chord along the one line through each TCP: the fully open pads moved towards the TCP
+    until each meets the mesh; 0 when one meets nothing before the TCP."""
     from annotator.sampler import _first_hits
 
-    T = np.asarray(T_obj_tcp, dtype=np.float64).reshape(-1, 4, 4)
     x, p = T[:, :3, 0], T[:, :3, 3]
     half = max_width / 2
-    triangles = np.asarray(mesh.triangles, dtype=np.float64)
     t1, _ = _first_hits(triangles, p - half * x, x)  # pad 1 moving along +x
     t2, _ = _first_hits(triangles, p + half * x, -x)  # pad 2 moving along -x
     width = max_width - t1 - t2
@@ -204,7 +319,12 @@ def expected_width(mesh, T_obj_tcp: np.ndarray, max_width: float) -> np.ndarray:
 
 
 def tcp_from_base(
-    T_obj_base: np.ndarray, width: np.ndarray, depth, mesh=None, iterations: int = 4
+    T_obj_base: np.ndarray,
+    width: np.ndarray,
+    depth,
+    mesh=None,
+    iterations: int = 4,
+    pads: PadFace | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """TCP poses (n, 4, 4) and chords (n,) of grasps given as base-link poses ``T_obj_base`` (n, 4, 4).
 
@@ -213,6 +333,7 @@ def tcp_from_base(
     ``mesh`` (:func:`expected_width`) at the TCP of the opening found so far, from the full stroke
     on: a linkage's TCP moves along the approach as it opens, so this is repeated ``iterations``
     times (a sliding gripper's TCP does not move: once is exact); 0 where the pads meet nothing.
+    ``pads``: the pad face swept (:func:`expected_width`; None: the line through the TCP).
     """
     T_obj_base = np.asarray(T_obj_base, dtype=np.float64).reshape(-1, 4, 4)
     width = np.asarray(width, dtype=np.float64).copy()
@@ -223,7 +344,7 @@ def tcp_from_base(
         guess = np.full(int(todo.sum()), depth.max_width)
         for _ in range(iterations):
             T_tcp = T_obj_base[todo] @ depth.T_base_tcp(guess)
-            found = expected_width(mesh, T_tcp, depth.max_width)
+            found = expected_width(mesh, T_tcp, depth.max_width, pads)
             converged = np.array_equal(found, guess)
             guess = found
             if converged:
@@ -269,13 +390,14 @@ def given_candidates(
         from annotator.tools.export import TcpDepth
 
         depth = TcpDepth(gripper, config.gripper)
+    pads = _pads_to_measure(grasps, gripper, config)
     for oid, rows in grasps.groupby("object_id", sort=True):
         ids = rows["grasp_id"].to_numpy()
         if np.array_equal(np.sort(ids), np.arange(len(rows))):
             rows = rows.sort_values("grasp_id", kind="stable")
         else:
             renumbered.append(str(oid))
-        given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth)
+        given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth, pads)
         if resting:
             given = _with_rest(given, rows)
         out[str(oid)] = given
@@ -295,8 +417,18 @@ def _sources(objects_dir: Path) -> dict:
         raise ToolError(str(exc)) from None
 
 
-def _object_grasps(oid: str, rows: pd.DataFrame, sources: dict, config, scale, max_width: float, depth):
-    """One object's grasps as the worker's GivenGrasps (label rows replayed, widths measured)."""
+def _pads_to_measure(grasps: pd.DataFrame, gripper, config) -> PadFace | None:
+    """The pad face widths are measured over (:func:`pad_face`), or None when every width is given."""
+    if "outcome" in grasps.columns or np.isfinite(grasps["width"].to_numpy(dtype=np.float64)).all():
+        return None
+    return pad_face(gripper, config.gripper)
+
+
+def _object_grasps(
+    oid: str, rows: pd.DataFrame, sources: dict, config, scale, max_width: float, depth, pads=None
+):
+    """One object's grasps as the worker's GivenGrasps (label rows replayed, widths measured over
+    the pad face ``pads``, a :class:`PadFace`)."""
     from annotator.dataset import poses_as_matrices
     from annotator.pipeline.worker import GivenGrasps
 
@@ -310,10 +442,10 @@ def _object_grasps(oid: str, rows: pd.DataFrame, sources: dict, config, scale, m
     if depth is not None:
         if todo.any() and mesh is None:  # an unknown object: the run names it; no chord to find
             width[todo] = 0.0
-        T, width = tcp_from_base(T, width, depth, mesh)
+        T, width = tcp_from_base(T, width, depth, mesh, pads=pads)
         return GivenGrasps(T, width)
     if mesh is not None:
-        width[todo] = expected_width(mesh, T[todo], max_width)
+        width[todo] = expected_width(mesh, T[todo], max_width, pads)
     width = np.clip(np.nan_to_num(width, nan=0.0), 0.0, max_width)
     return GivenGrasps(T, width)
 
@@ -364,9 +496,10 @@ def commanded_table(
         from annotator.tools.export import TcpDepth
 
         depth = TcpDepth(gripper, config.gripper)
+    pads = _pads_to_measure(grasps, gripper, config)
     parts = []
     for oid, rows in grasps.groupby("object_id", sort=True):
-        given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth)
+        given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth, pads)
         T = np.asarray(given.T_obj_tcp)
         if given.quat is not None:  # label rows: their commanded rotations bit for bit
             quat = np.asarray(given.quat, dtype=np.float64).reshape(-1, 4)

@@ -11,6 +11,7 @@ from click.testing import CliRunner
 
 from annotator.cli import main
 from annotator.dataset import load_labels, poses_as_matrices
+from annotator.pipeline.worker import REASON_COLUMNS
 from annotator.tools.common import ToolError
 from annotator.tools.evaluate import expected_width, read_grasps
 
@@ -29,7 +30,11 @@ def test_evaluating_a_dataset_reproduces_it_exactly(labelled, tmp_path: Path) ->
     assert result.exit_code == 0, result.output
     again = load_labels(tmp_path / "out")
     want = labelled.df
-    assert list(again.columns) == list(want.columns)
+    # the label's columns, and why a collision is one (evaluate's rows say it)
+    assert list(again.columns) == [*want.columns, *REASON_COLUMNS]
+    collided = again["outcome"].to_numpy() == "collision"
+    assert (again["collision_stage"].to_numpy()[collided] != "").all()
+    assert (again["collided_with"].to_numpy()[~collided] == "").all()
     assert (again["outcome"].to_numpy() == want["outcome"].to_numpy()).all()
     for column in want.columns:
         a, b = again[column].to_numpy(), want[column].to_numpy()
