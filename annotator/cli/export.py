@@ -64,6 +64,8 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
             raise ToolError(f"--object selects objects; --format {fmt} exports whole scenes")
         result = export_scenes(labels, fmt, out_dir, objects_dir, overwrite=overwrite, partial=partial)
         click.echo(f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) to {out_dir}")
+        if result.summary():
+            click.echo(f"{result.summary()} (recorded in {out_dir}/_export.json)")
         return
     from annotator.tools.common import labelling_gripper
     from annotator.tools.export import export

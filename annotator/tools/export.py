@@ -28,7 +28,7 @@ import contextlib
 import json
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -52,12 +52,29 @@ def frame_note(description: GripperDescription) -> str:
 
 
 @dataclass(frozen=True)
+class LeftOut:
+    """Grasps of the labels an export did not write: how many, and why (one line)."""
+
+    grasps: int
+    reason: str
+
+    def to_json(self) -> dict:
+        return {"grasps": int(self.grasps), "reason": self.reason}
+
+
+@dataclass(frozen=True)
 class ExportResult:
-    """What ``export`` wrote: the folder, one file per object, the number of grasps."""
+    """What ``export`` wrote: the folder, one file per object, the number of grasps written, and
+    the grasps it left out (also recorded in the folder's ``_export.json``)."""
 
     out_dir: Path
     files: list[Path]
     n_grasps: int
+    left_out: list[LeftOut] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """One line: what was left out and why ("" when nothing was)."""
+        return "; ".join(f"left out {x.grasps} grasps: {x.reason}" for x in self.left_out if x.grasps)
 
 
 class TcpDepth:
@@ -175,9 +192,13 @@ class ExportFolder:
         self.written.append(name)
         return path
 
-    def close(self, fmt: str, labels: Path) -> None:
-        """Record what this export wrote (so a later --overwrite removes exactly that)."""
-        text = json.dumps({"format": fmt, "labels": str(labels), "files": sorted(self.written)}, indent=1)
+    def close(self, fmt: str, labels: Path, left_out: list[LeftOut] = ()) -> None:
+        """Record what this export wrote (so a later --overwrite removes exactly that) and the
+        grasps it left out (``left_out``: one entry per reason)."""
+        record = {"format": fmt, "labels": str(labels), "files": sorted(self.written)}
+        if left_out:
+            record["left_out"] = [x.to_json() for x in left_out]
+        text = json.dumps(record, indent=1)
         _write_atomically(self.path / EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
 
 

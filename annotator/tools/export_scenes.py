@@ -2,15 +2,17 @@
 VGN (:mod:`annotator.tools.export_vgn`) or Contact-GraspNet (:mod:`annotator.tools.export_cgn`).
 
 - ``vgn``: VGN's raw layout in OUT (``setup.json``, ``grasps.csv``, ``scenes/scene_NNNNNN.npz``: what
-  its ``generate_data.py`` writes, every grasp with its label) and the dataset its
-  ``construct_dataset.py`` makes from it in ``OUT/dataset/`` (TSDF grids of 40³ fused from the
-  scene's views). Both need the scenes' depth images: the run must have been made with ``--views``.
+  its ``generate_data.py`` writes, every grasp inside the workspace cube with its label) and the
+  dataset its ``construct_dataset.py`` makes from it in ``OUT/dataset/`` (TSDF grids of 40³ fused
+  from the scene's views). Both need the scenes' depth images: the run must have been made with
+  ``--views``. Grasps outside the cube are left out and counted
+  (:func:`annotator.tools.export_vgn.inside_grid`).
 - ``contact_graspnet``: ``meshes/``, ``scene_contacts/NNNNNN.npz`` per scene (its positives: the
   successes, as the gripper's base pose, with their pad contacts) and, when the run has views,
   ``views/NNNNNN_VV.npz`` (its inference input).
 
 The files an export writes are recorded in the folder's ``_export.json`` (as every export's), so
-``--overwrite`` removes exactly those.
+``--overwrite`` removes exactly those; so are the grasps it left out, and why.
 """
 
 from __future__ import annotations
@@ -18,8 +20,10 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from annotator.tools.common import ToolError
-from annotator.tools.export import ExportFolder, ExportResult, TcpDepth
+from annotator.tools.export import ExportFolder, ExportResult, LeftOut, TcpDepth
 from annotator.tools.scene_labels import SceneLabels, open_scene_labels
 
 log = logging.getLogger(__name__)
@@ -47,17 +51,26 @@ def export_scenes(
     ids = scenes.scene_ids()
     items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
     if fmt == "vgn":
-        files = _vgn(scenes, items, folder, depth)
+        files, left_out = _vgn(scenes, items, folder, depth)
     else:
-        files = _cgn(scenes, items, folder, depth, objects_dir)
-    folder.close(fmt, Path(labels_dir))
-    n = sum(len(g.width) for _, _, g in items)
+        files, left_out = _cgn(scenes, items, folder, depth, objects_dir), []
+    folder.close(fmt, Path(labels_dir), left_out)
+    n = sum(len(g.width) for _, _, g in items) - sum(x.grasps for x in left_out)
     log.info("exported %d grasps of %d scenes to %s (%s)", n, len(ids), folder.path, fmt)
-    return ExportResult(folder.path, files, n)
+    return ExportResult(folder.path, files, n, left_out)
 
 
-def _vgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth) -> list[Path]:
-    from annotator.tools.export_vgn import VgnSetup, scene_name, write_vgn_dataset, write_vgn_raw
+def _vgn(
+    scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth
+) -> tuple[list[Path], list[LeftOut]]:
+    from annotator.tools.export_vgn import (
+        DATASET_RESOLUTION,
+        VgnSetup,
+        inside_grid,
+        scene_name,
+        write_vgn_dataset,
+        write_vgn_raw,
+    )
 
     missing = [record.scene_id for record, views, _ in items if not views]
     if missing:
@@ -79,7 +92,12 @@ def _vgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth) -> l
         folder.target(name)
     paths = write_vgn_raw(folder.path, setup, items)
     paths += write_vgn_dataset(folder.path / "dataset", setup, items)
-    return paths
+    outside = sum(int(np.sum(~inside_grid(record, grasps, size))) for record, _, grasps in items)
+    reason = (
+        f"outside the {size:g} m workspace cube (voxel index outside [0, {DATASET_RESOLUTION}), "
+        "where VGN's training cannot read a label)"
+    )
+    return paths, [LeftOut(outside, reason)]
 
 
 def _cgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir) -> list[Path]:

@@ -1,0 +1,105 @@
+"""Scene exports of a small real run read back as the peers' own code reads them: VGN's ``Dataset``
+and ``construct_dataset.py``, GIGA's ``get_scene_from_mesh_pose_list``, Contact-GraspNet's
+``load_scene_contacts`` and ``center_pc_convert_cam``. Their code needs Open3D, torch or
+TensorFlow; each reader here is the few lines of theirs that touch the files, written from their
+published code (the sources in docs/scenes.md), never imported."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from helpers import run_annotate
+from scene_helpers import REPO
+
+from annotator.cli import main
+from annotator.tools.scene_labels import SceneLabels, open_scene_labels
+
+OBJECTS = ("box.obj", "can.stl")  # convex: no decomposition, graspable from above wherever they land
+N = 40
+QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"
+
+
+def annotator(*args, check: int | None = 0):
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, result.output
+    return result
+
+
+@pytest.fixture(scope="module")
+def scene_run(tmp_path_factory) -> Path:
+    """Two scenes of three objects, 40 grasps each, one view: about 15 CPU-seconds."""
+    root = tmp_path_factory.mktemp("peers")
+    objects = root / "objects"
+    objects.mkdir()
+    for name in OBJECTS:
+        shutil.copy(REPO / "objects" / name, objects)
+    config = root / "views.toml"
+    config.write_text(QUICK_VIEWS)
+    out = root / "labels"
+    args = ["--scenes", 2, "--per-scene", 3, "--n", N, "--views", 1, "--config", config, "--workers", 1]
+    run_annotate("--objects", objects, "--out", out, "--quiet", *args)
+    return out
+
+
+# --- VGN --------------------------------------------------------------------------------------------
+
+
+def vgn_dataset_items(root: Path) -> list[tuple[str, np.ndarray]]:
+    """Every row of a VGN dataset as its ``Dataset.__getitem__`` takes it: the scene id and the
+    voxel index ``np.round(df.loc[i, "i":"k"].to_numpy(np.single))``; the grid read as its
+    ``read_voxel_grid`` reads it (checked to exist)."""
+    df = pd.read_csv(root / "grasps.csv")
+    out = []
+    for i in range(len(df.index)):
+        scene_id = df.loc[i, "scene_id"]
+        pos = df.loc[i, "i":"k"].to_numpy(np.single)
+        grid = np.load(root / "scenes" / (scene_id + ".npz"))["grid"]
+        assert grid.shape == (1, 40, 40, 40)
+        out.append((scene_id, np.round(pos).astype(np.int64)))
+    return out
+
+
+def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path, monkeypatch):
+    """A grasp placed 2 cm outside the workspace cube is left out of both layouts and reported
+    (the command's output and _export.json); every row VGN's Dataset reads has its voxel in the grid."""
+    scenes = open_scene_labels(scene_run, "test")
+    record = scenes.records[0]
+    moved = 7  # grasp id moved outside: below the cube's lower x side
+    real_grasps = SceneLabels.grasps
+
+    def grasps(self, scene_id):
+        g = real_grasps(self, scene_id)
+        if scene_id == 0:
+            g.T_table_tcp[moved, 0, 3] = record.workspace.lower[0] - 0.02
+        return g
+
+    monkeypatch.setattr(SceneLabels, "grasps", grasps)
+    out = tmp_path / "vgn"
+    result = annotator("export", scene_run, "--format", "vgn", "--out", out)
+    assert "left out 1 grasps: outside the 0.3 m workspace cube" in result.output
+    assert "wrote" in result.output and f"({2 * N - 1} grasps)" in result.output
+    recorded = json.loads((out / "_export.json").read_text())["left_out"]
+    assert len(recorded) == 1 and recorded[0]["grasps"] == 1 and "workspace" in recorded[0]["reason"]
+    raw = pd.read_csv(out / "grasps.csv")
+    assert len(raw) == 2 * N - 1
+    # the raw layout without the moved grasp: its other rows are the labels' own, in order
+    rows0 = scenes.rows(0)
+    kept_widths = np.delete(rows0["width"].to_numpy(), moved)
+    np.testing.assert_array_equal(raw.loc[raw.scene_id == "scene_000000", "width"].to_numpy(), kept_widths)
+    assert (raw[["x", "y", "z"]].to_numpy() >= -0.5 * 0.3 / 40).all()
+    items = vgn_dataset_items(out / "dataset")
+    assert len(items) == 2 * N - 1
+    index = np.array([i for _, i in items])
+    assert (index >= 0).all() and (index < 40).all()
+    # construct_dataset.py's grasps from the raw layout index the same voxels
+    voxel = 0.3 / 40
+    np.testing.assert_array_equal(
+        np.round((raw[["x", "y", "z"]].to_numpy() / voxel).astype(np.single)).astype(np.int64), index
+    )
