@@ -13,11 +13,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import trimesh
 from click.testing import CliRunner
 from helpers import run_annotate
 from scene_helpers import REPO
 
 from annotator.cli import main
+from annotator.tools.common import object_mesh
 from annotator.tools.scene_labels import SceneLabels, open_scene_labels
 
 OBJECTS = ("box.obj", "can.stl")  # convex: no decomposition, graspable from above wherever they land
@@ -103,3 +105,42 @@ def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path,
     np.testing.assert_array_equal(
         np.round((raw[["x", "y", "z"]].to_numpy() / voxel).astype(np.single)).astype(np.int64), index
     )
+
+
+# --- GIGA -------------------------------------------------------------------------------------------
+
+
+def giga_scene(mesh_pose_list: np.ndarray) -> list[trimesh.Trimesh]:
+    """GIGA's get_scene_from_mesh_pose_list (return_list): load, scale, pose each row's mesh."""
+    meshes = []
+    for mesh_path, scale, pose in mesh_pose_list:
+        mesh = trimesh.load(mesh_path)
+        mesh.apply_scale(scale)
+        mesh.apply_transform(pose)
+        meshes.append(mesh)
+    return meshes
+
+
+def test_giga_mesh_pose_list_rebuilds_each_scene(scene_run, tmp_path, monkeypatch):
+    out = tmp_path / "vgn"
+    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    monkeypatch.chdir(tmp_path)  # GIGA loads the mesh paths as given, from wherever it runs
+    scenes = open_scene_labels(scene_run, "test")
+    raw = pd.read_csv(out / "grasps.csv")
+    for scene_id in sorted(raw["scene_id"].unique()):
+        # GIGA's dataset_voxel: raw_root / "mesh_pose_list" / (scene_id + ".npz"), key "pc"
+        mesh_pose_list = np.load(out / "mesh_pose_list" / (scene_id + ".npz"), allow_pickle=True)["pc"]
+        record = scenes.records[int(scene_id.split("_")[1])]
+        meshes = giga_scene(mesh_pose_list)
+        assert len(meshes) == len(record.kept) > 0
+        T_task_table = record.workspace.T_table_task.inverse().as_matrix()
+        for mesh, inst in zip(meshes, record.kept, strict=True):
+            want = object_mesh(scene_run, inst.object_id).apply_transform(
+                T_task_table @ inst.T_table_obj.as_matrix()
+            )
+            np.testing.assert_allclose(mesh.bounds, want.bounds, atol=1e-8)
+            assert len(mesh.faces) == len(want.faces)
+        # in VGN's task frame: standing on the table s/6 = 5 cm above the cube's floor, inside the cube
+        scene = trimesh.util.concatenate(meshes)
+        assert abs(scene.bounds[0, 2] - 0.05) < 0.003
+        assert (scene.bounds[0, :2] > -0.02).all() and (scene.bounds[1, :2] < 0.32).all()

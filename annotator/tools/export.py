@@ -172,6 +172,7 @@ class ExportFolder:
                 "scenes",
                 "dataset/scenes",
                 "dataset",
+                "mesh_pose_list",
                 "scene_contacts",
                 "views",
             ):

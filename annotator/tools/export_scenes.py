@@ -4,9 +4,10 @@ VGN (:mod:`annotator.tools.export_vgn`) or Contact-GraspNet (:mod:`annotator.too
 - ``vgn``: VGN's raw layout in OUT (``setup.json``, ``grasps.csv``, ``scenes/scene_NNNNNN.npz``: what
   its ``generate_data.py`` writes, every grasp inside the workspace cube with its label) and the
   dataset its ``construct_dataset.py`` makes from it in ``OUT/dataset/`` (TSDF grids of 40³ fused
-  from the scene's views). Both need the scenes' depth images: the run must have been made with
-  ``--views``. Grasps outside the cube are left out and counted
-  (:func:`annotator.tools.export_vgn.inside_grid`).
+  from the scene's views), plus what GIGA reads beside them: ``meshes/`` and
+  ``mesh_pose_list/scene_NNNNNN.npz`` (:mod:`annotator.tools.export_giga`). Both need the scenes'
+  depth images: the run must have been made with ``--views``. Grasps outside the cube are left
+  out and counted (:func:`annotator.tools.export_vgn.inside_grid`).
 - ``contact_graspnet``: ``meshes/``, ``scene_contacts/NNNNNN.npz`` per scene (its positives: the
   successes, as the gripper's base pose, with their pad contacts) and, when the run has views,
   ``views/NNNNNN_VV.npz`` (its inference input).
@@ -51,7 +52,7 @@ def export_scenes(
     ids = scenes.scene_ids()
     items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
     if fmt == "vgn":
-        files, left_out = _vgn(scenes, items, folder, depth)
+        files, left_out = _vgn(scenes, items, folder, depth, objects_dir)
     else:
         files, left_out = _cgn(scenes, items, folder, depth, objects_dir), []
     folder.close(fmt, Path(labels_dir), left_out)
@@ -60,9 +61,24 @@ def export_scenes(
     return ExportResult(folder.path, files, n, left_out)
 
 
+def _meshes(scenes: SceneLabels, items, objects_dir) -> dict:
+    """The meshes (mesh frame, metres) of every object kept in the scenes ``items``, by id."""
+    from annotator.tools.common import object_mesh
+
+    labels = scenes.labels
+    used = sorted({inst.object_id for record, _, _ in items for inst in record.kept})
+    meshes = {}
+    for oid in used:
+        rows = labels[labels["object_id"] == oid]
+        meshes[oid] = object_mesh(scenes.path, oid, objects_dir, rows if len(rows) else None)
+    return meshes
+
+
 def _vgn(
-    scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth
+    scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir
 ) -> tuple[list[Path], list[LeftOut]]:
+    from annotator.tools.export_cgn import mesh_file, write_meshes
+    from annotator.tools.export_giga import MESH_POSE_LIST, write_mesh_pose_lists
     from annotator.tools.export_vgn import (
         DATASET_RESOLUTION,
         VgnSetup,
@@ -82,16 +98,22 @@ def _vgn(
         raise ToolError(f"{scenes.path}: no scene to export")
     size = items[0][0].workspace.size
     setup = VgnSetup(size, items[0][1][0].depth_K, depth.max_width)
-    names = ["setup.json", "grasps.csv", "dataset/grasps.csv"]
+    meshes = _meshes(scenes, items, objects_dir)
+    names = ["setup.json", "grasps.csv", "dataset/grasps.csv", *(mesh_file(oid) for oid in meshes)]
     for record, _, _ in items:
         names += [
             f"scenes/{scene_name(record.scene_id)}.npz",
             f"dataset/scenes/{scene_name(record.scene_id)}.npz",
+            f"{MESH_POSE_LIST}/{scene_name(record.scene_id)}.npz",
         ]
     for name in names:  # refuses before anything is written if a file it did not write is there
         folder.target(name)
     paths = write_vgn_raw(folder.path, setup, items)
     paths += write_vgn_dataset(folder.path / "dataset", setup, items)
+    write_meshes(folder.path, meshes)  # GIGA's mesh_pose_list names them
+    paths += [folder.path / mesh_file(oid) for oid in meshes]
+    mesh_paths = {oid: str((folder.path / mesh_file(oid)).resolve()) for oid in meshes}
+    paths += write_mesh_pose_lists(folder.path, [record for record, _, _ in items], mesh_paths)
     outside = sum(int(np.sum(~inside_grid(record, grasps, size))) for record, _, grasps in items)
     reason = (
         f"outside the {size:g} m workspace cube (voxel index outside [0, {DATASET_RESOLUTION}), "
@@ -101,16 +123,10 @@ def _vgn(
 
 
 def _cgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir) -> list[Path]:
-    from annotator.tools.common import object_mesh
     from annotator.tools.export_cgn import mesh_file, scene_file, write_cgn
 
-    labels = scenes.labels
-    used = sorted({inst.object_id for record, _, _ in items for inst in record.kept})
-    meshes = {}
-    for oid in used:
-        rows = labels[labels["object_id"] == oid]
-        meshes[oid] = object_mesh(scenes.path, oid, objects_dir, rows if len(rows) else None)
-    names = [mesh_file(oid) for oid in used]
+    meshes = _meshes(scenes, items, objects_dir)
+    names = [mesh_file(oid) for oid in meshes]
     for record, views, _ in items:
         names.append(f"scene_contacts/{scene_file(record.scene_id)}")
         names += [f"views/{int(record.scene_id):06d}_{v.view_id:02d}.npz" for v in views]
