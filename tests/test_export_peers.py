@@ -19,6 +19,7 @@ from helpers import run_annotate
 from scene_helpers import REPO
 
 from annotator.cli import main
+from annotator.tools import export_cgn
 from annotator.tools.common import object_mesh
 from annotator.tools.scene_labels import SceneLabels, open_scene_labels
 
@@ -144,3 +145,79 @@ def test_giga_mesh_pose_list_rebuilds_each_scene(scene_run, tmp_path, monkeypatc
         scene = trimesh.util.concatenate(meshes)
         assert abs(scene.bounds[0, 2] - 0.05) < 0.003
         assert (scene.bounds[0, :2] > -0.02).all() and (scene.bounds[1, :2] < 0.32).all()
+
+
+# --- Contact-GraspNet ---------------------------------------------------------------------------------
+
+
+def distance_to_mesh(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """(n,) m: each point's distance to the nearest triangle (trimesh's closest point on a triangle)."""
+    tri = np.asarray(mesh.triangles)
+    pairs = np.repeat(points, len(tri), axis=0), np.tile(tri, (len(points), 1, 1))
+    closest = trimesh.triangles.closest_point(pairs[1], pairs[0])
+    return np.linalg.norm(closest - pairs[0], axis=1).reshape(len(points), len(tri)).min(axis=1)
+
+
+def test_contact_graspnet_contacts_lie_on_the_mesh_where_the_pads_close(scene_run, tmp_path):
+    out = tmp_path / "cgn"
+    result = annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(scene_run, "test")
+    left_out = json.loads((out / "_export.json").read_text())["left_out"]
+    no_contact = left_out[1]["grasps"]
+    assert "failures" in left_out[0]["reason"] and "closing line" in left_out[1]["reason"]
+    infos = export_cgn.load_scene_contacts(out)  # load_scene_contacts: the five keys, no pickle
+    n_positive = 0
+    for scene_id, info in enumerate(infos):
+        record, rows = scenes.records[scene_id], scenes.rows(scene_id)
+        with np.load(out / "scene_contacts" / export_cgn.scene_file(scene_id)) as f:
+            ends, ids, widths = f["obj_grasp_idcs"], f["grasp_ids"], f["grasp_widths"]
+        meshes = export_cgn.scene_meshes(out, info)  # posed as its renderer poses them
+        T_tcp = export_cgn.T_cgn_table(record) @ scenes.grasps(scene_id).T_table_tcp[ids]
+        contacts = info["scene_contact_points"]
+        assert len(contacts) == len(ids) > 0 and rows.loc[ids, "success"].all()
+        starts = np.r_[0, ends[:-1]]
+        for mesh, a, b in zip(meshes, starts, ends, strict=True):
+            if b > a:
+                assert distance_to_mesh(mesh, contacts[a:b].reshape(-1, 3)).max() < 1e-4
+        # on the pads' closing line, within the pads' reach, finger 1 on the -x side
+        offset = contacts - T_tcp[:, None, :3, 3]
+        x = T_tcp[:, :3, 0]
+        along = np.einsum("nck,nk->nc", offset, x)
+        np.testing.assert_allclose(offset, along[..., None] * x[:, None], atol=1e-9)
+        reach = widths / 2 + export_cgn.CONTACT_RAY_MARGIN
+        assert (along[:, 0] >= -reach - 1e-9).all() and (along[:, 1] <= reach + 1e-9).all()
+        assert (along[:, 0] < along[:, 1]).all()
+        # what its load_contact_grasps derives: the distance between the contacts, about the width
+        labels = export_cgn.contact_labels(info)
+        assert (labels["finger_distance"][::2] <= widths + 2 * export_cgn.CONTACT_RAY_MARGIN).all()
+        n_positive += len(ids)
+    n_success = int(scenes.labels["success"].sum())
+    assert n_positive + no_contact == n_success
+    assert no_contact <= 0.1 * n_success  # almost every success has both contacts
+    assert "wrote" in result.output
+
+
+def test_contact_graspnet_camera_pose_is_opengl_as_its_training_converts_it(scene_run, tmp_path):
+    """``camera_pose`` in views/ goes through Contact-GraspNet's center_pc_convert_cam (negate the
+    y and z columns, invert) to the transform from its scene frame into the camera's OpenCV frame:
+    a depth pixel's point in the scene projects back onto that pixel with ``K``."""
+    out = tmp_path / "cgn"
+    annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(scene_run, "test")
+    record, view = scenes.records[1], scenes.views(1)[0]
+    with np.load(out / "views" / "000001_00.npz", allow_pickle=True) as data:
+        depth, K, camera_pose = data["depth"], data["K"].reshape(3, 3), data["camera_pose"]
+        opencv = data["camera_pose_opencv"]
+    cam = camera_pose.copy()
+    cam[:3, 1] = -cam[:3, 1]
+    cam[:3, 2] = -cam[:3, 2]
+    T_cam_scene = np.linalg.inv(cam)
+    np.testing.assert_allclose(np.linalg.inv(T_cam_scene), opencv, atol=1e-12)
+    v, u = np.argwhere(depth > 0)[len(np.argwhere(depth > 0)) // 2]
+    z = depth[v, u]
+    p_camera = np.array([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])
+    p_scene = export_cgn.T_cgn_table(record) @ np.r_[view.T_table_camera.apply(p_camera), 1.0]
+    x, y, zc = (T_cam_scene @ p_scene)[:3]
+    np.testing.assert_allclose([x / zc * K[0, 0] + K[0, 2], y / zc * K[1, 1] + K[1, 2]], [u, v], atol=1e-6)
+    # OpenGL's camera looks along its -z: the scene point lies ahead of it
+    assert (np.linalg.inv(camera_pose) @ p_scene)[2] < 0

@@ -9,8 +9,9 @@ VGN (:mod:`annotator.tools.export_vgn`) or Contact-GraspNet (:mod:`annotator.too
   depth images: the run must have been made with ``--views``. Grasps outside the cube are left
   out and counted (:func:`annotator.tools.export_vgn.inside_grid`).
 - ``contact_graspnet``: ``meshes/``, ``scene_contacts/NNNNNN.npz`` per scene (its positives: the
-  successes, as the gripper's base pose, with their pad contacts) and, when the run has views,
-  ``views/NNNNNN_VV.npz`` (its inference input).
+  successes, as the gripper's base pose, with their contacts on the mesh; a success without two
+  is left out and counted) and, when the run has views, ``views/NNNNNN_VV.npz`` (its inference
+  input).
 
 The files an export writes are recorded in the folder's ``_export.json`` (as every export's), so
 ``--overwrite`` removes exactly those; so are the grasps it left out, and why.
@@ -54,7 +55,7 @@ def export_scenes(
     if fmt == "vgn":
         files, left_out = _vgn(scenes, items, folder, depth, objects_dir)
     else:
-        files, left_out = _cgn(scenes, items, folder, depth, objects_dir), []
+        files, left_out = _cgn(scenes, items, folder, depth, objects_dir)
     folder.close(fmt, Path(labels_dir), left_out)
     n = sum(len(g.width) for _, _, g in items) - sum(x.grasps for x in left_out)
     log.info("exported %d grasps of %d scenes to %s (%s)", n, len(ids), folder.path, fmt)
@@ -122,7 +123,9 @@ def _vgn(
     return paths, [LeftOut(outside, reason)]
 
 
-def _cgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir) -> list[Path]:
+def _cgn(
+    scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir
+) -> tuple[list[Path], list[LeftOut]]:
     from annotator.tools.export_cgn import mesh_file, scene_file, write_cgn
 
     meshes = _meshes(scenes, items, objects_dir)
@@ -132,4 +135,12 @@ def _cgn(scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, obje
         names += [f"views/{int(record.scene_id):06d}_{v.view_id:02d}.npz" for v in views]
     for name in names:
         folder.target(name)
-    return write_cgn(folder.path, items, meshes, depth.T_base_tcp)
+    written = write_cgn(folder.path, items, meshes, depth.T_base_tcp)
+    failures = sum(int(np.sum(~np.asarray(g.success, dtype=bool))) for _, _, g in items)
+    return written.paths, [
+        LeftOut(failures, "failures (Contact-GraspNet stores its positives only)"),
+        LeftOut(
+            written.no_contact,
+            "successes whose closing line does not meet their mesh on both sides (no contact points)",
+        ),
+    ]
