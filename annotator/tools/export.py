@@ -169,6 +169,7 @@ class ExportFolder:
                 "grasps",
                 "splits",
                 "meshes",
+                "gripper",
                 "scenes",
                 "dataset/scenes",
                 "dataset",
@@ -319,8 +320,9 @@ def export(
 ) -> ExportResult:
     """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
     its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
-    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0). ``gripper``: the
-    gripper the labels were made with (default the RG2).
+    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0) and the gripper's
+    description in GraspGen's format (``gripper/``: :mod:`annotator.tools.export_graspgen`).
+    ``gripper``: the gripper the labels were made with (default the RG2).
 
     A folder holding an earlier export is refused unless ``overwrite`` (which removes what that
     export wrote, nothing else); labels of an unfinished run are refused unless ``partial``."""
@@ -385,6 +387,9 @@ def export(
         files.append(path)
         n += len(rows)
     if fmt == "graspgen":
+        from annotator.tools.export_graspgen import write_graspgen_gripper
+
+        write_graspgen_gripper(folder, depth, config.gripper)
         train, val = split_by_object(labels[labels["object_id"].isin(ids)], val_fraction=0.2, seed=0)
         for name, part in (("train", train), ("valid", val)):
             lines = [f"meshes/{_stem(o)}.obj" for o in sorted(part["object_id"].unique())]
