@@ -221,3 +221,23 @@ def test_contact_graspnet_camera_pose_is_opengl_as_its_training_converts_it(scen
     np.testing.assert_allclose([x / zc * K[0, 0] + K[0, 2], y / zc * K[1, 1] + K[1, 2]], [u, v], atol=1e-6)
     # OpenGL's camera looks along its -z: the scene point lies ahead of it
     assert (np.linalg.inv(camera_pose) @ p_scene)[2] < 0
+
+
+# --- refusals -----------------------------------------------------------------------------------------
+
+
+def test_scene_exports_refuse_a_run_with_a_failed_scene_without_partial(scene_run, tmp_path):
+    """A run whose manifest records a failed scene (as annotate writes one: objects_failed) is
+    refused in one line, exit 2; --partial exports the scenes that were labelled."""
+    run = tmp_path / "labels"
+    shutil.copytree(scene_run, run)
+    manifest = json.loads((run / "_manifest.json").read_text())
+    manifest["objects_failed"]["scene_000002"] = "the scene kept no object: every object left the workspace"
+    (run / "_manifest.json").write_text(json.dumps(manifest))
+    for fmt in ("vgn", "contact_graspnet"):
+        result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, check=2)
+        assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
+        assert "1 of its scenes failed (scene_000002" in result.output and "--partial" in result.output
+        assert not (tmp_path / fmt / "_export.json").exists()
+        result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, "--partial")
+        assert (tmp_path / fmt / "_export.json").is_file()

@@ -42,12 +42,14 @@ def export_scenes(
     overwrite: bool = False,
     partial: bool = False,
 ) -> ExportResult:
-    """Write the scene run in ``labels_dir`` to ``out_dir`` in ``fmt`` (module docstring)."""
+    """Write the scene run in ``labels_dir`` to ``out_dir`` in ``fmt`` (module docstring). A run
+    that is unfinished or in which a scene failed is refused unless ``partial``."""
     if fmt not in SCENE_FORMATS:
         raise ToolError(f"unknown scene format {fmt!r}; choose from {', '.join(SCENE_FORMATS)}")
     scenes = open_scene_labels(labels_dir, f"export --format {fmt}")
     if not partial:
         scenes.run.require_finished("export")
+        _require_no_failed_scene(scenes)
     folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
     depth = TcpDepth(scenes.gripper)
     ids = scenes.scene_ids()
@@ -60,6 +62,19 @@ def export_scenes(
     n = sum(len(g.width) for _, _, g in items) - sum(x.grasps for x in left_out)
     log.info("exported %d grasps of %d scenes to %s (%s)", n, len(ids), folder.path, fmt)
     return ExportResult(folder.path, files, n, left_out)
+
+
+def _require_no_failed_scene(scenes: SceneLabels) -> None:
+    """``--partial`` not given: a run in which a scene failed (its manifest's ``objects_failed``)
+    is refused with one line, as an unfinished one is: the export would silently lack it."""
+    failed = (scenes.run.manifest or {}).get("objects_failed") or {}
+    if failed:
+        unit = sorted(failed)[0]
+        more = f" and {len(failed) - 1} more" if len(failed) > 1 else ""
+        raise ToolError(
+            f"{scenes.path}: {len(failed)} of its scenes failed ({unit}: {failed[unit]}{more}); re-run the "
+            "same annotate command to retry them, or pass --partial to export the scenes that were labelled"
+        )
 
 
 def _meshes(scenes: SceneLabels, items, objects_dir) -> dict:
