@@ -108,6 +108,27 @@ def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path,
     )
 
 
+def test_vgn_dataset_csv_is_construct_datasets_with_round_trip_parsing(scene_run, tmp_path):
+    """construct_dataset.py reads the raw CSV (read_df), divides x, y, z, width by the voxel and
+    writes it with DataFrame.to_csv: with every number parsed exactly (round trip: Python's
+    float(), what pandas' float_precision="round_trip" does) that is our dataset CSV byte for byte."""
+    out = tmp_path / "vgn"
+    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    voxel = 0.3 / 40
+    columns = ["qx", "qy", "qz", "qw", "x", "y", "z", "width"]
+    df = pd.read_csv(out / "grasps.csv", converters={c: float for c in columns})
+    for c in ("x", "y", "z", "width"):
+        df[c] /= voxel
+    df = df.rename(columns={"x": "i", "y": "j", "z": "k"})
+    df.to_csv(tmp_path / "constructed.csv", index=False)
+    assert (tmp_path / "constructed.csv").read_bytes() == (out / "dataset" / "grasps.csv").read_bytes()
+    # every value written is the shortest repr of its float64: it reads back to the same float
+    text = (out / "grasps.csv").read_text().splitlines()[1:]
+    for line in text[:20]:
+        for value in line.split(",")[1:9]:
+            assert repr(float(value)) == value
+
+
 # --- GIGA -------------------------------------------------------------------------------------------
 
 
@@ -241,3 +262,23 @@ def test_scene_exports_refuse_a_run_with_a_failed_scene_without_partial(scene_ru
         assert not (tmp_path / fmt / "_export.json").exists()
         result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, "--partial")
         assert (tmp_path / fmt / "_export.json").is_file()
+
+
+@pytest.mark.parametrize(
+    ("fmt", "name"),
+    [
+        ("vgn", "mesh_pose_list/scene_000001.npz"),
+        ("vgn", "setup.json"),
+        ("vgn", "dataset/grasps.csv"),
+        ("contact_graspnet", "views/000000_00.npz"),
+    ],
+)
+def test_scene_exports_never_replace_a_file_they_did_not_write(scene_run, tmp_path, fmt, name):
+    out = tmp_path / "out"
+    (out / name).parent.mkdir(parents=True)
+    (out / name).write_text("mine")
+    for extra in ((), ("--overwrite",)):
+        result = annotator("export", scene_run, "--format", fmt, "--out", out, *extra, check=2)
+        assert len(result.output.strip().splitlines()) == 1
+        assert "was not written by an export" in result.output
+        assert (out / name).read_text() == "mine" and not (out / "_export.json").exists()
