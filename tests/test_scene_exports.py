@@ -109,6 +109,31 @@ def test_vgn_dataset_holds_vgns_grid_and_voxel_units(scenes, setup, tmp_path):
         assert (index >= 0).all() and (index < 40).all()
 
 
+def test_vgn_writers_leave_out_grasps_outside_the_grid(scenes, setup, tmp_path):
+    """A grasp whose voxel index (VGN's Dataset: round of the float32 position in voxels) is
+    outside [0, 40) is in neither layout; the others are, in order."""
+    _, items = scenes
+    record, views, grasps = items[0]
+    T = grasps.T_table_tcp.copy()
+    lower, size = np.asarray(record.workspace.lower), record.workspace.size
+    T[0, :3, 3] = lower + [-0.005, 0.1, 0.1]  # index -1 along x
+    T[1, :3, 3] = lower + [0.1, size + 0.002, 0.1]  # index 40 along y
+    T[2, :3, 3] = lower + [0.1, 0.1, size - 0.004]  # index 39 along z: inside
+    moved = export_vgn.SceneGrasps(
+        grasps.scene_id, T, grasps.width, grasps.success, grasps.instance_id, grasps.grasp_id
+    )
+    inside = export_vgn.inside_grid(record, moved, size)
+    assert inside[:3].tolist() == [False, False, True] and inside[3:].all()
+    export_vgn.write_vgn_raw(tmp_path / "raw", setup, [(record, views, moved)])
+    export_vgn.write_vgn_dataset(tmp_path / "ds", setup, [(record, views, moved)])
+    voxel = setup.size / export_vgn.DATASET_RESOLUTION
+    for root, unit in (("raw", 1.0), ("ds", voxel)):  # the dataset's widths are in voxels
+        df = export_vgn.read_grasps(tmp_path / root)
+        np.testing.assert_allclose(df["width"].to_numpy() * unit, grasps.width[2:], rtol=1e-12)
+    index = np.round(export_vgn.read_grasps(tmp_path / "ds")[["i", "j", "k"]].to_numpy(np.single))
+    assert (index >= 0).all() and (index < 40).all() and index[0, 2] == 39
+
+
 @pytest.fixture(scope="module")
 def depth():
     return TcpDepth()
