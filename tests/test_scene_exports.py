@@ -11,6 +11,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+import trimesh
 from scene_helpers import CONVEX, grasps_on, load_models
 
 from annotator.cell.kinect import depth_intrinsics, point_cloud
@@ -108,6 +109,31 @@ def test_vgn_dataset_holds_vgns_grid_and_voxel_units(scenes, setup, tmp_path):
         assert (index >= 0).all() and (index < 40).all()
 
 
+def test_vgn_writers_leave_out_grasps_outside_the_grid(scenes, setup, tmp_path):
+    """A grasp whose voxel index (VGN's Dataset: round of the float32 position in voxels) is
+    outside [0, 40) is in neither layout; the others are, in order."""
+    _, items = scenes
+    record, views, grasps = items[0]
+    T = grasps.T_table_tcp.copy()
+    lower, size = np.asarray(record.workspace.lower), record.workspace.size
+    T[0, :3, 3] = lower + [-0.005, 0.1, 0.1]  # index -1 along x
+    T[1, :3, 3] = lower + [0.1, size + 0.002, 0.1]  # index 40 along y
+    T[2, :3, 3] = lower + [0.1, 0.1, size - 0.004]  # index 39 along z: inside
+    moved = export_vgn.SceneGrasps(
+        grasps.scene_id, T, grasps.width, grasps.success, grasps.instance_id, grasps.grasp_id
+    )
+    inside = export_vgn.inside_grid(record, moved, size)
+    assert inside[:3].tolist() == [False, False, True] and inside[3:].all()
+    export_vgn.write_vgn_raw(tmp_path / "raw", setup, [(record, views, moved)])
+    export_vgn.write_vgn_dataset(tmp_path / "ds", setup, [(record, views, moved)])
+    voxel = setup.size / export_vgn.DATASET_RESOLUTION
+    for root, unit in (("raw", 1.0), ("ds", voxel)):  # the dataset's widths are in voxels
+        df = export_vgn.read_grasps(tmp_path / root)
+        np.testing.assert_allclose(df["width"].to_numpy() * unit, grasps.width[2:], rtol=1e-12)
+    index = np.round(export_vgn.read_grasps(tmp_path / "ds")[["i", "j", "k"]].to_numpy(np.single))
+    assert (index >= 0).all() and (index < 40).all() and index[0, 2] == 39
+
+
 @pytest.fixture(scope="module")
 def depth():
     return TcpDepth()
@@ -116,8 +142,9 @@ def depth():
 def test_contact_graspnet_scene_contacts_read_back(scenes, depth, tmp_path):
     models, items = scenes
     meshes = {oid: m.mesh for oid, m in models.items()}
-    export_cgn.write_cgn(tmp_path, items, meshes, depth.T_base_tcp)
+    result = export_cgn.write_cgn(tmp_path, items, meshes, depth.T_base_tcp)
     infos = export_cgn.load_scene_contacts(tmp_path)
+    written = []
     assert len(infos) == 2 and sorted(p.name for p in (tmp_path / "scene_contacts").iterdir()) == [
         "000004.npz",
         "000011.npz",
@@ -143,22 +170,40 @@ def test_contact_graspnet_scene_contacts_read_back(scenes, depth, tmp_path):
         assert (
             min(lowest) > export_cgn.TABLE_TOP_Z - 0.003 and abs(min(lowest) - export_cgn.TABLE_TOP_Z) < 0.003
         )
-        success = np.asarray(grasps.success)
-        n = int(success.sum())
-        assert info["grasp_transforms"].shape == (n, 4, 4) and info["scene_contact_points"].shape == (n, 2, 3)
         with np.load(
             tmp_path / "scene_contacts" / export_cgn.scene_file(record.scene_id), allow_pickle=False
         ) as f:
             widths, ids, ends = f["grasp_widths"], f["grasp_ids"], f["obj_grasp_idcs"]
+        # the positives: the successes whose closing line meets their mesh on both sides
+        n = len(ids)
+        assert grasps.success[ids].all() and len(set(ids.tolist())) == n
+        assert info["grasp_transforms"].shape == (n, 4, 4) and info["scene_contact_points"].shape == (n, 2, 3)
         assert ends[-1] == n and np.all(np.diff(ends) >= 0)
         T_tcp = T_cgn_table @ grasps.T_table_tcp[ids]
         np.testing.assert_allclose(info["grasp_transforms"] @ depth.T_base_tcp(widths), T_tcp, atol=1e-9)
         labels = export_cgn.contact_labels(info)
-        np.testing.assert_allclose(labels["finger_distance"], np.repeat(grasps.width[ids], 2))
-        mid = info["scene_contact_points"].mean(axis=1)
-        np.testing.assert_allclose(mid, T_tcp[:, :3, 3], atol=1e-12)
-        np.testing.assert_allclose(labels["directions"][1::2], -T_tcp[:, :3, 0], atol=1e-12)
+        np.testing.assert_allclose(labels["directions"][1::2], -T_tcp[:, :3, 0], atol=1e-9)
         np.testing.assert_allclose(labels["approach"][0::2], T_tcp[:, :3, 2], atol=1e-12)
+        assert (labels["finger_distance"] <= np.repeat(widths, 2) + 2 * export_cgn.CONTACT_RAY_MARGIN).all()
+    written.append(sum(len(i["grasp_transforms"]) for i in infos))
+    # synthetic grasps at the centre of mass in any orientation: some miss their object's surface
+    n_success = sum(int(g.success.sum()) for _, _, g in items)
+    assert 0 < written[0] < n_success
+    assert result.positives == written[0] and result.no_contact == n_success - written[0]
+
+
+def test_contact_points_are_where_the_closing_line_enters_the_mesh():
+    """Rays along +/-x from outside the pads: the first points where they enter the mesh, NaN
+    (and left out) where the line misses it or starts inside it."""
+    box = trimesh.creation.box(extents=(0.04, 0.06, 0.08))
+    T = np.repeat(np.eye(4)[None], 4, axis=0)
+    T[1, :3, 3] = [0.005, 0.01, 0.0]  # off centre: the same faces
+    T[2, :3, 3] = [0.0, 0.05, 0.0]  # beside the box: the line misses it
+    width = np.array([0.04, 0.04, 0.04, 0.02])  # the last: pads inside the box, rays start inside
+    contacts, ok = export_cgn.surface_contacts(box, T, width)
+    assert ok.tolist() == [True, True, False, False] and np.isnan(contacts[2:]).all()
+    np.testing.assert_allclose(contacts[0], [[-0.02, 0, 0], [0.02, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(contacts[1], [[-0.02, 0.01, 0], [0.02, 0.01, 0]], atol=1e-12)
 
 
 def test_contact_graspnet_views_are_its_inference_input(scenes, depth, tmp_path):
@@ -166,13 +211,15 @@ def test_contact_graspnet_views_are_its_inference_input(scenes, depth, tmp_path)
     export_cgn.write_cgn(tmp_path, items, {oid: m.mesh for oid, m in models.items()}, depth.T_base_tcp)
     record, views, _ = items[0]
     with np.load(tmp_path / "views" / "000004_01.npz", allow_pickle=True) as data:  # as its loader opens it
-        assert {"depth", "K", "segmap", "camera_pose"} <= set(data.files)
+        assert {"depth", "K", "segmap", "camera_pose", "camera_pose_opencv"} <= set(data.files)
         depth_img, K, segmap, camera_pose = (
             data["depth"],
             data["K"].reshape(3, 3),
             data["segmap"],
-            data["camera_pose"],
+            data["camera_pose_opencv"],  # the optical frame; camera_pose is OpenGL's: y, z negated
         )
+        np.testing.assert_array_equal(data["camera_pose"][:3, 1:3], -camera_pose[:3, 1:3])
+        np.testing.assert_array_equal(data["camera_pose"][:, [0, 3]], camera_pose[:, [0, 3]])
     view = views[1]
     assert np.array_equal(depth_img, view.depth) and np.array_equal(K, view.depth_K.K)
     assert set(np.unique(segmap)) <= {0, *(i.instance_id + 1 for i in record.kept)}

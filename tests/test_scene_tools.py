@@ -95,7 +95,10 @@ def test_contact_graspnet_export_reads_back(scene_run, tmp_path):
         assert len(info["grasp_transforms"]) == len(held) > 0
         labels = export_cgn.contact_labels(info)
         distance = np.sort(labels["finger_distance"][::2])
-        np.testing.assert_allclose(distance, np.sort(held["width"].to_numpy()), atol=1e-12)
+        # the contacts lie on the mesh where the closing line meets it, the width is the pads'
+        # separation: the same but for the squeeze and a line off a round object's axis
+        gap = np.abs(distance - np.sort(held["width"].to_numpy()))
+        assert np.median(gap) < 1e-3 and gap.max() < 2 * export_cgn.CONTACT_RAY_MARGIN
         # the meshes as Contact-GraspNet's renderer poses them are where the scene has them
         meshes = export_cgn.scene_meshes(out, info)
         T_cgn_table = export_cgn.T_cgn_table(record)

@@ -24,9 +24,10 @@ from annotator.cli.common import (
     "fmt",
     required=True,
     type=click.Choice(["acronym", "graspgen", "vgn", "contact_graspnet"]),
-    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object; "
-    "for labels of annotate --scenes: vgn (VGN's grasps.csv and scenes/*.npz, needs --views) or "
-    "contact_graspnet (one npz per scene).",
+    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object "
+    "and the gripper's description for GraspGen (gripper/); for labels of annotate --scenes: vgn (VGN's "
+    "grasps.csv and scenes/*.npz, its dataset/, GIGA's mesh_pose_list/; needs --views) or "
+    "contact_graspnet (one npz per scene, contacts on the mesh).",
 )
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
 @OBJECTS_OPTION
@@ -34,9 +35,14 @@ from annotator.cli.common import (
 @click.option(
     "--overwrite",
     is_flag=True,
-    help="Replace an earlier export in --out (only the files it wrote are removed).",
+    help="Replace an earlier export in --out (only the files it wrote are removed; a file no export "
+    "wrote is never replaced).",
 )
-@click.option("--partial", is_flag=True, help="Export the labels of a run that has not finished.")
+@click.option(
+    "--partial",
+    is_flag=True,
+    help="Export the labels of a run that has not finished, or of a scene run in which a scene failed.",
+)
 @LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
 def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, partial, gripper, verbose):
@@ -46,7 +52,9 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
     tool flange, +z approach, +x closing; each gripper's [base] link), not our TCP:
     T_obj_base = T_obj_tcp * T_base_tcp(width)^-1, with the width of each grasp stored beside it,
     and the gripper's type (docs/tools.md, "Export"). The gripper is the one recorded with the
-    labels unless --gripper.
+    labels unless --gripper. Grasps an export leaves out (VGN: outside the workspace cube;
+    Contact-GraspNet: failures, successes without two contacts on their mesh) are printed and
+    recorded in OUT/_export.json.
 
     \b
     Example:
@@ -64,6 +72,8 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
             raise ToolError(f"--object selects objects; --format {fmt} exports whole scenes")
         result = export_scenes(labels, fmt, out_dir, objects_dir, overwrite=overwrite, partial=partial)
         click.echo(f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) to {out_dir}")
+        if result.summary():
+            click.echo(f"{result.summary()} (recorded in {out_dir}/_export.json)")
         return
     from annotator.tools.common import labelling_gripper
     from annotator.tools.export import export

@@ -27,7 +27,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -52,12 +52,29 @@ def frame_note(description: GripperDescription) -> str:
 
 
 @dataclass(frozen=True)
+class LeftOut:
+    """Grasps of the labels an export did not write: how many, and why (one line)."""
+
+    grasps: int
+    reason: str
+
+    def to_json(self) -> dict:
+        return {"grasps": int(self.grasps), "reason": self.reason}
+
+
+@dataclass(frozen=True)
 class ExportResult:
-    """What ``export`` wrote: the folder, one file per object, the number of grasps."""
+    """What ``export`` wrote: the folder, one file per object, the number of grasps written, and
+    the grasps it left out (also recorded in the folder's ``_export.json``)."""
 
     out_dir: Path
     files: list[Path]
     n_grasps: int
+    left_out: list[LeftOut] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """One line: what was left out and why ("" when nothing was)."""
+        return "; ".join(f"left out {x.grasps} grasps: {x.reason}" for x in self.left_out if x.grasps)
 
 
 class TcpDepth:
@@ -146,9 +163,11 @@ class ExportFolder:
                 "grasps",
                 "splits",
                 "meshes",
+                "gripper",
                 "scenes",
                 "dataset/scenes",
                 "dataset",
+                "mesh_pose_list",
                 "scene_contacts",
                 "views",
             ):
@@ -169,9 +188,13 @@ class ExportFolder:
         self.written.append(name)
         return path
 
-    def close(self, fmt: str, labels: Path) -> None:
-        """Record what this export wrote (so a later --overwrite removes exactly that)."""
-        text = json.dumps({"format": fmt, "labels": str(labels), "files": sorted(self.written)}, indent=1)
+    def close(self, fmt: str, labels: Path, left_out: list[LeftOut] = ()) -> None:
+        """Record what this export wrote (so a later --overwrite removes exactly that) and the
+        grasps it left out (``left_out``: one entry per reason)."""
+        record = {"format": fmt, "labels": str(labels), "files": sorted(self.written)}
+        if left_out:
+            record["left_out"] = [x.to_json() for x in left_out]
+        text = json.dumps(record, indent=1)
         _write_atomically(self.path / EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
 
 
@@ -291,8 +314,9 @@ def export(
 ) -> ExportResult:
     """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
     its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
-    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0). ``gripper``: the
-    gripper the labels were made with (default the RG2).
+    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0) and the gripper's
+    description in GraspGen's format (``gripper/``: :mod:`annotator.tools.export_graspgen`).
+    ``gripper``: the gripper the labels were made with (default the RG2).
 
     A folder holding an earlier export is refused unless ``overwrite`` (which removes what that
     export wrote, nothing else); labels of an unfinished run are refused unless ``partial``."""
@@ -357,6 +381,9 @@ def export(
         files.append(path)
         n += len(rows)
     if fmt == "graspgen":
+        from annotator.tools.export_graspgen import write_graspgen_gripper
+
+        write_graspgen_gripper(folder, depth, config.gripper)
         train, val = split_by_object(labels[labels["object_id"].isin(ids)], val_fraction=0.2, seed=0)
         for name, part in (("train", train), ("valid", val)):
             lines = [f"meshes/{_stem(o)}.obj" for o in sorted(part["object_id"].unique())]

@@ -24,6 +24,12 @@ closing along **y** and approaching along z; ours closes along x. A grasp is wri
 closing axis: ``T_task_vgn = T_task_table T_table_tcp Rz(-90 deg)``. ``width`` is the opening (m);
 ``label`` 1 for a success, 0 otherwise.
 
+Workspace. VGN's grids have ``DATASET_RESOLUTION`` = 40 voxels a side over the cube, and its
+``Dataset`` indexes them at ``round(i, j, k)`` (float32): a grasp whose index falls outside
+[0, 40) would be written at the opposite side of the grid by VGN's training (a negative index)
+or raise IndexError. Such grasps (a TCP outside the cube, on objects leaning over its edge) are
+left out of both layouts (:func:`inside_grid`); VGN's own generator never writes one.
+
 Scene ids in the files are ``scene_NNNNNN``: VGN reads ``scene_id`` with ``pandas.read_csv`` and
 appends ``.npz``, so an id pandas would parse as a number must not be used.
 
@@ -98,11 +104,41 @@ class SceneGrasps:
     instance_id: np.ndarray
     grasp_id: np.ndarray
 
+    def take(self, mask: np.ndarray) -> SceneGrasps:
+        """The grasps where ``mask`` : (n,) bool is true, in order."""
+        mask = np.asarray(mask, dtype=bool)
+        return SceneGrasps(
+            self.scene_id,
+            np.asarray(self.T_table_tcp).reshape(-1, 4, 4)[mask],
+            np.asarray(self.width)[mask],
+            np.asarray(self.success)[mask],
+            np.asarray(self.instance_id)[mask],
+            np.asarray(self.grasp_id)[mask],
+        )
+
 
 def task_poses(record: SceneRecord, grasps: SceneGrasps) -> np.ndarray:
     """VGN grasp frames (n, 4, 4) in the task frame of ``record``'s workspace."""
     T_task_table = record.workspace.T_table_task.inverse().as_matrix()
     return T_task_table @ np.asarray(grasps.T_table_tcp, dtype=np.float64).reshape(-1, 4, 4) @ T_TCP_VGN
+
+
+def voxel_indices(
+    record: SceneRecord, grasps: SceneGrasps, size: float, resolution: int = DATASET_RESOLUTION
+) -> np.ndarray:
+    """(n, 3) int: each grasp's voxel as VGN's ``Dataset`` computes it from the dataset layout
+    (the position in voxels of ``size / resolution``, read as float32, rounded)."""
+    position = task_poses(record, grasps)[:, :3, 3] / (size / resolution)
+    return np.round(position.astype(np.float32)).astype(np.int64)
+
+
+def inside_grid(
+    record: SceneRecord, grasps: SceneGrasps, size: float, resolution: int = DATASET_RESOLUTION
+) -> np.ndarray:
+    """(n,) bool: the grasp's voxel index (:func:`voxel_indices`) lies in [0, resolution) on
+    every axis, i.e. VGN's training can read its label from the grid."""
+    index = voxel_indices(record, grasps, size, resolution)
+    return np.all((index >= 0) & (index < resolution), axis=1)
 
 
 def grasp_rows(record: SceneRecord, grasps: SceneGrasps) -> pd.DataFrame:
@@ -157,8 +193,9 @@ def _write(path: Path, data: bytes) -> None:
 def write_vgn_raw(
     root: Path | str, setup: VgnSetup, scenes: list[tuple[SceneRecord, list, SceneGrasps]]
 ) -> list[Path]:
-    """Write the raw layout: ``setup.json``, ``grasps.csv`` (every scene's grasps, in scene order)
-    and ``scenes/<id>.npz`` per scene. ``scenes``: (record, its views, its grasps). Returns the paths."""
+    """Write the raw layout: ``setup.json``, ``grasps.csv`` (every scene's grasps inside the
+    workspace grid (:func:`inside_grid`), in scene order) and ``scenes/<id>.npz`` per scene.
+    ``scenes``: (record, its views, its grasps). Returns the paths."""
     root = Path(root)
     paths = [root / "setup.json", root / "grasps.csv"]
     _write(paths[0], (json.dumps(setup.to_json(), indent=4) + "\n").encode())
@@ -172,7 +209,7 @@ def write_vgn_raw(
         path = root / "scenes" / f"{scene_name(record.scene_id)}.npz"
         _write(path, _npz_bytes(depth_imgs=depth.astype(np.float32), extrinsics=extrinsics(record, views)))
         paths.append(path)
-        rows.append(grasp_rows(record, grasps))
+        rows.append(grasp_rows(record, grasps.take(inside_grid(record, grasps, setup.size))))
     table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(RAW_COLUMNS))
     _write(paths[1], _csv_text(table).encode())
     return paths
@@ -184,8 +221,9 @@ def write_vgn_dataset(
     scenes: list[tuple[SceneRecord, list, SceneGrasps]],
     resolution: int = DATASET_RESOLUTION,
 ) -> list[Path]:
-    """Write the dataset layout VGN trains on: ``grasps.csv`` in voxel units and each scene's TSDF
-    grid (1, r, r, r) fused from its views (:mod:`annotator.scenes.tsdf`, VGN's conventions)."""
+    """Write the dataset layout VGN trains on: ``grasps.csv`` in voxel units (the grasps inside
+    the grid, :func:`inside_grid`) and each scene's TSDF grid (1, r, r, r) fused from its views
+    (:mod:`annotator.scenes.tsdf`, VGN's conventions)."""
     root = Path(root)
     voxel = setup.size / resolution
     paths = [root / "grasps.csv"]
@@ -195,7 +233,7 @@ def write_vgn_dataset(
         path = root / "scenes" / f"{scene_name(record.scene_id)}.npz"
         _write(path, _npz_bytes(grid=volume.vgn_grid()[None].astype(np.float32)))
         paths.append(path)
-        df = grasp_rows(record, grasps)
+        df = grasp_rows(record, grasps.take(inside_grid(record, grasps, setup.size, resolution)))
         for c in ("x", "y", "z", "width"):
             df[c] = df[c] / voxel
         rows.append(df.rename(columns={"x": "i", "y": "j", "z": "k"}))

@@ -89,3 +89,76 @@ def test_export_errors(labelled, tmp_path: Path) -> None:
     args = ["export", str(labelled.labels_dir), "--out", str(tmp_path)]
     bad = CliRunner().invoke(main, [*args, "--format", "npz", "--objects", str(labelled.objects_dir)])
     assert bad.exit_code == 2 and "'npz'" in bad.output
+
+
+def graspgen_gripper_info(folder: Path, name: str) -> dict:
+    """What GraspGen's ``get_gripper_info`` takes from ``<name>.yaml`` (grasp_gen/robot.py): the
+    offset transform ([xyz], [xyzw]) applied to the collision mesh, ``depth`` as the base-to-TCP
+    translation, and the far pair of its canonical control points from ``width`` and ``depth``."""
+    import yaml
+
+    config = yaml.safe_load((folder / f"{name}.yaml").read_text())
+    translation, quat = config["transform_offset_from_asset_to_graspgen_convention"]
+    assert len(translation) == 3 and len(quat) == 4
+    offset = trimesh.transformations.quaternion_matrix([quat[-1], *quat[:-1]])
+    offset[:3, 3] = translation
+    width, depth = config["width"], config["depth"]
+    mesh = trimesh.load(folder / config["collision_mesh_fname"], force="mesh").apply_transform(offset)
+    return {
+        "config": config,
+        "offset": offset,
+        "collision_mesh": mesh,
+        "tcp": trimesh.transformations.translation_matrix([0, 0, np.abs(depth)]),
+        "finger_tips": np.array([[width / 2, 0, depth], [-width / 2, 0, depth]]),  # its control points
+    }
+
+
+def test_graspgen_export_writes_the_grippers_description(labelled, depth: TcpDepth, tmp_path: Path) -> None:
+    """gripper/<type>.yaml and its collision mesh, read as GraspGen reads them: the numbers are the
+    gripper description's (stroke, FK depths), and GraspGen's visibility filter (the tool tip within
+    3 cm of the object's points) keeps the successes."""
+    _export(labelled, "graspgen", tmp_path)
+    name = json.loads(next((tmp_path / "grasps").glob("*.json")).read_text())["gripper"]["name"]
+    assert name == "onrobot_rg2"
+    info = graspgen_gripper_info(tmp_path / "gripper", name)
+    config, d = info["config"], depth.description
+    assert config["width"] == pytest.approx(d.stroke_max, abs=1e-6)
+    open_, closed = depth.T_base_tcp(np.array([depth.max_width, 0.0]))[:, 2, 3]
+    assert config["depth_open"] == open_ and config["depth_closed"] == closed
+    assert config["depth"] == pytest.approx((open_ + closed) / 2) and 0.16 < open_ < closed < 0.201
+    np.testing.assert_array_equal(info["offset"], np.eye(4))
+    assert config["symmetric_antipodal"] is True
+    # the collision mesh: the open gripper in its base frame, fingers outside the open pads
+    lo, hi = info["collision_mesh"].bounds
+    # GraspGen's control points at the tool tip: the TCP the gripper has at some opening
+    assert (open_ <= info["finger_tips"][:, 2]).all() and (info["finger_tips"][:, 2] <= closed).all()
+    assert lo[0] < -config["width"] / 2 and hi[0] > config["width"] / 2 and lo[2] > -0.01 and hi[2] > open_
+    # GraspGen's filter_grasps_by_point_cloud_visibility on the object's surface points
+    passed = total = 0
+    for path in sorted((tmp_path / "grasps").glob("*.json")):
+        data = json.loads(path.read_text())
+        grasps = np.array(data["grasps"]["transforms"])[np.array(data["grasps"]["object_in_gripper"])]
+        mesh = trimesh.load(tmp_path / data["object"]["file"], force="mesh")
+        points = trimesh.sample.sample_surface(mesh, 2000, seed=0)[0]
+        tips = np.array([g @ info["tcp"] for g in grasps])[:, :3, 3]
+        l1 = np.abs(tips[:, None, :] - points[None]).sum(axis=2)
+        passed += int((np.sort(l1, axis=1)[:, :5].mean(axis=1) < 0.03).sum())
+        total += len(grasps)
+    assert total > 0 and passed >= 0.9 * total
+
+
+@pytest.mark.parametrize("name", ["rg2", "panda", "robotiq_2f85"])
+def test_graspgen_description_numbers_come_from_the_gripper_description(name: str) -> None:
+    from annotator.grippers import load_gripper
+    from annotator.tools.export_graspgen import graspgen_gripper
+
+    d = load_gripper(name)
+    depth = TcpDepth(name)
+    gg = graspgen_gripper(depth)
+    # the model's widest opening: the description's stroke, which its FK reaches (the 2F-85's 86 mm)
+    assert gg.name == d.export_type and gg.width == depth.max_width
+    assert d.stroke_max - 1e-4 <= gg.width < d.stroke_max + 0.002
+    table = depth.T_base_tcp(np.array([gg.width, 0.0]))[:, 2, 3]
+    assert (gg.depth_open, gg.depth_closed) == tuple(table) and gg.depth == pytest.approx(table.mean())
+    if name == "panda":  # the fingers slide: the TCP stays 103.65 mm out of the mounting face
+        assert gg.depth == pytest.approx(0.10365, abs=1e-8)

@@ -1,0 +1,284 @@
+"""Scene exports of a small real run read back as the peers' own code reads them: VGN's ``Dataset``
+and ``construct_dataset.py``, GIGA's ``get_scene_from_mesh_pose_list``, Contact-GraspNet's
+``load_scene_contacts`` and ``center_pc_convert_cam``. Their code needs Open3D, torch or
+TensorFlow; each reader here is the few lines of theirs that touch the files, written from their
+published code (the sources in docs/scenes.md), never imported."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+from click.testing import CliRunner
+from helpers import run_annotate
+from scene_helpers import REPO
+
+from annotator.cli import main
+from annotator.tools import export_cgn
+from annotator.tools.common import object_mesh
+from annotator.tools.scene_labels import SceneLabels, open_scene_labels
+
+OBJECTS = ("box.obj", "can.stl")  # convex: no decomposition, graspable from above wherever they land
+N = 40
+QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"
+
+
+def annotator(*args, check: int | None = 0):
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, result.output
+    return result
+
+
+@pytest.fixture(scope="module")
+def scene_run(tmp_path_factory) -> Path:
+    """Two scenes of three objects, 40 grasps each, one view: about 15 CPU-seconds."""
+    root = tmp_path_factory.mktemp("peers")
+    objects = root / "objects"
+    objects.mkdir()
+    for name in OBJECTS:
+        shutil.copy(REPO / "objects" / name, objects)
+    config = root / "views.toml"
+    config.write_text(QUICK_VIEWS)
+    out = root / "labels"
+    args = ["--scenes", 2, "--per-scene", 3, "--n", N, "--views", 1, "--config", config, "--workers", 1]
+    run_annotate("--objects", objects, "--out", out, "--quiet", *args)
+    return out
+
+
+# --- VGN --------------------------------------------------------------------------------------------
+
+
+def vgn_dataset_items(root: Path) -> list[tuple[str, np.ndarray]]:
+    """Every row of a VGN dataset as its ``Dataset.__getitem__`` takes it: the scene id and the
+    voxel index ``np.round(df.loc[i, "i":"k"].to_numpy(np.single))``; the grid read as its
+    ``read_voxel_grid`` reads it (checked to exist)."""
+    df = pd.read_csv(root / "grasps.csv")
+    out = []
+    for i in range(len(df.index)):
+        scene_id = df.loc[i, "scene_id"]
+        pos = df.loc[i, "i":"k"].to_numpy(np.single)
+        grid = np.load(root / "scenes" / (scene_id + ".npz"))["grid"]
+        assert grid.shape == (1, 40, 40, 40)
+        out.append((scene_id, np.round(pos).astype(np.int64)))
+    return out
+
+
+def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path, monkeypatch):
+    """A grasp placed 2 cm outside the workspace cube is left out of both layouts and reported
+    (the command's output and _export.json); every row VGN's Dataset reads has its voxel in the grid."""
+    scenes = open_scene_labels(scene_run, "test")
+    record = scenes.records[0]
+    moved = 7  # grasp id moved outside: below the cube's lower x side
+    real_grasps = SceneLabels.grasps
+
+    def grasps(self, scene_id):
+        g = real_grasps(self, scene_id)
+        if scene_id == 0:
+            g.T_table_tcp[moved, 0, 3] = record.workspace.lower[0] - 0.02
+        return g
+
+    monkeypatch.setattr(SceneLabels, "grasps", grasps)
+    out = tmp_path / "vgn"
+    result = annotator("export", scene_run, "--format", "vgn", "--out", out)
+    assert "left out 1 grasps: outside the 0.3 m workspace cube" in result.output
+    assert "wrote" in result.output and f"({2 * N - 1} grasps)" in result.output
+    recorded = json.loads((out / "_export.json").read_text())["left_out"]
+    assert len(recorded) == 1 and recorded[0]["grasps"] == 1 and "workspace" in recorded[0]["reason"]
+    raw = pd.read_csv(out / "grasps.csv")
+    assert len(raw) == 2 * N - 1
+    # the raw layout without the moved grasp: its other rows are the labels' own, in order
+    rows0 = scenes.rows(0)
+    kept_widths = np.delete(rows0["width"].to_numpy(), moved)
+    np.testing.assert_array_equal(raw.loc[raw.scene_id == "scene_000000", "width"].to_numpy(), kept_widths)
+    assert (raw[["x", "y", "z"]].to_numpy() >= -0.5 * 0.3 / 40).all()
+    items = vgn_dataset_items(out / "dataset")
+    assert len(items) == 2 * N - 1
+    index = np.array([i for _, i in items])
+    assert (index >= 0).all() and (index < 40).all()
+    # construct_dataset.py's grasps from the raw layout index the same voxels
+    voxel = 0.3 / 40
+    np.testing.assert_array_equal(
+        np.round((raw[["x", "y", "z"]].to_numpy() / voxel).astype(np.single)).astype(np.int64), index
+    )
+
+
+def test_vgn_dataset_csv_is_construct_datasets_with_round_trip_parsing(scene_run, tmp_path):
+    """construct_dataset.py reads the raw CSV (read_df), divides x, y, z, width by the voxel and
+    writes it with DataFrame.to_csv: with every number parsed exactly (round trip: Python's
+    float(), what pandas' float_precision="round_trip" does) that is our dataset CSV byte for byte."""
+    out = tmp_path / "vgn"
+    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    voxel = 0.3 / 40
+    columns = ["qx", "qy", "qz", "qw", "x", "y", "z", "width"]
+    df = pd.read_csv(out / "grasps.csv", converters={c: float for c in columns})
+    for c in ("x", "y", "z", "width"):
+        df[c] /= voxel
+    df = df.rename(columns={"x": "i", "y": "j", "z": "k"})
+    df.to_csv(tmp_path / "constructed.csv", index=False)
+    assert (tmp_path / "constructed.csv").read_bytes() == (out / "dataset" / "grasps.csv").read_bytes()
+    # every value written is the shortest repr of its float64: it reads back to the same float
+    text = (out / "grasps.csv").read_text().splitlines()[1:]
+    for line in text[:20]:
+        for value in line.split(",")[1:9]:
+            assert repr(float(value)) == value
+
+
+# --- GIGA -------------------------------------------------------------------------------------------
+
+
+def giga_scene(mesh_pose_list: np.ndarray) -> list[trimesh.Trimesh]:
+    """GIGA's get_scene_from_mesh_pose_list (return_list): load, scale, pose each row's mesh."""
+    meshes = []
+    for mesh_path, scale, pose in mesh_pose_list:
+        mesh = trimesh.load(mesh_path)
+        mesh.apply_scale(scale)
+        mesh.apply_transform(pose)
+        meshes.append(mesh)
+    return meshes
+
+
+def test_giga_mesh_pose_list_rebuilds_each_scene(scene_run, tmp_path, monkeypatch):
+    out = tmp_path / "vgn"
+    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    monkeypatch.chdir(tmp_path)  # GIGA loads the mesh paths as given, from wherever it runs
+    scenes = open_scene_labels(scene_run, "test")
+    raw = pd.read_csv(out / "grasps.csv")
+    for scene_id in sorted(raw["scene_id"].unique()):
+        # GIGA's dataset_voxel: raw_root / "mesh_pose_list" / (scene_id + ".npz"), key "pc"
+        mesh_pose_list = np.load(out / "mesh_pose_list" / (scene_id + ".npz"), allow_pickle=True)["pc"]
+        record = scenes.records[int(scene_id.split("_")[1])]
+        meshes = giga_scene(mesh_pose_list)
+        assert len(meshes) == len(record.kept) > 0
+        T_task_table = record.workspace.T_table_task.inverse().as_matrix()
+        for mesh, inst in zip(meshes, record.kept, strict=True):
+            want = object_mesh(scene_run, inst.object_id).apply_transform(
+                T_task_table @ inst.T_table_obj.as_matrix()
+            )
+            np.testing.assert_allclose(mesh.bounds, want.bounds, atol=1e-8)
+            assert len(mesh.faces) == len(want.faces)
+        # in VGN's task frame: standing on the table s/6 = 5 cm above the cube's floor, inside the cube
+        scene = trimesh.util.concatenate(meshes)
+        assert abs(scene.bounds[0, 2] - 0.05) < 0.003
+        assert (scene.bounds[0, :2] > -0.02).all() and (scene.bounds[1, :2] < 0.32).all()
+
+
+# --- Contact-GraspNet ---------------------------------------------------------------------------------
+
+
+def distance_to_mesh(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """(n,) m: each point's distance to the nearest triangle (trimesh's closest point on a triangle)."""
+    tri = np.asarray(mesh.triangles)
+    pairs = np.repeat(points, len(tri), axis=0), np.tile(tri, (len(points), 1, 1))
+    closest = trimesh.triangles.closest_point(pairs[1], pairs[0])
+    return np.linalg.norm(closest - pairs[0], axis=1).reshape(len(points), len(tri)).min(axis=1)
+
+
+def test_contact_graspnet_contacts_lie_on_the_mesh_where_the_pads_close(scene_run, tmp_path):
+    out = tmp_path / "cgn"
+    result = annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(scene_run, "test")
+    left_out = json.loads((out / "_export.json").read_text())["left_out"]
+    no_contact = left_out[1]["grasps"]
+    assert "failures" in left_out[0]["reason"] and "closing line" in left_out[1]["reason"]
+    infos = export_cgn.load_scene_contacts(out)  # load_scene_contacts: the five keys, no pickle
+    n_positive = 0
+    for scene_id, info in enumerate(infos):
+        record, rows = scenes.records[scene_id], scenes.rows(scene_id)
+        with np.load(out / "scene_contacts" / export_cgn.scene_file(scene_id)) as f:
+            ends, ids, widths = f["obj_grasp_idcs"], f["grasp_ids"], f["grasp_widths"]
+        meshes = export_cgn.scene_meshes(out, info)  # posed as its renderer poses them
+        T_tcp = export_cgn.T_cgn_table(record) @ scenes.grasps(scene_id).T_table_tcp[ids]
+        contacts = info["scene_contact_points"]
+        assert len(contacts) == len(ids) > 0 and rows.loc[ids, "success"].all()
+        starts = np.r_[0, ends[:-1]]
+        for mesh, a, b in zip(meshes, starts, ends, strict=True):
+            if b > a:
+                assert distance_to_mesh(mesh, contacts[a:b].reshape(-1, 3)).max() < 1e-4
+        # on the pads' closing line, within the pads' reach, finger 1 on the -x side
+        offset = contacts - T_tcp[:, None, :3, 3]
+        x = T_tcp[:, :3, 0]
+        along = np.einsum("nck,nk->nc", offset, x)
+        np.testing.assert_allclose(offset, along[..., None] * x[:, None], atol=1e-9)
+        reach = widths / 2 + export_cgn.CONTACT_RAY_MARGIN
+        assert (along[:, 0] >= -reach - 1e-9).all() and (along[:, 1] <= reach + 1e-9).all()
+        assert (along[:, 0] < along[:, 1]).all()
+        # what its load_contact_grasps derives: the distance between the contacts, about the width
+        labels = export_cgn.contact_labels(info)
+        assert (labels["finger_distance"][::2] <= widths + 2 * export_cgn.CONTACT_RAY_MARGIN).all()
+        n_positive += len(ids)
+    n_success = int(scenes.labels["success"].sum())
+    assert n_positive + no_contact == n_success
+    assert no_contact <= 0.1 * n_success  # almost every success has both contacts
+    assert "wrote" in result.output
+
+
+def test_contact_graspnet_camera_pose_is_opengl_as_its_training_converts_it(scene_run, tmp_path):
+    """``camera_pose`` in views/ goes through Contact-GraspNet's center_pc_convert_cam (negate the
+    y and z columns, invert) to the transform from its scene frame into the camera's OpenCV frame:
+    a depth pixel's point in the scene projects back onto that pixel with ``K``."""
+    out = tmp_path / "cgn"
+    annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(scene_run, "test")
+    record, view = scenes.records[1], scenes.views(1)[0]
+    with np.load(out / "views" / "000001_00.npz", allow_pickle=True) as data:
+        depth, K, camera_pose = data["depth"], data["K"].reshape(3, 3), data["camera_pose"]
+        opencv = data["camera_pose_opencv"]
+    cam = camera_pose.copy()
+    cam[:3, 1] = -cam[:3, 1]
+    cam[:3, 2] = -cam[:3, 2]
+    T_cam_scene = np.linalg.inv(cam)
+    np.testing.assert_allclose(np.linalg.inv(T_cam_scene), opencv, atol=1e-12)
+    v, u = np.argwhere(depth > 0)[len(np.argwhere(depth > 0)) // 2]
+    z = depth[v, u]
+    p_camera = np.array([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])
+    p_scene = export_cgn.T_cgn_table(record) @ np.r_[view.T_table_camera.apply(p_camera), 1.0]
+    x, y, zc = (T_cam_scene @ p_scene)[:3]
+    np.testing.assert_allclose([x / zc * K[0, 0] + K[0, 2], y / zc * K[1, 1] + K[1, 2]], [u, v], atol=1e-6)
+    # OpenGL's camera looks along its -z: the scene point lies ahead of it
+    assert (np.linalg.inv(camera_pose) @ p_scene)[2] < 0
+
+
+# --- refusals -----------------------------------------------------------------------------------------
+
+
+def test_scene_exports_refuse_a_run_with_a_failed_scene_without_partial(scene_run, tmp_path):
+    """A run whose manifest records a failed scene (as annotate writes one: objects_failed) is
+    refused in one line, exit 2; --partial exports the scenes that were labelled."""
+    run = tmp_path / "labels"
+    shutil.copytree(scene_run, run)
+    manifest = json.loads((run / "_manifest.json").read_text())
+    manifest["objects_failed"]["scene_000002"] = "the scene kept no object: every object left the workspace"
+    (run / "_manifest.json").write_text(json.dumps(manifest))
+    for fmt in ("vgn", "contact_graspnet"):
+        result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, check=2)
+        assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
+        assert "1 of its scenes failed (scene_000002" in result.output and "--partial" in result.output
+        assert not (tmp_path / fmt / "_export.json").exists()
+        result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, "--partial")
+        assert (tmp_path / fmt / "_export.json").is_file()
+
+
+@pytest.mark.parametrize(
+    ("fmt", "name"),
+    [
+        ("vgn", "mesh_pose_list/scene_000001.npz"),
+        ("vgn", "setup.json"),
+        ("vgn", "dataset/grasps.csv"),
+        ("contact_graspnet", "views/000000_00.npz"),
+    ],
+)
+def test_scene_exports_never_replace_a_file_they_did_not_write(scene_run, tmp_path, fmt, name):
+    out = tmp_path / "out"
+    (out / name).parent.mkdir(parents=True)
+    (out / name).write_text("mine")
+    for extra in ((), ("--overwrite",)):
+        result = annotator("export", scene_run, "--format", fmt, "--out", out, *extra, check=2)
+        assert len(result.output.strip().splitlines()) == 1
+        assert "was not written by an export" in result.output
+        assert (out / name).read_text() == "mine" and not (out / "_export.json").exists()
