@@ -47,7 +47,11 @@ def _fsync_dir(folder: Path) -> None:
 
 
 def atomic_write_path(
-    path: Path | str, write: Callable[[Path], None], *, durable: bool = True, make_parents: bool = False
+    path: Path | str,
+    write: Callable[[Path], object],
+    *,
+    durable: bool = True,
+    make_parents: bool = False,
 ) -> None:
     """Call ``write(tmp)`` to fill a temporary file, then rename it over ``path`` (see the module).
 
@@ -77,7 +81,11 @@ def atomic_write_path(
 
 
 def atomic_write(
-    path: Path | str, write: Callable[[IO[bytes]], None], *, durable: bool = True, make_parents: bool = False
+    path: Path | str,
+    write: Callable[[IO[bytes]], object],
+    *,
+    durable: bool = True,
+    make_parents: bool = False,
 ) -> None:
     """Call ``write(fh)`` on a binary file handle of a temporary file, then rename it over ``path``."""
 

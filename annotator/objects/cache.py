@@ -32,6 +32,7 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -130,10 +131,11 @@ def save_arrays(path: Path, arrays: dict[str, np.ndarray], inputs: EntryInputs |
     the entry names what it was made from (checked by :func:`load_arrays`, covered by the checksum)."""
     import io
 
+    payload: dict[str, Any] = dict(arrays)
     if inputs is not None:
-        arrays = {**arrays, INPUTS: np.array(inputs.text())}
+        payload[INPUTS] = np.array(inputs.text())
     buffer = io.BytesIO()
-    np.savez(buffer, checksum=np.array(_checksum(arrays)), **arrays)
+    np.savez(buffer, checksum=np.array(_checksum(payload)), **payload)
     write_atomic(path, buffer.getvalue())
 
 

@@ -49,7 +49,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -197,7 +197,7 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple:
 
 
 def geometry_inputs(
-    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: list[trimesh.Trimesh] = ()
+    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: Sequence[trimesh.Trimesh] = ()
 ) -> cache.EntryInputs:
     """What the cache entry is made from: the exact vertices and faces (of the mesh and of the
     ``shells`` that give the parts), every setting that shapes the result and the library versions."""
@@ -208,7 +208,7 @@ def geometry_inputs(
 
 
 def geometry_key(
-    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: list[trimesh.Trimesh] = ()
+    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: Sequence[trimesh.Trimesh] = ()
 ) -> str:
     """The cache key: the hash of :func:`geometry_inputs`."""
     return geometry_inputs(mesh, method, config, shells).key
@@ -396,7 +396,7 @@ def near_miss(error: CollisionError, config: ObjectConfig) -> bool:
 def _cut_coacd(
     coacd,
     mesh: trimesh.Trimesh,
-    copy: trimesh.Trimesh,
+    copy: Copy,
     threshold: float,
     iterations: int,
     config: ObjectConfig,
@@ -825,6 +825,7 @@ def _compute(
     found, rungs = _ladder(mesh, config, label, progress, spent)
     seconds = sum(r.cpu_seconds for r in rungs)
     kept = rungs[-1]
+    assert found.error is not None, "the ladder ends on a rung that gave parts (the hull at the last)"
     return _arrays(found.parts, found.error, kept.method, found.threshold, seconds, rungs)
 
 
@@ -834,7 +835,7 @@ def collision_geometry(
     config: ObjectConfig,
     cache_dir: Path | None,
     object_id: str = "",
-    shells: list[trimesh.Trimesh] = (),
+    shells: Sequence[trimesh.Trimesh] = (),
     progress: Progress | None = None,
     decompose: bool = True,
     load_started: float | None = None,

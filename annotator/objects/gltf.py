@@ -13,6 +13,7 @@ import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import trimesh
@@ -109,8 +110,9 @@ def mesh_nodes(path: Path) -> list[GlbNode]:
     nodes = doc.get("nodes", [])
     found = [(i, T) for i, T in _scene_nodes(doc) if "mesh" in nodes[i]]
     boxes = [_node_bounds(doc, nodes[i], T) for i, T in found]
-    if len(found) > 1 and all(b is not None for b in boxes):
-        groups = touching_groups(boxes)
+    known = [b for b in boxes if b is not None]
+    if len(found) > 1 and len(known) == len(boxes):
+        groups = touching_groups(known)
     else:
         groups = [[k] for k in range(len(found))]
     firsts = [found[g[0]][0] for g in groups]
@@ -210,4 +212,4 @@ def read_nodes(path: Path, node_indices: list[int] | None = None) -> trimesh.Tri
         raise ObjectError(f"{path.name}: malformed glTF ({type(exc).__name__}: {exc})") from None
     if not pieces:
         raise ObjectError(f"not a mesh (no triangles found): {path.name}")
-    return trimesh.util.concatenate(pieces) if len(pieces) > 1 else pieces[0]
+    return cast(trimesh.Trimesh, trimesh.util.concatenate(pieces)) if len(pieces) > 1 else pieces[0]

@@ -14,7 +14,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import trimesh
@@ -206,7 +206,7 @@ def _read_urdf(source: ObjectSource) -> tuple[trimesh.Trimesh, bytes]:
         piece = trimesh.Trimesh(piece.vertices * ref.scale, piece.faces, process=False)
         piece.apply_transform(ref.T_link_geom)
         pieces.append(piece)
-    mesh = trimesh.util.concatenate(pieces) if len(pieces) > 1 else pieces[0]
+    mesh = cast(trimesh.Trimesh, trimesh.util.concatenate(pieces)) if len(pieces) > 1 else pieces[0]
     return mesh, b"".join(blobs)
 
 

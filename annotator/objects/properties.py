@@ -78,9 +78,10 @@ def _check(key: str, values: Any, path: Path) -> ObjectProperties:
             if not ok or (name in _POSITIVE and value <= 0) or (name == "friction" and value < 0):
                 rule = "a number >= 0" if name == "friction" else "a positive number"
                 raise ObjectDiscoveryError(f"{where}: {name} must be {rule}, got {value!r}")
-    return ObjectProperties(
-        **{k: (float(v) if k not in ("mass_model", "merge_parts") else v) for k, v in values.items()}
-    )
+    typed: dict[str, Any] = {
+        k: (float(v) if k not in ("mass_model", "merge_parts") else v) for k, v in values.items()
+    }
+    return ObjectProperties(**typed)
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ def _origin(elem: ET.Element | None, urdf: Path) -> np.ndarray:
     if elem is not None:
         xyz = _floats(elem.get("xyz"), "0 0 0", 3, "origin xyz", urdf)
         rpy = _floats(elem.get("rpy"), "0 0 0", 3, "origin rpy", urdf)
-        T = trimesh.transformations.euler_matrix(*rpy, axes="sxyz")
+        T = trimesh.transformations.euler_matrix(rpy[0], rpy[1], rpy[2], axes="sxyz")
         T[:3, 3] = xyz
     return T
 
@@ -116,9 +116,10 @@ def base_inertial(urdf: Path) -> UrdfInertial | None:
     xml = parse_root(urdf)
     link = next(iter(xml.iter("link")), None)
     elem = link.find("inertial") if link is not None else None
-    if elem is None or elem.find("mass") is None:
+    mass_elem = elem.find("mass") if elem is not None else None
+    if elem is None or mass_elem is None:
         return None
-    mass = float(_floats(elem.find("mass").get("value"), "0", 1, "inertial mass", urdf)[0])
+    mass = float(_floats(mass_elem.get("value"), "0", 1, "inertial mass", urdf)[0])
     if not mass > 0:
         return None
     T = _origin(elem.find("origin"), urdf)

@@ -58,8 +58,9 @@ def _safe(name: str) -> str:
 def _segments(data: bytes | mmap.mmap) -> list[tuple[str, str | None, str | None, int, int, bool]]:
     """(kind, current o name, current g name, start, end, holds faces) of each stretch between
     statements. Lines before any statement belong to no object and no group (names None)."""
-    out = []
-    obj = grp = None
+    out: list[tuple[str, str | None, str | None, int, int, bool]] = []
+    obj: str | None = None
+    grp: str | None = None
     kind = ""
     start = 0
     for m in _STATEMENT.finditer(data):
@@ -105,7 +106,7 @@ def _vertex_sets(data: bytes | mmap.mmap, groups) -> list[np.ndarray] | None:
     (negative) index, which would need every vertex line's position."""
     out = []
     for _, spans, _ in groups:
-        idx = []
+        idx: list[int] = []
         for start, end in spans:
             for line in _FACE_LINE.findall(data, start, end):
                 idx.extend(int(i) for i in _INDEX.findall(line.split(b"f", 1)[1]))
@@ -162,7 +163,8 @@ def parts(path: Path) -> list[ObjPart]:
         boxes = [_bounds(data, every) for _, _, every in chosen]
     if not chosen:
         return []
-    groups = [[i] for i in range(len(chosen))] if any(b is None for b in boxes) else touching_groups(boxes)
+    known = [b for b in boxes if b is not None]
+    groups = [[i] for i in range(len(chosen))] if len(known) < len(boxes) else touching_groups(known)
     if len(groups) < 2:
         return []
     names = _names(chosen, groups, kind)

@@ -353,7 +353,7 @@ def solutions_of(
         worst = int(br.stage[i].max())  # the stage where the furthest-getting branch failed
         return IKResult(np.empty((0, 6)), Branches.REASONS[worst], np.empty(0, dtype=bool))
     q, singular = br.q[i][ok], br.wrist_singular[i][ok]
-    keep = []
+    keep: list[int] = []
     for k in range(len(q)):  # drop branches that coincide with an earlier one (boundaries)
         if all(np.abs(_wrap(q[k] - q[j])).max() > SAME_SOLUTION for j in keep):
             keep.append(k)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bisect
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pybullet as pb
@@ -33,7 +33,14 @@ class WidthTable:
     angle: np.ndarray
     width: np.ndarray
     tcp: np.ndarray
-    slope: np.ndarray = None  # (k,) dw/d(drive), m/rad or m/m, from the table's finite differences
+    # (k,) dw/d(drive), m/rad or m/m; None: from the table's finite differences (set after init)
+    slope: np.ndarray = None  # type: ignore[assignment]
+    # derived in __post_init__: plain lists for the scalar lookups, the table by increasing width
+    _angles: list[float] = field(init=False, repr=False, compare=False)
+    _slopes: list[float] = field(init=False, repr=False, compare=False)
+    _w: np.ndarray = field(init=False, repr=False, compare=False)
+    _w_angle: np.ndarray = field(init=False, repr=False, compare=False)
+    _w_tcp: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.slope is None:
