@@ -83,6 +83,28 @@ def check_replaceable(
     return path
 
 
+# A picture the tools write carries this in a PNG tEXt chunk (key "Software"): the mark that lets
+# a later run replace it, and nothing else of the same name, without --overwrite.
+PICTURE_SOFTWARE = "rg2-annotator"
+
+
+def save_png(image: Any, path: str | Path) -> None:
+    """Write ``image`` ((h, w, 3) or (h, w) uint8) to ``path`` as PNG, marked as the tool's."""
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    info = PngInfo()
+    info.add_text("Software", PICTURE_SOFTWARE)
+    Image.fromarray(image).save(path, format="PNG", pnginfo=info)
+
+
+def written_png(path: str | Path) -> bool:
+    """Is ``path`` a PNG :func:`save_png` wrote (its mark among the chunks before the pixels)?"""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    return head.startswith(b"\x89PNG") and b"tEXtSoftware\x00" + PICTURE_SOFTWARE.encode() in head
+
+
 # --- reading tables ------------------------------------------------------------------------------
 
 

@@ -125,3 +125,27 @@ def test_calibrate_never_replaces_a_calibrated_toml_it_did_not_write(tmp_path, o
     assert check_replaceable(mine, "--write-config", cal.written_by_calibrate) == mine
     mine.write_text("# not ours\n")
     assert check_replaceable(mine, "--write-config", cal.written_by_calibrate, force=True) == mine
+
+
+def test_show_and_report_replace_only_pictures_and_pages_they_wrote(labelled, tmp_path):
+    from annotator.tools.common import written_png
+    from annotator.tools.report import written_report
+
+    sheet, overview, page = tmp_path / "sheet.png", tmp_path / "sheet-overview.png", tmp_path / "r.html"
+    show = ["show", labelled.labels_dir, "--object", "box", "--objects", labelled.objects_dir, "--png", sheet]
+    report = ["report", labelled.labels_dir, "--objects", labelled.objects_dir, "--pictures", 0]
+    report += ["--html", page]
+    sheet.write_bytes(b"\x89PNG my holiday picture")
+    page.write_text("<html>my notes</html>")
+    assert "--png " + str(sheet) + " exists and was not written by this tool; pass --overwrite" in _run(
+        *show, code=2
+    )
+    assert "exists and was not written by this tool; pass --overwrite" in _run(*report, code=2)
+    assert sheet.read_bytes() == b"\x89PNG my holiday picture" and not overview.exists()
+    assert page.read_text() == "<html>my notes</html>"
+    for args in (show, report):
+        CliRunner().invoke(main, [str(a) for a in [*args, "--overwrite"]], catch_exceptions=False)
+    assert written_png(sheet) and written_png(overview) and written_report(page)
+    for args in (show, report):  # their own files are replaced without asking
+        result = CliRunner().invoke(main, [str(a) for a in args])
+        assert result.exit_code == 0, result.output
