@@ -429,7 +429,7 @@ def run(
     digests: dict[str, str] = {}
     for source in sources:
         try:
-            digests[source.object_id] = source_digest(source)
+            digests[source.object_id] = source_digest(source, config.objects.memory_budget)
         except ObjectError as exc:
             summary.failed[source.object_id] = str(exc)
     chunk = chunk_size_for(options.n)
