@@ -137,6 +137,10 @@ def read_table(path: str | Path, what: str) -> pd.DataFrame:
         if is_csv:
             unique_columns(csv_header(path), path)
             return pd.read_csv(path)
+        if path.is_dir():  # a folder of Parquet files (a labels folder)
+            df = pd.read_parquet(path)
+            unique_columns(list(df.columns), path)
+            return df
         import pyarrow.parquet as pq
 
         unique_columns(pq.read_schema(path).names, path)

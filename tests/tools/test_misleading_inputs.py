@@ -149,3 +149,11 @@ def test_show_and_report_replace_only_pictures_and_pages_they_wrote(labelled, tm
     for args in (show, report):  # their own files are replaced without asking
         result = CliRunner().invoke(main, [str(a) for a in args])
         assert result.exit_code == 0, result.output
+
+
+def test_a_folder_of_parquet_files_is_read_as_one_table(tmp_path):
+    folder = tmp_path / "grasps"
+    folder.mkdir()
+    for k in (0, 1):
+        synthetic_labels(f"o{k}", 3).to_parquet(folder / f"part{k}.parquet")
+    assert len(read_table(folder, "grasps file")) == 6
