@@ -18,6 +18,7 @@ from annotator.sim.gripper import GripperSettings
 def rg2(tmp_path) -> Path:
     folder = tmp_path / "my_rg2"
     shutil.copytree(gripper_dir("rg2"), folder, ignore=shutil.ignore_patterns("*.py", "*.md", "__pycache__"))
+    _edit(folder / "gripper.toml", 'name = "rg2"', 'name = "my_rg2"')  # edited, it is another model
     return folder
 
 
@@ -43,7 +44,7 @@ TOML_BREAKS = [
     ),
     ("[collision]", "[fingers]\nlinks = []\n\n[collision]", "unknown table [fingers]"),
     ("close_speed = 1.0", "", "missing [drive] close_speed"),
-    ("close_speed = 1.0", 'close_speed = "fast"', "[drive] close_speed: expected a number"),
+    ("close_speed = 1.0", 'close_speed = "fast"', "[drive] close_speed: expected a finite number"),
     ('link = "tcp"', 'link = "nope"', "[tcp] link 'nope' is not a link of rg2.urdf"),
     ('link = "tcp"', 'link = "gripper_finger1_pad_link"', None),  # any link may be the TCP frame
     ('link = "rg2_base_link"', 'link = "tcp"', "[base] link 'tcp' must be the root link of rg2.urdf"),
@@ -62,7 +63,7 @@ TOML_BREAKS = [
     ("min = 0.0\nmax = 0.110", "min = 0.02\nmax = 0.110", None),  # a stroke the model spans is fine
     ("min = 0.0\nmax = 0.110", "min = 0.2\nmax = 0.110", "[stroke] needs 0 <= min < max"),
     ("default = 40.0", "default = 50.0", "[force] needs 0 < min <= default <= max"),
-    ('name = "rg2"', 'name = "RG 2"', "name 'RG 2': use lower-case letters, digits and '_'"),
+    ('name = "my_rg2"', 'name = "RG 2"', "name 'RG 2': use lower-case letters, digits and '_'"),
     ("format = 1", "format = 2", "format 2 is not supported"),
     (
         '["gripper_finger1_pad_link", "gripper_finger2_pad_link"]',
@@ -85,7 +86,7 @@ TOML_BREAKS = [
         "kinematic link 'gripper_finger1_knuckle_link' is not the child of a <mimic> follower",
     ),
     ("lateral_friction = 1.0", "lateral_friction = -1.0", "[pads] lateral_friction must be >= 0"),
-    ("[pads]", "[pads]\nsize = [0.01, 0.02]", "[pads] size: expected three numbers"),
+    ("[pads]", "[pads]\nsize = [0.01, 0.02]", "[pads] size: expected three finite numbers"),
 ]
 
 
@@ -93,7 +94,7 @@ TOML_BREAKS = [
 def test_a_broken_toml_is_one_line_naming_the_key(rg2, old, new, fragment):
     _edit(rg2 / "gripper.toml", old, new)
     if fragment is None:
-        assert load_gripper(rg2).name == "rg2"
+        assert load_gripper(rg2).name == "my_rg2"
         return
     message = _error(rg2)
     assert fragment in message, message

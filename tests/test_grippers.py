@@ -19,7 +19,7 @@ from conftest import make_box
 from annotator.cell.mount import mounted_urdf
 from annotator.config import AnnotatorConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
-from annotator.grippers import gripper_dir, load_gripper, shipped_grippers
+from annotator.grippers import DescriptionError, gripper_dir, load_gripper, shipped_grippers
 from annotator.objects import ObjectSource, discover_objects
 from annotator.pipeline import worker
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
@@ -110,6 +110,9 @@ def test_a_copied_folder_is_the_same_gripper(tmp_path):
     assert load_gripper(tmp_path / "mine").digest == load_gripper("panda").digest
     toml = tmp_path / "mine" / "gripper.toml"
     toml.write_text(toml.read_text().replace("default = 70.0", "default = 60.0"))
+    with pytest.raises(DescriptionError, match="name 'panda' is a shipped gripper's and this model is an"):
+        load_gripper(tmp_path / "mine")  # another model may not write `gripper = panda` on its rows
+    toml.write_text(toml.read_text().replace('name = "panda"', 'name = "my_panda"'))
     assert load_gripper(tmp_path / "mine").digest != load_gripper("panda").digest
 
 

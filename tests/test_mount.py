@@ -93,6 +93,7 @@ def test_a_gripper_link_named_as_an_arm_link_cannot_be_mounted(tmp_path):
     shutil.copytree(gripper_dir("panda"), folder, ignore=shutil.ignore_patterns("*.py", "*.md"))
     for name in ("panda.urdf", "gripper.toml"):
         path = folder / name
-        path.write_text(path.read_text().replace("panda_tcp", "tool0"))
+        text = path.read_text().replace("panda_tcp", "tool0")
+        path.write_text(text.replace('name = "panda"', 'name = "clash"'))
     with pytest.raises(DescriptionError, match="'tool0' is also a link or joint of the UR3 model"):
         mounted_urdf(folder)

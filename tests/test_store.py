@@ -454,6 +454,22 @@ def test_unbound_artifacts_go_on_resume_and_foreign_files_stay(tmp_path: Path) -
     assert (views / "mine" / "notes.txt").exists()
 
 
+def test_a_users_file_in_a_view_folder_stays_on_resume_and_overwrite(tmp_path: Path) -> None:
+    """Only the files the tool wrote (listed in the folder) are ever removed from _views/<stem>/."""
+    _with_artifacts(tmp_path, oids=("a",))
+    store = _open(tmp_path)
+    stray = store.write_artifact("a", "written-before-a-kill.png", b"x")  # the tool's, never bound
+    store.close()
+    views = tmp_path / names.ARTIFACTS_DIR / names.object_stem("a")
+    (views / "notes.txt").write_text("mine")
+    (views / "v_mine.png").write_bytes(b"my own picture, named like a view")
+    _open(tmp_path).close()  # a plain resume
+    assert not (tmp_path / stray["file"]).exists() and (views / "v.png").exists()
+    assert (views / "notes.txt").read_text() == "mine" and (views / "v_mine.png").exists()
+    _open(tmp_path, overwrite=True).close()
+    assert sorted(p.name for p in views.iterdir()) == ["notes.txt", "v_mine.png"]
+
+
 def test_overwrite_removes_artifacts_and_stale_objects_take_theirs_along(tmp_path: Path) -> None:
     records = _with_artifacts(tmp_path, oids=("a", "b"))
     store = _open(tmp_path)

@@ -7,6 +7,9 @@ options, calls the library and turns bad input into one line and an exit code
 
 from __future__ import annotations
 
+import sys
+from typing import Any
+
 import click
 
 from annotator import __version__
@@ -23,8 +26,52 @@ from annotator.cli.scene import scene_command
 from annotator.cli.show import show_command
 from annotator.cli.trials import trials_group
 
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as annotator.cli.common documents
+_NO_WORK = {"--help", "-h", "--version"}
 
-@click.group(context_settings=CONTEXT)
+
+def _import_holding_ctrl_c(args: list[str]) -> None:
+    """Import trimesh (and through it SciPy) with Ctrl-C held back, then raise it: trimesh guards
+    its optional imports with ``except BaseException``, so a Ctrl-C landing while it is imported
+    (the first seconds of a command, on a busy machine) was swallowed and the run went on to the
+    end with exit 0. Skipped for ``--help`` and ``--version``, which stay fast."""
+    if not args or _NO_WORK & set(args):
+        return
+    from annotator.store.lock import sigint_deferred
+
+    with sigint_deferred():
+        import trimesh  # noqa: F401
+
+
+def _standalone(run, args, prog_name, complete_var, standalone_mode, extra) -> Any:
+    """Run click's ``main`` (``run``) as click's standalone mode does, but a Ctrl-C at any time
+    ends the command with 130 and one line (click: ``Aborted!`` and 1, read as "some failed")."""
+    if not standalone_mode:
+        return run(args, prog_name, complete_var, False, **extra)
+    try:
+        _import_holding_ctrl_c(sys.argv[1:] if args is None else list(args))
+        rv = run(args, prog_name, complete_var, False, **extra)
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except click.exceptions.Abort as exc:
+        if isinstance(exc.__cause__, KeyboardInterrupt):
+            click.echo("interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+        click.echo("Aborted!", err=True)
+        sys.exit(1)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    sys.exit(rv if isinstance(rv, int) else 0)
+
+
+class _Group(click.Group):
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra) -> Any:
+        return _standalone(super().main, args, prog_name, complete_var, standalone_mode, extra)
+
+
+@click.group(cls=_Group, context_settings=CONTEXT)
 @click.version_option(__version__, prog_name="annotator")
 def main() -> None:
     """rg2-annotator: grasp labels for a UR3 + OnRobot RG2, simulated in PyBullet.
@@ -71,4 +118,4 @@ for _command in (
 
 def annotate_main() -> None:
     """Entry point of the ``annotate`` console script (``annotator annotate``)."""
-    annotate_command()
+    _standalone(annotate_command.main, None, None, None, True, {})

@@ -197,6 +197,10 @@ def annotate_command(
         raise click.UsageError("--views renders the robot cell's Kinect: it needs --cell or --scenes")
     if n is None and not scenes:
         raise click.UsageError("Missing option '--n' (grasp candidates per object).")
+    for name, flag in (("per_scene", "--per-scene"), ("arrangement", "--arrangement")):
+        given = click.get_current_context().get_parameter_source(name) != click.core.ParameterSource.DEFAULT
+        if given and not scenes:
+            raise click.UsageError(f"{flag} shapes the scenes of --scenes N: it needs --scenes")
     scene_options = {}
     if scenes:
         scene_options = {"scenes": scenes, "per_scene": per_scene, "arrangement": arrangement}

@@ -121,6 +121,16 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the bootstrap and the folds.")
+@click.option(
+    "--scene",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Scene labels (annotate --scenes): the scene whose grasps were tried; (object_id, grasp_id) "
+    "repeats across scenes, so scene labels need it.",
+)
+@click.option(
+    "--overwrite", "force_write", is_flag=True, help="Replace a --write-config file this tool did not write."
+)
 @VERBOSE_OPTION
 def calibrate_command(
     labels,
@@ -141,6 +151,8 @@ def calibrate_command(
     config_file,
     workers,
     seed,
+    scene,
+    force_write,
     verbose,
 ):
     """Fit pad friction, grip force and shake severity to real trials of grasps.
@@ -164,14 +176,15 @@ def calibrate_command(
     setup_logging(False, verbose, default=logging.WARNING)
     import os
 
-    from annotator.tools.common import check_output_file
+    from annotator.tools.common import check_output_file, check_replaceable
 
     frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
     check_output_file(config_out, "--write-config")  # before the simulation, not after it
+    check_replaceable(config_out, "--write-config", cal.written_by_calibrate, force_write)
     if outcomes_out is not None:
         check_output_file(outcomes_out, "--outcomes")
     resting = resting_grasps or ("object" if resting else None)
-    source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file)
+    source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file, scene)
     trials = cal.read_real_trials(real_csv, source.grasps)  # a bad file is one line, before anything else
     click.echo(source.config_line)
     click.echo(source.gripper_line)

@@ -45,6 +45,13 @@ def _fmt_q(q: np.ndarray) -> str:
     type=click.Path(path_type=Path, dir_okay=False, exists=True),
     help="Simulate with this TOML file [default: the configuration recorded beside the labels].",
 )
+@click.option(
+    "--scene",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Scene labels (annotate --scenes): the label's scene; (object_id, grasp_id) repeats across "
+    "scenes, so scene labels need it.",
+)
 @LABELS_GRIPPER_OPTION
 @CACHE_OPTION
 def replay_command(
@@ -57,6 +64,7 @@ def replay_command(
     hold: float | None,
     size: tuple[int, int],
     config_file: Path | None,
+    scene: int | None,
     gripper: str | None,
     cache_dir: Path | None,
 ) -> None:
@@ -81,14 +89,20 @@ def replay_command(
     from annotator.objects import ObjectDiscoveryError, ObjectError, create_body, discover_objects
     from annotator.pipeline.prepare import load_prepared
     from annotator.render import write_gif
-    from annotator.tools.common import check_output_file, labelling_config, labelling_gripper, read_labels
+    from annotator.tools.common import (
+        check_output_file,
+        labelling_config,
+        labelling_gripper,
+        one_row_per_grasp,
+        read_labels,
+    )
     from annotator.tools.replay import default_camera, label_row, plan_replay, replay_world
 
     if gif_path is not None:
         check_output_file(gif_path, "--gif")
     chosen = labelling_config(labels, config_file)
     config = chosen.config
-    table = read_labels(labels)
+    table = one_row_per_grasp(read_labels(labels), labels, scene)  # scene labels: --scene N
     try:
         row = label_row(table, object_id, grasp_id)
     except KeyError as exc:

@@ -35,9 +35,10 @@ from annotator.cli.common import (
     type=click.IntRange(min=0),
     help="Objects shown with pictures (those with the most successes); 0 for none.",
 )
+@click.option("--overwrite", is_flag=True, help="Replace an --html file this tool did not write.")
 @LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
-def report_command(labels, html_path, objects_dir, picture_objects, gripper, verbose):
+def report_command(labels, html_path, objects_dir, picture_objects, overwrite, gripper, verbose):
     """A dataset at a glance: one self-contained HTML file (pictures embedded, no network).
 
     The run's configuration and versions (from _manifest.json), objects that failed and why,
@@ -52,7 +53,7 @@ def report_command(labels, html_path, objects_dir, picture_objects, gripper, ver
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.tools.report import report
 
-    result = report(labels, html_path, objects_dir, picture_objects, gripper=gripper)
+    result = report(labels, html_path, objects_dir, picture_objects, gripper=gripper, overwrite=overwrite)
     counts = f"{result.n_objects} objects, {result.n_grasps} grasps, {result.pictures} pictures"
     click.echo(f"wrote {result.path}: {counts}")
     if result.run_state != "finished":

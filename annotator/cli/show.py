@@ -54,6 +54,7 @@ from annotator.cli.common import (
     help="Overview picture to write [default: <png>-overview.png].",
 )
 @OBJECTS_OPTION
+@click.option("--overwrite", is_flag=True, help="Replace pictures of these names this tool did not write.")
 @LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
 def show_command(
@@ -67,6 +68,7 @@ def show_command(
     seed,
     overview_png,
     objects_dir,
+    overwrite,
     gripper,
     verbose,
 ):
@@ -95,7 +97,7 @@ def show_command(
         from annotator.tools.show_scene import show_scene
 
         count = n if _given(n_option="n") else 40
-        done = show_scene(labels, scene_id, png, count, seed, tuple(outcomes), objects_dir)
+        done = show_scene(labels, scene_id, png, count, seed, tuple(outcomes), objects_dir, overwrite)
         click.echo(f"wrote {done.png} (scene {scene_id}: {done.kept} objects, {done.n_grasps} grasps)")
         return
     from annotator.tools.common import labelling_config, labelling_gripper, read_labels
@@ -116,6 +118,7 @@ def show_command(
         overview_png,
         labels=table,
         gripper=hand.description,
+        overwrite=overwrite,
     )
     click.echo(
         f"wrote {result.sheet} ({result.n_grasps} grasps) and {result.overview}; {source}; {hand.line()}"

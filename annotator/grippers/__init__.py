@@ -92,7 +92,22 @@ def _stamp(folder: Path) -> tuple:
 def _load(toml: str, stamp: tuple) -> GripperDescription:
     description = read_description(toml)
     check_kinematics(description)
+    _check_name(description)
     return description
+
+
+def _check_name(description: GripperDescription) -> None:
+    """A shipped gripper's name belongs to its model: a description elsewhere may carry it only
+    with the same files (a copy), else every row it labels would name the wrong gripper."""
+    name = description.name
+    if name not in shipped_grippers() or is_shipped(description):
+        return
+    shipped = gripper_dir(name) / TOML_NAME
+    if description.digest != _load(str(shipped.resolve()), _stamp(shipped.parent)).digest:
+        raise DescriptionError(
+            f"{description.folder / TOML_NAME}: name {name!r} is a shipped gripper's and this model is "
+            "another: give it its own name"
+        )
 
 
 def default_gripper() -> GripperDescription:
@@ -101,40 +116,51 @@ def default_gripper() -> GripperDescription:
 
 
 def check_kinematics(description: GripperDescription) -> None:
-    """The checks that need the model's forward kinematics (PyBullet, a private DIRECT client):
-    the width is monotonic in the drive, finger 1 sits at -x and finger 2 at +x of the base, and
-    the drive's limits reach the stated stroke. :class:`DescriptionError` otherwise."""
+    """The checks that need the model's forward kinematics, computed from the URDF's bytes the
+    description holds (no physics client): the width is strictly monotonic in the drive over its
+    limits, finger 1 sits at -x and finger 2 at +x of the base, and the drive's limits reach the
+    stated stroke. :class:`DescriptionError` otherwise."""
+    import numpy as np
+
     from annotator.config import GripperConfig
-    from annotator.sim import pb
-    from annotator.sim.body import Body
-    from annotator.sim.width_table import fk_table
 
     d = description
     where = d.folder / TOML_NAME
-    client = pb.connect(pb.DIRECT)
-    try:
-        drive = Body.load(client, d.urdf, fixed_base=True).joints[d.drive_joint]
-    finally:
-        pb.disconnect(physicsClientId=client)
-    thickness = None if d.pad_size is None else d.pad_size[0]
-    samples = GripperConfig().width_table_samples
-    try:
-        table = fk_table(
-            str(d.urdf), d.drive_joint, d.pad_links, d.base_link, thickness, drive.lower, drive.upper, samples
+    model = description_model(d)
+    drive = model.joints[d.drive_joint]
+    thickness = d.pad_size[0] if d.pad_size is not None else model.box_sizes[d.pad_links[0]][0]
+    angles = np.linspace(drive.lower, drive.upper, GripperConfig().width_table_samples)
+    widths = np.empty_like(angles)
+    for k, q in enumerate(angles):
+        q_joints = {d.drive_joint: float(q), **{m.follower: m.multiplier * q + m.offset for m in d.mimic}}
+        x1, x2 = (model.T_root_link(pad, q_joints)[0, 3] for pad in d.pad_links)
+        widths[k] = (x2 - x1) - thickness
+    steps = np.diff(widths)
+    if not (np.all(steps > 0) or np.all(steps < 0)):
+        raise DescriptionError(
+            f"{where}: the width is not monotonic in the drive {d.drive_joint!r} over its limits: "
+            f"check {d.urdf}"
         )
-    except ValueError as exc:
-        raise DescriptionError(f"{where}: {exc}") from exc
-    if table.max_width <= 0.0:
+    max_width, min_width = float(widths.max()), float(widths.min())
+    if max_width <= 0.0:
         raise DescriptionError(
             f"{where}: [pads] links: finger 1's pad must sit at -x of the base, finger 2's at +x"
         )
-    if table.max_width < d.stroke_max - STROKE_TOLERANCE:
+    if max_width < d.stroke_max - STROKE_TOLERANCE:
         raise DescriptionError(
             f"{where}: [stroke] max {d.stroke_max:g} m is beyond the model: it opens to "
-            f"{table.max_width:.4f} m at the limit of {d.drive_joint!r}"
+            f"{max_width:.4f} m at the limit of {d.drive_joint!r}"
         )
-    if table.min_width > d.stroke_min + STROKE_TOLERANCE:
+    if min_width > d.stroke_min + STROKE_TOLERANCE:
         raise DescriptionError(
             f"{where}: [stroke] min {d.stroke_min:g} m is below the model: it closes to "
-            f"{table.min_width:.4f} m at the limit of {d.drive_joint!r}"
+            f"{min_width:.4f} m at the limit of {d.drive_joint!r}"
         )
+
+
+def description_model(description: GripperDescription):
+    """The :class:`annotator.grippers.urdf.UrdfModel` of the URDF bytes ``description`` holds."""
+    from annotator.grippers.urdf import read_urdf_bytes
+
+    relative = description.urdf.resolve().relative_to(description.folder.resolve()).as_posix()
+    return read_urdf_bytes(dict(description.files)[relative], description.urdf)

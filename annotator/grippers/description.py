@@ -29,6 +29,7 @@ each finger is on) need PyBullet: :func:`annotator.grippers.load_gripper` runs t
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 import sys
 from dataclasses import dataclass, field
@@ -36,7 +37,8 @@ from pathlib import Path
 from typing import Any
 
 from annotator.geometry import Transform, matrix_to_quat
-from annotator.grippers.urdf import Mimic, UrdfModel, read_urdf, rpy_matrix
+from annotator.grippers.meshes import MAX_MESH_BYTES, MAX_MESH_FACES, MeshError, mesh_facts
+from annotator.grippers.urdf import MAX_URDF_BYTES, Mimic, UrdfModel, read_urdf_bytes, rpy_matrix
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -75,6 +77,22 @@ OPTIONAL = {
     ("collision", "kinematic_links"),
 }
 OPTIONAL_TABLES = {"collision", "mount"}
+
+# Ranges no parallel gripper leaves (checked so a typo or an `inf` is refused, never simulated):
+# the largest strokes of industrial parallel grippers are a few hundred mm, their forces a few kN,
+# their closing speeds well under 10 m/s (or rad/s of a finger joint); a mount is a flange
+# adapter of a few cm, 1 m leaves room for any; a pad a few cm across.
+MAX_STROKE = 1.0  # m
+MAX_FORCE = 10_000.0  # N
+MAX_CLOSE_SPEED = 10.0  # rad/s or m/s
+MAX_MOUNT_OFFSET = 1.0  # m, each of x, y, z
+MAX_MOUNT_ANGLE = 2 * math.pi  # rad, each of roll, pitch, yaw
+MAX_PAD_SIZE = 0.5  # m, each of thickness, width, length
+MAX_TOML_BYTES = 1024 * 1024
+# a pad's collision mesh and its stated [pads] size agree within this ratio on every sorted
+# extent (a pad turned 45 degrees about one axis still fits: sqrt(2) < 1.5; millimetres stated as
+# metres do not)
+PAD_SIZE_RATIO = 1.5
 
 
 class DescriptionError(ValueError):
@@ -123,6 +141,9 @@ class GripperDescription:
     colliding_links: frozenset[str]
     fingers: tuple[tuple[str, ...], tuple[str, ...]]
     sources: dict[str, str] = field(default_factory=dict)
+    # the bytes the digest covers, read once: ((path relative to the folder, bytes), ...) sorted;
+    # a run ships them to its workers, which never read the folder (GripperFiles)
+    files: tuple[tuple[str, bytes], ...] = field(default=(), repr=False)
 
     @property
     def key(self) -> tuple[str, str]:
@@ -160,12 +181,46 @@ def read_description(folder: Path | str) -> GripperDescription:
     folder = toml_path.parent
     if not toml_path.is_file():
         raise DescriptionError(f"{folder}: no {TOML_NAME} (a gripper folder holds its URDF and {TOML_NAME})")
+    raw = _read(toml_path, toml_path, MAX_TOML_BYTES)
     try:
-        data = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+        data = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise DescriptionError(f"{toml_path}: not TOML ({exc})") from exc
     values, sources = _check_schema(toml_path, data)
-    return _build(toml_path, values, sources)
+    return _build(toml_path, raw, values, sources)
+
+
+def _read(where: Path, path: Path, budget: int) -> bytes:
+    """The bytes of ``path``, its size checked against ``budget`` before it is read."""
+    try:
+        size = path.stat().st_size
+        if size > budget:
+            raise _bad(where, f"{path.name} is {size:,} bytes, over the {budget:,} a gripper's file may have")
+        return path.read_bytes()
+    except OSError as exc:
+        raise _bad(where, f"cannot read {path.name}: {exc.strerror or exc}") from None
+
+
+def _inside(where: Path, folder: Path, name: str, what: str) -> tuple[Path, str]:
+    """``name`` (relative to ``folder``) as a path and its posix path relative to the gripper's
+    folder; DescriptionError when it is absolute, a URL, or resolves outside the folder (``..``,
+    a symbolic link): a run reads exactly the folder's files and ships them to its workers."""
+    root = where.parent.resolve()
+    if "://" in name:
+        raise _bad(
+            where, f"{what} {name}: give files as paths relative to the URDF (package:// is not resolved)"
+        )
+    if Path(name).is_absolute():
+        raise _bad(where, f"{what} {name}: an absolute path; keep the gripper's files inside its folder")
+    path = folder / name
+    try:
+        relative = path.resolve().relative_to(root).as_posix()
+    except ValueError:
+        raise _bad(
+            where,
+            f"{what} {name} lies outside the gripper's folder {root} (.. or a link): keep its files there",
+        ) from None
+    return path, relative
 
 
 def _bad(where: Path, text: str) -> DescriptionError:
@@ -200,7 +255,7 @@ def _check_schema(
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _as_int(value: Any) -> int | None:
@@ -228,9 +283,9 @@ def _as_names(value: Any, count: int | None = None) -> tuple[str, ...] | None:
 # kind -> (converter returning None for a value of the wrong kind, what was expected)
 KINDS = {
     "int": (_as_int, "an integer"),
-    "float": (_as_float, "a number"),
+    "float": (_as_float, "a finite number"),
     "str": (_as_str, "a string"),
-    "vec3": (_as_vec3, "three numbers"),
+    "vec3": (_as_vec3, "three finite numbers"),
     "str2": (lambda v: _as_names(v, 2), "two link names"),
     "strs": (_as_names, "a list of link names"),
 }
@@ -250,7 +305,9 @@ def _typed(path: Path, table: str | None, key: str, value: Any) -> Any:
     return typed
 
 
-def _build(path: Path, v: dict[tuple[str | None, str], Any], sources: dict[str, str]) -> GripperDescription:
+def _build(
+    path: Path, raw_toml: bytes, v: dict[tuple[str | None, str], Any], sources: dict[str, str]
+) -> GripperDescription:
     folder = path.parent
     if v[(None, "format")] != FORMAT:
         raise _bad(
@@ -259,15 +316,18 @@ def _build(path: Path, v: dict[tuple[str | None, str], Any], sources: dict[str, 
     name = v[(None, "name")]
     if not NAME_PATTERN.fullmatch(name):
         raise _bad(path, f"name {name!r}: use lower-case letters, digits and '_'")
-    urdf_path = folder / v[(None, "urdf")]
+    urdf_path, urdf_name = _inside(path, folder, v[(None, "urdf")], "urdf")
     if not urdf_path.is_file():
         raise _bad(path, f"urdf: {v[(None, 'urdf')]} does not exist beside {TOML_NAME}")
+    raw_urdf = _read(path, urdf_path, MAX_URDF_BYTES)
     try:
-        model = read_urdf(urdf_path)
+        model = read_urdf_bytes(raw_urdf, urdf_path)
     except ValueError as exc:
         raise _bad(path, str(exc)) from exc
     _check_ranges(path, v)
-    meshes = _mesh_files(path, model)
+    files = {TOML_NAME: raw_toml, urdf_name: raw_urdf}
+    extents = _read_meshes(path, model, files)
+    _check_pad_meshes(path, model, v, extents)
     drive = v[("drive", "joint")]
     pads = v[("pads", "links")]
     kinematic = v.get(("collision", "kinematic_links"), ())
@@ -277,7 +337,7 @@ def _build(path: Path, v: dict[tuple[str | None, str], Any], sources: dict[str, 
         title=v.get((None, "title"), name),
         folder=folder,
         urdf=urdf_path,
-        digest=_digest(path, urdf_path, meshes),
+        digest=_digest(files),
         export_type=v.get((None, "export_type"), name),
         base_link=v[("base", "link")],
         base_frame=v[("base", "frame")],
@@ -305,6 +365,7 @@ def _build(path: Path, v: dict[tuple[str | None, str], Any], sources: dict[str, 
         colliding_links=model.colliding,
         fingers=_fingers(model, pads),
         sources=sources,
+        files=tuple(sorted(files.items())),
     )
 
 
@@ -316,8 +377,22 @@ def _check_ranges(path: Path, v: dict[tuple[str | None, str], Any]) -> None:
     f_lo, f_def, f_hi = v[("force", "min")], v[("force", "default")], v[("force", "max")]
     if not 0.0 < f_lo <= f_def <= f_hi:
         raise _bad(path, f"[force] needs 0 < min <= default <= max, got {f_lo:g}, {f_def:g}, {f_hi:g} (N)")
-    if not v[("drive", "close_speed")] > 0.0:
-        raise _bad(path, f"[drive] close_speed must be > 0, got {v[('drive', 'close_speed')]:g}")
+    if hi > MAX_STROKE:
+        raise _bad(path, f"[stroke] max {hi:g} m is beyond any parallel gripper's (at most {MAX_STROKE:g} m)")
+    if f_hi > MAX_FORCE:
+        raise _bad(path, f"[force] max {f_hi:g} N is beyond any parallel gripper's (at most {MAX_FORCE:g} N)")
+    simulated = v.get(("force", "simulated_max"), f_hi)
+    if not 0.0 < simulated <= MAX_FORCE:
+        raise _bad(path, f"[force] simulated_max must be in (0, {MAX_FORCE:g}] N, got {simulated:g}")
+    speed = v[("drive", "close_speed")]
+    if not 0.0 < speed <= MAX_CLOSE_SPEED:
+        raise _bad(
+            path, f"[drive] close_speed must be in (0, {MAX_CLOSE_SPEED:g}] (rad/s or m/s), got {speed:g}"
+        )
+    for key, bound, unit in (("xyz", MAX_MOUNT_OFFSET, "m"), ("rpy", MAX_MOUNT_ANGLE, "rad")):
+        values = v.get(("mount", key), (0.0, 0.0, 0.0))
+        if not all(abs(x) <= bound for x in values):
+            raise _bad(path, f"[mount] {key} {list(values)}: each must be within +-{bound:g} {unit}")
     if v[("drive", "coupling")] not in COUPLINGS:
         raise _bad(
             path, f"[drive] coupling must be one of {list(COUPLINGS)}, got {v[('drive', 'coupling')]!r}"
@@ -326,25 +401,75 @@ def _check_ranges(path: Path, v: dict[tuple[str | None, str], Any]) -> None:
         if not v[("pads", key)] >= 0.0:
             raise _bad(path, f"[pads] {key} must be >= 0, got {v[('pads', key)]:g}")
     size = v.get(("pads", "size"))
-    if size is not None and not all(s > 0 for s in size):
+    if size is not None and not all(0 < s <= MAX_PAD_SIZE for s in size):
         raise _bad(
-            path, f"[pads] size must be three positive lengths (thickness, width, length), got {list(size)}"
+            path,
+            f"[pads] size must be three lengths in (0, {MAX_PAD_SIZE:g}] m (thickness, width, length), "
+            f"got {list(size)}",
         )
 
 
-def _mesh_files(path: Path, model: UrdfModel) -> list[Path]:
-    """The mesh files the URDF references, each a file beside it (``package://`` is not resolved)."""
-    out = []
+def _read_meshes(path: Path, model: UrdfModel, files: dict[str, bytes]) -> dict[str, tuple[float, ...]]:
+    """Read each mesh file the URDF references once into ``files`` (by its path relative to the
+    folder): inside the folder, sizes within :data:`MAX_MESH_BYTES` together (checked before any
+    is read), each a mesh PyBullet loads, their faces within :data:`MAX_MESH_FACES` together.
+    Returns each mesh's vertex extents (file units) by the name the URDF gives it."""
+    found: dict[str, Path] = {}
     for name in model.meshes:
-        if "://" in name:
-            raise _bad(
-                path, f"{model.path.name} references {name}: give mesh files as paths relative to the URDF"
-            )
-        mesh = model.path.parent / name
+        mesh, relative = _inside(path, model.path.parent, name, f"{model.path.name} references")
         if not mesh.is_file():
             raise _bad(path, f"{model.path.name} references {name}, which does not exist")
-        out.append(mesh)
-    return out
+        found[name] = mesh
+    sizes = {name: mesh.stat().st_size for name, mesh in found.items()}
+    if sum(sizes.values()) > MAX_MESH_BYTES:
+        name = max(sizes, key=sizes.__getitem__)
+        raise _bad(
+            path,
+            f"the meshes are {sum(sizes.values()):,} bytes ({name}: {sizes[name]:,}), over the gripper's "
+            f"budget of {MAX_MESH_BYTES:,}: simplify them (collision meshes need a few thousand faces)",
+        )
+    extents: dict[str, tuple[float, ...]] = {}
+    faces: dict[str, int] = {}
+    for name, mesh in found.items():
+        _, relative = _inside(path, model.path.parent, name, f"{model.path.name} references")
+        data = files.get(relative)
+        if data is None:
+            data = files[relative] = _read(path, mesh, MAX_MESH_BYTES)
+        try:
+            facts = mesh_facts(name, data)
+        except MeshError as exc:
+            raise _bad(path, f"{model.path.name} references {exc}") from None
+        extents[name] = facts.extents
+        faces[name] = facts.faces
+    if sum(faces.values()) > MAX_MESH_FACES:
+        name = max(faces, key=faces.__getitem__)
+        raise _bad(
+            path,
+            f"the meshes hold {sum(faces.values()):,} faces ({name}: {faces[name]:,}), over the gripper's "
+            f"budget of {MAX_MESH_FACES:,}: simplify them (each face costs PyBullet ~1.7 kB per worker)",
+        )
+    return extents
+
+
+def _check_pad_meshes(
+    path: Path, model: UrdfModel, v: dict[tuple[str | None, str], Any], extents: dict[str, tuple[float, ...]]
+) -> None:
+    """A pad whose collision is a mesh has the stated ``[pads] size`` (sorted extents, scaled by
+    the URDF's mesh scale, within :data:`PAD_SIZE_RATIO`)."""
+    size = v.get(("pads", "size"))
+    if size is None:
+        return
+    for pad in v[("pads", "links")]:
+        for name, scale in model.collision_meshes.get(pad, ()):
+            measured = sorted(abs(e * s) for e, s in zip(extents[name], scale, strict=True))
+            stated = sorted(size)
+            pairs = zip(measured, stated, strict=True)
+            if not all(m > 0 and 1 / PAD_SIZE_RATIO <= m / s <= PAD_SIZE_RATIO for m, s in pairs):
+                raise _bad(
+                    path,
+                    f"[pads] size {list(size)} m does not match pad {pad!r}'s mesh {name}, "
+                    f"{[round(m, 6) for m in measured]} m across (sorted, scaled)",
+                )
 
 
 def _check_links(
@@ -461,20 +586,12 @@ def _fingers(model: UrdfModel, pads: tuple[str, ...]) -> tuple[tuple[str, ...], 
     return tuple(chains[0]), tuple(chains[1])
 
 
-def _digest(toml_path: Path, urdf: Path, meshes: list[Path]) -> str:
-    """SHA-256 of the TOML, the URDF and every mesh it references (names relative to the folder)."""
-    folder = toml_path.parent
+def _digest(files: dict[str, bytes]) -> str:
+    """SHA-256 of the TOML, the URDF and every mesh it references, by their paths relative to the
+    folder (sorted), each with its length: the bytes read once, those a run ships to its workers."""
     h = hashlib.sha256(DIGEST_PREFIX)
-    files = {toml_path, urdf, *meshes}
-    for f in sorted(files, key=lambda p: _relative(p, folder)):
-        data = f.read_bytes()
-        h.update(_relative(f, folder).encode() + b"\0" + str(len(data)).encode() + b"\0")
+    for relative in sorted(files):
+        data = files[relative]
+        h.update(relative.encode() + b"\0" + str(len(data)).encode() + b"\0")
         h.update(data)
     return h.hexdigest()
-
-
-def _relative(path: Path, folder: Path) -> str:
-    try:
-        return path.resolve().relative_to(folder.resolve()).as_posix()
-    except ValueError:
-        return path.resolve().as_posix()

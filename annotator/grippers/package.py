@@ -1,10 +1,10 @@
-"""A gripper description's files carried to where its folder is not: a Dask worker on another host.
+"""A gripper description's files carried to its workers: a run's gripper is frozen.
 
-A local worker reads the description's folder where the main process found it. A cluster worker
-may run on a machine without that folder (a user's own gripper), so a run on a cluster sends
-:class:`GripperFiles` instead: the bytes of exactly the files the description's digest covers
-(``gripper.toml``, the URDF and every mesh it references, by their paths relative to the
-folder). The worker writes them once into its cache (``<cache>/grippers/<digest>/``) and loads the
+The main process reads a description's files once (:attr:`GripperDescription.files`, the bytes
+its digest covers: ``gripper.toml``, the URDF and every mesh it references, by their paths
+relative to the folder). Its workers, local or on a cluster, get those bytes, never the folder's
+path: a user editing the folder mid-run, or a cluster worker on a machine without it, changes
+nothing. The worker writes them once into its cache (``<cache>/grippers/<digest>/``) and loads the
 description from there; the digest of what it loaded must be the one sent, so a worker can never
 simulate another gripper than the run bound.
 """
@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from annotator.grippers.description import TOML_NAME, DescriptionError, GripperDescription
-from annotator.grippers.urdf import read_urdf
 
 
 @dataclass(frozen=True)
@@ -38,23 +37,9 @@ class GripperFiles:
 
     @classmethod
     def of(cls, description: GripperDescription) -> GripperFiles:
-        """The files ``description`` was read from. DescriptionError for a file outside its folder
-        (it could not be placed beside the others on the worker)."""
-        folder = description.folder.resolve()
-        urdf = description.urdf.resolve()
-        paths = [folder / TOML_NAME, urdf]
-        paths += [(urdf.parent / name).resolve() for name in read_urdf(urdf).meshes]
-        files = []
-        for path in sorted(set(paths)):
-            try:
-                relative = path.relative_to(folder).as_posix()
-            except ValueError:
-                raise DescriptionError(
-                    f"{folder / TOML_NAME}: {path} lies outside the gripper's folder; a run on a cluster "
-                    "sends the folder's files to its workers, so keep the URDF and meshes inside it"
-                ) from None
-            files.append((relative, path.read_bytes()))
-        return cls(description.name, description.digest, tuple(files))
+        """The files ``description`` was read from, as read then (never read again): every one
+        inside its folder (the description refuses a path outside it)."""
+        return cls(description.name, description.digest, description.files)
 
     def unpack(self, root: str | os.PathLike) -> GripperDescription:
         """The description loaded from ``root/grippers/<digest>/`` (written there first if it is not
@@ -64,7 +49,12 @@ class GripperFiles:
         folder = Path(root) / "grippers" / self.digest
         if not (folder / TOML_NAME).is_file():
             self._write(folder)
-        description = load_gripper(folder)
+        try:
+            description = load_gripper(folder)
+        except DescriptionError as exc:
+            raise DescriptionError(
+                f"{folder}: not the run's {self.name!r} digest {self.digest[:12]} ({exc}); remove that folder"
+            ) from None
         if description.digest != self.digest:
             raise DescriptionError(
                 f"{folder}: holds gripper {description.name!r} digest {description.digest[:12]}, "
@@ -92,17 +82,20 @@ class GripperFiles:
 
 
 def resolve_gripper(
-    gripper: GripperDescription | GripperFiles | str | None, cache_dir: str | os.PathLike | None = None
+    gripper: GripperDescription | GripperFiles | str | None, cache_dir: str | os.PathLike
 ) -> GripperDescription:
-    """A worker's gripper: a description as it is, a name or folder loaded, :class:`GripperFiles`
-    unpacked into ``cache_dir`` (default: the decomposition cache, ``RG2_CACHE_DIR``)."""
+    """A worker's gripper, frozen: the files a run's main process read (a description's own bytes
+    or :class:`GripperFiles`) unpacked into ``cache_dir/grippers/<digest>/`` and loaded from
+    there, so a worker never reads the user's folder (edited mid-run, its labels would mix two
+    grippers under one digest). A shipped gripper and a name or folder are loaded as they are."""
     from annotator.grippers import load_gripper
 
+    if isinstance(gripper, GripperDescription) and not is_shipped(gripper):
+        if gripper.files:
+            gripper = GripperFiles.of(gripper)
+        else:
+            return gripper
     if isinstance(gripper, GripperFiles):
-        if cache_dir is None:
-            from annotator.objects import default_cache_dir
-
-            cache_dir = default_cache_dir()
         return gripper.unpack(cache_dir)
     return load_gripper(gripper)
 

@@ -8,10 +8,16 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+# A gripper's URDF is a few kilobytes of links and joints (the shipped ones: 3-9 kB): these bound
+# what the reader accepts, so a hostile or broken file is one line, never a traceback or a
+# process holding gigabytes.
+MAX_URDF_BYTES = 4 * 1024 * 1024
+MAX_URDF_DEPTH = 32  # <robot><link><collision><geometry><mesh/>: a URDF nests 5 deep
 
 
 @dataclass(frozen=True)
@@ -35,6 +41,9 @@ class UrdfJoint:
     xyz: tuple[float, float, float]
     rpy: tuple[float, float, float]
     mimic: Mimic | None
+    axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    lower: float = 0.0  # <limit lower> (rad or m); 0 when not given
+    upper: float = 0.0
 
     @property
     def movable(self) -> bool:
@@ -47,12 +56,28 @@ class UrdfJoint:
         T[:3, 3] = self.xyz
         return T
 
+    def T_motion(self, q: float) -> np.ndarray:
+        """(4, 4) the child frame moved by joint position ``q`` (rad or m) along :attr:`axis`."""
+        T = np.eye(4)
+        if q == 0.0 or not self.movable:
+            return T
+        axis = np.asarray(self.axis, dtype=float)
+        axis = axis / np.linalg.norm(axis)
+        if self.kind == "prismatic":
+            T[:3, 3] = axis * q
+            return T
+        x, y, z = axis
+        K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        T[:3, :3] = np.eye(3) + math.sin(q) * K + (1.0 - math.cos(q)) * (K @ K)
+        return T
+
 
 @dataclass(frozen=True)
 class UrdfModel:
     """A URDF's tree: ``links`` (names, document order), ``joints`` by name (document order), the
     mesh files it references (as written), the links that have ``<collision>`` elements and those
-    whose first collision geometry is a box."""
+    whose first collision geometry is a box; ``collision_meshes``: each link's collision meshes as
+    ``(filename as written, (sx, sy, sz) scale)``."""
 
     path: Path
     robot: str
@@ -61,6 +86,10 @@ class UrdfModel:
     meshes: tuple[str, ...]
     colliding: frozenset[str]
     boxes: frozenset[str]
+    collision_meshes: dict[str, tuple[tuple[str, tuple[float, float, float]], ...]] = field(
+        default_factory=dict
+    )
+    box_sizes: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     @property
     def root(self) -> str:
@@ -97,11 +126,15 @@ class UrdfModel:
         """Follower joint name -> :class:`Mimic`, in document order."""
         return {name: j.mimic for name, j in self.joints.items() if j.mimic is not None}
 
-    def T_root_link(self, link: str) -> np.ndarray:
-        """(4, 4) ``link``'s frame in the root link's frame with every joint at 0."""
+    def T_root_link(self, link: str, q: dict[str, float] | None = None) -> np.ndarray:
+        """(4, 4) ``link``'s frame in the root link's frame with the joints at ``q`` (by name,
+        rad or m; a joint not named, or ``q`` None: at 0). Forward kinematics from the file, no
+        physics."""
         T = np.eye(4)
+        q = q or {}
         for name in reversed(self.joints_to(link)):
-            T = T @ self.joints[name].T_parent_child()
+            joint = self.joints[name]
+            T = T @ joint.T_parent_child() @ joint.T_motion(q.get(name, 0.0))
         return T
 
 
@@ -119,18 +152,61 @@ def _floats(text: str | None, n: int, default: float = 0.0) -> tuple[float, ...]
     if text is None:
         return (default,) * n
     values = tuple(float(v) for v in text.split())
-    if len(values) != n:
-        raise ValueError(f"expected {n} numbers, got {text!r}")
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"expected {n} finite numbers, got {text!r}")
     return values
 
 
 def read_urdf(path: Path | str) -> UrdfModel:
-    """Parse ``path``; ValueError (one line) when it is not a URDF this reader understands."""
+    """Parse ``path``; ValueError (one line) when it is not a URDF this reader understands or is
+    larger than :data:`MAX_URDF_BYTES` (checked before it is read)."""
     path = Path(path)
     try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise ValueError(f"cannot read {path.name}: {exc}") from exc
+        size = path.stat().st_size
+        if size > MAX_URDF_BYTES:
+            raise ValueError(
+                f"{path.name} is {size:,} bytes, over the {MAX_URDF_BYTES:,} a gripper's URDF may have"
+            )
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"cannot read {path.name}: {exc.strerror or exc}") from exc
+    return read_urdf_bytes(data, path)
+
+
+def parse_xml(data: bytes, name: str) -> ET.Element:
+    """The root element of ``data``, parsed incrementally with limits: no DOCTYPE or ENTITY
+    declaration, elements at most :data:`MAX_URDF_DEPTH` deep. ValueError (one line) otherwise."""
+    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
+        raise ValueError(f"{name}: a DOCTYPE or ENTITY declaration is not accepted in a gripper's URDF")
+    parser = ET.XMLPullParser(events=("start", "end"))
+    root = None
+    depth = 0
+    step = 1 << 16
+    try:
+        for start in range(0, max(len(data), 1), step):
+            parser.feed(data[start : start + step])
+            for event, element in parser.read_events():
+                if event == "start":
+                    depth += 1
+                    root = element if root is None else root
+                    if depth > MAX_URDF_DEPTH:
+                        raise ValueError(
+                            f"{name}: elements nested more than {MAX_URDF_DEPTH} deep: not a URDF"
+                        )
+                else:
+                    depth -= 1
+        parser.close()
+    except ET.ParseError as exc:
+        raise ValueError(f"cannot read {name}: {exc}") from None
+    if root is None:
+        raise ValueError(f"cannot read {name}: no element")
+    return root
+
+
+def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
+    """Parse a URDF's bytes (``path``: where it was read, for messages and relative meshes)."""
+    path = Path(path)
+    root = parse_xml(data, path.name)
     if root.tag != "robot":
         raise ValueError(f"{path.name} is not a URDF (its root element is <{root.tag}>, not <robot>)")
     links = tuple(link.attrib.get("name", "") for link in root.findall("link"))
@@ -157,6 +233,9 @@ def read_urdf(path: Path | str) -> UrdfModel:
                     multiplier=float(mimic_el.attrib.get("multiplier", 1.0)),
                     offset=float(mimic_el.attrib.get("offset", 0.0)),
                 )
+            axis_el, limit = el.find("axis"), el.find("limit")
+            if axis_el is not None and not any(_floats(axis_el.attrib.get("xyz"), 3, 1.0)):
+                raise ValueError("its axis is zero")
             joints[name] = UrdfJoint(
                 name=name,
                 kind=el.attrib["type"],
@@ -165,11 +244,47 @@ def read_urdf(path: Path | str) -> UrdfModel:
                 xyz=_floats(None if origin is None else origin.attrib.get("xyz"), 3),  # type: ignore[arg-type]
                 rpy=_floats(None if origin is None else origin.attrib.get("rpy"), 3),  # type: ignore[arg-type]
                 mimic=mimic,
+                axis=_floats(None if axis_el is None else axis_el.attrib.get("xyz"), 3, 1.0)
+                if axis_el is not None
+                else (1.0, 0.0, 0.0),
+                lower=_floats(None if limit is None else limit.attrib.get("lower"), 1)[0],
+                upper=_floats(None if limit is None else limit.attrib.get("upper"), 1)[0],
             )
         except (KeyError, AttributeError, ValueError) as exc:
             raise ValueError(f"{path.name}: joint {name!r} is malformed ({exc})") from exc
     meshes = tuple(m.attrib.get("filename", "") for m in root.iter("mesh"))
-    return UrdfModel(path, root.attrib.get("name", ""), links, joints, meshes, colliding, boxes)
+    collision_meshes = {}
+    for link in root.findall("link"):
+        found = []
+        for mesh in link.findall("collision/geometry/mesh"):
+            try:
+                scale = _floats(mesh.attrib.get("scale"), 3, default=1.0)
+            except ValueError as exc:
+                name = link.attrib.get("name", "")
+                raise ValueError(f"{path.name}: link {name!r}: mesh scale {exc}") from None
+            found.append((mesh.attrib.get("filename", ""), scale))
+        if found:
+            collision_meshes[link.attrib.get("name", "")] = tuple(found)
+    box_sizes = {}
+    for link in root.findall("link"):
+        box = link.find("collision/geometry/box")
+        if box is not None:
+            try:
+                box_sizes[link.attrib.get("name", "")] = _floats(box.attrib.get("size"), 3)
+            except ValueError as exc:
+                name = link.attrib.get("name", "")
+                raise ValueError(f"{path.name}: link {name!r}: box size {exc}") from None
+    return UrdfModel(
+        path,
+        root.attrib.get("name", ""),
+        links,
+        joints,
+        meshes,
+        colliding,
+        boxes,
+        collision_meshes,
+        box_sizes,
+    )
 
 
 def read_mimic_table(urdf: Path | str) -> dict[str, Mimic]:

@@ -104,7 +104,7 @@ def _sources_of(path: Path, root: Path, sidecar: Sidecar, config: ObjectConfig) 
     file_id = path.relative_to(root).with_suffix("").as_posix()
     props = sidecar.for_object(file_id)
     merge = props.merge_parts if props.merge_parts is not None else config.merge_parts
-    parts = [] if merge else _parts(path)
+    parts = [] if merge else _parts(path, config.memory_budget)
     if len(parts) < 2:
         return [ObjectSource(file_id, path, root, None, props)]
     return [
@@ -113,11 +113,19 @@ def _sources_of(path: Path, root: Path, sidecar: Sidecar, config: ObjectConfig) 
     ]
 
 
-def _parts(path: Path) -> list[tuple[int, str]]:
+def _parts(path: Path, budget_mb: float) -> list[tuple[int, str]]:
     """(index, name) of each body of a multi-body file (.glb mesh nodes, .obj objects or groups);
     empty for a single body or a file that cannot be parsed (it is listed whole; loading names
-    the problem)."""
+    the problem). A file over the memory budget (``budget_mb``) or whose header is not its
+    format's is not scanned: listed whole, it is refused with its figure before it is hashed."""
+    from annotator.objects.reading import check_size, sniff
+
     suffix = path.suffix.lower()
+    try:
+        check_size(path, budget_mb)
+        sniff(path)
+    except ObjectError:
+        return []
     try:
         if suffix == ".glb":
             return [(node.index, node.name) for node in gltf.mesh_nodes(path)]

@@ -157,27 +157,51 @@ def _source_files(source: ObjectSource) -> list[Path]:
     return [source.path, *seen]
 
 
-def source_digest(source: ObjectSource | Path) -> str:
+def source_digest(source: ObjectSource | Path, budget_mb: float | None = None) -> str:
     """SHA-256 over everything the object is made of, for the run manifest.
 
     The file's bytes (for a URDF: the URDF, then every mesh it references in document order, each
     with its path relative to the URDF), the body of a multi-body file, and the sidecar properties that
-    apply to it. Raises ObjectError when a file cannot be read or a URDF path is not allowed.
+    apply to it. Each file is checked by size (``budget_mb``, default ``ObjectConfig.memory_budget``)
+    and header before it is read, then hashed in chunks (bounded memory). Raises ObjectError when a
+    file is over the budget, not of its format, cannot be read or a URDF path is not allowed.
     """
+    from annotator.config import ObjectConfig
+    from annotator.objects.reading import check_size, sniff
+
+    budget = ObjectConfig().memory_budget if budget_mb is None else budget_mb
     source = _as_source(source)
     h = hashlib.sha256(b"rg2-annotator object v1\0")
     try:
         for path in _source_files(source):
             inside = source.is_urdf and path != source.path
             rel = _relative(path, source.path.parent) if inside else Path(path.name)
-            data = path.read_bytes()
-            h.update(f"{rel.as_posix()}\0{len(data)}\0".encode())
-            h.update(data)
+            check_size(path, budget)
+            if path != source.path or not source.is_urdf:
+                sniff(path)  # a mesh: its header matches its suffix
+            _hash_file(h, path, rel.as_posix())
     except OSError as exc:
         raise ObjectError(f"cannot read {source.object_id}: {exc.strerror or exc}") from None
     h.update(f"node\0{source.node}\0".encode())
     h.update(json.dumps(source.properties.as_dict(), sort_keys=True).encode())
     return h.hexdigest()
+
+
+_HASH_CHUNK = 1 << 20
+
+
+def _hash_file(h, path: Path, name: str) -> None:
+    """Feed ``name``, the size and the bytes of ``path`` to ``h``, read in chunks; ObjectError if
+    the file changes size while it is read."""
+    size = path.stat().st_size
+    h.update(f"{name}\0{size}\0".encode())
+    read = 0
+    with path.open("rb") as fh:
+        while chunk := fh.read(_HASH_CHUNK):
+            h.update(chunk)
+            read += len(chunk)
+    if read != size:
+        raise ObjectError(f"{path.name} changed while it was read; run again once it is written")
 
 
 def _relative(path: Path, folder: Path) -> Path:

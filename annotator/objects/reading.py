@@ -76,6 +76,24 @@ def _looks_binary(head: bytes) -> bool:
     return control > 0.1 * max(1, len(head))
 
 
+MB = 1024 * 1024
+
+
+def check_size(path: Path, budget_mb: float) -> None:
+    """Before a byte of ``path`` is read: reading a mesh holds at least its bytes, so a file
+    larger than the memory budget (MB per worker, ``ObjectConfig.memory_budget``) cannot load and
+    is refused here, naming the file and the figure, never scanned or hashed first."""
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ObjectError(f"cannot read {path.name}: {exc.strerror or exc}") from None
+    if size > budget_mb * MB:
+        raise ObjectError(
+            f"{path.name} is {size / MB:,.0f} MB, above the memory budget of {budget_mb:,.0f} MB per worker "
+            "(ObjectConfig.memory_budget): reading it alone would exceed it"
+        )
+
+
 def sniff(path: Path) -> None:
     """Check the file looks like its suffix says, naming the file's problem if not."""
     if not path.is_file():

@@ -386,6 +386,17 @@ def _check_cache(options: RunOptions) -> RunOptions:
     A cluster's workers are trusted to see the folder (a shared filesystem) when this machine does
     not."""
     if options.cache_dir is None:
+        if not options.scheduler:  # the default cache ($RG2_CACHE_DIR): checked the same way
+            default = default_cache_dir()
+            try:
+                default.mkdir(parents=True, exist_ok=True)
+                with tempfile.NamedTemporaryFile(dir=default, prefix=".rg2-write-check-"):
+                    pass
+            except OSError as exc:
+                raise UsageError(
+                    f"the decomposition cache {default} cannot be written ({exc.strerror or exc}); set "
+                    "RG2_CACHE_DIR or --cache to a writable folder"
+                ) from exc
         return options
     folder = Path(os.path.abspath(os.path.expanduser(options.cache_dir)))
     if options.scheduler and not folder.exists():
@@ -429,7 +440,7 @@ def run(
     digests: dict[str, str] = {}
     for source in sources:
         try:
-            digests[source.object_id] = source_digest(source)
+            digests[source.object_id] = source_digest(source, config.objects.memory_budget)
         except ObjectError as exc:
             summary.failed[source.object_id] = str(exc)
     chunk = chunk_size_for(options.n)

@@ -40,6 +40,7 @@ from annotator.objects import (
     ObjectModel,
     ObjectSource,
     create_body,
+    default_cache_dir,
     load_object,
     physics_for,
 )
@@ -390,7 +391,7 @@ class WorkerState:
         if isinstance(gripper, GripperFiles) and self.hand is not None and gripper.key == self.gripper_key:
             gripper = self.hand.description  # unpacked already
         else:
-            gripper = resolve_gripper(gripper, cache_dir)
+            gripper = resolve_gripper(gripper, cache_dir if cache_dir is not None else default_cache_dir())
         changed = self.config != config or self.gripper_key != gripper.key
         if changed or self.mode != (cell, resting) or self.world is None:
             # loaded models and candidates depend on these only: a calibration grid, which changes

@@ -141,7 +141,7 @@ def run_scenes(options: RunOptions, config: AnnotatorConfig) -> Summary:
     unreadable = []
     for source in sources:
         try:
-            digests[source.object_id] = source_digest(source)
+            digests[source.object_id] = source_digest(source, config.objects.memory_budget)
         except ObjectError as exc:
             unreadable.append(f"{source.object_id}: {exc}")
     if unreadable:

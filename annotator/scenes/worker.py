@@ -26,8 +26,8 @@ from typing import Any
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
-from annotator.grippers import GripperDescription, load_gripper
-from annotator.objects import ObjectError, ObjectModel, ObjectSource, load_object
+from annotator.grippers import GripperDescription, resolve_gripper
+from annotator.objects import ObjectError, ObjectModel, ObjectSource, default_cache_dir, load_object
 from annotator.pipeline import status
 from annotator.pipeline.worker import SpanResult, WorkerState, object_info
 from annotator.scenes.arrange import SceneBuilder
@@ -230,7 +230,8 @@ class SceneWorkerState(WorkerState):
         record, built = self.record(task)
         if not record.kept:
             raise ObjectError(_empty_scene(record))
-        gripper = load_gripper(task.gripper)
+        cache_dir = task.cache_dir if task.cache_dir is not None else default_cache_dir()
+        gripper = resolve_gripper(task.gripper, cache_dir)  # the run's files, never the user's folder
         key = (self._scene_key(task), gripper.key, task.job.n, task.job.seed, task.job.cell)
         if self.current is not None and self.current.key == key:
             return self.current, built

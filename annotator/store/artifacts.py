@@ -3,7 +3,8 @@
 Artifacts are files that belong with an object's labels (the Kinect views rendered with them).
 Each is written atomically and recorded, with its checksum, in the record of the label file it
 came with, so it is verified with it (a missing or corrupt artifact redoes those labels), removed
-with it and set aside with it.
+with it and set aside with it. Each view folder also lists the names the tool wrote in it
+(:data:`WRITTEN_LIST`): only those are ever removed, so a user's file put beside them stays.
 """
 
 from __future__ import annotations
@@ -16,6 +17,39 @@ from typing import Any
 from annotator.store.files import atomic_write, file_sha256, is_temp_file, output_error
 from annotator.store.names import ARTIFACTS_DIR, artifact_relpath, is_artifact_relpath, is_object_stem
 
+# In each ``_views/<object stem>/`` folder: the names of the files the tool wrote there, one a
+# line (hidden: never an artifact name, and skipped by pyarrow).
+WRITTEN_LIST = ".rg2-annotator-written"
+
+
+def _written(folder: Path) -> set[str]:
+    """The names the tool wrote in ``folder`` (its :data:`WRITTEN_LIST`)."""
+    try:
+        return set((folder / WRITTEN_LIST).read_text(encoding="utf-8").split("\n")) - {""}
+    except (OSError, UnicodeDecodeError):
+        return set()
+
+
+def _list_written(folder: Path, names: set[str]) -> None:
+    """Replace ``folder``'s list by ``names`` (removed when empty)."""
+    path = folder / WRITTEN_LIST
+    if names:
+        atomic_write(path, lambda fh: fh.write("".join(f"{n}\n" for n in sorted(names)).encode()))
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _tidy(folder: Path) -> None:
+    """Forget the listed names no longer there; remove the folder once nothing else is in it."""
+    with contextlib.suppress(OSError):
+        listed = _written(folder)
+        present = {p.name for p in folder.iterdir()}
+        if listed - present:
+            _list_written(folder, listed & present)
+        if present <= {WRITTEN_LIST}:
+            (folder / WRITTEN_LIST).unlink(missing_ok=True)
+            folder.rmdir()
+
 
 def write_artifact(out_dir: Path, object_id: str, name: str, data: bytes) -> dict[str, str]:
     """Write ``data`` atomically as artifact ``name`` of ``object_id`` (``_views/<object stem>/<name>``)
@@ -26,6 +60,9 @@ def write_artifact(out_dir: Path, object_id: str, name: str, data: bytes) -> dic
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise output_error(path.parent, exc) from exc
+    listed = _written(path.parent)
+    if name not in listed:  # listed before it exists: a kill between the two leaves no orphan
+        _list_written(path.parent, listed | {name})
     atomic_write(path, lambda fh: fh.write(data))
     return {"file": relpath, "sha256": hashlib.sha256(data).hexdigest()}
 
@@ -62,8 +99,7 @@ def delete_record(out_dir: Path, record: dict[str, Any]) -> None:
     for a in record.get("artifacts", {}).values():
         path = out_dir / a["file"]
         path.unlink(missing_ok=True)
-        with contextlib.suppress(OSError):
-            path.parent.rmdir()  # once empty
+        _tidy(path.parent)  # the folder goes once empty of anything but the tool's list
 
 
 def artifacts_ok(record: dict[str, Any]) -> bool:
@@ -76,22 +112,24 @@ def artifacts_ok(record: dict[str, Any]) -> bool:
 
 
 def remove_artifacts(root: Path, keep: set[str]) -> int:
-    """Remove the tool's artifact files under ``root`` (``<root>/<object stem>/<file>``) whose path
-    relative to the output folder is not in ``keep``, with emptied folders; returns how many.
-    Folders not named as the tool names an object's, and anything in them deeper down, stay."""
+    """Remove the tool's artifact files under ``root`` (``<root>/<object stem>/<file>``, listed in
+    the folder's :data:`WRITTEN_LIST`) whose path relative to the output folder is not in
+    ``keep``, with emptied folders; returns how many. A file the tool did not write there (a
+    user's), folders not named as the tool names an object's, and anything deeper down, stay."""
     if not root.is_dir():
         return 0
     removed = 0
     for folder in root.iterdir():
         if not (folder.is_dir() and is_object_stem(folder.name)):
             continue
+        written = _written(folder)
         for p in folder.iterdir():
             relpath = f"{ARTIFACTS_DIR}/{folder.name}/{p.name}"
-            if p.is_file() and relpath not in keep and (is_artifact_relpath(relpath) or is_temp_file(p)):
+            ours = p.name in written and is_artifact_relpath(relpath)
+            if p.is_file() and relpath not in keep and (ours or is_temp_file(p)):
                 p.unlink(missing_ok=True)
                 removed += 1
-        with contextlib.suppress(OSError):
-            folder.rmdir()
+        _tidy(folder)
     with contextlib.suppress(OSError):
         root.rmdir()
     return removed

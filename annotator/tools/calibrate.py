@@ -196,11 +196,13 @@ def calibration_grasps(
     resting: bool | str = False,
     scale: float | None = None,
     config_file: Path | None = None,
+    scene: int | None = None,
 ) -> CalibrationGrasps:
     """What ``calibrate`` replays: a labels folder or file of this tool (with the gripper,
     configuration and resting mode recorded with it unless given), or a grasp table read as
     ``evaluate`` reads it (:func:`annotator.tools.evaluate.read_grasps`, ``frame``) and turned
-    into the commanded grasps a run would simulate."""
+    into the commanded grasps a run would simulate. Scene labels, where (object_id, grasp_id)
+    repeats across scenes, only with ``scene`` named (its rows)."""
     from annotator.cell.resting import resting_mode
     from annotator.tools.common import labelling_config, labelling_gripper, labels_resting, read_labels
     from annotator.tools.evaluate import commanded_table, read_grasps
@@ -212,8 +214,11 @@ def calibration_grasps(
 
         if frame != "tcp":
             raise ToolError(f"{labels} holds labels: their poses are TCP poses; drop --frame {frame}")
+        from annotator.tools.common import one_row_per_grasp
+
         table = read_labels(labels)
         hand = labelling_gripper(labels, gripper, table)
+        table = one_row_per_grasp(table, labels, scene)  # a real trial names one label
         return CalibrationGrasps(
             table,
             chosen.config,
@@ -237,9 +242,10 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
     """REAL.csv joined with the labels (pose, width, outcome); one-line errors for bad input."""
     import pandas as pd
 
-    from annotator.tools.common import ToolError
+    from annotator.tools.common import ToolError, csv_header, unique_columns
 
     try:
+        unique_columns(csv_header(path), path)  # a column named twice: which one is meant?
         real = pd.read_csv(path)
     except FileNotFoundError:
         raise ToolError(f"no real-trial file at {path}") from None
@@ -582,6 +588,15 @@ def _toml_value(v) -> str:
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+CONFIG_MARK = "# annotator calibrate "
+
+
+def written_by_calibrate(path: Path) -> bool:
+    """Does ``path`` begin with the header :func:`config_toml` writes (``# annotator calibrate``)?"""
+    with open(path, "rb") as f:
+        return f.read(len(CONFIG_MARK)) == CONFIG_MARK.encode()
 
 
 def config_toml(config: AnnotatorConfig, header: str = "") -> str:

@@ -65,6 +65,121 @@ def check_output_dir(path: str | Path, what: str) -> Path:
     return path
 
 
+def check_replaceable(
+    path: str | Path, what: str, written_by: Any, force: bool = False, option: str = "--overwrite"
+) -> Path:
+    """Before any work: an existing ``path`` is replaced only if this tool wrote it
+    (``written_by(path)`` is true: its mark is in the file) or ``force``; :class:`ToolError`
+    naming the file otherwise. A user's file of the same name is never overwritten unasked."""
+    path = Path(path)
+    if force or not path.exists() or path.is_dir():
+        return path
+    try:
+        ours = bool(written_by(path))
+    except OSError:
+        ours = False
+    if not ours:
+        raise ToolError(f"{what} {path} exists and was not written by this tool; pass {option} to replace it")
+    return path
+
+
+# A picture the tools write carries this in a PNG tEXt chunk (key "Software"): the mark that lets
+# a later run replace it, and nothing else of the same name, without --overwrite.
+PICTURE_SOFTWARE = "rg2-annotator"
+
+
+def save_png(image: Any, path: str | Path) -> None:
+    """Write ``image`` ((h, w, 3) or (h, w) uint8) to ``path`` as PNG, marked as the tool's."""
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    info = PngInfo()
+    info.add_text("Software", PICTURE_SOFTWARE)
+    Image.fromarray(image).save(path, format="PNG", pnginfo=info)
+
+
+def written_png(path: str | Path) -> bool:
+    """Is ``path`` a PNG :func:`save_png` wrote (its mark among the chunks before the pixels)?"""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    return head.startswith(b"\x89PNG") and b"tEXtSoftware\x00" + PICTURE_SOFTWARE.encode() in head
+
+
+# --- reading tables ------------------------------------------------------------------------------
+
+
+def unique_columns(names: list[str], path: str | Path) -> None:
+    """:class:`ToolError` when a column name repeats: which of the two would be meant?"""
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            count = list(names).count(name)
+            raise ToolError(f"{path}: column {name!r} appears {count} times; column names must be unique")
+        seen.add(name)
+
+
+def csv_header(path: str | Path) -> list[str]:
+    """The column names of a CSV file as written (pandas renames a repeated ``x`` to ``x.1``)."""
+    import csv
+
+    with open(path, newline="", encoding="utf-8-sig", errors="replace") as f:
+        return [name.strip() for name in next(csv.reader(f), [])]
+
+
+def read_table(path: str | Path, what: str) -> pd.DataFrame:
+    """A CSV (by its suffix) or Parquet table the tools read, its column names unique;
+    :class:`ToolError` (one line) when it is missing, unreadable or names a column twice."""
+    path = Path(path)
+    if not path.exists():
+        raise ToolError(f"no {what} at {path}")
+    is_csv = path.suffix.lower() == ".csv"
+    try:
+        if is_csv:
+            unique_columns(csv_header(path), path)
+            return pd.read_csv(path)
+        if path.is_dir():  # a folder of Parquet files (a labels folder)
+            df = pd.read_parquet(path)
+            unique_columns(list(df.columns), path)
+            return df
+        import pyarrow.parquet as pq
+
+        unique_columns(pq.read_schema(path).names, path)
+        return pd.read_parquet(path)
+    except ToolError:
+        raise
+    except Exception as exc:  # OSError, ValueError, ArrowInvalid, ParserError: not a table we can read
+        kind = "a CSV file" if is_csv else "a Parquet or .csv file"
+        raise ToolError(f"{path}: cannot read {what} ({type(exc).__name__}: {exc}); give {kind}") from None
+
+
+def one_row_per_grasp(
+    labels: pd.DataFrame, path: str | Path, scene: int | None, option: str = "--scene"
+) -> pd.DataFrame:
+    """The labels keyed by (object_id, grasp_id): scene labels (where that pair repeats across
+    scenes) only with a scene named (its rows), else :class:`ToolError` naming the option."""
+    if scene is not None:
+        if "scene_id" not in labels.columns:
+            raise ToolError(f"{path}: not scene labels (no scene_id column); drop {option}")
+        rows = labels[labels["scene_id"] == scene]
+        if rows.empty:
+            known = sorted(int(s) for s in labels["scene_id"].unique())
+            shown = ", ".join(map(str, known[:10])) + (" ..." if len(known) > 10 else "")
+            raise ToolError(f"{path} has no scene {scene}; its scenes: {shown}")
+        labels = rows
+    repeated = labels.duplicated(["object_id", "grasp_id"])
+    if repeated.any():
+        first = labels[repeated].iloc[0]
+        where = (
+            f"in {labels['scene_id'].nunique()} scenes; name one with {option} N"
+            if "scene_id" in labels.columns
+            else "more than once"
+        )
+        raise ToolError(
+            f"{path}: object {first['object_id']!r} grasp {int(first['grasp_id'])} is labelled {where}"
+        )
+    return labels
+
+
 # --- reading a labels folder ---------------------------------------------------------------------
 
 
@@ -149,8 +264,10 @@ def _read_files(folder: Path, names: list[str]) -> pd.DataFrame:
                 raise FileNotFoundError(path)
             raise ToolError(f"{path} is not a regular file")
         try:
-            tables.append(pq.read_table(path))
-        except FileNotFoundError:
+            table = pq.read_table(path)
+            unique_columns(table.column_names, path)
+            tables.append(table)
+        except (FileNotFoundError, ToolError):
             raise
         except Exception as exc:  # ArrowInvalid, OSError: a truncated or foreign file
             raise ToolError(f"{path}: not a readable label file ({type(exc).__name__}: {exc})") from None

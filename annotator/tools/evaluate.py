@@ -88,16 +88,9 @@ def read_grasps(path: str | Path, frame: str = "tcp") -> pd.DataFrame:
 
 
 def _read_table(path: Path) -> pd.DataFrame:
-    from annotator.tools.common import ToolError
+    from annotator.tools.common import ToolError, read_table
 
-    if not path.exists():
-        raise ToolError(f"no grasps file at {path}")
-    try:
-        df = pd.read_csv(path) if path.suffix.lower() == ".csv" else pd.read_parquet(path)
-    except Exception as exc:  # OSError, ValueError, ArrowInvalid: not a table we can read
-        raise ToolError(
-            f"{path}: cannot read grasps ({type(exc).__name__}: {exc}); give a Parquet or .csv file"
-        ) from None
+    df = read_table(path, "grasps file")  # a column named twice is refused, not the first one used
     missing = [c for c in ("object_id", *POSE_COLUMNS) if c not in df.columns]
     if missing:
         raise ToolError(

@@ -421,6 +421,16 @@ def _pictures_section(
 # ------------------------------------------------------------------------------------ the report
 
 
+# The report's mark, near its top: a later report replaces only a file that carries it.
+GENERATOR = '<meta name="generator" content="rg2-annotator report">'
+
+
+def written_report(path: Path) -> bool:
+    """Is ``path`` a report this tool wrote (its generator tag in the first kilobyte)?"""
+    with open(path, "rb") as f:
+        return GENERATOR.encode() in f.read(1024)
+
+
 def report(
     labels_dir: Path,
     out: Path,
@@ -429,17 +439,20 @@ def report(
     picture_grasps: int = 4,
     seed: int = 0,
     gripper=None,
+    overwrite: bool = False,
 ) -> ReportResult:
     """Write the HTML report of the labels in ``labels_dir`` to ``out``.
 
     ``picture_objects``: how many objects get ``show`` pictures (those with the most successes);
     0 for none. Pictures need the meshes: ``objects_dir`` or the geometry the labels carry.
     ``gripper``: a name, folder or description to draw (default: the one recorded with the labels).
+    ``overwrite``: replace an ``out`` this tool did not write (else ToolError before any work).
     """
     from annotator import __version__
-    from annotator.tools.common import check_output_file, labelling_gripper, open_labels
+    from annotator.tools.common import check_output_file, check_replaceable, labelling_gripper, open_labels
 
     out = check_output_file(out, "--html")
+    check_replaceable(out, "--html", written_report, overwrite)
     run = open_labels(labels_dir)
     df, manifest = run.labels, run.manifest
     hand = labelling_gripper(labels_dir, gripper, df)
@@ -455,6 +468,7 @@ def report(
     now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
+{GENERATOR}
 <meta name="viewport" content="width=device-width, initial-scale=1">
 <title>Grasp labels: {_e(Path(labels_dir).name)}</title>
 <style>{CSS}</style><script>{IMAGE_CHECK}</script></head>

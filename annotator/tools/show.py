@@ -400,17 +400,28 @@ def show(
     labels: pd.DataFrame | None = None,
     mesh=None,
     gripper: GripperDescription | str | None = None,
+    overwrite: bool = False,
 ) -> ShowResult:
     """Write the grasp sheet to ``png`` and the overview to ``overview_png`` (default
     ``<png stem>-overview.png``). ``labels``/``mesh``: already loaded (the report passes them);
-    ``gripper``: the gripper the labels were made with (default the RG2)."""
-    from PIL import Image
-
-    from annotator.tools.common import ToolError, check_output_file, object_mesh, object_rows, read_labels
+    ``gripper``: the gripper the labels were made with (default the RG2); ``overwrite``: replace
+    pictures of these names that this tool did not write (else ToolError before any work)."""
+    from annotator.tools.common import (
+        ToolError,
+        check_output_file,
+        check_replaceable,
+        object_mesh,
+        object_rows,
+        read_labels,
+        save_png,
+        written_png,
+    )
 
     overview_png = overview_png or png.with_name(f"{png.stem}-overview{png.suffix or '.png'}")
     check_output_file(png, "--png")
     check_output_file(overview_png, "--overview")
+    check_replaceable(png, "--png", written_png, overwrite)
+    check_replaceable(overview_png, "--overview", written_png, overwrite)
     labels = read_labels(labels_dir) if labels is None else labels
     rows = object_rows(labels, object_id)
     bad = sorted(set(outcomes) - set(OUTCOMES))
@@ -425,11 +436,11 @@ def show(
         raise ToolError(f"{object_id} has no {'/'.join(outcomes)} grasps ({have})")
     mesh = object_mesh(labels_dir, object_id, objects_dir, rows) if mesh is None else mesh
     with GraspRenderer(mesh, description=gripper) as renderer:
-        Image.fromarray(grasp_sheet(renderer, chosen)).save(png, format="PNG")
+        save_png(grasp_sheet(renderer, chosen), png)
         pool = rows[rows["outcome"].isin(outcomes)] if outcomes else rows
         ov = overview(renderer, pool)
     counts = pool["outcome"].value_counts().to_dict()
     title = f"{object_id}: {len(pool)} grasps by outcome (faint: behind the object)"
-    Image.fromarray(ov.picture(title, counts)).save(overview_png, format="PNG")
+    save_png(ov.picture(title, counts), overview_png)
     log.info("wrote %s (%d grasps) and %s", png, len(chosen), overview_png)
     return ShowResult(png, overview_png, len(chosen))

@@ -150,14 +150,22 @@ def show_scene(
     seed: int = 0,
     outcomes: tuple[str, ...] = (),
     objects_dir: Path | None = None,
+    overwrite: bool = False,
 ) -> ShowSceneResult:
-    """Write the picture of scene ``scene_id`` of the scene run in ``labels_dir`` to ``png``."""
-    from PIL import Image
-
-    from annotator.tools.common import ToolError, check_output_file, object_mesh
+    """Write the picture of scene ``scene_id`` of the scene run in ``labels_dir`` to ``png`` (a
+    picture of that name this tool did not write only with ``overwrite``)."""
+    from annotator.tools.common import (
+        ToolError,
+        check_output_file,
+        check_replaceable,
+        object_mesh,
+        save_png,
+        written_png,
+    )
     from annotator.tools.scene_labels import open_scene_labels
 
     check_output_file(png, "--png")
+    check_replaceable(png, "--png", written_png, overwrite)
     bad = sorted(set(outcomes) - set(OUTCOMES))
     if bad:
         raise ToolError(f"unknown outcome(s) {bad}; choose from {', '.join(OUTCOMES)}")
@@ -178,5 +186,5 @@ def show_scene(
         f"kept): {len(chosen)} of {len(rows)} grasps"
     )
     picture = render_scene(record, meshes, chosen, counts, title)
-    Image.fromarray(picture.image).save(png, format="PNG")
+    save_png(picture.image, png)
     return ShowSceneResult(png, len(chosen), len(record.kept))
