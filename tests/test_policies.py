@@ -1,0 +1,125 @@
+"""Clutter-removal policies behind one interface: a callable in the loop sees only the Kinect's
+depth (no meshes, no poses) and the arm executes its best reachable grasp; vision-random's grasps
+clear the observed cloud and the table; predictions files that cannot mean the piles are refused."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from scene_helpers import REPO
+
+from annotator.cli import main
+from annotator.config import AnnotatorConfig
+from annotator.geometry import Transform
+from annotator.objects import discover_objects
+from annotator.policies import Grasp, Grasps, Observation, PolicyError
+from annotator.scenes.clutter import ClutterJob, clutter_removal
+
+OBJECTS = ("box.obj", "can.stl")
+SEEN: list[Observation] = []
+TOP_DOWN = (1.0, 0.0, 0.0, 0.0)  # xyzw: the TCP's +z (approach) along the table's -z
+
+
+def annotator(*args, check: int | None = 0):
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, result.output
+    return result
+
+
+@pytest.fixture(scope="module")
+def objects(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("objects")
+    for name in OBJECTS:
+        shutil.copy(REPO / "objects" / name, folder)
+    return folder
+
+
+def above_the_highest_point(observation: Observation, depth: str = "0.01") -> list[Grasp]:
+    """A trivial vision policy: straight down onto the highest observed point, ``depth`` m below it,
+    open wide; and a worse-scored copy 5 cm to the side."""
+    SEEN.append(observation)
+    top = observation.cloud[np.argmax(observation.cloud[:, 2])]
+    best = Transform(top - [0.0, 0.0, float(depth)], TOP_DOWN)
+    side = Transform(top + [0.05, 0.0, 0.0], TOP_DOWN)
+    return [Grasp(side, 0.08, 0.1), Grasp(best, 0.08, 0.9)]
+
+
+def test_a_callable_sees_the_kinect_only_and_the_arm_executes_its_best_grasp(objects):
+    SEEN.clear()
+    config = AnnotatorConfig()
+    sources = tuple(discover_objects(objects))
+    name = f"{__name__}:above_the_highest_point"
+    job = ClutterJob(sources, 2, 0, name, config, policy_args=(("depth", "0.02"),), views=2)
+    summary = clutter_removal(job, 1)
+    (round_,) = summary.rounds
+    assert len(SEEN) == len(round_.attempts) >= 1
+    fields = {f.name for f in dataclasses.fields(Observation)}
+    assert fields == {
+        "round_id", "attempt", "seed", "images", "cloud", "tsdf", "T_table_volume", "voxel_size",
+        "workspace", "max_width", "gripper",
+    }  # fmt: skip
+    first = SEEN[0]
+    assert (first.round_id, first.attempt, len(first.images)) == (0, 0, 2)
+    assert not any(hasattr(first, a) for a in ("meshes", "models", "record", "instances", "segmentation"))
+    assert first.images[0].depth.shape == (424, 512) and (first.images[0].depth > 0).any()
+    assert first.workspace.contains(first.cloud).all() and (first.cloud[:, 2] > 0.02).any()
+    assert first.tsdf.shape == (40, 40, 40) and (first.tsdf > 0).any()
+    assert not first.cloud.flags.writeable and not first.images[0].depth.flags.writeable
+    # the arm executed the best-scored grasp, at the pose the policy gave
+    attempt = round_.attempts[0]
+    top = first.cloud[np.argmax(first.cloud[:, 2])]
+    np.testing.assert_allclose(attempt.proposal.T_table_tcp.pos, top - [0.0, 0.0, 0.02], atol=1e-12)
+    assert attempt.proposal.score == pytest.approx(0.9) and attempt.proposal.width == pytest.approx(0.08)
+    # a second look sees the pile as it is: a held object is gone from the cloud
+    if attempt.success and len(SEEN) > 1:
+        assert len(SEEN[1].cloud) != len(first.cloud)
+
+
+def nonsense(observation: Observation) -> Grasps:
+    return Grasps.from_rows(np.array([[100.0, 0, 0.1, 1, 0, 0, 0, 0.05, 1.0]]))
+
+
+def test_a_policys_nonsense_is_one_line(objects):
+    result = annotator(
+        "clutter-removal", "--objects", objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
+        "--policy", f"{__name__}:nonsense", check=2,
+    )  # fmt: skip
+    assert "outside the workspace" in result.output and "Traceback" not in result.output
+    for policy, said in (
+        (f"{__name__}:no_such_function", "has no no_such_function"),
+        ("no_such_module_here:f", "cannot import"),
+    ):
+        result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", policy, check=2)  # noqa: E501
+        assert said in result.output, result.output
+    result = annotator(
+        "clutter-removal", "--objects", objects, "--rounds", 1, "--policy", f"{__name__}:nonsense",
+        "--policy-arg", "model=x", check=2,
+    )  # fmt: skip
+    assert "cannot take" in result.output
+    with pytest.raises(PolicyError, match="width"):
+        Grasps.from_rows(np.array([[0.0, 0, 0.1, 1, 0, 0, 0, 5.0, 1.0]])).check(
+            SEEN[0].workspace if SEEN else _workspace(), 0.11, 0.1
+        )
+
+
+def _workspace():
+    from annotator.cli.clutter_removal import _workspace as ws
+
+    return ws(AnnotatorConfig())
+
+
+def test_grasps_come_in_every_documented_form():
+    rows = np.array([[0.1, 0.2, 0.3, 0, 0, 0, 1, 0.05, 0.7]])
+    a = Grasps.of(rows)
+    b = Grasps.of([Grasp(Transform([0.1, 0.2, 0.3], [0, 0, 0, 1]), 0.05, 0.7)])
+    np.testing.assert_array_equal(a.T_table_tcp, b.T_table_tcp)
+    assert len(Grasps.of(None)) == 0 and len(Grasps.of([])) == 0
+    with pytest.raises(PolicyError, match="must return"):
+        Grasps.of(pd.DataFrame(rows))
