@@ -123,3 +123,54 @@ def test_grasps_come_in_every_documented_form():
     assert len(Grasps.of(None)) == 0 and len(Grasps.of([])) == 0
     with pytest.raises(PolicyError, match="must return"):
         Grasps.of(pd.DataFrame(rows))
+
+
+def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(objects):
+    """On a known pile, seen from three views: every grasp vision-random returns holds the pads
+    across an observed pair (the TCP between observed points), and its open gripper, at the grasp
+    and every 5 mm back along the approach, holds no observed point above the table and stays above
+    the table; the same call gives the same grasps."""
+    from annotator.config import ProtocolConfig
+    from annotator.grippers import load_gripper
+    from annotator.objects import load_object
+    from annotator.policies.gripper_boxes import box_corners, gripper_boxes, points_in_boxes
+    from annotator.policies.observe import observe
+    from annotator.policies.vision import TABLE_MARGIN, observed_surface, vision_random
+    from annotator.scenes import SceneBuilder, SceneSpec
+    from annotator.scenes.clutter import Round
+
+    config = AnnotatorConfig()
+    models = {s.object_id: load_object(s, config.objects) for s in discover_objects(objects)}
+    record = SceneBuilder(models).build(SceneSpec(1, 0, "pile", 3, 3))
+    round_ = Round(record, models, config, load_gripper(None))
+    try:
+        observation = observe(round_, 0, 3)
+        grasps = vision_random(observation)
+        again = vision_random(observe(round_, 0, 3))
+        nearest = [round_._nearest(g) for g in (_proposal(grasps, k) for k in range(len(grasps)))]
+    finally:
+        round_.close()
+    assert len(grasps) > 0
+    np.testing.assert_array_equal(grasps.T_table_tcp, again.T_table_tcp)
+    surface = observed_surface(observation)
+    objects_seen = observation.cloud[observation.cloud[:, 2] > TABLE_MARGIN]
+    boxes_of, protocol = gripper_boxes(), ProtocolConfig()
+    for k in range(len(grasps)):
+        T, w = grasps.T_table_tcp[k], float(grasps.width[k])
+        assert 0 < w < observation.max_width
+        pads = T[:3, 3] + np.outer([-w / 2, w / 2], T[:3, 0])  # where the pads' centres touch
+        assert np.min(np.linalg.norm(surface.points[:, None] - pads, axis=2), axis=0).max() < 1e-9
+        boxes = boxes_of.at(min(boxes_of.max_width, w + 2 * protocol.pregrasp_clearance), w)
+        local = (objects_seen - T[:3, 3]) @ T[:3, :3]
+        for back in np.arange(0.0, protocol.approach_distance + 1e-9, 0.005):
+            assert not points_in_boxes(local + [0.0, 0.0, back], boxes).any(), (k, back)
+            corners = (box_corners(boxes) - [0.0, 0.0, back]) @ T[:3, :3].T + T[:3, 3]
+            assert corners[:, 2].min() >= 0.0
+    assert all(n >= 0 for n in nearest)  # each on (or beside) an object of the pile
+
+
+def _proposal(grasps, k):
+    from annotator.policies import Proposal
+
+    g = grasps.grasp(k)
+    return Proposal(-1, g.T_table_tcp, g.width, g.score, None)
