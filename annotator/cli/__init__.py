@@ -16,6 +16,7 @@ from annotator.cli.clutter_removal import clutter_removal_command
 from annotator.cli.common import CONTEXT
 from annotator.cli.evaluate import evaluate_command
 from annotator.cli.export import export_command
+from annotator.cli.learn import learn_group
 from annotator.cli.replay import replay_command
 from annotator.cli.report import report_command
 from annotator.cli.scene import scene_command
@@ -46,6 +47,7 @@ def main() -> None:
     annotator show scene_labels/ --scene 3 --png scene3.png
     annotator export scene_labels/ --format vgn --out vgn_raw/
     annotator clutter-removal --objects objects/ --rounds 20 --policy labels
+    annotator learn train scene_labels/ --out model.npz   (docs/learning.md)
     """
 
 
@@ -59,6 +61,7 @@ for _command in (
     evaluate_command,
     calibrate_command,
     clutter_removal_command,
+    learn_group,
 ):
     main.add_command(_command)
 
