@@ -174,3 +174,56 @@ def _proposal(grasps, k):
 
     g = grasps.grasp(k)
     return Proposal(-1, g.T_table_tcp, g.width, g.score, None)
+
+
+def _predictions(**change) -> pd.DataFrame:
+    row = {"round": 0, "x": -0.15, "y": 0.0, "z": 0.05, "qx": 1.0, "qy": 0.0, "qz": 0.0, "qw": 0.0}
+    row.update({"width": 0.05, "score": 1.0})
+    row.update(change)
+    return pd.DataFrame([row])
+
+
+@pytest.mark.parametrize(
+    "change, said",
+    [
+        ({"round": 7}, "no row for any of the rounds 0-0"),
+        ({"width": 5.0}, "outside the gripper's stroke"),
+        ({"width": -0.05}, "outside the gripper's stroke"),
+        ({"x": 100.0}, "outside the workspace"),
+    ],
+)
+def test_predictions_that_cannot_mean_the_piles_are_refused(objects, tmp_path, change, said):
+    path = tmp_path / "predictions.csv"
+    _predictions(**change).to_csv(path, index=False)
+    result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", path, check=2)
+    assert said in result.output and "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
+def test_a_repeated_predictions_column_is_refused(objects, tmp_path):
+    path = tmp_path / "predictions.csv"
+    table = _predictions()
+    path.write_text(",".join([*table.columns, "x"]) + "\n" + ",".join(map(str, [*table.iloc[0], 9.0])) + "\n")
+    result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", path, check=2)
+    assert "['x'] appear more than once" in result.output
+
+
+def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(objects, tmp_path):
+    predictions = tmp_path / "predictions.csv"
+    _predictions().to_csv(predictions, index=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    mine = out / "rounds.csv"
+    mine.write_text("my own notes\n")
+    args = ["clutter-removal", "--objects", objects, "--rounds", 1, "--per-scene", 1, "--workers", 1]
+    args += ["--policy", predictions, "--out", out]
+    result = annotator(*args, check=2)
+    assert "rounds.csv exists and clutter-removal did not write it" in result.output
+    assert mine.read_text() == "my own notes\n"
+    annotator(*args, "--overwrite")
+    written = pd.read_csv(mine)
+    assert list(written.columns) == ["round_id", "object_count", "successes", "attempts", "ended"]
+    annotator(*args)  # its own file: replaced without asking
+    assert pd.read_csv(mine).equals(written)
+    mine.write_text(mine.read_text() + "0,1,0,0,edited\n")  # edited since: not its own any more
+    assert "did not write it" in annotator(*args, check=2).output
