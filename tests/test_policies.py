@@ -227,3 +227,16 @@ def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(objects, t
     assert pd.read_csv(mine).equals(written)
     mine.write_text(mine.read_text() + "0,1,0,0,edited\n")  # edited since: not its own any more
     assert "did not write it" in annotator(*args, check=2).output
+
+
+def test_policy_names_resolve_to_their_callables():
+    from annotator.learn.policy import learned
+    from annotator.policies.resolve import is_vision_policy, load_callable
+    from annotator.policies.vision import vision_random
+
+    assert load_callable("vision-random") is vision_random and load_callable("learned") is learned
+    assert load_callable(f"{__name__}:nonsense") is nonsense
+    assert not is_vision_policy("labels") and not is_vision_policy("random")
+    assert not is_vision_policy("predictions.csv") and is_vision_policy("a.b:c")
+    with pytest.raises(PolicyError, match="no such policy"):
+        load_callable("no-such-policy")
