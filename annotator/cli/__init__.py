@@ -20,6 +20,7 @@ from annotator.cli.common import CONTEXT
 from annotator.cli.evaluate import evaluate_command
 from annotator.cli.export import export_command
 from annotator.cli.gripper import gripper_group
+from annotator.cli.learn import learn_group
 from annotator.cli.replay import replay_command
 from annotator.cli.report import report_command
 from annotator.cli.scene import scene_command
@@ -97,6 +98,7 @@ def main() -> None:
     annotator show scene_labels/ --scene 3 --png scene3.png
     annotator export scene_labels/ --format vgn --out vgn_raw/
     annotator clutter-removal --objects objects/ --rounds 20 --policy labels
+    annotator learn train scene_labels/ --out model.npz   (docs/learning.md)
     """
 
 
@@ -112,6 +114,7 @@ for _command in (
     clutter_removal_command,
     gripper_group,
     trials_group,
+    learn_group,
 ):
     main.add_command(_command)
 

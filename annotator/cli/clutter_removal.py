@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import os
 from pathlib import Path
@@ -9,6 +11,73 @@ from pathlib import Path
 import click
 
 from annotator.cli.common import CONFIG_OPTION, CONTEXT, SEED, VERBOSE_OPTION, load_config, setup_logging
+
+OUTPUTS = ("rounds.csv", "grasps.csv")
+MARKER = ".clutter-removal.json"  # what this tool wrote in --out: {file name: sha256}
+
+
+def _parse_args(pairs: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+    from annotator.tools.common import ToolError
+
+    out = []
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.isidentifier():
+            raise ToolError(f"--policy-arg {pair}: give KEY=VALUE (KEY a Python name)")
+        out.append((key, value))
+    keys = [k for k, _ in out]
+    if len(set(keys)) != len(keys):
+        raise ToolError(f"--policy-arg: {sorted({k for k in keys if keys.count(k) > 1})} given twice")
+    return tuple(out)
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def check_outputs(out_dir: Path, overwrite: bool) -> None:
+    """ToolError (one line) if ``out_dir`` holds a rounds.csv or grasps.csv this tool did not write
+    (the marker's digest differs, or there is no marker), unless ``overwrite``."""
+    from annotator.tools.common import ToolError
+
+    if overwrite:
+        return
+    try:
+        written = json.loads((out_dir / MARKER).read_text())
+    except (OSError, ValueError):
+        written = {}
+    for name in OUTPUTS:
+        path = out_dir / name
+        if path.exists() and (not isinstance(written, dict) or written.get(name) != _sha256(path)):
+            raise ToolError(
+                f"--out {out_dir}: {name} exists and clutter-removal did not write it; "
+                "give another folder or --overwrite"
+            )
+
+
+def write_outputs(out_dir: Path, tables: dict) -> None:
+    """Write the tables (name -> DataFrame) and the marker naming them."""
+    written = {}
+    for name, table in tables.items():
+        path = out_dir / name
+        table.to_csv(path, index=False)
+        written[name] = _sha256(path)
+    (out_dir / MARKER).write_text(json.dumps(written, indent=1) + "\n")
+
+
+def _workspace(config):
+    """The piles' workspace (table frame) on the configured cell."""
+    from annotator.cell.world import build_cell
+    from annotator.scenes.arrange import workspace_on
+    from annotator.sim.world import World
+
+    with World() as world:
+        cell = build_cell(world, config.cell, robot=False, kinect=False)
+        return workspace_on(cell, config.scenes)
 
 
 @click.command("clutter-removal", context_settings=CONTEXT)
@@ -29,13 +98,41 @@ from annotator.cli.common import CONFIG_OPTION, CONTEXT, SEED, VERBOSE_OPTION, l
     help="Objects dropped in each pile (VGN: 5); those that leave the workspace are not counted.",
 )
 @click.option(
+    "--arrangement",
+    type=click.Choice(["pile", "packed"]),
+    default="pile",
+    show_default=True,
+    help="VGN's two scenes: dropped in a pile, or packed upright (round r is scene r of annotate "
+    "--scenes --arrangement A).",
+)
+@click.option(
     "--policy",
     default="labels",
     show_default=True,
-    metavar="labels|random|FILE",
-    help="labels: the best-scored reachable label of the scene as it is (an oracle); random: a "
-    "random collision-free reachable antipodal grasp (a baseline); FILE: a learner's predictions, a "
-    "CSV or Parquet file with columns round, x, y, z, qx, qy, qz, qw (TCP in the table frame), width, score.",
+    metavar="labels|random|vision-random|learned|MODULE:FUNCTION|NAME|FILE",
+    help="labels: the best-scored reachable label of the scene as it is (an oracle on the true "
+    "meshes); random: a random collision-free reachable antipodal grasp on the true meshes; "
+    "vision-random: a random antipodal pair on the observed point cloud that the open gripper "
+    "clears; learned: the classifier of `annotator learn train` (--policy-arg model=PATH); "
+    "MODULE:FUNCTION or an entry point NAME of the group rg2_annotator.policies: your policy, called "
+    "with what the Kinect sees at every attempt (docs/learning.md); FILE: a learner's predictions, a "
+    "CSV or Parquet file with columns round, x, y, z, qx, qy, qz, qw (TCP in the table frame), "
+    "width, score.",
+)
+@click.option(
+    "--policy-arg",
+    "policy_args",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Passed to a vision policy as keyword argument KEY (a string); repeat for more.",
+)
+@click.option(
+    "--views",
+    type=click.IntRange(min=1, max=100),
+    default=1,
+    show_default=True,
+    help="Depth views a vision policy sees at every attempt (views 0..K-1 of the scene, as annotate "
+    "--views renders them).",
 )
 @click.option(
     "--seed", type=SEED, default=0, show_default=True, help="Round r is scene r of annotate --scenes."
@@ -60,10 +157,28 @@ from annotator.cli.common import CONFIG_OPTION, CONTEXT, SEED, VERBOSE_OPTION, l
     default=None,
     help="Write rounds.csv and grasps.csv (one row per attempt) here.",
 )
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Replace a rounds.csv or grasps.csv in --out that clutter-removal did not write.",
+)
 @CONFIG_OPTION
 @VERBOSE_OPTION
 def clutter_removal_command(
-    objects_dir, rounds, per_scene, policy, seed, trials, workers, out_dir, config_file, verbose
+    objects_dir,
+    rounds,
+    per_scene,
+    arrangement,
+    policy,
+    policy_args,
+    views,
+    seed,
+    trials,
+    workers,
+    out_dir,
+    overwrite,
+    config_file,
+    verbose,
 ):
     """Clear piles of objects with the UR3, grasp after grasp, as VGN's benchmark does.
 
@@ -76,38 +191,75 @@ def clutter_removal_command(
     \b
     Example:
       annotator clutter-removal --objects objects/ --rounds 20 --policy labels
-      annotator clutter-removal --objects objects/ --rounds 20 --policy random --out cr_random/
+      annotator clutter-removal --objects objects/ --rounds 20 --policy vision-random --out cr_vision/
+      annotator clutter-removal --objects objects/ --rounds 20 --policy learned --policy-arg model=model.npz
+      annotator clutter-removal --objects objects/ --rounds 20 --policy my_package.policy:grasps
     """
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.objects import ObjectDiscoveryError, ObjectError, default_cache_dir, discover_objects
-    from annotator.scenes.clutter import ClutterJob, clutter_removal, read_predictions
+    from annotator.policies import PolicyError
+    from annotator.policies.loop import check_signature
+    from annotator.policies.predictions import check_predictions, read_predictions
+    from annotator.policies.resolve import ORACLES, is_vision_policy, load_callable
+    from annotator.scenes.clutter import ClutterJob, clutter_removal
     from annotator.tools.common import ToolError, check_output_dir
 
     config = load_config(config_file)
     if out_dir is not None:
         out_dir = check_output_dir(out_dir, "--out")
-    name = policy if policy in ("labels", "random") else f"from {policy}"
-    if policy not in ("labels", "random"):
-        path = Path(policy)
-        if not path.is_file():
-            raise ToolError(f"--policy {policy}: not labels, random or a predictions file")
-        try:
+        check_outputs(out_dir, overwrite)
+    args = _parse_args(policy_args)
+    name = policy
+    vision = policy not in ORACLES and is_vision_policy(policy)
+    if args and not vision:
+        raise ToolError("--policy-arg: only a vision policy takes arguments")
+    try:
+        if vision:
+            check_signature(load_callable(policy), dict(args))
+        elif policy not in ORACLES:
+            path = Path(policy)
+            if not path.is_file():
+                raise ToolError(
+                    f"--policy {policy}: not labels, random, vision-random, a policy (module:function "
+                    "or an entry point) or a predictions file"
+                )
+            name = f"from {policy}"
             policy = read_predictions(path)
-        except ValueError as exc:
-            raise ToolError(str(exc)) from None
+            from annotator.grippers import load_gripper
+
+            stroke = load_gripper(None).stroke_max  # the arm's gripper (clutter-removal takes no --gripper)
+            missing = check_predictions(policy, rounds, _workspace(config), stroke, name=str(path))
+            if missing:
+                logging.getLogger("annotator").warning(
+                    "%s: no row for round(s) %s: they end at once", path, missing[:10]
+                )
+    except (PolicyError, ValueError) as exc:
+        raise ToolError(str(exc)) from None
     try:
         sources = tuple(discover_objects(objects_dir, config.objects))
     except ObjectDiscoveryError as exc:
         raise ToolError(str(exc)) from None
-    job = ClutterJob(sources, per_scene, seed, policy, config, trials, cache_dir=str(default_cache_dir()))
+    job = ClutterJob(
+        sources,
+        per_scene,
+        seed,
+        policy,
+        config,
+        trials,
+        cache_dir=str(default_cache_dir()),
+        policy_args=args,
+        views=views,
+        arrangement=arrangement,
+    )
     try:
         summary = clutter_removal(job, rounds, workers or os.cpu_count() or 1)
     except ObjectError as exc:
         raise ToolError(f"an object of the piles cannot be loaded: {exc}") from None
+    except PolicyError as exc:
+        raise ToolError(f"--policy {name}: {exc}") from None
     for line in summary.lines(name):
         click.echo(line)
     if out_dir is not None:
         rounds_table, grasps = summary.tables()
-        rounds_table.to_csv(out_dir / "rounds.csv", index=False)
-        grasps.to_csv(out_dir / "grasps.csv", index=False)
+        write_outputs(out_dir, {"rounds.csv": rounds_table, "grasps.csv": grasps})
         click.echo(f"wrote {out_dir / 'rounds.csv'} and {out_dir / 'grasps.csv'}")

@@ -1,8 +1,8 @@
 """Clutter removal on the UR3 (VGN's benchmark, ``experiments/clutter_removal.py``, on the seed's arm).
 
-A round is a pile scene (:class:`annotator.scenes.SceneSpec` ``(round, seed, "pile", k, k)``: round
-``r`` is scene ``r`` of ``annotate --scenes`` with the same seed and count, so a learner can be
-given that scene's views), settled in a world with the UR3 and the run's gripper (its whole
+A round is a pile scene (:class:`annotator.scenes.SceneSpec` ``(round, seed, "pile", k, k)``, or
+``packed``: round ``r`` is scene ``r`` of ``annotate --scenes`` with the same seed and count, so a
+learner can be given that scene's views), settled in a world with the UR3 and the run's gripper (its whole
 linkage). Then, while objects remain and fewer than ``[scenes] clutter_max_failures`` (VGN: 2)
 attempts in a row failed: the policy proposes a grasp; the arm executes it as ``annotator replay``
 does (:func:`annotator.tools.replay.replay`: the IK path along the approach from the pregrasp,
@@ -13,19 +13,11 @@ settles and objects that left the workspace are removed (VGN's ``remove_and_wait
 ends when the policy proposes nothing. Every attempt starts from a snapshot of the scene as it is
 (no contact memory), so a round depends on (seed, round, policy) only.
 
-Policies (each proposes for the scene as it is now):
-
-- ``labels`` (an oracle: the best a learner of the labels can do): the scene is labelled on the fly
-  among its neighbours (:mod:`annotator.scenes.labels`, the floating gripper, candidates drawn anew
-  per attempt) and the best-scored success the arm can reach is executed (ties: the lowest grasp
-  id). Candidates are labelled in grasp-id order and the search stops at the first reachable
-  success whose score is the highest possible, which picks the same grasp as labelling all of them;
-  120 more are drawn (up to 5 x 120) while none is found.
-- ``random`` (a baseline): the same candidates, antipodal ones only, in a random order; the first
-  that the kinematic check lets through (no gripper collision with anything, along the approach or
-  closed) and the arm can reach is executed. No physics decides it.
-- a file: a learner's predictions (:func:`read_predictions`), the best-scored of the round's rows
-  not tried yet that the arm can reach.
+Policies (each proposes for the scene as it is now; :mod:`annotator.policies`): ``labels`` and
+``random`` see the true scene (:mod:`annotator.policies.oracle`); a vision policy, ``vision-random``
+or a learner's callable, sees only the Kinect's depth views of the pile as it is
+(:mod:`annotator.policies.loop`); a predictions file is read once
+(:mod:`annotator.policies.predictions`).
 
 Metrics (VGN's): grasp success rate = successes / attempts; percent cleared = successes / objects
 in the settled scenes; each with a 95 % Wilson score interval.
@@ -36,11 +28,10 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from annotator.cell.reach import READY, Reach, check_reach
@@ -48,9 +39,10 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.objects import ObjectModel, get_object_pose, physics_for
-from annotator.rng import keyed_rng
+from annotator.policies.oracle import RoundPolicy
+from annotator.policies.predictions import PREDICTION_COLUMNS, read_predictions  # noqa: F401 (re-exported)
+from annotator.policies.records import Proposal
 from annotator.scenes.arrange import SceneBuilder
-from annotator.scenes.labels import SceneCandidates, SceneTrials, label_scene
 from annotator.scenes.records import KEPT, Instance, SceneRecord, SceneSpec
 from annotator.scenes.world import LoadedScene, load_scene
 from annotator.sim import pb
@@ -58,15 +50,7 @@ from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
 
-POLICIES = ("labels", "random")
-# Candidates drawn per look of the ``labels`` and ``random`` policies at the scene as it is (VGN's
-# 120 per scene), labelled in batches of 20 before the search may stop, and drawn anew up to
-# POLICY_DRAWS times while none is found: on a pile the cell's sampler gives some objects (a mug, a
-# bowl upside down) few grasps that miss the object itself, and 120 left graspable objects behind.
-POLICY_CANDIDATES = 120
-POLICY_BATCH = 20
-POLICY_DRAWS = 5
-PREDICTION_COLUMNS = ("round", "x", "y", "z", "qx", "qy", "qz", "qw", "width", "score")
+POLICIES = ("labels", "random", "vision-random")
 Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
 
 
@@ -79,19 +63,6 @@ def wilson(successes: int, trials: int, z: float = Z95) -> tuple[float, float]:
     centre = (p + z * z / (2 * trials)) / d
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / d
     return max(0.0, centre - half), min(1.0, centre + half)
-
-
-@dataclass(frozen=True)
-class Proposal:
-    """A grasp to execute: the target ``instance_id`` (-1: not known, a file's), the TCP pose
-    ``T_table_tcp`` (table frame) with the pads ``width`` apart, the policy's ``score``, and the
-    arm's path (:class:`annotator.cell.reach.Reach`)."""
-
-    instance_id: int
-    T_table_tcp: Transform
-    width: float
-    score: float
-    reach: Reach
 
 
 @dataclass(frozen=True)
@@ -191,27 +162,6 @@ class ClutterSummary:
                     }
                 )
         return rounds, pd.DataFrame(grasps)
-
-
-def read_predictions(path: Path) -> pd.DataFrame:
-    """A learner's predictions: a CSV or Parquet file with PREDICTION_COLUMNS: ``round`` (int, the
-    round = scene id), the TCP pose in the table frame ``x y z`` (m) ``qx qy qz qw`` (xyzw), the
-    opening ``width`` (m) the gripper closes from, and ``score`` (higher first). ValueError naming
-    what is wrong."""
-    path = Path(path)
-    try:
-        df = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot read predictions ({exc})") from None
-    missing = [c for c in PREDICTION_COLUMNS if c not in df.columns]
-    if missing:
-        raise ValueError(f"{path}: missing column(s) {missing}; predictions need {list(PREDICTION_COLUMNS)}")
-    values = df[list(PREDICTION_COLUMNS)].to_numpy(dtype=np.float64)
-    if not np.isfinite(values).all():
-        raise ValueError(f"{path}: every prediction needs finite {list(PREDICTION_COLUMNS)}")
-    if (np.abs(np.linalg.norm(values[:, 4:8], axis=1) - 1.0) > 1e-6).any():
-        raise ValueError(f"{path}: quaternions qx..qw must be unit (xyzw)")
-    return df.reset_index(drop=True)
 
 
 # --- one round ------------------------------------------------------------------------------------------
@@ -393,142 +343,6 @@ class Round:
         return True
 
 
-# --- policies -------------------------------------------------------------------------------------------
-
-
-Policy = Callable[[Round, int, set[int]], Proposal | None]
-
-
-def _trials(round_: Round, now: SceneRecord) -> SceneTrials:
-    return SceneTrials(now, round_.models, round_.config, round_.gripper)
-
-
-def labels_policy(seed: int, trials_per_grasp: int = 1) -> Policy:
-    """The ``labels`` policy (module docstring)."""
-
-    def propose(round_: Round, attempt: int, tried: set[int]) -> Proposal | None:
-        now = round_.now()
-        trials = _trials(round_, now)
-        best: Proposal | None = None
-        try:
-            for draw in range(POLICY_DRAWS):
-                cands = trials.candidates(POLICY_CANDIDATES, seed, attempt=attempt, draw=draw)
-                best = _best_reachable(round_, now, trials, cands, (seed, trials_per_grasp), best)
-                if best is not None:
-                    break
-        finally:
-            trials.close()
-        return best
-
-    return propose
-
-
-def _best_reachable(
-    round_: Round,
-    now: SceneRecord,
-    trials: SceneTrials,
-    cands: SceneCandidates,
-    labelling: tuple[int, int],
-    best: Proposal | None,
-) -> Proposal | None:
-    """The best-scored reachable success of ``cands`` (or ``best`` if none beats it), labelled in
-    batches (``labelling``: seed, trials per grasp) until one has the highest possible score."""
-    seed, k = labelling
-    for start in range(0, len(cands), POLICY_BATCH):
-        rows = label_scene(trials, cands, start, min(len(cands), start + POLICY_BATCH), seed, k)
-        held = rows[rows["success"]].sort_values(["score", "grasp_id"], ascending=[False, True])
-        for row in held.itertuples():
-            if best is not None and row.score <= best.score:
-                break
-            proposal = _reachable(round_, now, row)
-            if proposal is not None:
-                best = proposal
-                break
-        if best is not None and best.score >= 1.0:
-            return best
-    return best
-
-
-def _reachable(round_: Round, now: SceneRecord, row) -> Proposal | None:
-    """The label ``row`` (its commanded grasp) as a proposal, if the arm reaches it."""
-    inst = now.instance(int(row.instance_id))
-    T_obj_tcp = Transform.exact(
-        [row.cmd_x, row.cmd_y, row.cmd_z], [row.cmd_qx, row.cmd_qy, row.cmd_qz, row.cmd_qw]
-    )
-    assert inst.T_table_obj is not None
-    T_table_tcp = inst.T_table_obj * T_obj_tcp
-    reach = round_.reach(T_table_tcp, float(row.cmd_width), inst.instance_id)
-    if not reach.reachable:
-        return None
-    return Proposal(inst.instance_id, T_table_tcp, float(row.cmd_width), float(row.score), reach)
-
-
-def random_policy(seed: int) -> Policy:
-    """The random antipodal baseline (module docstring)."""
-
-    def propose(round_: Round, attempt: int, tried: set[int]) -> Proposal | None:
-        now = round_.now()
-        trials = _trials(round_, now)
-        try:
-            for draw in range(POLICY_DRAWS):
-                cands = trials.candidates(POLICY_CANDIDATES, seed, attempt=attempt, draw=draw)
-                order = keyed_rng("clutter-random", int(seed), now.scene_id, attempt, draw).permutation(
-                    len(cands)
-                )
-                proposal = _first_free(round_, now, trials, cands, order)
-                if proposal is not None:
-                    return proposal
-        finally:
-            trials.close()
-        return None
-
-    return propose
-
-
-def _first_free(
-    round_: Round, now: SceneRecord, trials: SceneTrials, cands: SceneCandidates, order: np.ndarray
-) -> Proposal | None:
-    """The first antipodal candidate in ``order`` that the kinematic check lets through (the scene as
-    it is) and the arm reaches."""
-    for k in order:
-        if not cands.antipodal[k]:
-            continue
-        instance_id = int(cands.instance_id[k])
-        T_obj_tcp = Transform.from_matrix(cands.T_obj_tcp[k])
-        width = float(cands.width_expected[k])
-        trials.reset()
-        if trials.trials[instance_id].collides(T_obj_tcp, width).collided:
-            continue
-        inst = now.instance(instance_id)
-        assert inst.T_table_obj is not None
-        T_table_tcp = inst.T_table_obj * T_obj_tcp
-        reach = round_.reach(T_table_tcp, width, instance_id)
-        if reach.reachable:
-            return Proposal(instance_id, T_table_tcp, width, 0.0, reach)
-    return None
-
-
-def file_policy(predictions: pd.DataFrame) -> Policy:
-    """The best-scored untried prediction of the round that the arm can reach (module docstring)."""
-
-    def propose(round_: Round, attempt: int, tried: set[int]) -> Proposal | None:
-        rows = predictions[predictions["round"] == round_.record.scene_id]
-        order = np.lexsort((rows.index.to_numpy(), -rows["score"].to_numpy(dtype=np.float64)))
-        for k in order:
-            index = int(rows.index[k])
-            if index in tried:
-                continue
-            tried.add(index)
-            row = rows.loc[index]
-            T = Transform(row[["x", "y", "z"]].to_numpy(float), row[["qx", "qy", "qz", "qw"]].to_numpy(float))
-            reach = round_.reach(T, float(row["width"]), -1)
-            if reach.reachable:
-                return Proposal(-1, T, float(row["width"]), float(row["score"]), reach)
-        return None
-
-    return propose
-
-
 # --- the benchmark -----------------------------------------------------------------------------------------
 
 
@@ -536,16 +350,17 @@ def play_round(
     round_id: int,
     models: Mapping[str, ObjectModel],
     config: AnnotatorConfig,
-    policy: Policy,
+    policy: RoundPolicy,
     *,
     seed: int,
     objects: int,
     gripper: GripperDescription | str | None = None,
+    arrangement: str = "pile",
 ) -> RoundResult:
-    """One round (module docstring) on a pile of ``objects`` drawn from ``models``."""
+    """One round (module docstring) on a pile (or ``arrangement``) of ``objects`` drawn from ``models``."""
     description = load_gripper(gripper)
     builder = SceneBuilder(models, scenes=config.scenes, physics=config.physics, cell=config.cell)
-    record = builder.build(SceneSpec(round_id, seed, "pile", objects, objects))
+    record = builder.build(SceneSpec(round_id, seed, arrangement, objects, objects))
     result = RoundResult(round_id, len(record.kept))
     round_ = Round(record, models, config, description)
     tried: set[int] = set()
@@ -591,7 +406,9 @@ def _pool(sources: tuple, config: AnnotatorConfig, cache_dir: str | None) -> dic
 @dataclass(frozen=True)
 class ClutterJob:
     """What every round shares: the pool (sorted sources), objects per pile, seed, the policy
-    (``labels``, ``random``, or a predictions table), trials per label, the gripper."""
+    (a name of :mod:`annotator.policies.resolve` or a predictions table), trials per label, the
+    gripper; for a vision policy its ``policy_args`` (KEY, VALUE) pairs and the depth ``views`` it
+    sees; the ``arrangement`` of the scenes (``pile`` or ``packed``)."""
 
     sources: tuple
     objects: int
@@ -601,13 +418,19 @@ class ClutterJob:
     trials: int = 1
     gripper: GripperDescription | None = None
     cache_dir: str | None = None
+    policy_args: tuple[tuple[str, str], ...] = ()
+    views: int = 1
+    arrangement: str = "pile"
 
-    def make_policy(self) -> Policy:
+    def make_policy(self) -> RoundPolicy:
+        from annotator.policies.predictions import file_policy
+        from annotator.policies.resolve import round_policy
+
         if isinstance(self.policy, pd.DataFrame):
             return file_policy(self.policy)
-        if self.policy == "labels":
-            return labels_policy(self.seed, self.trials)
-        return random_policy(self.seed)
+        return round_policy(
+            self.policy, seed=self.seed, trials=self.trials, args=dict(self.policy_args), views=self.views
+        )
 
 
 def run_round(job: ClutterJob, round_id: int) -> RoundResult:
@@ -621,6 +444,7 @@ def run_round(job: ClutterJob, round_id: int) -> RoundResult:
         seed=job.seed,
         objects=job.objects,
         gripper=job.gripper,
+        arrangement=job.arrangement,
     )
 
 

@@ -1,0 +1,1 @@
+"""A small learner of the labels (docs/learning.md)."""

@@ -1,0 +1,133 @@
+"""Loading: an ``annotate --scenes ... --views K`` run as the learner reads it.
+
+Through :mod:`annotator.dataset` (:func:`~annotator.dataset.load_scenes`, the scene records;
+:func:`~annotator.dataset.scene_labels`, each scene's labels) plus the scene's views (the
+``cameras.parquet`` artifact its labels came with, :func:`scene_views`). Each scene becomes the
+:class:`~annotator.policies.records.Observation` a policy would get of it, and each labelled grasp
+its commanded TCP in the table frame (the pose the arm would be sent to: the label's object frame
+pose ``cmd_*`` through the instance's settled pose), its chord ``cmd_width`` and its outcome.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from annotator.dataset import load_scenes, scene_labels
+from annotator.geometry import quat_to_matrix
+from annotator.learn.features import grasp_features
+from annotator.policies.records import CameraImage, Observation, _frozen
+from annotator.policies.vision import observed_surface
+from annotator.scenes.records import SceneRecord, scenes_from_table
+from annotator.scenes.tsdf import fuse
+
+log = logging.getLogger(__name__)
+
+TSDF_RESOLUTION = 40  # VGN's grid, as the policies get it (annotator.policies.observe)
+
+
+@dataclass(frozen=True)
+class TrainingSet:
+    """Features ``X`` (n, F), outcomes ``y`` (n,) bool (held), and per row its ``scene_id`` and
+    ``object_id`` (to split by scene or object)."""
+
+    X: np.ndarray
+    y: np.ndarray
+    scene_id: np.ndarray
+    object_id: np.ndarray
+
+
+def scene_views(labels_dir: str | Path, scene_id: int) -> list:
+    """The views of scene ``scene_id`` (:class:`annotator.scenes.views.SceneView`), [] if the run
+    rendered none (``annotate`` without ``--views``)."""
+    from annotator.scenes.views import read_views
+    from annotator.store.names import scene_unit
+
+    labels_dir = Path(labels_dir)
+    manifest = json.loads((labels_dir / "_manifest.json").read_text())
+    unit = scene_unit(scene_id)
+    records = []
+    if unit in (manifest.get("objects_done") or {}):
+        records.append(manifest["objects_done"][unit])
+    records += list(((manifest.get("chunks_done") or {}).get(unit) or {}).get("files", {}).values())
+    for record in records:
+        artifact = (record.get("artifacts") or {}).get("cameras.parquet")
+        if artifact is not None:
+            return read_views((labels_dir / artifact["file"]).parent)
+    return []
+
+
+def scene_observation(
+    record: SceneRecord, views: list, max_width: float, gripper: str = "rg2"
+) -> Observation:
+    """What a policy would get of the scene from ``views`` (as :func:`annotator.policies.observe.
+    observe` builds it: the cloud cropped to the workspace, VGN's grid)."""
+    workspace = record.workspace
+    images = tuple(CameraImage(_frozen(v.depth, np.float32), v.depth_K, v.T_table_camera) for v in views)
+    points = np.concatenate([v.points_in_table() for v in views]) if views else np.zeros((0, 3))
+    cloud = points[workspace.contains(points)] if len(points) else points
+    tsdf = fuse(views, workspace.size, TSDF_RESOLUTION, workspace.T_table_task)
+    return Observation(
+        round_id=int(record.scene_id),
+        attempt=0,
+        seed=int(record.seed),
+        images=images,
+        cloud=_frozen(cloud, np.float64),
+        tsdf=_frozen(tsdf.vgn_grid(), np.float32),
+        T_table_volume=workspace.T_table_task,
+        voxel_size=tsdf.voxel_size,
+        workspace=workspace,
+        max_width=float(max_width),
+        gripper=gripper,
+    )
+
+
+def commanded_grasps(record: SceneRecord, labels: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(T_table_tcp (n, 4, 4), chord (n,) m) of the labels' commanded grasps, in row order."""
+    T_obj_tcp = np.tile(np.eye(4), (len(labels), 1, 1))
+    if len(labels):
+        quats = labels[["cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"]].to_numpy(float)
+        T_obj_tcp[:, :3, :3] = quat_to_matrix(quats)
+        T_obj_tcp[:, :3, 3] = labels[["cmd_x", "cmd_y", "cmd_z"]].to_numpy(float)
+    T_table_obj = np.array(
+        [record.instance(int(i)).T_table_obj.as_matrix() for i in labels["instance_id"].to_numpy()]
+    ).reshape(-1, 4, 4)
+    return T_table_obj @ T_obj_tcp, labels["cmd_width"].to_numpy(dtype=np.float64)
+
+
+def load_training_set(labels_dirs: list[str | Path] | str | Path) -> TrainingSet:
+    """Every labelled grasp of every scene of the runs in ``labels_dirs`` with its features
+    (:func:`annotator.learn.features.grasp_features`). ValueError if a run has no views."""
+    from annotator.policies.gripper_boxes import gripper_boxes
+
+    if isinstance(labels_dirs, (str, Path)):
+        labels_dirs = [labels_dirs]
+    max_width = gripper_boxes().max_width
+    X, y, scene_ids, object_ids = [], [], [], []
+    for n_run, labels_dir in enumerate(labels_dirs):
+        records = scenes_from_table(load_scenes(labels_dir))
+        for record in records:
+            try:
+                labels = scene_labels(labels_dir, record.scene_id)
+            except KeyError:
+                continue
+            views = scene_views(labels_dir, record.scene_id)
+            if not views:
+                raise ValueError(f"{labels_dir}: scene {record.scene_id} has no views (annotate --views K)")
+            surface = observed_surface(scene_observation(record, views, max_width))
+            T, width = commanded_grasps(record, labels)
+            X.append(grasp_features(surface, T, width))
+            y.append(labels["success"].to_numpy(dtype=bool))
+            scene_ids.append(np.full(len(labels), 1_000_000 * n_run + record.scene_id, dtype=np.int64))
+            object_ids.append(labels["object_id"].to_numpy(dtype=object))
+        log.info("%s: %d scenes read", labels_dir, len(records))
+    if not X:
+        raise ValueError(f"no labelled scene in {', '.join(map(str, labels_dirs))}")
+    return TrainingSet(
+        np.concatenate(X), np.concatenate(y), np.concatenate(scene_ids), np.concatenate(object_ids)
+    )
