@@ -35,6 +35,7 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
 from annotator.grippers import DEFAULT_GRIPPER, GripperDescription, GripperFiles, resolve_gripper
+from annotator.label_row import TrialsResult, label_row
 from annotator.objects import (
     ObjectError,
     ObjectModel,
@@ -325,10 +326,6 @@ def _peak_rss_mb() -> float:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
     except (ImportError, OSError):  # pragma: no cover - Windows
         return 0.0
-
-
-def _canonical(q: np.ndarray) -> np.ndarray:
-    return -q if q[3] < 0 else q
 
 
 def object_info(model: ObjectModel) -> dict[str, Any]:
@@ -716,6 +713,7 @@ def simulate(
     sampled_quats = (
         matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
     )
+    mode = "cell" if loaded.cell is not None else ("resting" if loaded.resting is not None else "object")
     for k in range(len(widths)):
         grasp_id = first_id + k
         if sampled_quats is not None:
@@ -727,11 +725,27 @@ def simulate(
         trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
         run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
         result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
-        rows.append(_row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials))
         if loaded.cell is not None:  # placement, object pose on the table, reachability
-            rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))
+            extra = loaded.cell.columns(placement, T, width_expected, grasp_id)
         elif loaded.resting is not None:  # the object's settled pose on the table
-            rows[-1].update(loaded.resting.columns(rest))
+            extra = loaded.resting.columns(rest)
+        else:
+            extra = None
+        rows.append(
+            label_row(
+                mode,
+                object_id=object_id,
+                grasp_id=grasp_id,
+                result=result,
+                trials=trials,
+                T_cmd=T,
+                cmd_width=width_expected,
+                model=model,
+                seed=seed,
+                gripper=gripper,
+                extra=extra,
+            )
+        )
     return pd.DataFrame(rows)
 
 
@@ -753,18 +767,6 @@ def _trial_for(
     return loaded.cell.trials[placement], placement  # else the placement it was sampled for
 
 
-@dataclass(frozen=True)
-class _Trials:
-    """What a candidate's trials gave: trial 0's outcome, pose, width and slip; all steps; how many held."""
-
-    outcome: Outcome
-    T_label: Transform
-    width: float
-    steps: int
-    slip: float
-    held: int
-
-
 def _run_trials(
     trial: GraspTrial,
     T: Transform,
@@ -774,7 +776,7 @@ def _run_trials(
     trials: int,
     object_id: str,
     grasp_id: int,
-) -> _Trials:
+) -> TrialsResult:
     """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
     an ``error`` row, never the loss of the other candidates."""
     try:
@@ -787,50 +789,10 @@ def _run_trials(
                 p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
                 held += int(p.outcome == Outcome.SUCCESS)
                 steps += p.steps
-        return _Trials(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held)
+        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held)
     except Exception as exc:  # a physics failure on one candidate must not lose the others
         log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
-        return _Trials(Outcome.ERROR, T, width_expected, 0, np.nan, 0)
-
-
-def _row(
-    r: _Trials,
-    T: Transform,
-    width_expected: float,
-    model: ObjectModel,
-    seed: int,
-    object_id: str,
-    grasp_id: int,
-    gripper: str,
-    trials: int,
-) -> dict[str, Any]:
-    """One label row (the columns of docs/labels.md, in their order)."""
-    return {
-        "object_id": object_id,
-        "grasp_id": grasp_id,
-        **dict(zip(("x", "y", "z"), r.T_label.pos.tolist(), strict=True)),
-        **dict(zip(("qx", "qy", "qz", "qw"), _canonical(r.T_label.quat).tolist(), strict=True)),
-        "width": r.width,
-        "success": r.outcome == Outcome.SUCCESS,
-        "outcome": r.outcome.label,
-        "score": r.held / trials,
-        "object_scale": model.scale,
-        "mesh_sha256": model.mesh_sha256,
-        "seed": seed,
-        "sim_steps": r.steps,
-        "slip": r.slip,
-        "object_mass": model.mass,
-        # the commanded grasp: the TCP pose the gripper was placed at before closing (quaternion
-        # as simulated, not sign-canonicalised) and the expected chord the close started
-        # from; ``evaluate`` replays a label exactly from these
-        **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
-        **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
-        "cmd_width": width_expected,
-        # distance between the simulated collision shape and the mesh surface (m)
-        "collision_error": model.collision_error.max,
-        "collision_error_mean": model.collision_error.mean,
-        "gripper": gripper,  # the gripper description's name (docs/grippers.md)
-    }
+        return TrialsResult(Outcome.ERROR, T, width_expected, 0, np.nan, 0)
 
 
 class _State:
