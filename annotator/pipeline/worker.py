@@ -29,30 +29,60 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
-from annotator.geometry import Transform, matrix_to_quat
-from annotator.grippers import DEFAULT_GRIPPER, GripperDescription, GripperFiles, resolve_gripper
-from annotator.label_row import TrialsResult, label_row
+from annotator.geometry import Transform
+from annotator.grippers import GripperDescription, GripperFiles, resolve_gripper
 from annotator.objects import (
     ObjectError,
     ObjectModel,
-    ObjectSource,
     create_body,
     load_object,
     physics_for,
 )
 from annotator.pipeline import status
-from annotator.rng import object_rng, trial_rng
-from annotator.sampler import Candidates, sample_candidates
+from annotator.pipeline.simulate import UPRIGHT, object_candidates, simulate
+from annotator.pipeline.tasks import (
+    CellOptions,
+    GivenGrasps,
+    Prepare,
+    PreparedObject,
+    Span,
+    SpanGrasps,
+    SpanResult,
+    SpanTask,
+    WorkerStats,
+)
+from annotator.sampler import Candidates
 from annotator.store.manifest import bound_versions
-from annotator.trial import GraspTrial, Perturbation
+from annotator.trial import GraspTrial
 
 if TYPE_CHECKING:
     from annotator.cell.batch import CellObject, CellWorlds
     from annotator.cell.resting import RestingObject, RestingWorld
+
+# The tasks and results a worker takes and returns (annotator.pipeline.tasks) and its trials
+# (annotator.pipeline.simulate) are named here too, where callers have always found them.
+__all__ = [
+    "UPRIGHT",
+    "CellOptions",
+    "GivenGrasps",
+    "LoadedObject",
+    "Prepare",
+    "PreparedObject",
+    "Span",
+    "SpanGrasps",
+    "SpanResult",
+    "SpanTask",
+    "WorkerState",
+    "WorkerStats",
+    "label_span",
+    "max_width",
+    "object_candidates",
+    "object_info",
+    "simulate",
+    "worker_state",
+]
 
 log = logging.getLogger(__name__)
 
@@ -71,211 +101,6 @@ RECENT_OBJECT_BYTES = 128 * 2**20
 BYTES_PER_FACE = 200
 # Where the floating gripper waits while no trial runs: 2 m above the object's mesh frame.
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
-
-
-@dataclass(frozen=True)
-class GivenGrasps:
-    """Poses to simulate instead of sampled candidates (``evaluate``, benches, tests).
-
-    T_obj_tcp : (k, 4, 4) float, TCP poses in the object's mesh frame; width : (k,) float, the
-    expected chord between the contacts (m). quat : (k, 4) float xyzw or None: the rotations bit
-    for bit (a label's ``cmd_q*`` replayed exactly); without it they come from ``T_obj_tcp``.
-    rest_quat : (k, 4) float xyzw or None: with ``--resting``, the orientation each grasp's object
-    rests in on the table (its mesh frame in the table frame); None: the mesh frame's own, +z up.
-    """
-
-    T_obj_tcp: np.ndarray
-    width: np.ndarray
-    quat: np.ndarray | None = None
-    rest_quat: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class SpanGrasps:
-    """The grasps a worker simulates for one span: as :class:`GivenGrasps`, plus ``placements``
-    (k,) int, the cell placement each sampled candidate rests in (None: not in the cell)."""
-
-    T_obj_tcp: np.ndarray
-    width: np.ndarray
-    quat: np.ndarray | None = None
-    placements: np.ndarray | None = None
-    rest_quat: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Span:
-    """A unit of work: candidates ``start..stop-1`` of one object (or ``given`` poses, numbered so)."""
-
-    object_id: str
-    source: ObjectSource
-    scale: float | None
-    start: int
-    stop: int
-    given: GivenGrasps | None = None
-
-    @property
-    def size(self) -> int:
-        return self.stop - self.start
-
-    @property
-    def key(self) -> tuple[str, int]:
-        return (self.object_id, self.start)
-
-    def describe(self) -> str:
-        """What a worker does with it, for a reason: ``simulating candidates 0-9``."""
-        return f"simulating candidates {self.start}-{self.stop - 1}"
-
-
-@dataclass(frozen=True)
-class Prepare:
-    """A decomposition task: load one object in a worker, ahead of its spans, so that its collision
-    shape is made (and written to the cache) once, by one worker, while other workers label.
-
-    A worker that runs it keeps the model for its own spans of the object; every other worker
-    reads the shape from the cache. It simulates nothing (``size`` 0); its result carries a
-    :class:`PreparedObject`, or the object's one-line error (an unusable mesh).
-    """
-
-    object_id: str
-    source: ObjectSource
-    scale: float | None
-
-    size = 0
-
-    @property
-    def key(self) -> tuple[str, int]:
-        return (self.object_id, -1)  # before the object's spans
-
-    def describe(self) -> str:
-        return "loading (decomposing) the object"
-
-
-@dataclass(frozen=True)
-class CellOptions:
-    """``annotate --cell``: objects rest on the seed's table; ``views`` Kinect views per placement."""
-
-    views: int = 0
-
-    def to_json(self) -> dict[str, Any]:
-        """What the manifest binds (RunSpec.inputs['cell'])."""
-        return {"views": int(self.views)}
-
-
-@dataclass(frozen=True)
-class SpanTask:
-    """What a worker is asked to do (``span``: a :class:`Span` to label, or a :class:`Prepare`), with
-    what it needs to check that it may.
-
-    ``source_sha256``: the object's source digest (a worker keeps a loaded object only while it is
-    the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
-    others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
-    exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
-    doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
-    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper);
-    ``gripper``: the gripper simulated (None: the default, the RG2), or its files
-    (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache);
-    ``resting``: the object rests on the cell's table while the given grasps close (``evaluate
-    --resting``, :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it
-    settles; ``"table"``, they stay where they were given in the table frame.
-    """
-
-    span: Span | Prepare
-    config: AnnotatorConfig
-    seed: int
-    n: int
-    trials: int = 1
-    source_sha256: str | None = None
-    versions: dict[str, str] | None = None
-    parent_pid: int | None = None
-    status_dir: str | None = None
-    cache_dir: str | None = None
-    cell: CellOptions | None = None
-    gripper: GripperDescription | GripperFiles | None = None
-    resting: bool | str = False
-
-
-@dataclass(frozen=True)
-class WorkerStats:
-    """Worker time of one span (s), of which inside stepSimulation, peak memory (MB), the worker."""
-
-    seconds: float
-    step_seconds: float
-    peak_rss_mb: float
-    pid: int
-    host: str
-
-
-@dataclass(frozen=True)
-class PreparedObject:
-    """What a decomposition task (:class:`Prepare`) reports about its object.
-
-    ``method``: the collision method (hull, shells, coacd, vhacd); ``parts``: convex parts;
-    ``made``: the collision shape was made by this task (False: read from the cache, or held by the
-    worker already); ``decomposition_cpu_s``: CPU seconds of the decomposition ladder when it ran
-    (0 otherwise); ``cpu_s``: CPU seconds of the whole load in the worker (its process and the
-    decomposition processes it waited for); ``error_mean`` / ``error_max``: collision error (m);
-    ``warnings``: the object's warnings, one line each, without its id.
-    """
-
-    method: str
-    parts: int
-    made: bool
-    decomposition_cpu_s: float
-    cpu_s: float
-    error_mean: float
-    error_max: float
-    ladder: str = ""
-    warnings: tuple[str, ...] = ()
-
-    @classmethod
-    def of(cls, model: ObjectModel, made: bool, cpu_s: float) -> PreparedObject:
-        err = model.collision_error
-        return cls(
-            model.collision_method,
-            len(model.parts),
-            made,
-            float(model.decomposition_seconds) if made else 0.0,
-            cpu_s,
-            float(err.mean),
-            float(err.max),
-            model.collision_ladder,
-            tuple(model.warnings),
-        )
-
-    @property
-    def decomposed(self) -> bool:
-        """Its shape was made by the decomposition ladder in this task (not a hull or the shells
-        of a convex object, not read from the cache)."""
-        return self.made and bool(self.ladder)
-
-    def line(self) -> str:
-        """One line, e.g. ``decomposed by coacd into 34 parts in 14.2 CPU-s (collision error 0.15 /
-        1.82 mm)``."""
-        plural = "s" if self.parts != 1 else ""
-        if self.decomposed:
-            how = (
-                f"decomposed by {self.method} into {self.parts} part{plural} in "
-                f"{self.decomposition_cpu_s:.1f} CPU-s"
-            )
-        else:
-            how = f"{self.method}, {self.parts} part{plural}" + ("" if self.made else ", from the cache")
-        return f"{how} (collision error {self.error_mean * 1e3:.2f} / {self.error_max * 1e3:.2f} mm)"
-
-
-@dataclass(frozen=True)
-class SpanResult:
-    """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
-    as simulated (mass, scale, ...) for the manifest; ``artifacts``: files that belong with the
-    span's labels (file name -> bytes: the Kinect views it rendered), written by the main process;
-    ``prepared``: what a decomposition task (``span`` a :class:`Prepare`) found."""
-
-    span: Span | Prepare
-    rows: pd.DataFrame | None
-    error: str | None
-    stats: WorkerStats
-    info: dict[str, Any] | None = None
-    artifacts: dict[str, bytes] | None = None
-    prepared: PreparedObject | None = None
 
 
 @dataclass
@@ -672,127 +497,6 @@ class WorkerState:
                     os._exit(0)
 
         threading.Thread(target=watch, name="rg2-parent-watch", daemon=True).start()
-
-
-def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float):
-    """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
-    return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
-
-
-def simulate(
-    loaded: LoadedObject,
-    T_obj_tcp: np.ndarray,
-    widths: np.ndarray,
-    first_id: int,
-    config: AnnotatorConfig,
-    seed: int,
-    trials: int,
-    object_id: str,
-    quats: np.ndarray | None = None,
-    *,
-    placements: np.ndarray | None = None,
-    rest_quats: np.ndarray | None = None,
-    gripper: str = DEFAULT_GRIPPER,
-) -> pd.DataFrame:
-    """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
-    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
-    ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
-    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
-    ``rest_quats`` (k, 4): resting (``loaded.resting``), the orientation each grasp's object rests
-    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column.
-
-    Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
-    pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
-    ``score`` is the fraction of all K trials that held. A candidate whose unperturbed pose
-    collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
-    cannot be executed).
-    """
-    model = loaded.model
-    rows = []
-    # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
-    sampled_quats = (
-        matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
-    )
-    mode = "cell" if loaded.cell is not None else ("resting" if loaded.resting is not None else "object")
-    for k in range(len(widths)):
-        grasp_id = first_id + k
-        if sampled_quats is not None:
-            T = Transform(T_obj_tcp[k][:3, 3], sampled_quats[k])
-        else:  # a recorded commanded pose: the very transform of the trial that recorded it
-            T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
-        width_expected = float(widths[k])
-        rest = None if loaded.resting is None else (UPRIGHT if rest_quats is None else rest_quats[k])
-        trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
-        run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
-        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
-        if loaded.cell is not None:  # placement, object pose on the table, reachability
-            extra = loaded.cell.columns(placement, T, width_expected, grasp_id)
-        elif loaded.resting is not None:  # the object's settled pose on the table
-            extra = loaded.resting.columns(rest)
-        else:
-            extra = None
-        rows.append(
-            label_row(
-                mode,
-                object_id=object_id,
-                grasp_id=grasp_id,
-                result=result,
-                trials=trials,
-                T_cmd=T,
-                cmd_width=width_expected,
-                model=model,
-                seed=seed,
-                gripper=gripper,
-                extra=extra,
-            )
-        )
-    return pd.DataFrame(rows)
-
-
-# The orientation an object rests in when none is given: its mesh frame's own (+z up), xyzw.
-UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
-
-
-def _trial_for(
-    loaded: LoadedObject, T: Transform, placement: int | None, rest: np.ndarray | None
-) -> tuple[GraspTrial, int]:
-    """The trial a grasp runs in, and its cell placement (0 outside the cell)."""
-    if loaded.resting is not None:
-        return loaded.resting.trial_for(rest)[0], 0
-    if loaded.cell is None:
-        assert loaded.trial is not None
-        return loaded.trial, 0
-    if placement is None:  # a given grasp: where it comes most from above
-        placement = loaded.cell.placement_for(T)
-    return loaded.cell.trials[placement], placement  # else the placement it was sampled for
-
-
-def _run_trials(
-    trial: GraspTrial,
-    T: Transform,
-    width_expected: float,
-    config: AnnotatorConfig,
-    seed: int,
-    trials: int,
-    object_id: str,
-    grasp_id: int,
-) -> TrialsResult:
-    """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
-    an ``error`` row, never the loss of the other candidates."""
-    try:
-        r = trial.run(T, width_expected)
-        held = int(r.outcome == Outcome.SUCCESS)
-        steps = r.steps
-        if r.outcome != Outcome.COLLISION and trials > 1:
-            rng = trial_rng(seed, object_id, grasp_id)
-            for _ in range(trials - 1):
-                p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
-                held += int(p.outcome == Outcome.SUCCESS)
-                steps += p.steps
-        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held)
-    except Exception as exc:  # a physics failure on one candidate must not lose the others
-        log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
-        return TrialsResult(Outcome.ERROR, T, width_expected, 0, np.nan, 0)
 
 
 class _State:

@@ -1,0 +1,147 @@
+"""The trials of a span and its label rows: each grasp runs in the trial of its mode (floating, a
+cell placement, resting on the table), trial 0 unperturbed and K-1 perturbed, and becomes one row
+(:func:`annotator.label_row.label_row`)."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform, matrix_to_quat
+from annotator.grippers import DEFAULT_GRIPPER
+from annotator.label_row import TrialsResult, label_row
+from annotator.objects import ObjectModel
+from annotator.rng import object_rng, trial_rng
+from annotator.sampler import sample_candidates
+from annotator.trial import GraspTrial, Perturbation
+
+if TYPE_CHECKING:
+    from annotator.pipeline.worker import LoadedObject
+
+log = logging.getLogger(__name__)
+
+
+def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float):
+    """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
+    return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
+
+
+def simulate(
+    loaded: LoadedObject,
+    T_obj_tcp: np.ndarray,
+    widths: np.ndarray,
+    first_id: int,
+    config: AnnotatorConfig,
+    seed: int,
+    trials: int,
+    object_id: str,
+    quats: np.ndarray | None = None,
+    *,
+    placements: np.ndarray | None = None,
+    rest_quats: np.ndarray | None = None,
+    gripper: str = DEFAULT_GRIPPER,
+) -> pd.DataFrame:
+    """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
+    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
+    ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
+    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
+    ``rest_quats`` (k, 4): resting (``loaded.resting``), the orientation each grasp's object rests
+    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column.
+
+    Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
+    pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
+    ``score`` is the fraction of all K trials that held. A candidate whose unperturbed pose
+    collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
+    cannot be executed).
+    """
+    model = loaded.model
+    rows = []
+    # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
+    sampled_quats = (
+        matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
+    )
+    mode = "cell" if loaded.cell is not None else ("resting" if loaded.resting is not None else "object")
+    for k in range(len(widths)):
+        grasp_id = first_id + k
+        if sampled_quats is not None:
+            T = Transform(T_obj_tcp[k][:3, 3], sampled_quats[k])
+        else:  # a recorded commanded pose: the very transform of the trial that recorded it
+            T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
+        width_expected = float(widths[k])
+        rest = None if loaded.resting is None else (UPRIGHT if rest_quats is None else rest_quats[k])
+        trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
+        run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
+        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
+        if loaded.cell is not None:  # placement, object pose on the table, reachability
+            extra = loaded.cell.columns(placement, T, width_expected, grasp_id)
+        elif loaded.resting is not None:  # the object's settled pose on the table
+            extra = loaded.resting.columns(rest)
+        else:
+            extra = None
+        rows.append(
+            label_row(
+                mode,
+                object_id=object_id,
+                grasp_id=grasp_id,
+                result=result,
+                trials=trials,
+                T_cmd=T,
+                cmd_width=width_expected,
+                model=model,
+                seed=seed,
+                gripper=gripper,
+                extra=extra,
+            )
+        )
+    return pd.DataFrame(rows)
+
+
+# The orientation an object rests in when none is given: its mesh frame's own (+z up), xyzw.
+UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _trial_for(
+    loaded: LoadedObject, T: Transform, placement: int | None, rest: np.ndarray | None
+) -> tuple[GraspTrial, int]:
+    """The trial a grasp runs in, and its cell placement (0 outside the cell)."""
+    if loaded.resting is not None:
+        return loaded.resting.trial_for(rest)[0], 0
+    if loaded.cell is None:
+        assert loaded.trial is not None
+        return loaded.trial, 0
+    if placement is None:  # a given grasp: where it comes most from above
+        placement = loaded.cell.placement_for(T)
+    return loaded.cell.trials[placement], placement  # else the placement it was sampled for
+
+
+def _run_trials(
+    trial: GraspTrial,
+    T: Transform,
+    width_expected: float,
+    config: AnnotatorConfig,
+    seed: int,
+    trials: int,
+    object_id: str,
+    grasp_id: int,
+) -> TrialsResult:
+    """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
+    an ``error`` row, never the loss of the other candidates."""
+    try:
+        r = trial.run(T, width_expected)
+        held = int(r.outcome == Outcome.SUCCESS)
+        steps = r.steps
+        if r.outcome != Outcome.COLLISION and trials > 1:
+            rng = trial_rng(seed, object_id, grasp_id)
+            for _ in range(trials - 1):
+                p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
+                held += int(p.outcome == Outcome.SUCCESS)
+                steps += p.steps
+        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held)
+    except Exception as exc:  # a physics failure on one candidate must not lose the others
+        log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
+        return TrialsResult(Outcome.ERROR, T, width_expected, 0, np.nan, 0)
