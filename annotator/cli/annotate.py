@@ -197,9 +197,12 @@ def annotate_command(
         raise click.UsageError("--views renders the robot cell's Kinect: it needs --cell or --scenes")
     if n is None and not scenes:
         raise click.UsageError("Missing option '--n' (grasp candidates per object).")
-    scene_options = {}
+    from annotator.pipeline.object_job import ObjectOptions
+    from annotator.scenes.run import SceneOptions
+
+    own: ObjectOptions | SceneOptions = ObjectOptions(cell=cell, views=views)
     if scenes:
-        scene_options = {"scenes": scenes, "per_scene": per_scene, "arrangement": arrangement}
+        own = SceneOptions(scenes, per_scene, arrangement, views=views, cell=cell)
     run_pipeline(
         "annotate",
         objects_dir=objects_dir,
@@ -213,12 +216,10 @@ def annotate_command(
         overwrite=overwrite,
         repair=repair,
         quiet=quiet,
-        cell=cell,
-        views=views,
         gripper=gripper,
         cache_dir=cache_dir,
         config=config,
-        **scene_options,
+        own=own,
     )
 
 
