@@ -50,8 +50,10 @@ def simulate(
     from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
     ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
     where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
-    ``rest_quats`` (k, 4): resting (``loaded.resting``), the orientation each grasp's object rests
-    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column.
+    ``rest_quats`` (k, 4): resting, the orientation each grasp's object rests in (None: upright);
+    ``gripper``: the name written in every row's ``gripper`` column. The object ``placed`` in the
+    worker's mode (:mod:`annotator.pipeline.modes`) gives each grasp its trial, the pose to run it
+    at and the row's columns of the mode.
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -65,7 +67,7 @@ def simulate(
     sampled_quats = (
         matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
     )
-    mode = "cell" if loaded.cell is not None else ("resting" if loaded.resting is not None else "object")
+    placed = loaded.placed
     for k in range(len(widths)):
         grasp_id = first_id + k
         if sampled_quats is not None:
@@ -73,19 +75,13 @@ def simulate(
         else:  # a recorded commanded pose: the very transform of the trial that recorded it
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
-        rest = None if loaded.resting is None else (UPRIGHT if rest_quats is None else rest_quats[k])
-        trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
-        run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
+        rest = None if rest_quats is None else rest_quats[k]
+        trial, placement = placed.trial_for(T, None if placements is None else int(placements[k]), rest)
+        run_T = placed.grasp(rest, T)
         result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
-        if loaded.cell is not None:  # placement, object pose on the table, reachability
-            extra = loaded.cell.columns(placement, T, width_expected, grasp_id)
-        elif loaded.resting is not None:  # the object's settled pose on the table
-            extra = loaded.resting.columns(rest)
-        else:
-            extra = None
         rows.append(
             label_row(
-                mode,
+                placed.mode,
                 object_id=object_id,
                 grasp_id=grasp_id,
                 result=result,
@@ -95,28 +91,10 @@ def simulate(
                 model=model,
                 seed=seed,
                 gripper=gripper,
-                extra=extra,
+                extra=placed.columns(placement, T, width_expected, grasp_id, rest),
             )
         )
     return pd.DataFrame(rows)
-
-
-# The orientation an object rests in when none is given: its mesh frame's own (+z up), xyzw.
-UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
-
-
-def _trial_for(
-    loaded: LoadedObject, T: Transform, placement: int | None, rest: np.ndarray | None
-) -> tuple[GraspTrial, int]:
-    """The trial a grasp runs in, and its cell placement (0 outside the cell)."""
-    if loaded.resting is not None:
-        return loaded.resting.trial_for(rest)[0], 0
-    if loaded.cell is None:
-        assert loaded.trial is not None
-        return loaded.trial, 0
-    if placement is None:  # a given grasp: where it comes most from above
-        placement = loaded.cell.placement_for(T)
-    return loaded.cell.trials[placement], placement  # else the placement it was sampled for
 
 
 def _run_trials(

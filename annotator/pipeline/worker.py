@@ -26,7 +26,7 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -41,7 +41,8 @@ from annotator.objects import (
     physics_for,
 )
 from annotator.pipeline import status
-from annotator.pipeline.simulate import UPRIGHT, object_candidates, simulate
+from annotator.pipeline.modes import UPRIGHT, PlacedObject, WorkerMode, build_mode
+from annotator.pipeline.simulate import object_candidates, simulate
 from annotator.pipeline.tasks import (
     CellOptions,
     GivenGrasps,
@@ -55,11 +56,6 @@ from annotator.pipeline.tasks import (
 )
 from annotator.sampler import Candidates
 from annotator.store.manifest import bound_versions
-from annotator.trial import GraspTrial
-
-if TYPE_CHECKING:
-    from annotator.cell.batch import CellObject, CellWorlds
-    from annotator.cell.resting import RestingObject, RestingWorld
 
 # The tasks and results a worker takes and returns (annotator.pipeline.tasks) and its trials
 # (annotator.pipeline.simulate) are named here too, where callers have always found them.
@@ -105,27 +101,18 @@ PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 
 @dataclass
 class LoadedObject:
-    """The object a worker has in its world: model, body, trial runner, sampled candidates;
-    ``cell``: its placements on the table (``--cell``), whose trials replace ``trial``;
-    ``resting``: the object resting on the table in the orientations given (``evaluate --resting``),
-    whose trials replace ``trial`` (then None)."""
+    """The object a worker has in its world: model, body, the object ``placed`` in the worker's
+    mode (:mod:`annotator.pipeline.modes`: its trials), sampled candidates by (seed, n)."""
 
     key: tuple
     model: ObjectModel
     uid: int
-    trial: GraspTrial | None
-    candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)  # (seed, n) -> ...
-    cell: CellObject | None = None
-    resting: RestingObject | None = None
+    placed: PlacedObject
+    candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)
 
     def release(self) -> None:
-        """Free its snapshots (and the cell's copy of it); the trial world's body is the caller's."""
-        if self.cell is not None:
-            self.cell.close()
-        elif self.resting is not None:
-            self.resting.close()
-        elif self.trial is not None:
-            self.trial.close()
+        """Free its trials and snapshots; the trial world's body is the caller's."""
+        self.placed.release()
 
 
 def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]) -> int:
@@ -181,8 +168,7 @@ class WorkerState:
         self.world = None  # annotator.sim.world.World
         self.hand = None  # annotator.sim.hand.FloatingGripper
         self.gripper_key: tuple[str, str] | None = None  # (name, digest) of the gripper in the world
-        self.cell: CellWorlds | None = None  # the table and the arm world, --cell only
-        self.resting: RestingWorld | None = None  # the table, evaluate --resting only
+        self.world_mode: WorkerMode | None = None  # the mode's part of the world (annotator.pipeline.modes)
         self.obj: LoadedObject | None = None
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
@@ -229,14 +215,7 @@ class WorkerState:
             self.world = World(config.physics)
             self.hand = FloatingGripper(self.world, config.gripper, gripper)
             self.gripper_key = gripper.key
-            if cell:
-                from annotator.cell.batch import CellWorlds
-
-                self.cell = CellWorlds(self.world, self.hand, config)
-            elif resting:
-                from annotator.cell.resting import RestingWorld
-
-                self.resting = RestingWorld(self.world, self.hand, config, resting)
+            self.world_mode = build_mode((cell, resting), self.world, self.hand, config)
             self.config = config
             self.mode = (cell, resting)
             if previous != kept:  # the keys do not hold the configuration
@@ -245,11 +224,11 @@ class WorkerState:
         return self.world, self.hand
 
     def close(self) -> None:
-        if self.cell is not None:
-            self.cell.close()
+        if self.world_mode is not None:
+            self.world_mode.close()
         if self.world is not None:
             self.world.close()
-        self.world = self.hand = self.obj = self.cell = self.resting = None
+        self.world = self.hand = self.obj = self.world_mode = None
 
     # --- objects ---------------------------------------------------------------------------------
 
@@ -363,30 +342,23 @@ class WorkerState:
             world.configure()
         hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
-        if self.resting is not None:
-            return LoadedObject(key, model, uid, None, candidates, resting=self.resting.load(model, uid))
-        if self.cell is None:
-            world.set_gravity(False)
-            return LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config), candidates)
+        assert self.world_mode is not None
         try:
-            placed = self.cell.load(model, uid)
-        except ObjectError as exc:
+            placed = self.world_mode.place(model, uid)
+        except ObjectError as exc:  # no stable placement on the table
             world.remove_body(uid)
             self.failed[key] = str(exc)
             raise
         except BaseException:
             world.remove_body(uid)
             raise
-        return LoadedObject(key, model, uid, placed.trials[0], candidates, cell=placed)
+        return LoadedObject(key, model, uid, placed, candidates)
 
     def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
         """The object's N candidates, sampled once per (seed, N) and kept."""
         cands = loaded.candidates.get((seed, n))
         if cands is None:
-            if loaded.cell is not None:  # per placement, knowing the table
-                cands = loaded.cell.candidates(n, seed)
-            else:
-                cands = object_candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
+            cands = loaded.placed.candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
             loaded.candidates[(seed, n)] = cands
         return cands
 
@@ -427,27 +399,12 @@ class WorkerState:
             gripper=self.hand.description.name,
         )
         artifacts = None
-        if task.cell is not None and task.cell.views > 0 and loaded.cell is not None:
-            # placement p's views come with the span holding grasp min(p, N - 1): exactly one span
-            # renders each placement, whatever the spans are (the first, unless P > chunk size)
-            artifacts = {}
-            for p in range(len(loaded.cell.placements)):
-                if span.start <= min(p, task.n - 1) < span.stop:
-                    status.write(task.status_dir, f"rendering {span.object_id}")
-                    artifacts.update(loaded.cell.render_views(p, task.cell.views, task.seed))
+        if task.cell is not None and task.cell.views > 0:
+            views, seed = task.cell.views, task.seed
+            artifacts = loaded.placed.views(span.start, span.stop, task.n, views, seed, task.status_dir)
         stats = self._stats(t0, world.step_seconds - steps0)
         status.write(task.status_dir, None)
-        info = object_info(loaded.model)
-        if loaded.cell is not None:
-            info["placements"] = [
-                {
-                    "placement_id": p.placement_id,
-                    "stable_pose": p.pose_index,
-                    "probability": float(p.probability),
-                    "settle_drift": float(p.drift),
-                }
-                for p in loaded.cell.placements
-            ]
+        info = {**object_info(loaded.model), **loaded.placed.info()}
         return SpanResult(span, rows, None, stats, info, artifacts)
 
     def _grasps(self, task: SpanTask, loaded: LoadedObject) -> SpanGrasps:
@@ -455,11 +412,9 @@ class WorkerState:
         span = task.span
         if span.given is not None:
             g = span.given
-            if loaded.resting is None and g.rest_quat is not None:
+            if loaded.placed.mode != "resting" and g.rest_quat is not None:
                 raise ObjectError("grasps given with resting orientations, but the run is not --resting")
             return SpanGrasps(g.T_obj_tcp, g.width, g.quat, None, g.rest_quat)
-        if loaded.resting is not None:
-            raise ObjectError("--resting simulates given grasps only")
         cands = self.candidates(loaded, task.seed, task.n, task.config)
         placements = None if cands.placement is None else cands.placement[span.start : span.stop]
         return SpanGrasps(
