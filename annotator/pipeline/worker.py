@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import logging
 import os
-import socket
-import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -42,6 +40,7 @@ from annotator.objects import (
 )
 from annotator.pipeline import status
 from annotator.pipeline.modes import UPRIGHT, PlacedObject, WorkerMode, build_mode
+from annotator.pipeline.process import check_versions, cpu_seconds, task_stats, watch_parent
 from annotator.pipeline.simulate import object_candidates, simulate
 from annotator.pipeline.tasks import (
     CellOptions,
@@ -55,7 +54,6 @@ from annotator.pipeline.tasks import (
     WorkerStats,
 )
 from annotator.sampler import Candidates
-from annotator.store.manifest import bound_versions
 
 # The tasks and results a worker takes and returns (annotator.pipeline.tasks) and its trials
 # (annotator.pipeline.simulate) are named here too, where callers have always found them.
@@ -82,9 +80,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-# How often (s) a local worker checks that the process that started it is still alive and has not
-# asked it to stop: a worker outlives a killed or interrupted main process by at most this long.
-PARENT_CHECK_SECONDS = 0.2
 # Objects a worker keeps in memory (model and sampled candidates, not the body) after it moves to
 # another one, up to about this many bytes in all: the objects whose decomposition tasks it ran
 # (their spans reach it later, after spans of other objects) and those it labelled, which it may
@@ -122,24 +117,6 @@ def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]
     return BYTES_PER_FACE * faces + sum(a.nbytes for a in arrays)
 
 
-def _cpu_seconds() -> float:
-    """CPU seconds of this process and of the children it waited for (the decompositions)."""
-    import resource
-
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
-
-
-def _peak_rss_mb() -> float:
-    """This process's peak resident memory (MB); 0 where the platform does not say."""
-    try:
-        import resource
-
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
-    except (ImportError, OSError):  # pragma: no cover - Windows
-        return 0.0
-
-
 def object_info(model: ObjectModel) -> dict[str, Any]:
     """What the object was simulated as, for the manifest (JSON-ready)."""
     return {
@@ -173,9 +150,6 @@ class WorkerState:
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
-        self._watched_parent: int | None = None
-        self._stop_folder: str | None = None
-        self._versions_ok: dict[str, str] | None = None
 
     # --- the world ------------------------------------------------------------------------------
 
@@ -304,11 +278,11 @@ class WorkerState:
         """A decomposition task (``task.span`` a :class:`Prepare`): load the object (its collision
         shape made and cached unless the cache holds it) and keep it for this worker's spans of it.
         Returns what was found (:class:`PreparedObject`), or the object's one-line error."""
-        t0, cpu0 = time.perf_counter(), _cpu_seconds()
-        self._watch_parent(task.parent_pid, task.status_dir)
+        t0, cpu0 = time.perf_counter(), cpu_seconds()
+        watch_parent(task.parent_pid, task.status_dir)
         unit = task.span
         try:
-            self._check_versions(task.versions)
+            check_versions(task.versions)
             self.world_for(task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting)
             key = self._key(task)
             if key in self.failed:
@@ -323,14 +297,14 @@ class WorkerState:
                     made = not model.from_cache
                 self._keep(key, model, candidates)
         except ObjectError as exc:
-            return SpanResult(unit, None, str(exc), self._stats(t0, 0.0))
+            return SpanResult(unit, None, str(exc), task_stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
             log.exception("%s: unexpected error while loading", unit.object_id)
-            return SpanResult(unit, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+            return SpanResult(unit, None, f"{type(exc).__name__}: {exc}", task_stats(t0, 0.0))
         finally:
             status.write(task.status_dir, None)
-        prepared = PreparedObject.of(model, made, _cpu_seconds() - cpu0)
-        return SpanResult(unit, None, None, self._stats(t0, 0.0), prepared=prepared)
+        prepared = PreparedObject.of(model, made, cpu_seconds() - cpu0)
+        return SpanResult(unit, None, None, task_stats(t0, 0.0), prepared=prepared)
 
     def _create(self, model: ObjectModel, key: tuple, candidates: dict) -> LoadedObject:
         """The object's body in this world, its trial (or its placements on the table)."""
@@ -369,17 +343,17 @@ class WorkerState:
         if isinstance(task.span, Prepare):
             return self.prepare(task)
         t0 = time.perf_counter()
-        self._watch_parent(task.parent_pid, task.status_dir)
+        watch_parent(task.parent_pid, task.status_dir)
         span = task.span
         try:
-            self._check_versions(task.versions)
+            check_versions(task.versions)
             loaded = self.object_for(task)
             grasps = self._grasps(task, loaded)
         except ObjectError as exc:
-            return SpanResult(span, None, str(exc), self._stats(t0, 0.0))
+            return SpanResult(span, None, str(exc), task_stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
             log.exception("%s: unexpected error while loading", span.object_id)
-            return SpanResult(span, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+            return SpanResult(span, None, f"{type(exc).__name__}: {exc}", task_stats(t0, 0.0))
         status.write(task.status_dir, f"simulating {span.object_id}")
         world = self.world
         assert world is not None and self.hand is not None
@@ -402,7 +376,7 @@ class WorkerState:
         if task.cell is not None and task.cell.views > 0:
             views, seed = task.cell.views, task.seed
             artifacts = loaded.placed.views(span.start, span.stop, task.n, views, seed, task.status_dir)
-        stats = self._stats(t0, world.step_seconds - steps0)
+        stats = task_stats(t0, world.step_seconds - steps0)
         status.write(task.status_dir, None)
         info = {**object_info(loaded.model), **loaded.placed.info()}
         return SpanResult(span, rows, None, stats, info, artifacts)
@@ -423,35 +397,6 @@ class WorkerState:
             None,
             placements,
         )
-
-    def _stats(self, t0: float, step_seconds: float) -> WorkerStats:
-        seconds = time.perf_counter() - t0
-        return WorkerStats(seconds, step_seconds, _peak_rss_mb(), os.getpid(), socket.gethostname())
-
-    def _check_versions(self, expected: dict[str, str] | None) -> None:
-        if expected is None or self._versions_ok == expected:
-            return
-        mine = bound_versions()
-        diffs = [f"{k} {mine.get(k)} (run: {v})" for k, v in sorted(expected.items()) if mine.get(k) != v]
-        if diffs:
-            raise ObjectError(f"worker on {socket.gethostname()} has other versions: {', '.join(diffs)}")
-        self._versions_ok = expected
-
-    def _watch_parent(self, parent_pid: int | None, status_dir: str | None) -> None:
-        """End this worker's process soon after the local main process is gone (killed, even by
-        SIGKILL) or has asked its workers to stop (:func:`status.request_stop`, on Ctrl-C/SIGTERM)."""
-        self._stop_folder = status_dir  # the current run's; a reused worker serves several runs
-        if parent_pid is None or self._watched_parent == parent_pid:
-            return
-        self._watched_parent = parent_pid
-
-        def watch() -> None:
-            while True:
-                time.sleep(PARENT_CHECK_SECONDS)
-                if os.getppid() != parent_pid or status.stop_requested(self._stop_folder):
-                    os._exit(0)
-
-        threading.Thread(target=watch, name="rg2-parent-watch", daemon=True).start()
 
 
 class _State:

@@ -29,7 +29,9 @@ from annotator.config import AnnotatorConfig
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.objects import ObjectError, ObjectModel, ObjectSource, load_object
 from annotator.pipeline import status
-from annotator.pipeline.worker import SpanResult, WorkerState, object_info
+from annotator.pipeline.process import check_versions, task_stats, watch_parent
+from annotator.pipeline.tasks import SpanResult
+from annotator.pipeline.worker import object_info
 from annotator.scenes.arrange import SceneBuilder
 from annotator.scenes.labels import SceneArm, SceneCandidates, SceneTrials, label_scene
 from annotator.scenes.records import SceneRecord, SceneSpec, scene_table, scenes_from_table
@@ -165,12 +167,11 @@ class _Current:
             self.arm.close()
 
 
-class SceneWorkerState(WorkerState):
+class SceneWorkerState:
     """This process's objects, built scenes and current scene; the parent watch and the version
-    check are :class:`annotator.pipeline.worker.WorkerState`'s."""
+    check are the process's (:mod:`annotator.pipeline.process`)."""
 
     def __init__(self) -> None:
-        super().__init__()
         self.models: OrderedDict[tuple, ObjectModel] = OrderedDict()
         self.records: OrderedDict[tuple, SceneRecord] = OrderedDict()
         self.current: _Current | None = None
@@ -257,16 +258,16 @@ class SceneWorkerState(WorkerState):
     def label_span(self, task: SceneTask) -> SpanResult:
         """Labels of one span of a scene, or the scene's one-line error."""
         t0 = time.perf_counter()
-        self._watch_parent(task.parent_pid, task.status_dir)
+        watch_parent(task.parent_pid, task.status_dir)
         span = task.span
         try:
-            self._check_versions(task.versions)
+            check_versions(task.versions)
             current, built = self.scene_for(task)
         except ObjectError as exc:
-            return _failed(span, f"{span.object_id}: {exc}", self._stats(t0, 0.0))
+            return _failed(span, f"{span.object_id}: {exc}", task_stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this scene's, not the run's
             log.exception("%s: unexpected error while building", span.object_id)
-            return _failed(span, f"{span.object_id}: {type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+            return _failed(span, f"{span.object_id}: {type(exc).__name__}: {exc}", task_stats(t0, 0.0))
         artifacts = self._artifacts(task, current) if span.start == 0 else None
         status.write(task.status_dir, f"simulating {span.object_id}")
         trials = current.trials
@@ -275,7 +276,7 @@ class SceneWorkerState(WorkerState):
         rows = label_scene(
             trials, current.candidates, span.start, span.stop, job.seed, job.trials, current.arm
         )
-        stats = self._stats(t0, trials.world.step_seconds - steps0)
+        stats = task_stats(t0, trials.world.step_seconds - steps0)
         status.write(task.status_dir, None)
         info = {
             "scene": {"kept": len(trials.record.kept), "built_by_this_span": built},
