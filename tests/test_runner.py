@@ -17,7 +17,7 @@ from annotator.pipeline.run import UsageError, job_for
 from annotator.pipeline.source import GivenCandidates
 from annotator.pipeline.summary import Summary
 from annotator.pipeline.tasks import GivenGrasps
-from annotator.scenes.run import SceneOptions, ScenesJob
+from annotator.scenes.run import SceneJob, SceneOptions
 
 CONFIG = AnnotatorConfig()
 SAMPLES = Path(__file__).resolve().parent.parent / "objects"
@@ -33,7 +33,7 @@ def test_the_options_record_chooses_the_job():
     assert isinstance(job_for(CONFIG), ObjectJob)
     assert isinstance(job_for(CONFIG, ObjectOptions(cell=True)), ObjectJob)
     assert isinstance(job_for(CONFIG, EvaluateOptions(_given())), EvaluateJob)
-    assert isinstance(job_for(CONFIG, SceneOptions(3)), ScenesJob)
+    assert isinstance(job_for(CONFIG, SceneOptions(3)), SceneJob)
     with pytest.raises(TypeError, match="no job runs with"):
         job_for(CONFIG, RunOptions(SAMPLES, 10))  # type: ignore[arg-type]
 
@@ -54,9 +54,9 @@ def test_each_job_checks_its_own_options():
     with pytest.raises(UsageError, match="--n must be between"):
         ObjectJob(CONFIG).check(RunOptions(SAMPLES, 0))
     with pytest.raises(UsageError, match="RG2 only"):
-        ScenesJob(CONFIG, SceneOptions(2)).check(RunOptions(SAMPLES, 10, gripper="panda"))
+        SceneJob(CONFIG, SceneOptions(2)).check(RunOptions(SAMPLES, 10, gripper="panda"))
     with pytest.raises(UsageError, match="--arrangement"):
-        ScenesJob(CONFIG, SceneOptions(2, arrangement="heap")).check(options)
+        SceneJob(CONFIG, SceneOptions(2, arrangement="heap")).check(options)
     ObjectJob(CONFIG, ObjectOptions(cell=True, views=2)).check(options)
 
 

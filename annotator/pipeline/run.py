@@ -5,7 +5,7 @@ Dask cluster, :mod:`annotator.pipeline.execution`).
 
 The jobs: :class:`~annotator.pipeline.object_job.ObjectJob` (objects, sampled candidates),
 :class:`~annotator.pipeline.evaluate_job.EvaluateJob` (objects, given grasps) and
-:class:`~annotator.scenes.run.ScenesJob` (scenes). This module only chooses among them; none of
+:class:`~annotator.scenes.run.SceneJob` (scenes). This module only chooses among them; none of
 them imports another, or this module.
 
 Faults (README "Reliability"): a worker process that dies costs the spans it had one retry each,
@@ -24,7 +24,7 @@ from annotator.pipeline.lifecycle import Job, Terminated, run_job
 from annotator.pipeline.object_job import ObjectJob, ObjectOptions
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.summary import Summary
-from annotator.scenes.run import SceneOptions, ScenesJob
+from annotator.scenes.run import SceneJob, SceneOptions
 
 __all__ = [
     "EvaluateOptions",
@@ -50,7 +50,7 @@ def job_for(config: AnnotatorConfig, own: JobOptions | None = None) -> Job:
     if isinstance(own, EvaluateOptions):
         return EvaluateJob(config, own)
     if isinstance(own, SceneOptions):
-        return ScenesJob(config, own)
+        return SceneJob(config, own)
     raise TypeError(f"no job runs with {type(own).__name__}")
 
 

@@ -35,7 +35,7 @@ from annotator.scenes.records import ARRANGEMENTS, SceneRecord
 from annotator.scenes.views import MAX_INSTANCE_ID
 from annotator.scenes.worker import (
     SCENE_FILE,
-    SceneJob,
+    SceneRequest,
     SceneSpan,
     SceneTask,
     label_scene_span,
@@ -121,7 +121,7 @@ def plan_scene_spans(
                 yield SceneSpan(scenes[i][0], *rng)
 
 
-class ScenesJob:
+class SceneJob:
     """``annotate --scenes N``: the scenes are the units of work (a job of
     :mod:`annotator.pipeline.lifecycle`); the worker of a scene's first span builds it and returns
     its record, which this job passes to the scene's later spans."""
@@ -133,7 +133,7 @@ class ScenesJob:
     def __init__(self, config: AnnotatorConfig, own: SceneOptions) -> None:
         self.config = config
         self.own = own
-        self.job: SceneJob | None = None
+        self.request: SceneRequest | None = None
         self.units: dict[str, str] = {}
         self.records: dict[int, SceneRecord] = {}
         self.store: Store | None = None
@@ -162,7 +162,7 @@ class ScenesJob:
                 f"scenes draw from every object; {len(unreadable)} cannot be read: {unreadable[0]}"
             )
         lo, hi = own.per_scene
-        self.job = job = SceneJob(
+        self.request = job = SceneRequest(
             tuple(sources),
             digests,
             own.arrangement,
@@ -237,10 +237,10 @@ class ScenesJob:
                     self.records[scene_id] = record_from_artifact(data)
 
     def make_task(self, span: SceneSpan, context: TaskContext) -> SceneTask:
-        assert self.job is not None
+        assert self.request is not None
         return SceneTask(
             span,
-            self.job,
+            self.request,
             self.config,
             record=self.records.get(span.scene_id),
             versions=context.versions,
