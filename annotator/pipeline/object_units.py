@@ -67,11 +67,12 @@ class ObjectUnitsJob:
         self.sources: list[ObjectSource] = []
         self.digests: dict[str, str] = {}
         self._sent: GripperDescription | GripperFiles | None = None
-        self._options: RunOptions | None = None
+        self._options: RunOptions | None = None  # the run's, from check()
 
     # --- the job interface ---------------------------------------------------------------------------
 
     def check(self, options: RunOptions) -> None:
+        self._options = options
         if self.candidates is None:
             self.candidates = SampledCandidates(options.n)
         if not 1 <= options.n <= MAX_N:
@@ -112,7 +113,6 @@ class ObjectUnitsJob:
 
     def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> Plan | None:
         assert self.gripper is not None
-        self._options = options
         digests, candidates = self.digests, self.candidates
         store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
         gripper = self.gripper
