@@ -33,18 +33,23 @@ class TrialsResult:
     held: int
 
 
-class _Error(Protocol):
-    mean: float
-    max: float
-
 
 class LabelledObject(Protocol):
     """What a row says about the object it grasps (an :class:`annotator.objects.ObjectModel`)."""
 
-    scale: float
-    mesh_sha256: str
-    mass: float
-    collision_error: _Error
+    @property
+    def scale(self) -> float: ...
+
+    @property
+    def mesh_sha256(self) -> str: ...
+
+    @property
+    def mass(self) -> float: ...
+
+    @property
+    def collision_error(self) -> Any:
+        """Its collision error record (``mean``, ``max``: m)."""
+        ...
 
 
 def canonical(q: np.ndarray) -> np.ndarray:

@@ -128,8 +128,10 @@ class Workers:
         status.request_stop(self.status_dir)
         _, not_done = cf.wait(out, timeout=self.STOP_SECONDS)
         log.debug("stopping: %d of %d spans out ended by themselves", len(out) - len(not_done), len(out))
-        with contextlib.suppress(Exception):
-            executor.shutdown(wait=False, kill_workers=bool(not_done))
+        if executor is None:
+            return
+        with contextlib.suppress(Exception):  # loky's executor: kill_workers
+            executor.shutdown(wait=False, kill_workers=bool(not_done))  # type: ignore[call-arg]
 
 
 # A unit of work (an object's Span or Prepare, a scene's SceneSpan): it has a ``key`` (its order

@@ -85,7 +85,11 @@ class Job(Protocol):
 
     unit: str
     noun: str
-    worker: Callable[[Any], SpanResult]
+
+    @property
+    def worker(self) -> Callable[[Any], SpanResult]:
+        """The function a worker runs on this job's tasks."""
+        ...
 
     def check(self, options: RunOptions) -> None:
         """UsageError for options the job cannot run with, before anything is read."""
@@ -137,7 +141,8 @@ class Collector:
     def write(self, result: SpanResult) -> None:
         """A span's artifacts, then its labels (which vouch for them); the unit merged when it was
         its last span."""
-        summary, store, span, df = self.summary, self.store, result.span, result.rows
+        summary, store, df = self.summary, self.store, result.rows
+        span: Any = result.span  # a unit with labels: a Span or a scene's SceneSpan
         assert df is not None
         unit = span.object_id
         self.seconds[unit] = self.seconds.get(unit, 0.0) + result.stats.seconds

@@ -80,7 +80,7 @@ class ObjectUnitsJob:
         self.gripper = loaded_gripper(options.gripper)
 
     def bind(self, options: RunOptions, summary: Summary) -> tuple[RunSpec, dict[str, str]]:
-        assert self.gripper is not None
+        assert self.gripper is not None and self.candidates is not None
         try:
             sources = discover_objects(options.objects_dir, self.config.objects)
         except ObjectDiscoveryError as exc:
@@ -109,10 +109,11 @@ class ObjectUnitsJob:
         """RunSpec.inputs: the candidate source's, and the worker mode when not floating (a
         floating run records nothing new, so folders made before the modes existed still resume;
         a folder of one mode never resumes as another)."""
+        assert self.candidates is not None
         return dict(self.candidates.inputs())
 
     def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> Plan | None:
-        assert self.gripper is not None
+        assert self.gripper is not None and self.candidates is not None
         digests, candidates = self.digests, self.candidates
         store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
         gripper = self.gripper

@@ -73,6 +73,7 @@ def simulate(
         if sampled_quats is not None:
             T = Transform(T_obj_tcp[k][:3, 3], sampled_quats[k])
         else:  # a recorded commanded pose: the very transform of the trial that recorded it
+            assert quats is not None
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
         rest = None if rest_quats is None else rest_quats[k]

@@ -174,6 +174,7 @@ class PreparedObject:
     @classmethod
     def of(cls, model: ObjectModel, made: bool, cpu_s: float) -> PreparedObject:
         err = model.collision_error
+        assert err is not None  # a loaded model has its collision shape
         return cls(
             model.collision_method,
             len(model.parts),

@@ -22,6 +22,7 @@ import logging
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
@@ -251,7 +252,8 @@ class SceneJob:
 
     def take(self, result: SpanResult, collector: Collector) -> None:
         """Write a span's artifacts and labels (or fail its scene); merge a finished scene."""
-        span, unit = result.span, result.span.object_id
+        span: Any = result.span  # a SceneSpan
+        unit = span.object_id
         collector.progress.advance(span.size)
         collector.account(result)
         if unit in collector.summary.failed:
@@ -262,5 +264,5 @@ class SceneJob:
             return
         files = result.artifacts or {}
         if SCENE_FILE in files:
-            self.records[span.scene_id] = record_from_artifact(files[SCENE_FILE])  # type: ignore[attr-defined]
+            self.records[span.scene_id] = record_from_artifact(files[SCENE_FILE])
         collector.write(result)
