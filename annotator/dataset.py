@@ -1,6 +1,7 @@
-"""Reading grasp labels: the schema (columns), validation, loading and splitting.
+"""Reading grasp labels: the required columns, validation, loading and splitting.
 
-The outcomes (``Outcome``, ``OUTCOMES``) are :mod:`annotator.outcome`, re-exported here.
+Every column of every mode is declared in :mod:`annotator.schema`; this module checks the
+required ones. The outcomes (``Outcome``, ``OUTCOMES``) are :mod:`annotator.outcome`, re-exported here.
 
 This is the side of the dataset a learner uses; it does not import pybullet. Writing labels (atomic
 files, the manifest, the lock, resume) is :mod:`annotator.store`.
@@ -21,30 +22,14 @@ import pandas as pd
 from annotator.geometry import matrix_to_quat, quat_to_matrix
 from annotator.outcome import OUTCOMES, Outcome  # noqa: F401  (re-exported: the schema's outcomes)
 from annotator.rng import keyed_rng
+from annotator.schema import REQUIRED, STRING, columns_of
 
 log = logging.getLogger(__name__)
 
 
-# Required columns in order, with their pandas dtype names (docs/labels.md, "Columns").
-STRING = "string"
-COLUMNS: dict[str, str] = {
-    "object_id": STRING,
-    "grasp_id": "int64",
-    "x": "float64",
-    "y": "float64",
-    "z": "float64",
-    "qx": "float64",
-    "qy": "float64",
-    "qz": "float64",
-    "qw": "float64",
-    "width": "float64",
-    "success": "bool",
-    "outcome": STRING,
-    "score": "float64",
-    "object_scale": "float64",
-    "mesh_sha256": STRING,
-    "seed": "int64",
-}
+# Required columns in order, with their pandas dtype names: those of the label schema every table
+# has (annotator.schema, which declares every column of every mode; docs/labels.md).
+COLUMNS: dict[str, str] = dict(REQUIRED)
 POSE_COLUMNS: tuple[str, ...] = ("x", "y", "z", "qx", "qy", "qz", "qw")
 # pandas' default dtype for text: ``str`` in pandas >= 3, ``object`` before; what read_parquet gives.
 _TEXT_DTYPE = pd.Series(["text"]).dtype
@@ -82,6 +67,19 @@ def _check_dtype(name: str, series: pd.Series, want: str) -> str | None:
         if not pd.api.types.is_bool_dtype(dtype) or series.isna().any():
             return f"{name}: {dtype} (want bool without missing values)"
     return None
+
+
+def mode_errors(df: pd.DataFrame, mode: str) -> list[str]:
+    """What keeps ``df`` from being a table of ``mode``'s rows (:data:`annotator.schema.MODES`):
+    its columns not exactly the mode's in their order, and every column off its declared dtype
+    (missing values allowed in float columns only). Empty when it is one."""
+    columns = columns_of(mode)
+    names = [c.name for c in columns]
+    if list(df.columns) != names:
+        missing = [n for n in names if n not in df.columns]
+        unknown = [c for c in df.columns if c not in names]
+        return [f"columns of a {mode} table: missing {missing}, not of the mode {unknown}, or out of order"]
+    return [msg for c in columns if (msg := _check_dtype(c.name, df[c.name], c.dtype)) is not None]
 
 
 def validate_labels(df: pd.DataFrame) -> pd.DataFrame:

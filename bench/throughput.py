@@ -40,7 +40,7 @@ import numpy as np
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
-from annotator.pipeline.run import RunOptions, run
+from annotator.pipeline.run import ObjectOptions, RunOptions, run
 from bench.harness import Run
 from bench.reference import FreeStep, free_step, median_step
 
@@ -51,11 +51,9 @@ def timed_run(
     objects: Path, n: int, workers: int, config: AnnotatorConfig, cell: bool = False, views: int = 0
 ):
     with tempfile.TemporaryDirectory() as out:
-        options = RunOptions(
-            objects_dir=objects, n=n, out_dir=Path(out), workers=workers, quiet=True, cell=cell, views=views
-        )
+        options = RunOptions(objects_dir=objects, n=n, out_dir=Path(out), workers=workers, quiet=True)
         t0 = time.perf_counter()
-        summary = run(options, config)
+        summary = run(options, config, ObjectOptions(cell=cell, views=views))
         return summary, time.perf_counter() - t0
 
 

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import load_labels, poses_as_matrices
+from annotator.dataset import load_labels, mode_errors, poses_as_matrices
 from annotator.geometry import Transform
 from annotator.seed_scene import SeedSceneConfig, build_scene
 from annotator.seed_scene.capture import Capturer, capture_now, load_capture_object
@@ -67,6 +67,10 @@ def test_capture_key_path_appends_a_label_row(tmp_path):
     assert labels["grasp_id"].tolist() == [0, 1]
     assert set(labels["object_id"]) == {"cube_small"}
     assert pd.read_parquet(out).shape[0] == 2
+    # complete rows: every column of the batch job's, the commanded grasp and collision error included
+    assert mode_errors(pd.read_parquet(out), "capture") == []
+    assert np.isfinite(labels[["cmd_x", "cmd_qw", "cmd_width", "collision_error"]].to_numpy()).all()
+    np.testing.assert_allclose(labels["cmd_width"].iloc[0], CUBE_SIZE, atol=1e-4)
 
 
 def test_capture_on_a_chosen_object(tmp_path):

@@ -17,7 +17,7 @@ from annotator.cli.replay import replay_command
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels
 from annotator.objects import create_body, load_object
-from annotator.pipeline.run import RunOptions, run
+from annotator.pipeline.run import ObjectOptions, RunOptions, run
 from annotator.sim.world import World
 from annotator.tools.replay import PLACEMENT_COLUMNS, plan_replay
 
@@ -135,7 +135,8 @@ def test_a_light_blocks_cell_labels_replay_as_labelled(tmp_path):
     model = load_object(objects / "block.obj", CONFIG.objects)
     assert model.mass < 0.011 and model.substeps(CONFIG.physics) == 3
     out = tmp_path / "labels"
-    run(RunOptions(objects_dir=objects, n=10, out_dir=out, workers=1, quiet=True, cell=True), CONFIG)
+    options = RunOptions(objects_dir=objects, n=10, out_dir=out, workers=1, quiet=True)
+    run(options, CONFIG, ObjectOptions(cell=True))
     labels = load_labels(out)
     successes = labels[labels.success & labels.reachable]
     assert len(successes) >= 5

@@ -85,7 +85,7 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
     (as the main process passes it once the first span is back), give the same rows and the same
     scene file."""
     pool = tuple(discover_objects(concave))
-    job = worker.SceneJob(pool, None, "pile", 4, 4, N, seed=0)
+    job = worker.SceneRequest(pool, None, "pile", 4, 4, N, seed=0)
     config = AnnotatorConfig()
     spans = [worker.SceneSpan(1, a, a + SCENE_CHUNK_SIZE) for a in range(0, N, SCENE_CHUNK_SIZE)]
 

@@ -201,9 +201,12 @@ def annotate_command(
         given = click.get_current_context().get_parameter_source(name) != click.core.ParameterSource.DEFAULT
         if given and not scenes:
             raise click.UsageError(f"{flag} shapes the scenes of --scenes N: it needs --scenes")
-    scene_options = {}
+    from annotator.pipeline.object_job import ObjectOptions
+    from annotator.scenes.run import SceneOptions
+
+    own: ObjectOptions | SceneOptions = ObjectOptions(cell=cell, views=views)
     if scenes:
-        scene_options = {"scenes": scenes, "per_scene": per_scene, "arrangement": arrangement}
+        own = SceneOptions(scenes, per_scene, arrangement, views=views, cell=cell)
     run_pipeline(
         "annotate",
         objects_dir=objects_dir,
@@ -217,12 +220,10 @@ def annotate_command(
         overwrite=overwrite,
         repair=repair,
         quiet=quiet,
-        cell=cell,
-        views=views,
         gripper=gripper,
         cache_dir=cache_dir,
         config=config,
-        **scene_options,
+        own=own,
     )
 
 

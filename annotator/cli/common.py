@@ -139,17 +139,17 @@ def _exit_soon(command: str, code: int) -> NoReturn:
     sys.exit(code)
 
 
-def run_pipeline(
-    command: str, *, config: Any, candidates: Any = None, workers: int | None, **options: Any
-) -> None:
-    """Run the labelling pipeline (``annotate``, or ``evaluate`` with given ``candidates``) and exit
-    with the documented code; problems are one line prefixed with ``command``."""
+def run_pipeline(command: str, *, config: Any, own: Any = None, workers: int | None, **options: Any) -> None:
+    """Run a labelling job with the run's ``options`` (:class:`annotator.pipeline.options.
+    RunOptions`) and the job's ``own`` options, which choose the job (``annotate``: None or
+    ``ObjectOptions``; ``evaluate``: ``EvaluateOptions``; ``annotate --scenes``: ``SceneOptions``),
+    and exit with the documented code; problems are one line prefixed with ``command``."""
     from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
     from annotator.store import OutputError
 
     run_options = RunOptions(workers=workers or os.cpu_count() or 1, **options)
     try:
-        summary = run(run_options, config, candidates)
+        summary = run(run_options, config, own)
     except UsageError as exc:
         raise click.UsageError(str(exc)) from exc
     except OutputError as exc:

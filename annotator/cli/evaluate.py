@@ -132,6 +132,7 @@ def evaluate_command(
     folder not writable, 4 Dask scheduler lost, 130/143 interrupted (re-run to resume).
     """
     setup_logging(False, verbose, default=logging.WARNING)
+    from annotator.pipeline.evaluate_job import EvaluateOptions
     from annotator.pipeline.worker import max_width
     from annotator.tools.common import labelling_config, labelling_gripper, labels_resting
     from annotator.tools.evaluate import given_candidates, read_grasps
@@ -171,8 +172,7 @@ def evaluate_command(
         repair=False,
         quiet=quiet,
         gripper=hand.description,
-        resting=resting,
         cache_dir=cache_dir,
         config=config,
-        candidates=candidates,
+        own=EvaluateOptions(candidates, resting=resting or False),
     )

@@ -20,45 +20,69 @@ from __future__ import annotations
 
 import logging
 import os
-import socket
-import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
-from annotator.geometry import Transform, matrix_to_quat
-from annotator.grippers import DEFAULT_GRIPPER, GripperDescription, GripperFiles, resolve_gripper
+from annotator.geometry import Transform
+from annotator.grippers import GripperDescription, GripperFiles, resolve_gripper
 from annotator.objects import (
     ObjectError,
     ObjectModel,
-    ObjectSource,
     create_body,
     default_cache_dir,
     load_object,
     physics_for,
 )
 from annotator.pipeline import status
-from annotator.rng import object_rng, trial_rng
-from annotator.sampler import Candidates, sample_candidates
-from annotator.store.manifest import bound_versions
-from annotator.trial import CollisionCheck, GraspTrial, Perturbation
+from annotator.pipeline.modes import UPRIGHT, PlacedObject, WorkerMode, build_mode
+from annotator.pipeline.process import check_versions, cpu_seconds, task_stats, watch_parent
+from annotator.pipeline.simulate import object_candidates, simulate
+from annotator.pipeline.tasks import (
+    CellOptions,
+    GivenGrasps,
+    Prepare,
+    PreparedObject,
+    Span,
+    SpanGrasps,
+    SpanResult,
+    SpanTask,
+    WorkerStats,
+)
+from annotator.sampler import Candidates
+from annotator.schema import REASON_COLUMNS
 
-if TYPE_CHECKING:
-    from annotator.cell.batch import CellObject, CellWorlds
-    from annotator.cell.resting import RestingObject, RestingWorld
+# The tasks and results a worker takes and returns (annotator.pipeline.tasks) and its trials
+# (annotator.pipeline.simulate) are named here too, where callers have always found them.
+__all__ = [
+    "UPRIGHT",
+    "CellOptions",
+    "GivenGrasps",
+    "LoadedObject",
+    "Prepare",
+    "PreparedObject",
+    "REASON_COLUMNS",
+    "Span",
+    "SpanGrasps",
+    "SpanResult",
+    "SpanTask",
+    "WorkerState",
+    "WorkerStats",
+    "label_span",
+    "max_width",
+    "object_candidates",
+    "object_info",
+    "simulate",
+    "worker_state",
+]
 
 log = logging.getLogger(__name__)
 
-# How often (s) a local worker checks that the process that started it is still alive and has not
-# asked it to stop: a worker outlives a killed or interrupted main process by at most this long.
-PARENT_CHECK_SECONDS = 0.2
 # Objects a worker keeps in memory (model and sampled candidates, not the body) after it moves to
 # another one, up to about this many bytes in all: the objects whose decomposition tasks it ran
 # (their spans reach it later, after spans of other objects) and those it labelled, which it may
@@ -73,234 +97,20 @@ BYTES_PER_FACE = 200
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 
 
-@dataclass(frozen=True)
-class GivenGrasps:
-    """Poses to simulate instead of sampled candidates (``evaluate``, benches, tests).
-
-    T_obj_tcp : (k, 4, 4) float, TCP poses in the object's mesh frame; width : (k,) float, the
-    expected chord between the contacts (m). quat : (k, 4) float xyzw or None: the rotations bit
-    for bit (a label's ``cmd_q*`` replayed exactly); without it they come from ``T_obj_tcp``.
-    rest_quat : (k, 4) float xyzw or None: with ``--resting``, the orientation each grasp's object
-    rests in on the table (its mesh frame in the table frame); None: the mesh frame's own, +z up.
-    """
-
-    T_obj_tcp: np.ndarray
-    width: np.ndarray
-    quat: np.ndarray | None = None
-    rest_quat: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class SpanGrasps:
-    """The grasps a worker simulates for one span: as :class:`GivenGrasps`, plus ``placements``
-    (k,) int, the cell placement each sampled candidate rests in (None: not in the cell)."""
-
-    T_obj_tcp: np.ndarray
-    width: np.ndarray
-    quat: np.ndarray | None = None
-    placements: np.ndarray | None = None
-    rest_quat: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Span:
-    """A unit of work: candidates ``start..stop-1`` of one object (or ``given`` poses, numbered so)."""
-
-    object_id: str
-    source: ObjectSource
-    scale: float | None
-    start: int
-    stop: int
-    given: GivenGrasps | None = None
-
-    @property
-    def size(self) -> int:
-        return self.stop - self.start
-
-    @property
-    def key(self) -> tuple[str, int]:
-        return (self.object_id, self.start)
-
-    def describe(self) -> str:
-        """What a worker does with it, for a reason: ``simulating candidates 0-9``."""
-        return f"simulating candidates {self.start}-{self.stop - 1}"
-
-
-@dataclass(frozen=True)
-class Prepare:
-    """A decomposition task: load one object in a worker, ahead of its spans, so that its collision
-    shape is made (and written to the cache) once, by one worker, while other workers label.
-
-    A worker that runs it keeps the model for its own spans of the object; every other worker
-    reads the shape from the cache. It simulates nothing (``size`` 0); its result carries a
-    :class:`PreparedObject`, or the object's one-line error (an unusable mesh).
-    """
-
-    object_id: str
-    source: ObjectSource
-    scale: float | None
-
-    size = 0
-
-    @property
-    def key(self) -> tuple[str, int]:
-        return (self.object_id, -1)  # before the object's spans
-
-    def describe(self) -> str:
-        return "loading (decomposing) the object"
-
-
-@dataclass(frozen=True)
-class CellOptions:
-    """``annotate --cell``: objects rest on the seed's table; ``views`` Kinect views per placement."""
-
-    views: int = 0
-
-    def to_json(self) -> dict[str, Any]:
-        """What the manifest binds (RunSpec.inputs['cell'])."""
-        return {"views": int(self.views)}
-
-
-@dataclass(frozen=True)
-class SpanTask:
-    """What a worker is asked to do (``span``: a :class:`Span` to label, or a :class:`Prepare`), with
-    what it needs to check that it may.
-
-    ``source_sha256``: the object's source digest (a worker keeps a loaded object only while it is
-    the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
-    others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
-    exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
-    doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
-    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper);
-    ``gripper``: the gripper simulated (None: the default, the RG2), or its files
-    (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache);
-    ``resting``: the object rests on the cell's table while the given grasps close (``evaluate
-    --resting``, :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it
-    settles; ``"table"``, they stay where they were given in the table frame.
-    """
-
-    span: Span | Prepare
-    config: AnnotatorConfig
-    seed: int
-    n: int
-    trials: int = 1
-    source_sha256: str | None = None
-    versions: dict[str, str] | None = None
-    parent_pid: int | None = None
-    status_dir: str | None = None
-    cache_dir: str | None = None
-    cell: CellOptions | None = None
-    gripper: GripperDescription | GripperFiles | None = None
-    resting: bool | str = False
-
-
-@dataclass(frozen=True)
-class WorkerStats:
-    """Worker time of one span (s), of which inside stepSimulation, peak memory (MB), the worker."""
-
-    seconds: float
-    step_seconds: float
-    peak_rss_mb: float
-    pid: int
-    host: str
-
-
-@dataclass(frozen=True)
-class PreparedObject:
-    """What a decomposition task (:class:`Prepare`) reports about its object.
-
-    ``method``: the collision method (hull, shells, coacd, vhacd); ``parts``: convex parts;
-    ``made``: the collision shape was made by this task (False: read from the cache, or held by the
-    worker already); ``decomposition_cpu_s``: CPU seconds of the decomposition ladder when it ran
-    (0 otherwise); ``cpu_s``: CPU seconds of the whole load in the worker (its process and the
-    decomposition processes it waited for); ``error_mean`` / ``error_max``: collision error (m);
-    ``warnings``: the object's warnings, one line each, without its id.
-    """
-
-    method: str
-    parts: int
-    made: bool
-    decomposition_cpu_s: float
-    cpu_s: float
-    error_mean: float
-    error_max: float
-    ladder: str = ""
-    warnings: tuple[str, ...] = ()
-
-    @classmethod
-    def of(cls, model: ObjectModel, made: bool, cpu_s: float) -> PreparedObject:
-        err = model.collision_error
-        return cls(
-            model.collision_method,
-            len(model.parts),
-            made,
-            float(model.decomposition_seconds) if made else 0.0,
-            cpu_s,
-            float(err.mean),
-            float(err.max),
-            model.collision_ladder,
-            tuple(model.warnings),
-        )
-
-    @property
-    def decomposed(self) -> bool:
-        """Its shape was made by the decomposition ladder in this task (not a hull or the shells
-        of a convex object, not read from the cache)."""
-        return self.made and bool(self.ladder)
-
-    def line(self) -> str:
-        """One line, e.g. ``decomposed by coacd into 34 parts in 14.2 CPU-s (collision error 0.15 /
-        1.82 mm)``."""
-        plural = "s" if self.parts != 1 else ""
-        if self.decomposed:
-            how = (
-                f"decomposed by {self.method} into {self.parts} part{plural} in "
-                f"{self.decomposition_cpu_s:.1f} CPU-s"
-            )
-        else:
-            how = f"{self.method}, {self.parts} part{plural}" + ("" if self.made else ", from the cache")
-        return f"{how} (collision error {self.error_mean * 1e3:.2f} / {self.error_max * 1e3:.2f} mm)"
-
-
-@dataclass(frozen=True)
-class SpanResult:
-    """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
-    as simulated (mass, scale, ...) for the manifest; ``artifacts``: files that belong with the
-    span's labels (file name -> bytes: the Kinect views it rendered), written by the main process;
-    ``prepared``: what a decomposition task (``span`` a :class:`Prepare`) found."""
-
-    span: Span | Prepare
-    rows: pd.DataFrame | None
-    error: str | None
-    stats: WorkerStats
-    info: dict[str, Any] | None = None
-    artifacts: dict[str, bytes] | None = None
-    prepared: PreparedObject | None = None
-
-
 @dataclass
 class LoadedObject:
-    """The object a worker has in its world: model, body, trial runner, sampled candidates;
-    ``cell``: its placements on the table (``--cell``), whose trials replace ``trial``;
-    ``resting``: the object resting on the table in the orientations given (``evaluate --resting``),
-    whose trials replace ``trial`` (then None)."""
+    """The object a worker has in its world: model, body, the object ``placed`` in the worker's
+    mode (:mod:`annotator.pipeline.modes`: its trials), sampled candidates by (seed, n)."""
 
     key: tuple
     model: ObjectModel
     uid: int
-    trial: GraspTrial | None
-    candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)  # (seed, n) -> ...
-    cell: CellObject | None = None
-    resting: RestingObject | None = None
+    placed: PlacedObject
+    candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)
 
     def release(self) -> None:
-        """Free its snapshots (and the cell's copy of it); the trial world's body is the caller's."""
-        if self.cell is not None:
-            self.cell.close()
-        elif self.resting is not None:
-            self.resting.close()
-        elif self.trial is not None:
-            self.trial.close()
+        """Free its trials and snapshots; the trial world's body is the caller's."""
+        self.placed.release()
 
 
 def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]) -> int:
@@ -308,28 +118,6 @@ def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]
     faces = len(model.mesh.faces) + sum(len(part.faces) for part in model.parts)
     arrays = (v for c in candidates.values() for v in vars(c).values() if isinstance(v, np.ndarray))
     return BYTES_PER_FACE * faces + sum(a.nbytes for a in arrays)
-
-
-def _cpu_seconds() -> float:
-    """CPU seconds of this process and of the children it waited for (the decompositions)."""
-    import resource
-
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
-
-
-def _peak_rss_mb() -> float:
-    """This process's peak resident memory (MB); 0 where the platform does not say."""
-    try:
-        import resource
-
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
-    except (ImportError, OSError):  # pragma: no cover - Windows
-        return 0.0
-
-
-def _canonical(q: np.ndarray) -> np.ndarray:
-    return -q if q[3] < 0 else q
 
 
 def object_info(model: ObjectModel) -> dict[str, Any]:
@@ -360,15 +148,11 @@ class WorkerState:
         self.world = None  # annotator.sim.world.World
         self.hand = None  # annotator.sim.hand.FloatingGripper
         self.gripper_key: tuple[str, str] | None = None  # (name, digest) of the gripper in the world
-        self.cell: CellWorlds | None = None  # the table and the arm world, --cell only
-        self.resting: RestingWorld | None = None  # the table, evaluate --resting only
+        self.world_mode: WorkerMode | None = None  # the mode's part of the world (annotator.pipeline.modes)
         self.obj: LoadedObject | None = None
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
-        self._watched_parent: int | None = None
-        self._stop_folder: str | None = None
-        self._versions_ok: dict[str, str] | None = None
 
     # --- the world ------------------------------------------------------------------------------
 
@@ -408,14 +192,7 @@ class WorkerState:
             self.world = World(config.physics)
             self.hand = FloatingGripper(self.world, config.gripper, gripper)
             self.gripper_key = gripper.key
-            if cell:
-                from annotator.cell.batch import CellWorlds
-
-                self.cell = CellWorlds(self.world, self.hand, config)
-            elif resting:
-                from annotator.cell.resting import RestingWorld
-
-                self.resting = RestingWorld(self.world, self.hand, config, resting)
+            self.world_mode = build_mode((cell, resting), self.world, self.hand, config)
             self.config = config
             self.mode = (cell, resting)
             if previous != kept:  # the keys do not hold the configuration
@@ -424,11 +201,11 @@ class WorkerState:
         return self.world, self.hand
 
     def close(self) -> None:
-        if self.cell is not None:
-            self.cell.close()
+        if self.world_mode is not None:
+            self.world_mode.close()
         if self.world is not None:
             self.world.close()
-        self.world = self.hand = self.obj = self.cell = self.resting = None
+        self.world = self.hand = self.obj = self.world_mode = None
 
     # --- objects ---------------------------------------------------------------------------------
 
@@ -504,11 +281,11 @@ class WorkerState:
         """A decomposition task (``task.span`` a :class:`Prepare`): load the object (its collision
         shape made and cached unless the cache holds it) and keep it for this worker's spans of it.
         Returns what was found (:class:`PreparedObject`), or the object's one-line error."""
-        t0, cpu0 = time.perf_counter(), _cpu_seconds()
-        self._watch_parent(task.parent_pid, task.status_dir)
+        t0, cpu0 = time.perf_counter(), cpu_seconds()
+        watch_parent(task.parent_pid, task.status_dir)
         unit = task.span
         try:
-            self._check_versions(task.versions)
+            check_versions(task.versions)
             self.world_for(task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting)
             key = self._key(task)
             if key in self.failed:
@@ -523,14 +300,14 @@ class WorkerState:
                     made = not model.from_cache
                 self._keep(key, model, candidates)
         except ObjectError as exc:
-            return SpanResult(unit, None, str(exc), self._stats(t0, 0.0))
+            return SpanResult(unit, None, str(exc), task_stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
             log.exception("%s: unexpected error while loading", unit.object_id)
-            return SpanResult(unit, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+            return SpanResult(unit, None, f"{type(exc).__name__}: {exc}", task_stats(t0, 0.0))
         finally:
             status.write(task.status_dir, None)
-        prepared = PreparedObject.of(model, made, _cpu_seconds() - cpu0)
-        return SpanResult(unit, None, None, self._stats(t0, 0.0), prepared=prepared)
+        prepared = PreparedObject.of(model, made, cpu_seconds() - cpu0)
+        return SpanResult(unit, None, None, task_stats(t0, 0.0), prepared=prepared)
 
     def _create(self, model: ObjectModel, key: tuple, candidates: dict) -> LoadedObject:
         """The object's body in this world, its trial (or its placements on the table)."""
@@ -542,30 +319,23 @@ class WorkerState:
             world.configure()
         hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
-        if self.resting is not None:
-            return LoadedObject(key, model, uid, None, candidates, resting=self.resting.load(model, uid))
-        if self.cell is None:
-            world.set_gravity(False)
-            return LoadedObject(key, model, uid, GraspTrial(world, hand, uid, config), candidates)
+        assert self.world_mode is not None
         try:
-            placed = self.cell.load(model, uid)
-        except ObjectError as exc:
+            placed = self.world_mode.place(model, uid)
+        except ObjectError as exc:  # no stable placement on the table
             world.remove_body(uid)
             self.failed[key] = str(exc)
             raise
         except BaseException:
             world.remove_body(uid)
             raise
-        return LoadedObject(key, model, uid, placed.trials[0], candidates, cell=placed)
+        return LoadedObject(key, model, uid, placed, candidates)
 
     def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
         """The object's N candidates, sampled once per (seed, N) and kept."""
         cands = loaded.candidates.get((seed, n))
         if cands is None:
-            if loaded.cell is not None:  # per placement, knowing the table
-                cands = loaded.cell.candidates(n, seed)
-            else:
-                cands = object_candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
+            cands = loaded.placed.candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
             loaded.candidates[(seed, n)] = cands
         return cands
 
@@ -576,17 +346,17 @@ class WorkerState:
         if isinstance(task.span, Prepare):
             return self.prepare(task)
         t0 = time.perf_counter()
-        self._watch_parent(task.parent_pid, task.status_dir)
+        watch_parent(task.parent_pid, task.status_dir)
         span = task.span
         try:
-            self._check_versions(task.versions)
+            check_versions(task.versions)
             loaded = self.object_for(task)
             grasps = self._grasps(task, loaded)
         except ObjectError as exc:
-            return SpanResult(span, None, str(exc), self._stats(t0, 0.0))
+            return SpanResult(span, None, str(exc), task_stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this object's, not the run's
             log.exception("%s: unexpected error while loading", span.object_id)
-            return SpanResult(span, None, f"{type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+            return SpanResult(span, None, f"{type(exc).__name__}: {exc}", task_stats(t0, 0.0))
         status.write(task.status_dir, f"simulating {span.object_id}")
         world = self.world
         assert world is not None and self.hand is not None
@@ -607,27 +377,12 @@ class WorkerState:
             reasons=span.given is not None,
         )
         artifacts = None
-        if task.cell is not None and task.cell.views > 0 and loaded.cell is not None:
-            # placement p's views come with the span holding grasp min(p, N - 1): exactly one span
-            # renders each placement, whatever the spans are (the first, unless P > chunk size)
-            artifacts = {}
-            for p in range(len(loaded.cell.placements)):
-                if span.start <= min(p, task.n - 1) < span.stop:
-                    status.write(task.status_dir, f"rendering {span.object_id}")
-                    artifacts.update(loaded.cell.render_views(p, task.cell.views, task.seed))
-        stats = self._stats(t0, world.step_seconds - steps0)
+        if task.cell is not None and task.cell.views > 0:
+            views, seed = task.cell.views, task.seed
+            artifacts = loaded.placed.views(span.start, span.stop, task.n, views, seed, task.status_dir)
+        stats = task_stats(t0, world.step_seconds - steps0)
         status.write(task.status_dir, None)
-        info = object_info(loaded.model)
-        if loaded.cell is not None:
-            info["placements"] = [
-                {
-                    "placement_id": p.placement_id,
-                    "stable_pose": p.pose_index,
-                    "probability": float(p.probability),
-                    "settle_drift": float(p.drift),
-                }
-                for p in loaded.cell.placements
-            ]
+        info = {**object_info(loaded.model), **loaded.placed.info()}
         return SpanResult(span, rows, None, stats, info, artifacts)
 
     def _grasps(self, task: SpanTask, loaded: LoadedObject) -> SpanGrasps:
@@ -635,11 +390,9 @@ class WorkerState:
         span = task.span
         if span.given is not None:
             g = span.given
-            if loaded.resting is None and g.rest_quat is not None:
+            if loaded.placed.mode != "resting" and g.rest_quat is not None:
                 raise ObjectError("grasps given with resting orientations, but the run is not --resting")
             return SpanGrasps(g.T_obj_tcp, g.width, g.quat, None, g.rest_quat)
-        if loaded.resting is not None:
-            raise ObjectError("--resting simulates given grasps only")
         cands = self.candidates(loaded, task.seed, task.n, task.config)
         placements = None if cands.placement is None else cands.placement[span.start : span.stop]
         return SpanGrasps(
@@ -648,212 +401,6 @@ class WorkerState:
             None,
             placements,
         )
-
-    def _stats(self, t0: float, step_seconds: float) -> WorkerStats:
-        seconds = time.perf_counter() - t0
-        return WorkerStats(seconds, step_seconds, _peak_rss_mb(), os.getpid(), socket.gethostname())
-
-    def _check_versions(self, expected: dict[str, str] | None) -> None:
-        if expected is None or self._versions_ok == expected:
-            return
-        mine = bound_versions()
-        diffs = [f"{k} {mine.get(k)} (run: {v})" for k, v in sorted(expected.items()) if mine.get(k) != v]
-        if diffs:
-            raise ObjectError(f"worker on {socket.gethostname()} has other versions: {', '.join(diffs)}")
-        self._versions_ok = expected
-
-    def _watch_parent(self, parent_pid: int | None, status_dir: str | None) -> None:
-        """End this worker's process soon after the local main process is gone (killed, even by
-        SIGKILL) or has asked its workers to stop (:func:`status.request_stop`, on Ctrl-C/SIGTERM)."""
-        self._stop_folder = status_dir  # the current run's; a reused worker serves several runs
-        if parent_pid is None or self._watched_parent == parent_pid:
-            return
-        self._watched_parent = parent_pid
-
-        def watch() -> None:
-            while True:
-                time.sleep(PARENT_CHECK_SECONDS)
-                if os.getppid() != parent_pid or status.stop_requested(self._stop_folder):
-                    os._exit(0)
-
-        threading.Thread(target=watch, name="rg2-parent-watch", daemon=True).start()
-
-
-def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float):
-    """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
-    return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
-
-
-def simulate(
-    loaded: LoadedObject,
-    T_obj_tcp: np.ndarray,
-    widths: np.ndarray,
-    first_id: int,
-    config: AnnotatorConfig,
-    seed: int,
-    trials: int,
-    object_id: str,
-    quats: np.ndarray | None = None,
-    *,
-    placements: np.ndarray | None = None,
-    rest_quats: np.ndarray | None = None,
-    gripper: str = DEFAULT_GRIPPER,
-    reasons: bool = False,
-) -> pd.DataFrame:
-    """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
-    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
-    ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
-    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
-    ``rest_quats`` (k, 4): resting (``loaded.resting``), the orientation each grasp's object rests
-    in (None: upright); ``gripper``: the name written in every row's ``gripper`` column;
-    ``reasons``: each row also says why a ``collision`` is one (:data:`REASON_COLUMNS`; given
-    grasps only: sampled labels keep their columns).
-
-    Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
-    pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
-    ``score`` is the fraction of all K trials that held. A candidate whose unperturbed pose
-    collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
-    cannot be executed).
-    """
-    model = loaded.model
-    rows = []
-    # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
-    sampled_quats = (
-        matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
-    )
-    for k in range(len(widths)):
-        grasp_id = first_id + k
-        if sampled_quats is not None:
-            T = Transform(T_obj_tcp[k][:3, 3], sampled_quats[k])
-        else:  # a recorded commanded pose: the very transform of the trial that recorded it
-            T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
-        width_expected = float(widths[k])
-        rest = None if loaded.resting is None else (UPRIGHT if rest_quats is None else rest_quats[k])
-        trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
-        run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
-        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
-        rows.append(_row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials))
-        if reasons:
-            rows[-1].update(_reasons(result.check, trial))
-        if loaded.cell is not None:  # placement, object pose on the table, reachability
-            rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))
-        elif loaded.resting is not None:  # the object's settled pose on the table
-            rows[-1].update(loaded.resting.columns(rest))
-    return pd.DataFrame(rows)
-
-
-# The orientation an object rests in when none is given: its mesh frame's own (+z up), xyzw.
-UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
-
-
-def _trial_for(
-    loaded: LoadedObject, T: Transform, placement: int | None, rest: np.ndarray | None
-) -> tuple[GraspTrial, int]:
-    """The trial a grasp runs in, and its cell placement (0 outside the cell)."""
-    if loaded.resting is not None:
-        return loaded.resting.trial_for(rest)[0], 0
-    if loaded.cell is None:
-        assert loaded.trial is not None
-        return loaded.trial, 0
-    if placement is None:  # a given grasp: where it comes most from above
-        placement = loaded.cell.placement_for(T)
-    return loaded.cell.trials[placement], placement  # else the placement it was sampled for
-
-
-@dataclass(frozen=True)
-class _Trials:
-    """What a candidate's trials gave: trial 0's outcome, pose, width and slip; all steps; how many
-    held; trial 0's kinematic check (None after an error)."""
-
-    outcome: Outcome
-    T_label: Transform
-    width: float
-    steps: int
-    slip: float
-    held: int
-    check: CollisionCheck | None = None
-
-
-# Why a given grasp's row is a collision (the names of a scene row's: docs/scenes.md):
-# collided_with, what the gripper touched ("object", "table"; "" when no collision) and
-# collision_stage, the check that found it ("approach", "closed", "pregrasp"; "").
-REASON_COLUMNS = ("collided_with", "collision_stage")
-
-
-def _reasons(check: CollisionCheck | None, trial: GraspTrial) -> dict[str, str]:
-    """The :data:`REASON_COLUMNS` of one row from trial 0's kinematic check."""
-    if check is None or not check.collided:
-        return {"collided_with": "", "collision_stage": ""}
-    hit = "object" if check.hit == trial.obj else "table" if check.hit in trial.obstacles else "other"
-    return {"collided_with": hit, "collision_stage": check.stage or ""}
-
-
-def _run_trials(
-    trial: GraspTrial,
-    T: Transform,
-    width_expected: float,
-    config: AnnotatorConfig,
-    seed: int,
-    trials: int,
-    object_id: str,
-    grasp_id: int,
-) -> _Trials:
-    """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
-    an ``error`` row, never the loss of the other candidates."""
-    try:
-        r = trial.run(T, width_expected)
-        held = int(r.outcome == Outcome.SUCCESS)
-        steps = r.steps
-        if r.outcome != Outcome.COLLISION and trials > 1:
-            rng = trial_rng(seed, object_id, grasp_id)
-            for _ in range(trials - 1):
-                p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
-                held += int(p.outcome == Outcome.SUCCESS)
-                steps += p.steps
-        return _Trials(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held, r.check)
-    except Exception as exc:  # a physics failure on one candidate must not lose the others
-        log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
-        return _Trials(Outcome.ERROR, T, width_expected, 0, np.nan, 0)
-
-
-def _row(
-    r: _Trials,
-    T: Transform,
-    width_expected: float,
-    model: ObjectModel,
-    seed: int,
-    object_id: str,
-    grasp_id: int,
-    gripper: str,
-    trials: int,
-) -> dict[str, Any]:
-    """One label row (the columns of docs/labels.md, in their order)."""
-    return {
-        "object_id": object_id,
-        "grasp_id": grasp_id,
-        **dict(zip(("x", "y", "z"), r.T_label.pos.tolist(), strict=True)),
-        **dict(zip(("qx", "qy", "qz", "qw"), _canonical(r.T_label.quat).tolist(), strict=True)),
-        "width": r.width,
-        "success": r.outcome == Outcome.SUCCESS,
-        "outcome": r.outcome.label,
-        "score": r.held / trials,
-        "object_scale": model.scale,
-        "mesh_sha256": model.mesh_sha256,
-        "seed": seed,
-        "sim_steps": r.steps,
-        "slip": r.slip,
-        "object_mass": model.mass,
-        # the commanded grasp: the TCP pose the gripper was placed at before closing (quaternion
-        # as simulated, not sign-canonicalised) and the expected chord the close started
-        # from; ``evaluate`` replays a label exactly from these
-        **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
-        **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
-        "cmd_width": width_expected,
-        # distance between the simulated collision shape and the mesh surface (m)
-        "collision_error": model.collision_error.max,
-        "collision_error_mean": model.collision_error.mean,
-        "gripper": gripper,  # the gripper description's name (docs/grippers.md)
-    }
 
 
 class _State:

@@ -45,10 +45,12 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
 from annotator.grippers import GripperDescription
+from annotator.label_row import TrialsResult, canonical, label_row
 from annotator.objects import ObjectModel, get_object_pose, physics_for
 from annotator.rng import keyed_rng, trial_rng
 from annotator.scenes.records import SceneRecord
 from annotator.scenes.world import LoadedScene, load_scene
+from annotator.schema import MODES, OBJECT_COLUMNS
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.store.names import scene_unit
@@ -58,24 +60,9 @@ log = logging.getLogger(__name__)
 
 # collided_with: what the gripper touched in the kinematic check of a ``collision`` row.
 HIT_NONE, HIT_TARGET, HIT_TABLE, HIT_NEIGHBOUR = "", "object", "table", "neighbour"
-TABLE_TCP_COLUMNS = tuple(f"table_tcp_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw"))  # T_table_tcp
-# The columns a scene row adds to an object label's (docs/scenes.md, "Labels among neighbours").
-SCENE_LABEL_COLUMNS = (
-    "scene_id",
-    "instance_id",
-    *TABLE_TCP_COLUMNS,
-    "collided_with",
-    "collided_instance",
-    "collision_stage",
-    "disturbance",
-    "disturbed",
-    "disturbed_instance",
-    "gripper",
-)
-
-
-def _canonical(q: np.ndarray) -> np.ndarray:
-    return -q if q[3] < 0 else q
+TABLE_TCP_COLUMNS = tuple(c for c in MODES["scene"] if c.startswith("table_tcp_"))  # T_table_tcp
+# The columns a scene row adds to an object label's (docs/labels.md, "Columns of annotate --scenes").
+SCENE_LABEL_COLUMNS = tuple(c for c in MODES["scene"] if c not in OBJECT_COLUMNS) + ("gripper",)
 
 
 @dataclass(frozen=True)
@@ -357,14 +344,9 @@ class SceneArm:
 
 @dataclass(frozen=True)
 class _Labelled:
-    """What one candidate's trials gave: outcome, pose and width of trial 0, held count, steps."""
+    """What one candidate's trials gave (``trials``), and what trial 0 hit and disturbed."""
 
-    outcome: Outcome
-    T_label: Transform
-    width: float
-    steps: int
-    slip: float
-    held: int
+    trials: TrialsResult
     hit: tuple[str, int]
     stage: str
     disturbance: float
@@ -395,12 +377,7 @@ def _try(
                 held += int(p.outcome == Outcome.SUCCESS)
                 steps += p.steps
         return _Labelled(
-            r.outcome,
-            r.T_obj_tcp,
-            r.width,
-            steps,
-            r.slip,
-            held,
+            TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held),
             trials.hit_of(first.check, instance_id),
             first.check.stage or "",
             first.disturbance,
@@ -408,7 +385,8 @@ def _try(
         )
     except Exception as exc:  # a physics failure on one candidate must not lose the others
         log.warning("%s grasp %d: %s: %s", unit, grasp_id, type(exc).__name__, exc)
-        return _Labelled(Outcome.ERROR, T, width, 0, float("nan"), 0, (HIT_NONE, -1), "", float("nan"), -1)
+        failed = TrialsResult(Outcome.ERROR, T, width, 0, float("nan"), 0)
+        return _Labelled(failed, (HIT_NONE, -1), "", float("nan"), -1)
 
 
 def label_scene(
@@ -435,45 +413,33 @@ def label_scene(
         width_expected = float(candidates.width_expected[grasp_id])
         got = _try(trials, instance_id, T, width_expected, unit, grasp_id, n_trials, seed)
         assert inst.T_table_obj is not None
-        T_table_tcp = inst.T_table_obj * got.T_label
-        row = {
-            "object_id": inst.object_id,
-            "grasp_id": grasp_id,
-            **dict(zip(("x", "y", "z"), got.T_label.pos.tolist(), strict=True)),
-            **dict(zip(("qx", "qy", "qz", "qw"), _canonical(got.T_label.quat).tolist(), strict=True)),
-            "width": got.width,
-            "success": got.outcome == Outcome.SUCCESS,
-            "outcome": got.outcome.label,
-            "score": got.held / n_trials,
-            "object_scale": model.scale,
-            "mesh_sha256": model.mesh_sha256,
-            "seed": seed,
-            "sim_steps": got.steps,
-            "slip": got.slip,
-            "object_mass": model.mass,
-            **dict(zip(("cmd_x", "cmd_y", "cmd_z"), T.pos.tolist(), strict=True)),
-            **dict(zip(("cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw"), T.quat.tolist(), strict=True)),
-            "cmd_width": width_expected,
-            "collision_error": model.collision_error.max,
-            "collision_error_mean": model.collision_error.mean,
+        T_table_tcp = inst.T_table_obj * got.trials.T_label
+        T_table_tcp_pose = [*T_table_tcp.pos.tolist(), *canonical(T_table_tcp.quat).tolist()]
+        extra = {
             "scene_id": int(record.scene_id),
             "instance_id": instance_id,
-            **dict(
-                zip(
-                    TABLE_TCP_COLUMNS,
-                    [*T_table_tcp.pos.tolist(), *_canonical(T_table_tcp.quat).tolist()],
-                    strict=True,
-                )
-            ),
+            **dict(zip(TABLE_TCP_COLUMNS, T_table_tcp_pose, strict=True)),
             "collided_with": got.hit[0],
             "collided_instance": got.hit[1],
             "collision_stage": got.stage,
             "disturbance": got.disturbance,
             "disturbed": bool(got.disturbance >= threshold),
             "disturbed_instance": got.disturbed_instance,
-            "gripper": trials.description.name,
         }
         if arm is not None:
-            row.update(arm.columns(instance_id, T, width_expected, f"{unit} grasp {grasp_id}"))
+            extra.update(arm.columns(instance_id, T, width_expected, f"{unit} grasp {grasp_id}"))
+        row = label_row(
+            "scene" if arm is None else "scene_cell",
+            object_id=inst.object_id,
+            grasp_id=grasp_id,
+            result=got.trials,
+            trials=n_trials,
+            T_cmd=T,
+            cmd_width=width_expected,
+            model=model,
+            seed=seed,
+            gripper=trials.description.name,
+            extra=extra,
+        )
         rows.append(row)
     return pd.DataFrame(rows)

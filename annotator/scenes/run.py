@@ -20,40 +20,23 @@ import hashlib
 import json
 import logging
 import math
-import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import Outcome
-from annotator.objects import (
-    ObjectDiscoveryError,
-    ObjectError,
-    default_cache_dir,
-    discover_objects,
-    source_digest,
-)
-from annotator.pipeline import status
+from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
+from annotator.pipeline.execution import UsageError
+from annotator.pipeline.lifecycle import Collector, Plan, TaskContext, loaded_gripper, merged, resumed
+from annotator.pipeline.options import RunOptions
 from annotator.pipeline.plan import FIRST_SPANS_AHEAD, MAX_N
-from annotator.pipeline.progress import Progress
-from annotator.pipeline.run import (
-    STATUS_AFTER,
-    RunOptions,
-    Terminated,
-    UsageError,
-    Workers,
-    _check_workers,
-    execute,
-    open_store,
-    running,
-)
-from annotator.pipeline.summary import ObjectStats, Summary
-from annotator.pipeline.worker import SpanResult
+from annotator.pipeline.summary import Summary
+from annotator.pipeline.tasks import SpanResult
 from annotator.scenes.records import ARRANGEMENTS, SceneRecord
 from annotator.scenes.views import MAX_INSTANCE_ID
 from annotator.scenes.worker import (
     SCENE_FILE,
-    SceneJob,
+    SceneRequest,
     SceneSpan,
     SceneTask,
     label_scene_span,
@@ -78,20 +61,32 @@ def scene_chunk_size(n: int) -> int:
     return max(SCENE_CHUNK_SIZE, math.ceil(n / 2000))
 
 
-def check_scene_options(options: RunOptions) -> None:
+@dataclass(frozen=True)
+class SceneOptions:
+    """``annotate --scenes``' own options: ``scenes`` scenes of ``per_scene`` (min, max) objects in
+    the ``arrangement``; ``views`` per scene; ``cell``: the UR3's reachability columns."""
+
+    scenes: int
+    per_scene: tuple[int, int] = (5, 5)
+    arrangement: str = "pile"
+    views: int = 0
+    cell: bool = False
+
+
+def check_scene_options(options: RunOptions, own: SceneOptions) -> None:
     """UsageError for scene options that cannot run."""
-    lo, hi = options.per_scene
-    if not 1 <= options.scenes <= MAX_SCENES:
-        raise UsageError(f"--scenes must be between 1 and {MAX_SCENES:,}, got {options.scenes}")
+    lo, hi = own.per_scene
+    if not 1 <= own.scenes <= MAX_SCENES:
+        raise UsageError(f"--scenes must be between 1 and {MAX_SCENES:,}, got {own.scenes}")
     if not 1 <= options.n <= MAX_N:
         raise UsageError(f"--n must be between 1 and {MAX_N:,} grasps per scene, got {options.n}")
     if not 1 <= lo <= hi <= MAX_OBJECTS_PER_SCENE:
         raise UsageError(f"--per-scene {lo}-{hi}: need 1 <= A <= B <= {MAX_OBJECTS_PER_SCENE}")
-    if options.arrangement not in ARRANGEMENTS:
+    if own.arrangement not in ARRANGEMENTS:
         choices = ", ".join(ARRANGEMENTS)
-        raise UsageError(f"--arrangement must be one of {choices}, got {options.arrangement!r}")
-    if options.views < 0:
-        raise UsageError(f"--views must be 0 or more, got {options.views}")
+        raise UsageError(f"--arrangement must be one of {choices}, got {own.arrangement!r}")
+    if own.views < 0:
+        raise UsageError(f"--views must be 0 or more, got {own.views}")
 
 
 def pool_digest(digests: dict[str, str]) -> str:
@@ -127,87 +122,89 @@ def plan_scene_spans(
                 yield SceneSpan(scenes[i][0], *rng)
 
 
-def run_scenes(options: RunOptions, config: AnnotatorConfig) -> Summary:
-    """The whole scene job; returns the summary (also printed). Exit conditions as
-    :func:`annotator.pipeline.run.run`."""
-    summary = Summary(unit="scene")
-    check_scene_options(options)
-    _check_workers(options)
-    try:
-        sources = discover_objects(options.objects_dir, config.objects)
-    except ObjectDiscoveryError as exc:
-        raise UsageError(str(exc)) from exc
-    digests: dict[str, str] = {}
-    unreadable = []
-    for source in sources:
+class SceneJob:
+    """``annotate --scenes N``: the scenes are the units of work (a job of
+    :mod:`annotator.pipeline.lifecycle`); the worker of a scene's first span builds it and returns
+    its record, which this job passes to the scene's later spans."""
+
+    unit = "scene"
+    noun = "grasps"
+    worker = staticmethod(label_scene_span)
+
+    def __init__(self, config: AnnotatorConfig, own: SceneOptions) -> None:
+        self.config = config
+        self.own = own
+        self.request: SceneRequest | None = None
+        self.units: dict[str, str] = {}
+        self.records: dict[int, SceneRecord] = {}
+        self.store: Store | None = None
+
+    def check(self, options: RunOptions) -> None:
+        named = loaded_gripper(options.gripper).name
+        if named != "rg2":
+            raise UsageError(f"--scenes simulates the RG2 only; --gripper {named} labels objects one by one")
+        check_scene_options(options, self.own)
+
+    def bind(self, options: RunOptions, summary: Summary) -> tuple[RunSpec, dict[str, str]]:
+        own = self.own
         try:
-            digests[source.object_id] = source_digest(source, config.objects.memory_budget)
-        except ObjectError as exc:
-            unreadable.append(f"{source.object_id}: {exc}")
-    if unreadable:
-        raise UsageError(f"scenes draw from every object; {len(unreadable)} cannot be read: {unreadable[0]}")
-    lo, hi = options.per_scene
-    job = SceneJob(
-        tuple(sources),
-        digests,
-        options.arrangement,
-        lo,
-        hi,
-        options.n,
-        options.seed,
-        options.trials,
-        options.views,
-        options.cell,
-        options.scale,
-    )
-    spec = RunSpec(
-        options.seed,
-        options.n,
-        options.trials,
-        options.scale,
-        scene_chunk_size(options.n),
-        config.to_dict(scenes=True),
-        inputs={"scenes": job.to_json()},
-    )
-    units = {scene_unit(s): pool_digest(digests) for s in range(options.scenes)}
-    store, resume = open_store(options, spec, units)
-    with running(store, summary) as status_dir:
-        _SceneRun(options, config, summary, store, job, units, status_dir).run(resume)
-    return summary
+            sources = discover_objects(options.objects_dir, self.config.objects)
+        except ObjectDiscoveryError as exc:
+            raise UsageError(str(exc)) from exc
+        digests: dict[str, str] = {}
+        unreadable = []
+        for source in sources:
+            try:
+                digests[source.object_id] = source_digest(source, self.config.objects.memory_budget)
+            except ObjectError as exc:
+                unreadable.append(f"{source.object_id}: {exc}")
+        if unreadable:
+            raise UsageError(
+                f"scenes draw from every object; {len(unreadable)} cannot be read: {unreadable[0]}"
+            )
+        lo, hi = own.per_scene
+        self.request = job = SceneRequest(
+            tuple(sources),
+            digests,
+            own.arrangement,
+            lo,
+            hi,
+            options.n,
+            options.seed,
+            options.trials,
+            own.views,
+            own.cell,
+            options.scale,
+        )
+        spec = RunSpec(
+            options.seed,
+            options.n,
+            options.trials,
+            options.scale,
+            scene_chunk_size(options.n),
+            self.config.to_dict(scenes=True),
+            inputs={"scenes": job.to_json()},
+        )
+        self.units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}
+        return spec, self.units
 
-
-@dataclass
-class _SceneRun:
-    """The body of :func:`run_scenes` once the folder is open: plan, hand out, write."""
-
-    options: RunOptions
-    config: AnnotatorConfig
-    summary: Summary
-    store: Store
-    job: SceneJob
-    units: dict[str, str]
-    status_dir: str
-    records: dict[int, SceneRecord] = field(default_factory=dict)
-    remaining: dict[str, int] = field(default_factory=dict)
-    seconds: dict[str, float] = field(default_factory=dict)
-
-    def run(self, resume) -> None:
-        store, summary, n = self.store, self.summary, self.options.n
-        chunk = store.spec.chunk_size
+    def plan(self, options: RunOptions, store: Store, resume, summary: Summary) -> Plan | None:
+        self.store = store
+        n, chunk = options.n, store.spec.chunk_size
         store.manifest.objects_planned = sorted(self.units)
-        for unit in sorted(resume.done):
-            summary.resumed[unit] = ObjectStats.from_json(store.manifest.objects_done[unit]["stats"], None)
+        resumed(store, summary, resume.done)
         todo = []
-        for scene_id in range(self.options.scenes):
+        remaining: dict[str, int] = {}
+        for scene_id in range(self.own.scenes):
             unit = scene_unit(scene_id)
             if unit in resume.done:
                 continue
             done = frozenset(resume.chunks.get(unit, set()))
-            self.remaining[unit] = math.ceil(n / chunk) - sum(
+            remaining[unit] = math.ceil(n / chunk) - sum(
                 1 for a, b in done if a % chunk == 0 and b == min(n, a + chunk)
             )
-            if self.remaining[unit] == 0:  # every chunk on disk: only the merge was missing
-                summary.done[unit] = ObjectStats.from_json(store.finish_object(unit, self.units[unit]), 0.0)
+            if remaining[unit] == 0:  # every chunk on disk: only the merge was missing
+                merged(store, summary, unit, self.units[unit])
                 continue
             self._recorded_scene(scene_id)
             todo.append((scene_id, done))
@@ -215,16 +212,23 @@ class _SceneRun:
         if resume.done or any(done for _, done in todo):
             log.info(
                 "resuming %s: %d scenes done earlier, %d chunks of unfinished scenes kept; %d grasps to do",
-                self.options.out_dir,
+                options.out_dir,
                 len(resume.done),
                 sum(len(done) for _, done in todo),
                 total,
             )
-        if todo:
-            self._execute(todo, total)
+        if not todo:
+            return None
+        return Plan(
+            total,
+            len(todo),
+            remaining,
+            lambda workers: plan_scene_spans(todo, n, chunk, max(FIRST_SPANS_AHEAD, 2 * workers)),
+        )
 
     def _recorded_scene(self, scene_id: int) -> None:
         """The scene's record from its first chunk's artifact when that chunk is on disk (resume)."""
+        assert self.store is not None
         entry = self.store.manifest.chunks_done.get(scene_unit(scene_id), {"files": {}})
         for record in entry["files"].values():
             artifact = record.get("artifacts", {}).get(SCENE_FILE)
@@ -233,80 +237,32 @@ class _SceneRun:
                     data = (self.store.out_dir / artifact["file"]).read_bytes()
                     self.records[scene_id] = record_from_artifact(data)
 
-    def _execute(self, todo, total: int) -> None:
-        options = self.options
-        workers = Workers(options, self.status_dir)
-        progress = Progress(total, len(todo), quiet=options.quiet)
-        versions = self.store.spec.versions
-        # read here, not in reused workers started under another env; a cluster's workers use
-        # --cache when given (a shared filesystem), else their own default folder
-        cache_dir = options.cache_dir or (default_cache_dir() if workers.client is None else None)
+    def make_task(self, span: SceneSpan, context: TaskContext) -> SceneTask:
+        assert self.request is not None
+        return SceneTask(
+            span,
+            self.request,
+            self.config,
+            record=self.records.get(span.scene_id),
+            versions=context.versions,
+            parent_pid=context.parent_pid,
+            status_dir=context.status_dir,
+            cache_dir=context.cache_dir,
+        )
 
-        def make_task(span: SceneSpan) -> SceneTask:
-            local = workers.client is None
-            return SceneTask(
-                span,
-                self.job,
-                self.config,
-                record=self.records.get(span.scene_id),
-                versions=versions,
-                parent_pid=workers.parent_pid,
-                status_dir=self.status_dir if local else None,
-                cache_dir=None if cache_dir is None else str(cache_dir),
-            )
-
-        def on_tick() -> None:
-            if progress.bar is not None:
-                busy = status.read(self.status_dir, older_than=STATUS_AFTER)
-                progress.status("; ".join(busy) if busy else "")
-
-        interrupted = True
-        try:
-            ahead = max(FIRST_SPANS_AHEAD, 2 * workers.count)
-            spans = plan_scene_spans(todo, options.n, self.store.spec.chunk_size, ahead)
-            on_result = lambda r: self.on_result(r, progress)  # noqa: E731
-            execute(spans, make_task, workers, on_result, on_tick, label_scene_span)
-            interrupted = False
-        except (KeyboardInterrupt, Terminated):
-            log.info("interrupted: %d grasps written this run", self.summary.candidates)
-            raise
-        finally:
-            progress.close()
-            workers.close(kill=interrupted)
-
-    def on_result(self, result: SpanResult, progress: Progress) -> None:
+    def take(self, result: SpanResult, collector: Collector) -> None:
         """Write a span's artifacts and labels (or fail its scene); merge a finished scene."""
-        summary, store = self.summary, self.store
-        span, unit = result.span, result.span.object_id
-        progress.advance(span.size)
-        summary.peak_rss_mb[result.stats.pid] = result.stats.peak_rss_mb
-        summary.worker_seconds += result.stats.seconds
-        if unit in summary.failed:
+        span: Any = result.span  # a SceneSpan
+        unit = span.object_id
+        collector.progress.advance(span.size)
+        collector.account(result)
+        if unit in collector.summary.failed:
             return
         if result.error is not None:
-            summary.failed[unit] = result.error
-            store.fail_object(unit, result.error)
-            log.error("%s", result.error)
-            progress.object_done(unit, "failed")
+            collector.fail(unit, result.error)
+            collector.progress.object_done(unit, "failed")
             return
-        df = result.rows
-        assert df is not None
-        self.seconds[unit] = self.seconds.get(unit, 0.0) + result.stats.seconds
-        summary.step_seconds += result.stats.step_seconds
-        summary.sim_steps += int(df["sim_steps"].sum())
-        summary.candidates += len(df)
-        summary.physics_trials += int((df["outcome"] != Outcome.COLLISION.label).sum())
-        if result.info is not None and unit not in store.manifest.objects_info:
-            store.record_info(unit, result.info)
         files = result.artifacts or {}
         if SCENE_FILE in files:
-            self.records[span.scene_id] = record_from_artifact(files[SCENE_FILE])  # type: ignore[attr-defined]
-        artifacts = {name: store.write_artifact(unit, name, data) for name, data in files.items()}
-        store.write_chunk(unit, df, span.start, self.units[unit], artifacts)
-        if summary.first_label_seconds is None:
-            summary.first_label_seconds = time.perf_counter() - summary.started
-        self.remaining[unit] -= 1
-        if self.remaining[unit] == 0:
-            stats = store.finish_object(unit, self.units[unit])
-            summary.done[unit] = done = ObjectStats.from_json(stats, self.seconds[unit])
-            progress.object_done(unit, done.line())
+            self.records[span.scene_id] = record_from_artifact(files[SCENE_FILE])
+        collector.write(result)

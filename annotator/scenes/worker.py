@@ -29,7 +29,9 @@ from annotator.config import AnnotatorConfig
 from annotator.grippers import GripperDescription, resolve_gripper
 from annotator.objects import ObjectError, ObjectModel, ObjectSource, default_cache_dir, load_object
 from annotator.pipeline import status
-from annotator.pipeline.worker import SpanResult, WorkerState, object_info
+from annotator.pipeline.process import check_versions, task_stats, watch_parent
+from annotator.pipeline.tasks import SpanResult
+from annotator.pipeline.worker import object_info
 from annotator.scenes.arrange import SceneBuilder
 from annotator.scenes.labels import SceneArm, SceneCandidates, SceneTrials, label_scene
 from annotator.scenes.records import SceneRecord, SceneSpec, scene_table, scenes_from_table
@@ -49,7 +51,7 @@ RECENT_MODELS = 32
 
 
 @dataclass(frozen=True)
-class SceneJob:
+class SceneRequest:
     """What every span of a scene run shares: the ``pool`` of objects (sorted by id) with their
     source ``digests``, the scenes asked for (``arrangement``, objects per scene
     ``min_objects``..``max_objects``), grasps per scene ``n``, ``seed``, ``trials`` per grasp,
@@ -105,11 +107,11 @@ class SceneSpan:
 
 @dataclass(frozen=True)
 class SceneTask:
-    """A span with what the worker needs: the job, the configuration, the scene's ``record`` when
+    """A span with what the worker needs: the request, the configuration, the scene's ``record`` when
     the main process has it, and the checks of :class:`annotator.pipeline.worker.SpanTask`."""
 
     span: SceneSpan
-    job: SceneJob
+    request: SceneRequest
     config: AnnotatorConfig
     record: SceneRecord | None = None
     versions: dict[str, str] | None = None
@@ -134,11 +136,11 @@ def _table_bytes(record: SceneRecord) -> bytes:
 
 
 class _Pool(Mapping[str, ObjectModel]):
-    """The job's objects as a Mapping that loads each on first use (a scene looks up what it draws)."""
+    """The request's objects as a Mapping that loads each on first use (a scene looks up what it draws)."""
 
     def __init__(self, state: SceneWorkerState, task: SceneTask) -> None:
         self.state, self.task = state, task
-        self.sources = {s.object_id: s for s in task.job.pool}
+        self.sources = {s.object_id: s for s in task.request.pool}
 
     def __getitem__(self, object_id: str) -> ObjectModel:
         return self.state.model(self.task, self.sources[object_id])
@@ -165,12 +167,11 @@ class _Current:
             self.arm.close()
 
 
-class SceneWorkerState(WorkerState):
+class SceneWorkerState:
     """This process's objects, built scenes and current scene; the parent watch and the version
-    check are :class:`annotator.pipeline.worker.WorkerState`'s."""
+    check are the process's (:mod:`annotator.pipeline.process`)."""
 
     def __init__(self) -> None:
-        super().__init__()
         self.models: OrderedDict[tuple, ObjectModel] = OrderedDict()
         self.records: OrderedDict[tuple, SceneRecord] = OrderedDict()
         self.current: _Current | None = None
@@ -179,12 +180,12 @@ class SceneWorkerState(WorkerState):
 
     def model(self, task: SceneTask, source: ObjectSource) -> ObjectModel:
         """The object ``source`` loaded as the run loads it (kept: RECENT_MODELS); ObjectError."""
-        digest = (task.job.digests or {}).get(source.object_id)
+        digest = (task.request.digests or {}).get(source.object_id)
         key = (
             source.object_id,
             str(source.path),
             digest,
-            task.job.scale,
+            task.request.scale,
             source.properties,
             task.config.objects,
         )
@@ -193,7 +194,7 @@ class SceneWorkerState(WorkerState):
             return self.models[key]
         status.write(task.status_dir, f"loading {source.object_id}")
         cache = Path(task.cache_dir) if task.cache_dir is not None else None
-        model = load_object(source, task.config.objects, scale=task.job.scale, cache_dir=cache)
+        model = load_object(source, task.config.objects, scale=task.request.scale, cache_dir=cache)
         self.models[key] = model
         while len(self.models) > RECENT_MODELS:
             self.models.popitem(last=False)
@@ -211,7 +212,7 @@ class SceneWorkerState(WorkerState):
         builder = SceneBuilder(
             _Pool(self, task), scenes=task.config.scenes, physics=task.config.physics, cell=task.config.cell
         )
-        record = builder.build(task.job.spec(task.span.scene_id))
+        record = builder.build(task.request.spec(task.span.scene_id))
         self.records[key] = record
         while len(self.records) > RECENT_SCENES:
             self.records.popitem(last=False)
@@ -219,10 +220,10 @@ class SceneWorkerState(WorkerState):
 
     @staticmethod
     def _scene_key(task: SceneTask) -> tuple:
-        job = task.job
-        pool = tuple((s.object_id, str(s.path), s.properties) for s in job.pool)
-        digests = tuple(sorted((job.digests or {}).items()))
-        return (task.span.scene_id, job.spec(0), pool, digests, job.scale, task.config)
+        request = task.request
+        pool = tuple((s.object_id, str(s.path), s.properties) for s in request.pool)
+        digests = tuple(sorted((request.digests or {}).items()))
+        return (task.span.scene_id, request.spec(0), pool, digests, request.scale, task.config)
 
     def scene_for(self, task: SceneTask) -> tuple[_Current, bool]:
         """The task's scene loaded for labelling (kept while the spans are of it); ObjectError
@@ -232,7 +233,7 @@ class SceneWorkerState(WorkerState):
             raise ObjectError(_empty_scene(record))
         cache_dir = task.cache_dir if task.cache_dir is not None else default_cache_dir()
         gripper = resolve_gripper(task.gripper, cache_dir)  # the run's files, never the user's folder
-        key = (self._scene_key(task), gripper.key, task.job.n, task.job.seed, task.job.cell)
+        key = (self._scene_key(task), gripper.key, task.request.n, task.request.seed, task.request.cell)
         if self.current is not None and self.current.key == key:
             return self.current, built
         self.close_scene()
@@ -240,8 +241,8 @@ class SceneWorkerState(WorkerState):
         models = {i.object_id: pool[i.object_id] for i in record.kept}
         trials = SceneTrials(record, models, task.config, gripper)
         try:
-            arm = SceneArm(record, models, task.config, gripper) if task.job.cell else None
-            candidates = trials.candidates(task.job.n, task.job.seed)
+            arm = SceneArm(record, models, task.config, gripper) if task.request.cell else None
+            candidates = trials.candidates(task.request.n, task.request.seed)
         except BaseException:
             trials.close()
             raise
@@ -258,25 +259,25 @@ class SceneWorkerState(WorkerState):
     def label_span(self, task: SceneTask) -> SpanResult:
         """Labels of one span of a scene, or the scene's one-line error."""
         t0 = time.perf_counter()
-        self._watch_parent(task.parent_pid, task.status_dir)
+        watch_parent(task.parent_pid, task.status_dir)
         span = task.span
         try:
-            self._check_versions(task.versions)
+            check_versions(task.versions)
             current, built = self.scene_for(task)
         except ObjectError as exc:
-            return _failed(span, f"{span.object_id}: {exc}", self._stats(t0, 0.0))
+            return _failed(span, f"{span.object_id}: {exc}", task_stats(t0, 0.0))
         except Exception as exc:  # an unexpected failure is this scene's, not the run's
             log.exception("%s: unexpected error while building", span.object_id)
-            return _failed(span, f"{span.object_id}: {type(exc).__name__}: {exc}", self._stats(t0, 0.0))
+            return _failed(span, f"{span.object_id}: {type(exc).__name__}: {exc}", task_stats(t0, 0.0))
         artifacts = self._artifacts(task, current) if span.start == 0 else None
         status.write(task.status_dir, f"simulating {span.object_id}")
         trials = current.trials
         steps0 = trials.world.step_seconds
-        job = task.job
+        request = task.request
         rows = label_scene(
-            trials, current.candidates, span.start, span.stop, job.seed, job.trials, current.arm
+            trials, current.candidates, span.start, span.stop, request.seed, request.trials, current.arm
         )
-        stats = self._stats(t0, trials.world.step_seconds - steps0)
+        stats = task_stats(t0, trials.world.step_seconds - steps0)
         status.write(task.status_dir, None)
         info = {
             "scene": {"kept": len(trials.record.kept), "built_by_this_span": built},
@@ -289,7 +290,7 @@ class SceneWorkerState(WorkerState):
         arm at READY with ``--cell``; the floating gripper waits 2 m up, out of every view)."""
         record = current.trials.record
         files = {SCENE_FILE: _table_bytes(record)}
-        if task.job.views > 0:
+        if task.request.views > 0:
             status.write(task.status_dir, f"rendering {task.span.object_id}")
             if current.arm is not None:
                 current.arm.reset()
@@ -300,7 +301,7 @@ class SceneWorkerState(WorkerState):
             kinect = task.config.kinect
             views = render_views(
                 loaded,
-                task.job.views,
+                task.request.views,
                 scenes=task.config.scenes,
                 kinect_config=kinect,
                 noise=kinect.views_depth_noise,

@@ -21,10 +21,11 @@ import pybullet_data
 import trimesh
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import pose_columns, validate_labels
+from annotator.dataset import validate_labels
 from annotator.files import atomic_write_path
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
+from annotator.label_row import TrialsResult, label_row
 from annotator.objects import ObjectModel, create_body, get_object_pose, load_object, physics_for
 from annotator.outcome import Outcome
 from annotator.sim.hand import FloatingGripper
@@ -125,32 +126,36 @@ class Capturer:
     def run(self, candidate: Candidate) -> TrialResult:
         return self._ensure_trial().run(candidate.T_obj_tcp, candidate.width)
 
-    def row(self, result: TrialResult, grasp_id: int) -> pd.DataFrame:
-        """The label row of a trial result (the columns the batch job writes)."""
-        pose = pose_columns(result.T_obj_tcp.as_matrix()[None])
-        data = {
-            "object_id": self.model.object_id,
-            "grasp_id": grasp_id,
-            **{c: pose[c].iloc[0] for c in pose.columns},
-            "width": result.width,
-            "success": result.outcome == Outcome.SUCCESS,
-            "outcome": result.outcome.label,
-            "score": float(result.outcome == Outcome.SUCCESS),
-            "object_scale": self.model.scale,
-            "mesh_sha256": self.model.mesh_sha256,
-            "seed": CAPTURE_SEED,
-            "sim_steps": result.steps,
-            "slip": result.slip,
-            "object_mass": self.model.mass,
-            "gripper": self.gripper.name,
-        }
+    def row(self, result: TrialResult, grasp_id: int, candidate: Candidate) -> pd.DataFrame:
+        """The label row of ``candidate``'s trial ``result``: the columns the batch job writes
+        (:func:`annotator.label_row.label_row`, mode ``capture``), its commanded grasp included."""
+        trials = TrialsResult(
+            result.outcome,
+            result.T_obj_tcp,
+            result.width,
+            result.steps,
+            result.slip,
+            int(result.outcome == Outcome.SUCCESS),
+        )
+        data = label_row(
+            "capture",
+            object_id=self.model.object_id,
+            grasp_id=grasp_id,
+            result=trials,
+            trials=1,
+            T_cmd=candidate.T_obj_tcp,
+            cmd_width=candidate.width,
+            model=self.model,
+            seed=CAPTURE_SEED,
+            gripper=self.gripper.name,
+        )
         return validate_labels(pd.DataFrame([data]))
 
     def capture(self, candidate: Candidate) -> pd.DataFrame:
         """Run ``candidate`` and append its row to the capture file; returns the row."""
         existing = read_captures(self.out)
         grasp_id = int((existing["object_id"] == self.model.object_id).sum()) if existing is not None else 0
-        row = self.row(self.run(candidate), grasp_id)
+        row = self.row(self.run(candidate), grasp_id, candidate)
         table = row if existing is None else validate_labels(pd.concat([existing, row], ignore_index=True))
         _write_atomic(table, self.out)
         return row

@@ -1,0 +1,139 @@
+"""The trials of a span and its label rows: each grasp runs in the trial of its mode (floating, a
+cell placement, resting on the table), trial 0 unperturbed and K-1 perturbed, and becomes one row
+(:func:`annotator.label_row.label_row`)."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from annotator.config import AnnotatorConfig
+from annotator.dataset import Outcome
+from annotator.geometry import Transform, matrix_to_quat
+from annotator.grippers import DEFAULT_GRIPPER
+from annotator.label_row import TrialsResult, label_row
+from annotator.objects import ObjectModel
+from annotator.rng import object_rng, trial_rng
+from annotator.sampler import sample_candidates
+from annotator.schema import REASON_COLUMNS  # noqa: F401  (named in the docstring; the workers' import)
+from annotator.trial import CollisionCheck, GraspTrial, Perturbation
+
+if TYPE_CHECKING:
+    from annotator.pipeline.worker import LoadedObject
+
+log = logging.getLogger(__name__)
+
+
+def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float):
+    """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
+    return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
+
+
+def simulate(
+    loaded: LoadedObject,
+    T_obj_tcp: np.ndarray,
+    widths: np.ndarray,
+    first_id: int,
+    config: AnnotatorConfig,
+    seed: int,
+    trials: int,
+    object_id: str,
+    quats: np.ndarray | None = None,
+    *,
+    placements: np.ndarray | None = None,
+    rest_quats: np.ndarray | None = None,
+    gripper: str = DEFAULT_GRIPPER,
+    reasons: bool = False,
+) -> pd.DataFrame:
+    """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
+    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
+    ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
+    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
+    ``rest_quats`` (k, 4): resting, the orientation each grasp's object rests in (None: upright);
+    ``gripper``: the name written in every row's ``gripper`` column; ``reasons``: each row also says
+    why a ``collision`` is one (:data:`REASON_COLUMNS`; given grasps only: sampled labels keep their
+    columns). The object ``placed`` in the
+    worker's mode (:mod:`annotator.pipeline.modes`) gives each grasp its trial, the pose to run it
+    at and the row's columns of the mode.
+
+    Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
+    pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
+    ``score`` is the fraction of all K trials that held. A candidate whose unperturbed pose
+    collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
+    cannot be executed).
+    """
+    model = loaded.model
+    rows = []
+    # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
+    sampled_quats = (
+        matrix_to_quat(np.asarray(T_obj_tcp)[:, :3, :3]) if quats is None and len(widths) else None
+    )
+    placed = loaded.placed
+    for k in range(len(widths)):
+        grasp_id = first_id + k
+        if sampled_quats is not None:
+            T = Transform(T_obj_tcp[k][:3, 3], sampled_quats[k])
+        else:  # a recorded commanded pose: the very transform of the trial that recorded it
+            assert quats is not None
+            T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
+        width_expected = float(widths[k])
+        rest = None if rest_quats is None else rest_quats[k]
+        trial, placement = placed.trial_for(T, None if placements is None else int(placements[k]), rest)
+        run_T = placed.grasp(rest, T)
+        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
+        rows.append(
+            label_row(
+                placed.mode,
+                object_id=object_id,
+                grasp_id=grasp_id,
+                result=result,
+                trials=trials,
+                T_cmd=T,
+                cmd_width=width_expected,
+                model=model,
+                seed=seed,
+                gripper=gripper,
+                extra=placed.columns(placement, T, width_expected, grasp_id, rest),
+                reasons=_reasons(result.check, trial) if reasons else None,
+            )
+        )
+    return pd.DataFrame(rows)
+
+
+def _reasons(check: CollisionCheck | None, trial: GraspTrial) -> dict[str, str]:
+    """The :data:`REASON_COLUMNS` of one row from trial 0's kinematic check (None after an error)."""
+    if check is None or not check.collided:
+        return {"collided_with": "", "collision_stage": ""}
+    hit = "object" if check.hit == trial.obj else "table" if check.hit in trial.obstacles else "other"
+    return {"collided_with": hit, "collision_stage": check.stage or ""}
+
+
+def _run_trials(
+    trial: GraspTrial,
+    T: Transform,
+    width_expected: float,
+    config: AnnotatorConfig,
+    seed: int,
+    trials: int,
+    object_id: str,
+    grasp_id: int,
+) -> TrialsResult:
+    """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
+    an ``error`` row, never the loss of the other candidates."""
+    try:
+        r = trial.run(T, width_expected)
+        held = int(r.outcome == Outcome.SUCCESS)
+        steps = r.steps
+        if r.outcome != Outcome.COLLISION and trials > 1:
+            rng = trial_rng(seed, object_id, grasp_id)
+            for _ in range(trials - 1):
+                p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
+                held += int(p.outcome == Outcome.SUCCESS)
+                steps += p.steps
+        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held, r.check)
+    except Exception as exc:  # a physics failure on one candidate must not lose the others
+        log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
+        return TrialsResult(Outcome.ERROR, T, width_expected, 0, np.nan, 0)

@@ -1,0 +1,223 @@
+"""What passes between the main process and a worker: units of work (a :class:`Span` of an object's
+candidates, a :class:`Prepare` decomposition task), the task that carries one (:class:`SpanTask`)
+and what comes back (:class:`SpanResult`). Plain records: they travel by pickle to local workers
+and to a Dask cluster.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from annotator.config import AnnotatorConfig
+from annotator.grippers import GripperDescription, GripperFiles
+from annotator.objects import ObjectModel, ObjectSource
+
+
+@dataclass(frozen=True)
+class GivenGrasps:
+    """Poses to simulate instead of sampled candidates (``evaluate``, benches, tests).
+
+    T_obj_tcp : (k, 4, 4) float, TCP poses in the object's mesh frame; width : (k,) float, the
+    expected chord between the contacts (m). quat : (k, 4) float xyzw or None: the rotations bit
+    for bit (a label's ``cmd_q*`` replayed exactly); without it they come from ``T_obj_tcp``.
+    rest_quat : (k, 4) float xyzw or None: with ``--resting``, the orientation each grasp's object
+    rests in on the table (its mesh frame in the table frame); None: the mesh frame's own, +z up.
+    """
+
+    T_obj_tcp: np.ndarray
+    width: np.ndarray
+    quat: np.ndarray | None = None
+    rest_quat: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SpanGrasps:
+    """The grasps a worker simulates for one span: as :class:`GivenGrasps`, plus ``placements``
+    (k,) int, the cell placement each sampled candidate rests in (None: not in the cell)."""
+
+    T_obj_tcp: np.ndarray
+    width: np.ndarray
+    quat: np.ndarray | None = None
+    placements: np.ndarray | None = None
+    rest_quat: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Span:
+    """A unit of work: candidates ``start..stop-1`` of one object (or ``given`` poses, numbered so)."""
+
+    object_id: str
+    source: ObjectSource
+    scale: float | None
+    start: int
+    stop: int
+    given: GivenGrasps | None = None
+
+    @property
+    def size(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.object_id, self.start)
+
+    def describe(self) -> str:
+        """What a worker does with it, for a reason: ``simulating candidates 0-9``."""
+        return f"simulating candidates {self.start}-{self.stop - 1}"
+
+
+@dataclass(frozen=True)
+class Prepare:
+    """A decomposition task: load one object in a worker, ahead of its spans, so that its collision
+    shape is made (and written to the cache) once, by one worker, while other workers label.
+
+    A worker that runs it keeps the model for its own spans of the object; every other worker
+    reads the shape from the cache. It simulates nothing (``size`` 0); its result carries a
+    :class:`PreparedObject`, or the object's one-line error (an unusable mesh).
+    """
+
+    object_id: str
+    source: ObjectSource
+    scale: float | None
+
+    size = 0
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.object_id, -1)  # before the object's spans
+
+    def describe(self) -> str:
+        return "loading (decomposing) the object"
+
+
+@dataclass(frozen=True)
+class CellOptions:
+    """``annotate --cell``: objects rest on the seed's table; ``views`` Kinect views per placement."""
+
+    views: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """What the manifest binds (RunSpec.inputs['cell'])."""
+        return {"views": int(self.views)}
+
+
+@dataclass(frozen=True)
+class SpanTask:
+    """What a worker is asked to do (``span``: a :class:`Span` to label, or a :class:`Prepare`), with
+    what it needs to check that it may.
+
+    ``source_sha256``: the object's source digest (a worker keeps a loaded object only while it is
+    the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
+    others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
+    exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
+    doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
+    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper);
+    ``gripper``: the gripper simulated (None: the default, the RG2), or its files
+    (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache);
+    ``resting``: the object rests on the cell's table while the given grasps close (``evaluate
+    --resting``, :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it
+    settles; ``"table"``, they stay where they were given in the table frame.
+    """
+
+    span: Span | Prepare
+    config: AnnotatorConfig
+    seed: int
+    n: int
+    trials: int = 1
+    source_sha256: str | None = None
+    versions: dict[str, str] | None = None
+    parent_pid: int | None = None
+    status_dir: str | None = None
+    cache_dir: str | None = None
+    cell: CellOptions | None = None
+    gripper: GripperDescription | GripperFiles | None = None
+    resting: bool | str = False
+
+
+@dataclass(frozen=True)
+class WorkerStats:
+    """Worker time of one span (s), of which inside stepSimulation, peak memory (MB), the worker."""
+
+    seconds: float
+    step_seconds: float
+    peak_rss_mb: float
+    pid: int
+    host: str
+
+
+@dataclass(frozen=True)
+class PreparedObject:
+    """What a decomposition task (:class:`Prepare`) reports about its object.
+
+    ``method``: the collision method (hull, shells, coacd, vhacd); ``parts``: convex parts;
+    ``made``: the collision shape was made by this task (False: read from the cache, or held by the
+    worker already); ``decomposition_cpu_s``: CPU seconds of the decomposition ladder when it ran
+    (0 otherwise); ``cpu_s``: CPU seconds of the whole load in the worker (its process and the
+    decomposition processes it waited for); ``error_mean`` / ``error_max``: collision error (m);
+    ``warnings``: the object's warnings, one line each, without its id.
+    """
+
+    method: str
+    parts: int
+    made: bool
+    decomposition_cpu_s: float
+    cpu_s: float
+    error_mean: float
+    error_max: float
+    ladder: str = ""
+    warnings: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, model: ObjectModel, made: bool, cpu_s: float) -> PreparedObject:
+        err = model.collision_error
+        assert err is not None  # a loaded model has its collision shape
+        return cls(
+            model.collision_method,
+            len(model.parts),
+            made,
+            float(model.decomposition_seconds) if made else 0.0,
+            cpu_s,
+            float(err.mean),
+            float(err.max),
+            model.collision_ladder,
+            tuple(model.warnings),
+        )
+
+    @property
+    def decomposed(self) -> bool:
+        """Its shape was made by the decomposition ladder in this task (not a hull or the shells
+        of a convex object, not read from the cache)."""
+        return self.made and bool(self.ladder)
+
+    def line(self) -> str:
+        """One line, e.g. ``decomposed by coacd into 34 parts in 14.2 CPU-s (collision error 0.15 /
+        1.82 mm)``."""
+        plural = "s" if self.parts != 1 else ""
+        if self.decomposed:
+            how = (
+                f"decomposed by {self.method} into {self.parts} part{plural} in "
+                f"{self.decomposition_cpu_s:.1f} CPU-s"
+            )
+        else:
+            how = f"{self.method}, {self.parts} part{plural}" + ("" if self.made else ", from the cache")
+        return f"{how} (collision error {self.error_mean * 1e3:.2f} / {self.error_max * 1e3:.2f} mm)"
+
+
+@dataclass(frozen=True)
+class SpanResult:
+    """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
+    as simulated (mass, scale, ...) for the manifest; ``artifacts``: files that belong with the
+    span's labels (file name -> bytes: the Kinect views it rendered), written by the main process;
+    ``prepared``: what a decomposition task (``span`` a :class:`Prepare`) found."""
+
+    span: Span | Prepare
+    rows: pd.DataFrame | None
+    error: str | None
+    stats: WorkerStats
+    info: dict[str, Any] | None = None
+    artifacts: dict[str, bytes] | None = None
+    prepared: PreparedObject | None = None
