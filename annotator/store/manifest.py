@@ -89,6 +89,24 @@ def canonical(obj: Any) -> Any:
     return json.loads(json.dumps(obj, sort_keys=True, default=_json_default))
 
 
+def _dumps_by_line(data: dict[str, Any]) -> str:
+    """``data`` as JSON, sorted: one line per top-level field, and one line per entry of the
+    fields that are maps of records (an object's record on its own line, for grep and diff)."""
+    parts = []
+    for key in sorted(data):
+        value = data[key]
+        name = json.dumps(key)
+        if isinstance(value, dict) and value and all(isinstance(v, dict) for v in value.values()):
+            entries = (
+                f"  {json.dumps(k)}: {json.dumps(value[k], sort_keys=True, default=_json_default)}"
+                for k in sorted(value)
+            )
+            parts.append(f"{name}: {{\n" + ",\n".join(entries) + "\n }")
+        else:
+            parts.append(f"{name}: {json.dumps(value, sort_keys=True, default=_json_default)}")
+    return "{\n " + ",\n ".join(parts) + "\n}\n"
+
+
 def _json_default(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
@@ -338,21 +356,28 @@ class Manifest:
     def path(out_dir: Path) -> Path:
         return Path(out_dir) / MANIFEST_NAME
 
-    def to_json(self) -> dict[str, Any]:
-        data = canonical(dataclasses.asdict(self))
-        for name in MANIFEST_SCHEMA.optional:  # absent rather than null (folders of earlier versions)
+    def _fields(self) -> dict[str, Any]:
+        """The fields as they are (no copy), optional ones absent rather than null (as folders of
+        earlier versions have them)."""
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for name in MANIFEST_SCHEMA.optional:
             if data.get(name) is None:
                 data.pop(name, None)
         return data
 
+    def to_json(self) -> dict[str, Any]:
+        """A JSON copy of the manifest (what ``json.load`` of the file gives)."""
+        return canonical(self._fields())
+
     def save(self, out_dir: Path) -> None:
         """Write the whole manifest atomically, as this version writes it (OutputError if the folder
         cannot be written). Only a compaction does (:meth:`annotator.store.Store.compact`): every
-        other change goes to the journal."""
+        other change goes to the journal. One line per object in the per-object maps, written by
+        the C encoder (no copy of the manifest is made)."""
         self.updated = utc_now()
         self.manifest_version = MANIFEST_VERSION
-        text = json.dumps(self.to_json(), indent=1, sort_keys=True)
-        atomic_write(self.path(out_dir), lambda fh: fh.write(text.encode("utf-8") + b"\n"))
+        text = _dumps_by_line(self._fields())
+        atomic_write(self.path(out_dir), lambda fh: fh.write(text.encode("utf-8")))
 
     @classmethod
     def load(cls, out_dir: Path) -> Manifest | None:
