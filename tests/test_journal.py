@@ -193,6 +193,17 @@ def test_a_corrupt_journal_line_is_one_line_and_repair_redoes_what_it_recorded(t
     assert _ops(tmp_path) == ["begin"]
 
 
+def test_a_damaged_first_line_is_one_line_and_repair_applies_the_rest(tmp_path: Path) -> None:
+    _three_finished(tmp_path)
+    lines = _lines(tmp_path)
+    (tmp_path / JOURNAL_NAME).write_bytes(b"garbage\n" + b"".join(lines[1:]))
+    with pytest.raises(ManifestUnreadableError, match=f"{JOURNAL_NAME}: line 1 does not verify.*--repair"):
+        _open(tmp_path)
+    store = _open(tmp_path, repair=True)
+    assert store.reconcile({"a": SRC, "b": SRC, "c": SRC}).done == {"a", "b", "c"}
+    store.close()
+
+
 def test_a_torn_last_line_is_ignored_without_repair(tmp_path: Path) -> None:
     _three_finished(tmp_path)
     lines = _lines(tmp_path)

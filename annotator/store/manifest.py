@@ -513,9 +513,20 @@ def load_state(out_dir: Path, *, repair: bool = False) -> LoadedState:
     state = LoadedState(manifest)
     jpath = journal_path(out_dir)
     text = read_journal(jpath) if manifest.journal else None
+    if text is not None and text.journal_id is None and text.last > 1:
+        # its first line is damaged: whose journal it is cannot be told, but it holds records
+        line = f"{jpath.name} line 1 does not verify (the journal's name)"
+        if not repair:
+            raise JournalUnreadableError(
+                f"{jpath}: line 1 does not verify (the journal's name); pass --repair to apply the lines "
+                "that do (what they vouch for is verified) or --overwrite to start over"
+            )
+        state.skipped.append(f"{line}; its other lines applied")
+        text.journal_id = manifest.journal
+        text.lines = [(number, op) for number, op in text.lines if number != 1]
     if text is None or text.journal_id != manifest.journal:
         return state  # none yet, or one this manifest already holds
-    state.journal_current = True
+    state.journal_current = not state.skipped
     for number, op in text.lines:
         why = "does not verify (cut short, a flipped byte or not a record)" if op is None else None
         if op is not None:
