@@ -366,7 +366,7 @@ def store_one(args) -> None:
         store = Store(out, spec)
         store.open()
         store.reconcile(digests)
-        saves = []
+        saves, saves_cpu = [], []
         c0, t0 = time.process_time(), time.perf_counter()
         for oid, digest in digests.items():
             (out / object_filename(oid)).write_bytes(data)  # the label file (not timed apart)
@@ -381,18 +381,21 @@ def store_one(args) -> None:
                 "stats": {"n": 1, "successes": 1, "mean_score": 1.0, "outcomes": {"success": 1}},
             }
             store.record({"op": "done", "oid": oid, "record": done})
-            s0 = time.perf_counter()
+            s0, sc0 = time.perf_counter(), time.process_time()
             store.save(force=True)  # as finish_object does
             saves.append(time.perf_counter() - s0)
+            saves_cpu.append(time.process_time() - sc0)
         fig["fill_s"] = time.perf_counter() - t0
         fig["bookkeeping_cpu_ms_per_object"] = (time.process_time() - c0) / count * 1e3
         saves_ms = np.array(saves) * 1e3
         fig["save_ms_median"] = float(np.median(saves_ms))
         fig["save_ms_p99"] = float(np.percentile(saves_ms, 99))
         fig["save_ms_last_1000"] = float(np.median(saves_ms[-1000:]))
-        t0 = time.perf_counter()
+        fig["save_cpu_ms_mean"] = float(np.mean(saves_cpu) * 1e3)
+        c0, t0 = time.process_time(), time.perf_counter()
         store.close()  # the compaction
         fig["close_s"] = time.perf_counter() - t0
+        fig["close_cpu_s"] = time.process_time() - c0
         fig["manifest_mb"] = Manifest.path(out).stat().st_size / 2**20
         t0 = time.perf_counter()
         Manifest.load(out).save(tmp)  # what the store before the journal wrote at every save
@@ -403,7 +406,8 @@ def store_one(args) -> None:
         store.open()
         resume = store.reconcile(digests)
         fig["resume_s"] = time.perf_counter() - t0
-        fig["resume_cpu_ms_per_object"] = (time.process_time() - c0) / count * 1e3
+        fig["resume_cpu_s"] = time.process_time() - c0
+        fig["resume_cpu_ms_per_object"] = fig["resume_cpu_s"] / count * 1e3
         assert len(resume.done) == count, f"{len(resume.done)} of {count} resumed as done"
         store.close()
         fig["peak_rss_mb"] = _rss_mb()
@@ -454,10 +458,12 @@ def store_bench(args) -> None:
             fig = json.loads(proc.stdout.strip().splitlines()[-1])
             rows.append(fig)
             print(
-                f"{count:>9,} objects: save {fig['save_ms_median']:.2f} ms (p99 {fig['save_ms_p99']:.2f}), "
-                f"resume {fig['resume_s']:.2f} s ({fig['resume_cpu_ms_per_object']:.3f} CPU-ms/object), "
-                f"close {fig['close_s']:.2f} s, bookkeeping {fig['bookkeeping_cpu_ms_per_object']:.3f} "
-                f"CPU-ms/object, peak RSS {fig['peak_rss_mb']:.0f} MB, manifest {fig['manifest_mb']:.1f} MB "
+                f"{count:>9,} objects: save {fig['save_ms_median']:.2f} ms (p99 {fig['save_ms_p99']:.2f}, "
+                f"CPU {fig['save_cpu_ms_mean']:.3f} ms), resume {fig['resume_s']:.2f} s (CPU "
+                f"{fig['resume_cpu_s']:.2f} s, {fig['resume_cpu_ms_per_object']:.3f} ms/object), close "
+                f"{fig['close_s']:.2f} s (CPU {fig['close_cpu_s']:.2f} s), bookkeeping "
+                f"{fig['bookkeeping_cpu_ms_per_object']:.3f} CPU-ms/object, "
+                f"peak RSS {fig['peak_rss_mb']:.0f} MB, manifest {fig['manifest_mb']:.1f} MB "
                 f"(written whole: {fig['full_manifest_write_s']:.2f} s), discovery+digests "
                 f"{fig['discover_digest_s']:.1f} s"
             )
@@ -485,6 +491,9 @@ def store_bench(args) -> None:
                 f"peak_rss_mb_{tag}", fig["peak_rss_mb"], "MB", note="the measuring process, all phases"
             )
             run.figure(f"close_s_{tag}", fig["close_s"], "s", note="the compaction at the end of the run")
+            run.figure(f"save_cpu_ms_{tag}", fig["save_cpu_ms_mean"], "ms", note="mean CPU of one save")
+            run.figure(f"resume_cpu_s_{tag}", fig["resume_cpu_s"], "s", note="CPU of the resume")
+            run.figure(f"close_cpu_s_{tag}", fig["close_cpu_s"], "s", note="CPU of the compaction")
             run.figure(
                 f"full_manifest_write_s_{tag}",
                 fig["full_manifest_write_s"],
@@ -506,6 +515,16 @@ def store_bench(args) -> None:
                 note="resume time per object: O(objects) is 1",
             )
             run.ratio(
+                "save_cpu_largest_vs_smallest",
+                big["save_cpu_ms_mean"] / small["save_cpu_ms_mean"],
+                note="CPU of one save (what a busy machine does not inflate): flat is 1",
+            )
+            run.ratio(
+                "resume_cpu_per_object_largest_vs_smallest",
+                big["resume_cpu_ms_per_object"] / small["resume_cpu_ms_per_object"],
+                note="CPU of the resume per object: O(objects) is 1",
+            )
+            run.ratio(
                 "full_rewrite_vs_journal_save_largest",
                 big["full_manifest_write_s"] * 1e3 / big["save_ms_median"],
                 note="one save before the journal / one save now, at the largest size",
@@ -515,7 +534,9 @@ def store_bench(args) -> None:
             extrapolated = {
                 "save_ms": big["save_ms_median"],
                 "resume_s": big["resume_s"] * per,
+                "resume_cpu_s": big["resume_cpu_s"] * per,
                 "close_s": big["close_s"] * per,
+                "close_cpu_s": big["close_cpu_s"] * per,
                 "peak_rss_mb": big["peak_rss_mb"] + slope_rss * (million - big["objects"]),
                 "bookkeeping_cpu_s": big["bookkeeping_cpu_ms_per_object"] * million / 1e3,
                 "discover_digest_s": big["discover_digest_s"] * per,

@@ -236,7 +236,7 @@ def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Pla
         name, hidden = entry["file"], merging_name(entry["file"])
         if (
             not read_only
-            and name not in listing.parquet
+            and name not in listing.present
             and hidden in listing.merging
             and listing.check_record(entry, hidden) is None
         ):
@@ -259,12 +259,13 @@ def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Pla
         return plan
     kept = [rec for rec in manifest.label_records() if rec["file"] not in dropped]
     vouched = {rec["file"] for rec in kept}
+    removing = set(plan.unlink)
     for name in listing.parquet:
         if name in vouched:
             continue
         owner = listing.owner(name, manifest.run_id)
         if owner in (Owner.THIS_RUN, Owner.CORRUPT):
-            if name not in plan.unlink:
+            if name not in removing:
                 plan.unlink.append(name)
                 plan.logs.append(f"removed {name}: written but never recorded, or unreadable (redone)")
         else:
@@ -290,7 +291,7 @@ def _distrust(
     read_only: bool,
 ) -> None:
     name = record["file"]
-    owner = listing.owner(name, manifest.run_id) if name in listing.parquet else None
+    owner = listing.owner(name, manifest.run_id) if name in listing.present else None
     if owner in _KEEP_OWNERS:
         plan.note_foreign(name, owner)  # type: ignore[arg-type]  # recorded name, not this run's file
         return

@@ -66,7 +66,7 @@ class Recorded:
 class Listing:
     """An output folder as :func:`survey` read it (names relative to the folder, ``/``-separated).
 
-    parquet : every ``*.parquet`` entry; regular : those that are regular files
+    parquet : every ``*.parquet`` entry (present: the same as a set); regular : the regular files
     marks : the tool's mark of the entries read (None: unmarked or unreadable)
     unreadable : label-named regular files without a readable Parquet footer (the tool's, corrupt)
     digests : SHA-256 of the files hashed; problems : why a file to hash could not be ("missing")
@@ -96,6 +96,7 @@ class Listing:
     recorded: Recorded | None = None
     labels_why: dict[str, str | None] = field(default_factory=dict)
     stats: dict[str, dict[str, Any]] = field(default_factory=dict)
+    present: set[str] = field(default_factory=set)  # parquet as a set
 
     def owner(self, name: str, run_id: str | None) -> Owner:
         """Who wrote ``name`` (as :func:`annotator.store.files.owner_of`); its mark must have been read."""
@@ -123,7 +124,7 @@ class Listing:
     def check_record(self, record: dict[str, Any], name: str | None = None) -> str | None:
         """Why a label file record (read as ``name`` if given) and its artifacts cannot be trusted."""
         name = name or record["file"]
-        if name in self.parquet and name not in self.regular:
+        if name in self.present and name not in self.regular:
             return "is not a regular file"
         why = self.check(name, record["sha256"])
         if why:
@@ -148,6 +149,7 @@ def survey(
     listing = Listing(out)
     entries = sorted(out.iterdir(), key=lambda p: p.name)
     listing.parquet = [p.name for p in entries if p.suffix == ".parquet"]
+    listing.present = set(listing.parquet)
     listing.regular = {name for name in listing.parquet if is_regular_file(out / name)}
     listing.temp = [p.name for p in entries if is_temp_file(p) and is_regular_file(p)]
     listing.merging = {name for name in listing.temp if name.endswith(".merging")}
@@ -235,13 +237,13 @@ def _hash_records(listing: Listing, manifest: Manifest) -> None:
     hidden merged file whose object's file is not in place."""
     for rec in manifest.label_records():
         name = rec["file"]
-        if name in listing.regular or name not in listing.parquet:
+        if name in listing.regular or name not in listing.present:
             _hash(listing, name)
         for a in rec.get("artifacts", {}).values():
             _hash(listing, a["file"])
     for rec in manifest.objects_done.values():
         hidden = merging_name(rec["file"])
-        if rec["file"] not in listing.parquet and hidden in listing.merging:
+        if rec["file"] not in listing.present and hidden in listing.merging:
             _hash(listing, hidden)
 
 
