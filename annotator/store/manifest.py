@@ -26,7 +26,7 @@ import stat
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -89,22 +89,27 @@ def canonical(obj: Any) -> Any:
     return json.loads(json.dumps(obj, sort_keys=True, default=_json_default))
 
 
-def _dumps_by_line(data: dict[str, Any]) -> str:
-    """``data`` as JSON, sorted: one line per top-level field, and one line per entry of the
-    fields that are maps of records (an object's record on its own line, for grep and diff)."""
-    parts = []
-    for key in sorted(data):
+def _write_by_line(fh: IO[bytes], data: dict[str, Any]) -> None:
+    """Write ``data`` as JSON, sorted: one line per top-level field, and one line per entry of the
+    fields that are maps of records (an object's record on its own line, for grep and diff).
+    Written entry by entry: no copy of the whole text is held."""
+
+    def dump(value: Any) -> bytes:
+        return json.dumps(value, sort_keys=True, default=_json_default).encode("utf-8")
+
+    fh.write(b"{")
+    for i, key in enumerate(sorted(data)):
         value = data[key]
-        name = json.dumps(key)
+        fh.write(b"\n " if i == 0 else b",\n ")
+        fh.write(dump(key) + b": ")
         if isinstance(value, dict) and value and all(isinstance(v, dict) for v in value.values()):
-            entries = (
-                f"  {json.dumps(k)}: {json.dumps(value[k], sort_keys=True, default=_json_default)}"
-                for k in sorted(value)
-            )
-            parts.append(f"{name}: {{\n" + ",\n".join(entries) + "\n }")
+            fh.write(b"{")
+            for j, k in enumerate(sorted(value)):
+                fh.write((b"\n  " if j == 0 else b",\n  ") + dump(k) + b": " + dump(value[k]))
+            fh.write(b"\n }")
         else:
-            parts.append(f"{name}: {json.dumps(value, sort_keys=True, default=_json_default)}")
-    return "{\n " + ",\n ".join(parts) + "\n}\n"
+            fh.write(dump(value))
+    fh.write(b"\n}\n")
 
 
 def _json_default(obj: Any) -> Any:
@@ -376,8 +381,8 @@ class Manifest:
         the C encoder (no copy of the manifest is made)."""
         self.updated = utc_now()
         self.manifest_version = MANIFEST_VERSION
-        text = _dumps_by_line(self._fields())
-        atomic_write(self.path(out_dir), lambda fh: fh.write(text.encode("utf-8")))
+        fields = self._fields()
+        atomic_write(self.path(out_dir), lambda fh: _write_by_line(fh, fields))
 
     @classmethod
     def load(cls, out_dir: Path) -> Manifest | None:
