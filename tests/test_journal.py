@@ -262,3 +262,14 @@ def test_a_second_run_is_refused_while_the_first_appends(tmp_path: Path) -> None
     _write(store, "b")
     store.close()
     assert set(Manifest.load(tmp_path).objects_done) == {"a", "b"}
+
+
+def test_the_scale_bench_drives_the_store_and_resumes_every_object(tmp_path: Path) -> None:
+    """bench.scale store-one at 30 objects: recorded, compacted, resumed with every object done."""
+    root = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, "-m", "bench.scale", "store-one", "--objects", "30", "--tmp", str(tmp_path)]
+    proc = subprocess.run(cmd, cwd=root, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    figures = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert figures["objects"] == 30 and figures["manifest_mb"] > 0
+    assert not list(tmp_path.iterdir())  # its folder of objects and labels is gone
