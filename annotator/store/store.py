@@ -25,7 +25,7 @@ from typing import Any
 
 import pandas as pd
 
-from annotator.store import reconcile
+import annotator.store.reconcile as reconcile
 from annotator.store.artifacts import delete_record, write_artifact
 from annotator.store.errors import JournalUnreadableError, ManifestUnreadableError, RunMismatchError
 from annotator.store.files import (
