@@ -297,21 +297,16 @@ def drop_near_duplicates(
 def load_geometry(labels_dir: str | Path) -> pd.DataFrame:
     """The geometry record of every labelled object, indexed by object_id.
 
-    The run manifest (``_manifest.json``) keeps one record per object as the worker simulated it
-    (``objects_info.<id>.geometry``, from ``annotator.objects.ObjectModel.geometry_record``).
+    The run manifest (``_manifest.json`` and its journal) keeps one record per object as the worker
+    simulated it (``objects_info.<id>.geometry``, from ``annotator.objects.ObjectModel.geometry_record``).
 
     Columns: objects_dir, source_files (JSON list, relative to objects_dir), source_node, scale,
     pose_frame, pose_units, mass, mass_model, friction, volume, watertight, faces, cleaning,
     collision_method, collision_parts, collision_threshold, collision_error_mean,
     collision_error_max (m), collision_approximate, properties (JSON), digest.
     """
-    import json
-
     path = Path(labels_dir) / "_manifest.json"
-    try:
-        info = json.loads(path.read_text()).get("objects_info", {})
-    except (OSError, ValueError, AttributeError) as exc:
-        raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
+    info = _run_manifest(labels_dir).get("objects_info", {})
     rows = []
     for entry in (v for v in info.values() if isinstance(v, dict)):
         # an object's entry, or a scene's (annotate --scenes: the objects it holds)
@@ -362,14 +357,23 @@ def load_object_mesh(labels_dir: str | Path, object_id: str):
 # --------------------------------------------------------------------------------------- scenes
 
 
-def _scene_manifest(labels_dir: str | Path) -> dict:
-    import json
+def _run_manifest(labels_dir: str | Path) -> dict:
+    """The run's manifest with the journal of what changed since applied
+    (:func:`annotator.store.manifest.load_state`), as a dict; FileNotFoundError if none reads."""
+    from annotator.store.errors import ManifestUnreadableError
+    from annotator.store.manifest import load_state
 
-    path = Path(labels_dir) / "_manifest.json"
     try:
-        manifest = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
+        manifest = load_state(Path(labels_dir)).manifest
+    except (OSError, ManifestUnreadableError) as exc:
         raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
+    if manifest is None:
+        raise FileNotFoundError(f"no readable run manifest in {labels_dir} (no _manifest.json)")
+    return manifest.to_json()
+
+
+def _scene_manifest(labels_dir: str | Path) -> dict:
+    manifest = _run_manifest(labels_dir)
     if not isinstance(manifest, dict) or "scenes" not in (manifest.get("run") or {}).get("inputs", {}):
         raise ValueError(f"{labels_dir} holds no scenes (made without annotate --scenes)")
     return manifest

@@ -481,7 +481,7 @@ def test_overwrite_removes_artifacts_and_stale_objects_take_theirs_along(tmp_pat
     (tmp_path / names.ARTIFACTS_DIR / "mine" / "notes.txt").write_text("keep")
     _open(tmp_path, overwrite=True).close()
     left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file())
-    assert left == [LOCK_NAME, MANIFEST_NAME, f"{names.ARTIFACTS_DIR}/mine/notes.txt"]
+    assert left == [LOCK_NAME, names.JOURNAL_NAME, MANIFEST_NAME, f"{names.ARTIFACTS_DIR}/mine/notes.txt"]
 
 
 def test_repair_rebuilds_artifact_records_from_the_marks_and_drops_what_does_not_verify(tmp_path: Path):
@@ -611,17 +611,19 @@ def test_a_merge_that_cannot_record_leaves_the_chunks_and_no_duplicates(tmp_path
     whole = synthetic_labels("a")
     store.write_chunk("a", whole.iloc[:5], 0, SRC)
     store.write_chunk("a", whole.iloc[5:], 5, SRC)
-    real_save = Manifest.save
+    real_write = os.write
 
-    def disk_full(self, out_dir):
-        raise files.output_error(out_dir, OSError(errno.ENOSPC, "No space left on device"))
+    def disk_full(fd, data):  # the journal's append (and any manifest write) finds the disk full
+        raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(Manifest, "save", disk_full)
+    monkeypatch.setattr(os, "write", disk_full)
+    monkeypatch.setattr(Manifest, "save", lambda self, out: disk_full(0, b""))
     with pytest.raises(files.OutputError, match="No space left on device"):
         store.finish_object("a", SRC)
     _no_duplicates(tmp_path)
     assert len(pd.read_parquet(tmp_path)) == N  # the chunks
-    monkeypatch.setattr(Manifest, "save", real_save)
+    monkeypatch.setattr(os, "write", real_write)
+    monkeypatch.undo()
     store.close()
     store = _open(tmp_path)
     assert store.reconcile({"a": SRC}).chunks == {"a": {(0, 5), (5, 10)}}

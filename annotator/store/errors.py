@@ -20,3 +20,7 @@ class RunMismatchError(StoreError):
 
 class ManifestUnreadableError(StoreError):
     """The manifest is missing (with label files present) or cannot be read."""
+
+
+class JournalUnreadableError(ManifestUnreadableError):
+    """A journal line other than the last does not verify (its message says what to pass)."""

@@ -1,10 +1,15 @@
-"""The run manifest (``_manifest.json``): what the folder's run is and how far it got.
+"""The run manifest (``_manifest.json``) and its journal: what the folder's run is and how far it got.
 
 ``RunSpec`` is everything that changes a label; the manifest binds it, so a resume with other
 settings is refused instead of mixing datasets. The manifest's shape is one schema
 (:data:`MANIFEST_SCHEMA`): a manifest of any other shape, nesting or size is one line
 (:class:`ManifestUnreadableError`), never a traceback later, and every file name it holds is a
 name the tool itself gives (no path can lead outside the folder).
+
+The manifest holds the run's progress as of its last compaction; every change since is an
+operation in the journal (:mod:`annotator.store.journal`, :data:`OP_SCHEMAS`), applied in order by
+:meth:`Manifest.apply`. :func:`load_state` reads both: the folder's run as of its last recorded
+change.
 """
 
 from __future__ import annotations
@@ -14,31 +19,40 @@ import datetime as _dt
 import hashlib
 import importlib.metadata
 import json
+import logging
 import platform
 import re
 import stat
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
 from annotator import __version__
 from annotator import versions as label_versions
-from annotator.store.errors import ManifestUnreadableError
+from annotator.store.errors import JournalUnreadableError, ManifestUnreadableError
 from annotator.store.files import atomic_write
+from annotator.store.journal import read_journal
 from annotator.store.names import (
+    JOURNAL_NAME,
     MANIFEST_NAME,
     chunk_filename,
     is_artifact_relpath,
     is_label_filename,
     object_filename,
 )
-from annotator.store.schema import Any_, Int, Invalid, Map, Num, Record, Seq, Str
+from annotator.store.schema import Any_, Int, Invalid, Map, Nullable, Num, Record, Seq, Str
+
+log = logging.getLogger(__name__)
 
 TOOL = "rg2-annotator"
-MANIFEST_VERSION = 3  # 3: run binding, per-file checksums, source digests, marked files
+# 3: run binding, per-file checksums, source digests, marked files; 4: the journal that continues it
+MANIFEST_VERSION = 4
+# Versions this one reads: a folder of version 3 is the same document without a journal; it
+# resumes, and its first compaction writes it as version 4.
+READABLE_VERSIONS = (3, 4)
 # Libraries whose version can change a label (a resume with another version would mix datasets):
 # annotator.versions.LABEL_LIBRARIES, the list the decomposition cache's key uses too.
 # Informative only (recorded, never compared).
@@ -74,6 +88,29 @@ def collect_versions() -> dict[str, str]:
 def canonical(obj: Any) -> Any:
     """JSON round trip so tuples/lists and numpy scalars compare equal after a reload."""
     return json.loads(json.dumps(obj, sort_keys=True, default=_json_default))
+
+
+def _write_by_line(fh: IO[bytes], data: dict[str, Any]) -> None:
+    """Write ``data`` as JSON, sorted: one line per top-level field, and one line per entry of the
+    fields that are maps of records (an object's record on its own line, for grep and diff).
+    Written entry by entry: no copy of the whole text is held."""
+
+    def dump(value: Any) -> bytes:
+        return json.dumps(value, sort_keys=True, default=_json_default).encode("utf-8")
+
+    fh.write(b"{")
+    for i, key in enumerate(sorted(data)):
+        value = data[key]
+        fh.write(b"\n " if i == 0 else b",\n ")
+        fh.write(dump(key) + b": ")
+        if isinstance(value, dict) and value and all(isinstance(v, dict) for v in value.values()):
+            fh.write(b"{")
+            for j, k in enumerate(sorted(value)):
+                fh.write((b"\n  " if j == 0 else b",\n  ") + dump(k) + b": " + dump(value[k]))
+            fh.write(b"\n }")
+        else:
+            fh.write(dump(value))
+    fh.write(b"\n}\n")
 
 
 def _json_default(obj: Any) -> Any:
@@ -183,6 +220,7 @@ _GRIPPER = Record(
         "digest": _HEX64,
     }
 )
+_ID32 = Str(lambda s: len(s) == 32 and all(c in "0123456789abcdef" for c in s), "a 32-digit hex id")
 _RUN = Record(
     {
         "seed": Int(),
@@ -201,7 +239,9 @@ MANIFEST_SCHEMA = Record(
     optional={
         # this folder's run: every label file it writes carries it, so another run's files copied
         # into the folder are never taken for its own (absent in folders of earlier versions)
-        "run_id": Str(lambda s: len(s) == 32 and all(c in "0123456789abcdef" for c in s), "a run id"),
+        "run_id": _ID32,
+        # the journal that continues this manifest (absent in version 3, which had none)
+        "journal": _ID32,
         # every object id of the run's inputs, so readers can tell a finished run from one that stopped
         "objects_planned": Seq(Str()),
         # where the run's gripper description was read from when it is not a shipped one (informative:
@@ -210,7 +250,7 @@ MANIFEST_SCHEMA = Record(
     },
     required={
         "tool": Str(lambda s: s == TOOL, f"{TOOL!r}"),
-        "manifest_version": Int(MANIFEST_VERSION, MANIFEST_VERSION),
+        "manifest_version": Int(min(READABLE_VERSIONS), max(READABLE_VERSIONS)),
         "run": _RUN,
         "run_key": _HEX64,
         "versions": Map(Str()),
@@ -246,6 +286,37 @@ def _check_names(data: dict[str, Any]) -> None:
                 raise Invalid(f"chunks_done[{oid!r}][{key!r}]: {rec['file']!r} is not that chunk's file")
 
 
+# ------------------------------------------------------------------------------ journal operations
+
+_OID = Str()
+_KEY = Str(lambda k: _range(k) is not None, "start-stop")
+# Every operation a journal line may hold, with its fields ("at": when it was recorded, UTC).
+OP_SCHEMAS: dict[str, Record] = {
+    # a chunk written: chunks_done[oid].files[key] = record
+    "chunk": Record({"oid": _OID, "key": _KEY, "source_sha256": Str(), "record": _FILE_RECORD, "at": Str()}),
+    # an object merged: objects_done[oid] = record; its chunks' entry goes
+    "done": Record({"oid": _OID, "record": _DONE, "at": Str()}),
+    # an object failed: objects_failed[oid] = error; its chunks and its file's entry go
+    "failed": Record({"oid": _OID, "error": Str(), "at": Str()}),
+    # what the object was simulated as: objects_info[oid] = info
+    "info": Record({"oid": _OID, "info": Map(Any_()), "at": Str()}),
+    # the object's labels are no longer the run's (source changed, set aside): done, chunks, info go
+    "forget": Record({"oid": _OID, "at": Str()}),
+    # its merged file is not trusted (redone)
+    "drop_done": Record({"oid": _OID, "at": Str()}),
+    # one of its chunks is not trusted (redone)
+    "drop_chunk": Record({"oid": _OID, "key": _KEY, "at": Str()}),
+    # no longer among the objects: its record of what it was simulated as goes
+    "drop_info": Record({"oid": _OID, "at": Str()}),
+    # a resume retries every failed object
+    "unfail": Record({"at": Str()}),
+    # the objects this run plans and where its gripper was read from
+    "header": Record(
+        {"objects_planned": Nullable(Seq(Str())), "gripper_folder": Nullable(Str()), "at": Str()}
+    ),
+}
+
+
 # ------------------------------------------------------------------------------------ the manifest
 
 
@@ -276,6 +347,7 @@ class Manifest:
     run_id: str | None = None
     objects_planned: list[str] | None = None
     gripper_folder: str | None = None
+    journal: str | None = None
 
     @classmethod
     def fresh(cls, spec: RunSpec, run_id: str | None = None) -> Manifest:
@@ -290,28 +362,70 @@ class Manifest:
     def path(out_dir: Path) -> Path:
         return Path(out_dir) / MANIFEST_NAME
 
-    def to_json(self) -> dict[str, Any]:
-        data = canonical(dataclasses.asdict(self))
-        for name in MANIFEST_SCHEMA.optional:  # absent rather than null (folders of earlier versions)
+    def _fields(self) -> dict[str, Any]:
+        """The fields as they are (no copy), optional ones absent rather than null (as folders of
+        earlier versions have them)."""
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for name in MANIFEST_SCHEMA.optional:
             if data.get(name) is None:
                 data.pop(name, None)
         return data
 
+    def to_json(self) -> dict[str, Any]:
+        """A JSON copy of the manifest (what ``json.load`` of the file gives)."""
+        return canonical(self._fields())
+
     def save(self, out_dir: Path) -> None:
-        """Write atomically (OutputError if the folder cannot be written)."""
+        """Write the whole manifest atomically, as this version writes it (OutputError if the folder
+        cannot be written). Only a compaction does (:meth:`annotator.store.Store.compact`): every
+        other change goes to the journal. One line per object in the per-object maps, written by
+        the C encoder (no copy of the manifest is made)."""
         self.updated = utc_now()
-        text = json.dumps(self.to_json(), indent=1, sort_keys=True)
-        atomic_write(self.path(out_dir), lambda fh: fh.write(text.encode("utf-8") + b"\n"))
+        self.manifest_version = MANIFEST_VERSION
+        fields = self._fields()
+        atomic_write(self.path(out_dir), lambda fh: _write_by_line(fh, fields))
 
     @classmethod
     def load(cls, out_dir: Path) -> Manifest | None:
-        """The folder's manifest, None if there is none, ManifestUnreadableError if it is broken."""
-        path = cls.path(out_dir)
-        try:
-            data = read_manifest_json(path)
-        except FileNotFoundError:
-            return None
-        return cls.from_json(data, path)
+        """The folder's run as of its last recorded change (the manifest and its journal), None if
+        there is no manifest, ManifestUnreadableError if either is broken (a journal's last line cut
+        short is not: a kill mid-write leaves one, and it is ignored)."""
+        return load_state(out_dir).manifest
+
+    def apply(self, op: dict[str, Any]) -> None:
+        """Apply one journal operation (:data:`OP_SCHEMAS`, already checked)."""
+        kind, oid = op["op"], op.get("oid")
+        if kind == "chunk":
+            entry = self.chunks_done.setdefault(oid, {"source_sha256": op["source_sha256"], "files": {}})
+            entry["files"][op["key"]] = op["record"]
+        elif kind == "done":
+            self.objects_done[oid] = op["record"]
+            self.chunks_done.pop(oid, None)
+        elif kind == "failed":
+            self.chunks_done.pop(oid, None)
+            self.objects_failed[oid] = op["error"]
+            self.objects_done.pop(oid, None)
+        elif kind == "info":
+            self.objects_info[oid] = op["info"]
+        elif kind == "forget":
+            self.objects_done.pop(oid, None)
+            self.chunks_done.pop(oid, None)
+            self.objects_info.pop(oid, None)
+        elif kind == "drop_done":
+            self.objects_done.pop(oid, None)
+        elif kind == "drop_chunk":
+            self.chunks_done.get(oid, {"files": {}})["files"].pop(op["key"], None)
+        elif kind == "drop_info":
+            self.objects_info.pop(oid, None)
+        elif kind == "unfail":
+            self.objects_failed.clear()
+        elif kind == "header":
+            self.objects_planned = op["objects_planned"]
+            self.gripper_folder = op["gripper_folder"]
+        else:  # pragma: no cover - check_op admits no other
+            raise ValueError(f"unknown journal operation {kind!r}")
+        if "at" in op:
+            self.updated = op["at"]
 
     @classmethod
     def from_json(cls, data: Any, path: Path) -> Manifest:
@@ -319,14 +433,19 @@ class Manifest:
         try:
             if isinstance(data, dict) and data.get("tool") != TOOL:
                 raise Invalid("not a manifest of rg2-annotator")
-            if isinstance(data, dict) and data.get("manifest_version") != MANIFEST_VERSION:
+            if isinstance(data, dict) and data.get("manifest_version") not in READABLE_VERSIONS:
                 found = data.get("manifest_version")
-                raise Invalid(f"manifest version {found!r}, this version reads {MANIFEST_VERSION}")
+                readable = " or ".join(str(v) for v in READABLE_VERSIONS)
+                raise Invalid(f"manifest version {found!r}, this version reads {readable}")
             MANIFEST_SCHEMA.check(data, "manifest")
             _check_names(data)
         except Invalid as exc:
             raise ManifestUnreadableError(f"{path}: {exc}") from None
         return cls(**data)
+
+    def check(self, path: Path) -> None:
+        """The whole state against the manifest's schema (after a journal was applied)."""
+        self.from_json(self.to_json(), path)
 
     def label_records(self) -> list[dict[str, Any]]:
         """Every label file record (finished objects and chunks)."""
@@ -342,6 +461,101 @@ class Manifest:
     def referenced_artifacts(self) -> set[str]:
         """Every artifact (path relative to the folder) the manifest vouches for."""
         return {a["file"] for rec in self.label_records() for a in rec.get("artifacts", {}).values()}
+
+
+def check_op(op: dict[str, Any]) -> None:
+    """Invalid unless ``op`` is an operation of :data:`OP_SCHEMAS` with the fields it takes."""
+    schema = OP_SCHEMAS.get(op["op"])
+    if schema is None:
+        raise Invalid(f"unknown operation {op['op']!r}")
+    schema.check({k: v for k, v in op.items() if k != "op"}, op["op"])
+    if op["op"] == "chunk":
+        start, stop = _range(op["key"])  # type: ignore[misc]  # the schema checked the key
+        rec = op["record"]
+        if rec["file"] != chunk_filename(op["oid"], start, stop) or rec["n"] != stop - start:
+            raise Invalid(f"chunk {op['oid']!r} {op['key']}: {rec['file']!r} is not that chunk's file")
+    elif op["op"] == "done" and op["record"]["file"] != object_filename(op["oid"]):
+        raise Invalid(f"done {op['oid']!r}: {op['record']['file']!r} is not this object's file")
+
+
+@dataclass
+class LoadedState:
+    """A folder's run as :func:`load_state` read it.
+
+    manifest : the manifest with its journal applied, None if the folder has none
+    journal_current : the journal on disk continues this manifest and every line of it verified:
+        the run may append to it; otherwise the next save compacts
+    pending : operations applied from the journal (a compaction folds them into the manifest)
+    skipped : one line per journal line that did not verify and was left out
+    """
+
+    manifest: Manifest | None
+    journal_current: bool = False
+    pending: int = 0
+    skipped: list[str] = field(default_factory=list)
+
+
+def journal_path(out_dir: Path) -> Path:
+    return Path(out_dir) / JOURNAL_NAME
+
+
+def load_state(out_dir: Path, *, repair: bool = False) -> LoadedState:
+    """Read the folder's manifest and apply the journal that continues it.
+
+    The journal's last line, if it does not verify, is a write a kill cut short: it is left out
+    (what it recorded is redone). Any other line that does not verify (a flipped byte, a garbage
+    line, an operation of another shape) makes the journal unreadable, as a corrupt manifest is:
+    ManifestUnreadableError in one line, unless ``repair``, which leaves such lines out too (the
+    files their records vouched for are then not vouched for: checked from their marks, or redone).
+    A journal another compaction already folded in (it names another journal than the manifest
+    does) is not applied.
+    """
+    path = Manifest.path(out_dir)
+    try:
+        data = read_manifest_json(path)
+    except FileNotFoundError:
+        return LoadedState(None)
+    manifest = Manifest.from_json(data, path)
+    state = LoadedState(manifest)
+    jpath = journal_path(out_dir)
+    text = read_journal(jpath) if manifest.journal else None
+    if text is not None and text.journal_id is None and text.last > 1:
+        # its first line is damaged: whose journal it is cannot be told, but it holds records
+        line = f"{jpath.name} line 1 does not verify (the journal's name)"
+        if not repair:
+            raise JournalUnreadableError(
+                f"{jpath}: line 1 does not verify (the journal's name); pass --repair to apply the lines "
+                "that do (what they vouch for is verified) or --overwrite to start over"
+            )
+        state.skipped.append(f"{line}; its other lines applied")
+        text.journal_id = manifest.journal
+        text.lines = [(number, op) for number, op in text.lines if number != 1]
+    if text is None or text.journal_id != manifest.journal:
+        return state  # none yet, or one this manifest already holds
+    state.journal_current = not state.skipped
+    for number, op in text.lines:
+        why = "does not verify (cut short, a flipped byte or not a record)" if op is None else None
+        if op is not None:
+            try:
+                check_op(op)
+            except Invalid as exc:
+                why = f"is not a record of this tool ({exc})"
+        if why is None:
+            manifest.apply(op)  # type: ignore[arg-type]
+            state.pending += 1
+            continue
+        state.journal_current = False
+        line = f"{jpath.name} line {number} {why}; left out"
+        if number != text.last and not repair:
+            raise JournalUnreadableError(
+                f"{jpath}: line {number} {why}; pass --repair to leave it out and redo what it recorded, "
+                "or --overwrite to start over"
+            )
+        state.skipped.append(line)
+        log.warning("%s", line)
+    if state.pending:
+        manifest.check(jpath)
+    return state
 
 
 def read_manifest_json(path: Path) -> Any:

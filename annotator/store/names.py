@@ -3,7 +3,8 @@
 Neutral: no pandas, no pyarrow, no pipeline. The cell's views and the tools use these names too.
 
     labels/
-      _manifest.json                          the run and how far it got (annotator.store.manifest)
+      _manifest.json                          the run, and how far it got when last compacted
+      _journal.jsonl                          what finished since (annotator.store.journal)
       .rg2-annotator.lock                     held by the run writing here (annotator.store.lock)
       mug-3f2a9c01d4.parquet                  one file per finished object
       can-8c1e0b77aa.000050-000060.parquet    a finished chunk of an object still running
@@ -20,6 +21,7 @@ import hashlib
 import re
 
 MANIFEST_NAME = "_manifest.json"
+JOURNAL_NAME = "_journal.jsonl"
 LOCK_NAME = ".rg2-annotator.lock"
 STALE_DIR = "_stale"
 # Per-object artifacts (the Kinect views of ``annotate --cell --views``) live in

@@ -1,4 +1,4 @@
-"""A small declarative checker for JSON documents the tool reads back (the run manifest).
+"""A small declarative checker for JSON documents the tool reads back (the manifest, the journal).
 
 A schema is a tree of :class:`Check` objects; ``check(value, where)`` raises :class:`Invalid`
 naming the first bad place (``objects_done['mug'].stats.n: expected an integer``). Checks are
@@ -64,6 +64,17 @@ class Num(Check):
         if not ok:
             what = "a finite number or null" if self.optional else "a finite number"
             raise Invalid(f"{where}: expected {what}, found {_show(value)}")
+
+
+@dataclass(frozen=True)
+class Nullable(Check):
+    """Null, or a value that passes ``check``."""
+
+    check_: Check
+
+    def check(self, value: Any, where: str) -> None:
+        if value is not None:
+            self.check_.check(value, where)
 
 
 @dataclass(frozen=True)

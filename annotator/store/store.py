@@ -3,37 +3,77 @@
 Promises (docs/reliability.md): one run per folder at a time; the manifest binds the run's
 settings and each object's source digest, so a resume never mixes; every file is checked against
 its checksum before it is trusted; only files the tool wrote are ever deleted.
+
+Bookkeeping: the manifest is written whole only when the store compacts (when it opens a folder a
+run did not close, and when the run ends); every change in between is a journal line
+(:mod:`annotator.store.journal`), so a save costs what changed and a resume reads the folder's
+records once. Opening a folder surveys it (:mod:`annotator.store.survey`), plans what to do
+(:mod:`annotator.store.reconcile`, pure) and applies the plan here.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import os
+import shutil
 import time
+import uuid
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from annotator.store import reconcile
+import annotator.store.reconcile as reconcile
 from annotator.store.artifacts import delete_record, write_artifact
-from annotator.store.files import FileRecord, OutputError, output_error, read_labels, write_labels
+from annotator.store.errors import JournalUnreadableError, ManifestUnreadableError, RunMismatchError
+from annotator.store.files import (
+    FileRecord,
+    OutputError,
+    Owner,
+    is_regular_file,
+    output_error,
+    owner_of,
+    read_labels,
+    write_labels,
+)
+from annotator.store.journal import JournalWriter
 from annotator.store.lock import RunLock, sigint_deferred
-from annotator.store.manifest import Manifest, RunSpec, canonical, utc_now
-from annotator.store.names import chunk_filename, merging_name, object_filename
+from annotator.store.manifest import (
+    LoadedState,
+    Manifest,
+    RunSpec,
+    canonical,
+    journal_path,
+    load_state,
+    utc_now,
+)
+from annotator.store.names import (
+    ARTIFACTS_DIR,
+    MANIFEST_NAME,
+    STALE_DIR,
+    chunk_filename,
+    merging_name,
+    object_filename,
+    object_stem,
+)
+from annotator.store.stats import object_stats
+from annotator.store.survey import Need, survey
 
 log = logging.getLogger(__name__)
 
 # Errors of the file system that mean "this folder cannot be written", not a bug.
 _READ_ONLY = {errno.EROFS, errno.EACCES, errno.EPERM}
 
+__all__ = ["Store", "object_stats"]
+
 
 class Store:
     """One output folder for one run. ``open()`` locks and checks it; the runner then writes
-    chunks, finishes and fails objects through it; ``close()`` saves and unlocks."""
+    chunks, finishes and fails objects through it; ``close()`` saves, compacts and unlocks."""
 
-    # The manifest is saved at most this often while chunks come in, always when an object is
+    # The journal is written at most this often while chunks come in, always when an object is
     # merged or fails and when the run ends; a hard kill loses at most this many seconds of
     # chunks (unvouched chunk files are redone on resume).
     SAVE_SECONDS = 2.0
@@ -46,6 +86,8 @@ class Store:
         self.read_only = False  # the folder cannot be written: only a finished run can be read
         self.notes: list[str] = []  # one line per thing the user should know (redone, removed)
         self._saved_at = 0.0
+        self._journal: JournalWriter | None = None  # None: the next save compacts
+        self._header: tuple[Any, Any] = (None, None)  # (objects_planned, gripper_folder) recorded
 
     # --- opening -------------------------------------------------------------------------------
 
@@ -68,10 +110,67 @@ class Store:
             self.read_only = True  # nobody can write here, so nobody needs the lock
             log.warning("%s", exc)
         try:
-            reconcile.load_folder(self, overwrite=overwrite, repair=repair)
+            self._load(overwrite=overwrite, repair=repair)
         except BaseException:
+            self._close_journal()
             self.lock.release()
             raise
+
+    def _load(self, *, overwrite: bool, repair: bool) -> None:
+        out, spec = self.out_dir, self.spec
+        if overwrite:
+            self.require_writable()
+            run_id, plan = reconcile.plan_overwrite(survey(out, Need.OVERWRITE))
+            self.apply(plan)
+            self.manifest = Manifest.fresh(spec, run_id)
+            self.compact()
+            return
+        try:
+            state = load_state(out, repair=repair)
+        except JournalUnreadableError:
+            raise
+        except ManifestUnreadableError as exc:
+            if not repair:
+                raise ManifestUnreadableError(
+                    f"{exc}; pass --repair to rebuild it from the label files that verify, or --overwrite "
+                    "to start over"
+                ) from exc
+            state = LoadedState(None)
+        for line in state.skipped:
+            self._note(line)
+        if state.manifest is None:
+            listing = survey(out, Need.REPAIR if repair else Need.MARKS, run_key=spec.key)
+            marked = [name for name in listing.parquet if listing.marks.get(name) is not None]
+            if marked and not repair:
+                raise ManifestUnreadableError(
+                    f"{out} holds {len(marked)} label file(s) but no {MANIFEST_NAME}; pass --repair to "
+                    "rebuild it from the files that verify, or --overwrite to start over"
+                )
+            if marked:
+                self.require_writable()
+                manifest, plan = reconcile.plan_rebuild(listing, spec)
+                self.apply(plan)
+                log.warning("rebuilt %s from the label files that verify", Manifest.path(out))
+            else:
+                manifest = Manifest.fresh(spec)
+            state = LoadedState(manifest)
+        else:
+            diffs = spec.differences(state.manifest.run)
+            if diffs:
+                shown = "; ".join(diffs[:4]) + (f"; and {len(diffs) - 4} more" if len(diffs) > 4 else "")
+                raise RunMismatchError(
+                    f"{out} holds a run with other settings ({shown}); pass --overwrite to start over or "
+                    "choose another --out"
+                )
+        self.manifest = state.manifest  # type: ignore[assignment]  # set above
+        self._header = (self.manifest.objects_planned, self.manifest.gripper_folder)
+        if not self.read_only and state.journal_current and state.pending == 0:
+            self._journal = JournalWriter(journal_path(out))  # a closed run's: appended to
+        listing = survey(out, Need.RESUME, self.manifest)
+        plan = reconcile.plan_resume(listing, self.manifest, read_only=self.read_only)
+        self.apply(plan)
+        if not self.read_only:
+            self.save(force=True)  # without a journal to append to: a compaction
 
     def require_writable(self) -> None:
         if self.read_only:
@@ -79,8 +178,62 @@ class Store:
 
     def reconcile(self, sources: dict[str, str]) -> reconcile.Resume:
         """Match the folder to this run's objects (object id -> source digest); see
-        :func:`annotator.store.reconcile.match_sources`."""
-        return reconcile.match_sources(self, sources)
+        :func:`annotator.store.reconcile.plan_sources`."""
+        listing = survey(self.out_dir, Need.SOURCES, self.manifest)
+        plan = reconcile.plan_sources(listing, self.manifest, sources)
+        self.apply(plan)
+        if not self.read_only:
+            self.save(force=True)
+        return reconcile.resume_of(self.manifest, plan)
+
+    def apply(self, plan: reconcile.Plan) -> None:
+        """Do what a reconcile plan says (:class:`annotator.store.reconcile.Plan`)."""
+        out = self.out_dir
+        if plan.touches_files:
+            self.require_writable()
+        for name in plan.complete:
+            os.replace(out / merging_name(name), out / name)
+        for oid in plan.set_aside:
+            self._set_aside(oid)
+        for relpath in plan.unlink:
+            try:
+                (out / relpath).unlink(missing_ok=True)
+            except OSError as exc:
+                raise output_error(out / relpath, exc) from exc
+        for relpath in plan.rmdirs:
+            with contextlib.suppress(OSError):
+                (out / relpath).rmdir()
+        for op in plan.ops:
+            self.record(op)
+        for line in plan.notes:
+            self._note(line)
+        for line in plan.logs:
+            log.info("%s", line)
+
+    def _note(self, line: str) -> None:
+        if line not in self.notes:
+            self.notes.append(line)
+            log.warning("%s", line)
+
+    def _set_aside(self, oid: str) -> None:
+        """Move the object's label files and artifacts to ``_stale/``."""
+        out = self.out_dir
+        stale = out / STALE_DIR
+        try:
+            stale.mkdir(exist_ok=True)
+            for record in reconcile.records_of(self.manifest, oid):
+                name = record["file"]
+                if is_regular_file(out / name):
+                    _move_keeping(out / name, stale / name, self.manifest.run_id)
+            views = out / ARTIFACTS_DIR / object_stem(oid)
+            if views.is_dir():  # the object's artifacts go with its labels
+                target = stale / ARTIFACTS_DIR / views.name
+                target.parent.mkdir(parents=True, exist_ok=True)
+                if target.exists():
+                    shutil.rmtree(target)
+                shutil.move(views, target)
+        except OSError as exc:
+            raise output_error(stale, exc) from exc
 
     # --- writing -------------------------------------------------------------------------------
 
@@ -116,11 +269,11 @@ class Store:
             artifacts,
             run_id=self.manifest.run_id,
         )
-        entry = self.manifest.chunks_done.setdefault(oid, {"source_sha256": source_sha256, "files": {}})
         record: dict[str, Any] = rec.to_json()
         if artifacts:
             record["artifacts"] = dict(artifacts)
-        entry["files"][f"{start}-{stop}"] = record
+        key = f"{start}-{stop}"
+        self.record({"op": "chunk", "oid": oid, "key": key, "source_sha256": source_sha256, "record": record})
         self.save()
 
     def finish_object(self, oid: str, source_sha256: str) -> dict[str, Any]:
@@ -151,7 +304,7 @@ class Store:
                 artifacts,
                 run_id=self.manifest.run_id,
             )
-            self.manifest.objects_done[oid] = {
+            done = {
                 **rec.to_json(),
                 "file": final,
                 "source_sha256": source_sha256,
@@ -159,10 +312,13 @@ class Store:
                 "time": utc_now(),
                 **({"artifacts": artifacts} if artifacts else {}),
             }
-            chunk_entry = self.manifest.chunks_done.pop(oid)
+            chunk_entry = self.manifest.chunks_done[oid]
+            line = self.record({"op": "done", "oid": oid, "record": done})
             try:
                 self.save(force=True)
             except BaseException:  # not recorded: the chunks stay the object's labels
+                if self._journal is not None and line is not None:
+                    self._journal.withdraw(line)
                 self.manifest.objects_done.pop(oid)
                 self.manifest.chunks_done[oid] = chunk_entry
                 (self.out_dir / merging_name(final)).unlink(missing_ok=True)
@@ -174,33 +330,78 @@ class Store:
 
     def fail_object(self, oid: str, error: str) -> None:
         """Record the failure (one line) and remove the object's chunk files: no partial labels stay."""
-        m = self.manifest
-        for rec in m.chunks_done.pop(oid, {"files": {}})["files"].values():
+        for rec in self.manifest.chunks_done.get(oid, {"files": {}})["files"].values():
             delete_record(self.out_dir, rec)
-        m.objects_failed[oid] = " ".join(str(error).split())[:500]
-        m.objects_done.pop(oid, None)
+        self.record({"op": "failed", "oid": oid, "error": " ".join(str(error).split())[:500]})
         if not self.read_only:
             self.save(force=True)
 
     def record_info(self, oid: str, info: dict[str, Any]) -> None:
         """What the object was simulated as (geometry, mass, friction), kept in the manifest."""
-        self.manifest.objects_info[oid] = canonical(info)
+        self.record({"op": "info", "oid": oid, "info": canonical(info)})
+
+    # --- bookkeeping ---------------------------------------------------------------------------
+
+    def record(self, op: dict[str, Any]) -> bytes | None:
+        """Apply one manifest operation (:data:`annotator.store.manifest.OP_SCHEMAS`) and keep it
+        for the journal (written at the next :meth:`save`); returns its journal line, if any."""
+        op = {**op, "at": utc_now()}
+        self.manifest.apply(op)
+        if op["op"] == "header":
+            self._header = (self.manifest.objects_planned, self.manifest.gripper_folder)
+        return self._journal.add(op) if self._journal is not None else None
 
     def save(self, force: bool = False) -> None:
-        """Save the manifest (at most every SAVE_SECONDS unless ``force``), first checking that
-        this run still holds the folder (LockLostError otherwise)."""
+        """Write what changed (at most every SAVE_SECONDS unless ``force``) to the journal, first
+        checking that this run still holds the folder (LockLostError otherwise); with no journal
+        to append to, compact. Costs what changed since the last save, not what the folder holds."""
         now = time.monotonic()
         if force or now - self._saved_at >= self.SAVE_SECONDS:
             self.lock.check()
-            self.manifest.save(self.out_dir)
+            m = self.manifest
+            if m.objects_planned is not self._header[0] or m.gripper_folder != self._header[1]:
+                # the runner set what it plans: one line (the object ids), once per run
+                header = {"objects_planned": m.objects_planned, "gripper_folder": m.gripper_folder}
+                self.record({"op": "header", **header})
+            if self._journal is None:
+                self.compact()
+            else:
+                self._journal.flush()
             self._saved_at = now
 
+    def compact(self) -> None:
+        """Write the whole manifest (every change so far folded in) and start an empty journal.
+
+        Safe whenever it stops: the journal's pending lines are flushed first; the manifest names
+        its new journal, so a kill before the new journal replaces the old one leaves an old
+        journal that the manifest already holds, which is not applied again."""
+        self.lock.check()
+        if self._journal is not None:
+            self._journal.flush()
+        old = self.manifest.journal
+        self.manifest.journal = uuid.uuid4().hex
+        try:
+            self.manifest.save(self.out_dir)
+        except BaseException:
+            self.manifest.journal = old
+            raise
+        self._close_journal()
+        self._header = (self.manifest.objects_planned, self.manifest.gripper_folder)
+        self._journal = JournalWriter.start(journal_path(self.out_dir), self.manifest.journal)
+
+    def _close_journal(self) -> None:
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
+
     def close(self) -> None:
-        """Save (if anything can be written) and release the lock."""
+        """Save and compact (if anything can be written) and release the lock."""
         try:
             if not self.read_only and self.lock.fd is not None:
                 self.save(force=True)
+                self.compact()
         finally:
+            self._close_journal()
             self.lock.release()
 
 
@@ -208,15 +409,13 @@ def _start(item: tuple[str, Any]) -> int:
     return int(item[0].split("-")[0])
 
 
-def object_stats(df: pd.DataFrame) -> dict[str, Any]:
-    """Per-object figures for the summary: rows, successes, mean score, outcome counts (and, for
-    cell labels, the successes the arm can execute)."""
-    stats: dict[str, Any] = {
-        "n": int(len(df)),
-        "successes": int(df["success"].sum()),
-        "mean_score": float(df["score"].mean()) if len(df) else 0.0,
-        "outcomes": {str(k): int(v) for k, v in df["outcome"].value_counts().items()},
-    }
-    if "reachable" in df.columns:
-        stats["reachable_successes"] = int((df["success"] & df["reachable"]).sum())
-    return stats
+def _move_keeping(source: Path, target: Path, run_id: str | None) -> None:
+    """Move ``source`` to ``target``; a file already there that this run did not write is kept
+    (the moved file takes a numbered name beside it)."""
+    k = 1
+    while target.exists() or target.is_symlink():
+        if owner_of(target, run_id) in (Owner.THIS_RUN, Owner.CORRUPT):
+            break
+        target = target.with_name(f"{source.stem}.{k}{source.suffix}")
+        k += 1
+    os.replace(source, target)
