@@ -190,11 +190,13 @@ def test_performance_page_is_what_the_committed_records_make():
 
 
 def benchmarks() -> dict[str, list[str]]:
-    """{bench module: the names of the records it writes (``Run("name"``)}."""
+    """{bench module (``peers``, ``experiments.widths``): the names of the records it writes
+    (``Run("name"``)}: the standing benchmarks and the one-off experiments."""
     out = {}
-    for path in sorted(BENCH.glob("*.py")):
-        if path.stem not in HELPERS:
-            out[path.stem] = re.findall(r'Run\(\s*"([a-z0-9_]+)"', path.read_text())
+    for path in sorted([*BENCH.glob("*.py"), *(BENCH / "experiments").glob("*.py")]):
+        if path.stem not in HELPERS and path.stem != "__init__":
+            module = ".".join(path.relative_to(BENCH).with_suffix("").parts)
+            out[module] = re.findall(r'Run\(\s*"([a-z0-9_]+)"', path.read_text())
     return out
 
 
@@ -208,7 +210,9 @@ def test_every_benchmark_writes_a_record_has_one_and_is_in_the_index():
         )
         assert f"python -m bench.{module}" in index, f"bench/README.md does not list bench.{module}"
         assert not re.search(
-            r"^\s*(from|import) (_variants|light_objects|peers)\b", (BENCH / f"{module}.py").read_text(), re.M
+            r"^\s*(from|import) (_variants|light_objects|peers)\b",
+            (BENCH / module.replace(".", "/")).with_suffix(".py").read_text(),
+            re.M,
         )
 
 
