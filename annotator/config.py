@@ -487,7 +487,7 @@ class SceneConfig(_Section):
     # between the settled scene and the trial's end: the label's disturbed flag. Resting objects
     # drift below 0.2 mm over a trial's second (tests/test_scene_labels.py); 5 mm is a visible push.
     disturbance_threshold: float = _field(0.005, gt=0.0)  # m
-    # Clutter removal (annotator/scenes/clutter.py): a round ends after this many failed grasps in
+    # Clutter removal (annotator/policies/clutter.py): a round ends after this many failed grasps in
     # a row (VGN: 2); a held object is lifted this far straight up before it counts (VGN: 10 cm).
     clutter_max_failures: int = _field(2, ge=1)
     clutter_lift_height: float = _field(0.10, gt=0.0)  # m; docs/decisions/0303-clutter-removal.md

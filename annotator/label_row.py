@@ -14,8 +14,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from annotator.dataset import Outcome
 from annotator.geometry import Transform
+from annotator.outcome import Outcome
 from annotator.schema import MODES, REASON_COLUMNS
 
 

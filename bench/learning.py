@@ -97,7 +97,7 @@ def train_model(labels: list[Path], out: Path, record: Run) -> Path:
 
 def clutter(args, model: Path, record: Run) -> list[dict]:
     from annotator.objects import default_cache_dir, discover_objects
-    from annotator.scenes.clutter import ClutterJob, clutter_removal, wilson
+    from annotator.policies.clutter import ClutterJob, clutter_removal, wilson
 
     config = AnnotatorConfig()
     sources = tuple(discover_objects(args.test_objects, config.objects))

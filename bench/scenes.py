@@ -291,7 +291,7 @@ def _touching(manager, boxes, T_table_tcp: np.ndarray):
 
 def clutter(args, record: Run) -> None:
     from annotator.objects import default_cache_dir, discover_objects
-    from annotator.scenes.clutter import ClutterJob, clutter_removal, wilson
+    from annotator.policies.clutter import ClutterJob, clutter_removal, wilson
 
     config = AnnotatorConfig()
     everything = tuple(discover_objects(args.objects))

@@ -17,30 +17,22 @@ PACKAGE = REPO / "annotator"
 # floor: the packages and top-level modules on it (the package root, ``annotator/__init__.py``,
 # is "annotator"). The same table is docs/architecture.md's.
 FLOORS: dict[int, tuple[str, ...]] = {
-    0: ("annotator", "config", "files", "geometry", "outcome", "paths", "rng", "versions"),
-    1: ("grippers", "sampler"),
+    0: ("annotator", "config", "files", "geometry", "outcome", "paths", "rng", "schema", "versions"),
+    1: ("grippers", "label_table", "sampler"),
     2: ("sim",),
     3: ("objects", "render", "trial"),
-    4: ("dataset",),
-    5: ("store",),
+    4: ("store",),
+    5: ("dataset", "label_row"),
     6: ("cell",),
     7: ("scenes",),
-    8: ("pipeline",),
-    9: ("seed_scene", "tools"),
+    8: ("pipeline", "policies"),
+    9: ("learn", "seed_scene", "tools"),
     10: ("cli",),
 }
 FLOOR_OF = {unit: floor for floor, units in FLOORS.items() for unit in units}
 
 # (importing module, imported unit): the imports against the floors today, each to be removed.
 KNOWN: set[tuple[str, str]] = {
-    # a gripper description builds its width table with PyBullet (a description should load
-    # without a physics client)
-    ("annotator.grippers", "sim"),
-    # a gripper package finds the decomposition cache's folder (the path should be passed in)
-    ("annotator.grippers.package", "objects"),
-    # the scene job reuses the object job's worker state, status and results
-    ("annotator.scenes.worker", "pipeline"),
-    ("annotator.scenes.run", "pipeline"),
     # ``python -m annotator.seed_scene`` runs the ``annotator scene`` command
     ("annotator.seed_scene.__main__", "cli"),
 }

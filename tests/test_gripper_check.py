@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from annotator.cli import main
 from annotator.grippers import gripper_dir, shipped_grippers
-from annotator.grippers.check import check_gripper
+from annotator.tools.gripper_check import check_gripper
 
 NAMES = (
     "pads follow the FK",

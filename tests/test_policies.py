@@ -19,7 +19,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import discover_objects
 from annotator.policies import Grasp, Grasps, Observation, PolicyError
-from annotator.scenes.clutter import ClutterJob, clutter_removal
+from annotator.policies.clutter import ClutterJob, clutter_removal
 
 OBJECTS = ("box.obj", "can.stl")
 SEEN: list[Observation] = []
@@ -133,11 +133,11 @@ def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(objects):
     from annotator.config import ProtocolConfig
     from annotator.grippers import load_gripper
     from annotator.objects import load_object
+    from annotator.policies.clutter import Round
     from annotator.policies.gripper_boxes import box_corners, gripper_boxes, points_in_boxes
     from annotator.policies.observe import observe
     from annotator.policies.vision import TABLE_MARGIN, observed_surface, vision_random
     from annotator.scenes import SceneBuilder, SceneSpec
-    from annotator.scenes.clutter import Round
 
     config = AnnotatorConfig()
     models = {s.object_id: load_object(s, config.objects) for s in discover_objects(objects)}

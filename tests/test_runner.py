@@ -14,14 +14,18 @@ from annotator.pipeline.evaluate_job import EvaluateJob, EvaluateOptions
 from annotator.pipeline.object_job import ObjectJob, ObjectOptions
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.run import UsageError, job_for
+from annotator.pipeline.scene_job import SceneJob, SceneOptions
 from annotator.pipeline.source import GivenCandidates
 from annotator.pipeline.summary import Summary
 from annotator.pipeline.tasks import GivenGrasps
-from annotator.scenes.run import SceneJob, SceneOptions
 
 CONFIG = AnnotatorConfig()
 SAMPLES = Path(__file__).resolve().parent.parent / "objects"
-JOB_MODULES = {"annotator.pipeline.object_job", "annotator.pipeline.evaluate_job", "annotator.scenes.run"}
+JOB_MODULES = {
+    "annotator.pipeline.object_job",
+    "annotator.pipeline.evaluate_job",
+    "annotator.pipeline.scene_job",
+}
 
 
 def _given() -> GivenCandidates:

@@ -25,10 +25,10 @@ from scene_helpers import CONCAVE, REPO
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_scenes, scene_labels
 from annotator.objects import discover_objects
+from annotator.pipeline.scene_job import SCENE_CHUNK_SIZE, plan_scene_spans
 from annotator.scenes import records as scene_records
 from annotator.scenes import worker
 from annotator.scenes.labels import SCENE_LABEL_COLUMNS
-from annotator.scenes.run import SCENE_CHUNK_SIZE, plan_scene_spans
 from annotator.store import MANIFEST_NAME
 
 N = 2 * SCENE_CHUNK_SIZE  # two spans per scene

@@ -18,8 +18,8 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import load_scenes
 from annotator.geometry import Transform
 from annotator.objects import discover_objects, load_object
+from annotator.policies.clutter import ClutterJob, clutter_removal, read_predictions, wilson
 from annotator.scenes import SceneBuilder, SceneSpec, same_scene, scenes_from_table
-from annotator.scenes.clutter import ClutterJob, clutter_removal, read_predictions, wilson
 from annotator.tools import export_cgn, export_vgn
 from annotator.tools.export import TcpDepth
 from annotator.tools.scene_labels import open_scene_labels

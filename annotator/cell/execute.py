@@ -1,7 +1,7 @@
 """The arm's plan-and-execute in the cell: from the pregrasp along the approach, close, lift, judge.
 
 What :mod:`annotator.tools.replay` (``annotator replay``) and clutter removal
-(:mod:`annotator.scenes.clutter`) both run once they have chosen where the object rests and which
+(:mod:`annotator.policies.clutter`) both run once they have chosen where the object rests and which
 grasp to try (a :class:`Plan`, built on :func:`annotator.cell.reach.check_reach`):
 
 1. **Motion.** The arm starts at the pregrasp (``approach_distance`` behind the grasp, gripper

@@ -202,7 +202,7 @@ def annotate_command(
         if given and not scenes:
             raise click.UsageError(f"{flag} shapes the scenes of --scenes N: it needs --scenes")
     from annotator.pipeline.object_job import ObjectOptions
-    from annotator.scenes.run import SceneOptions
+    from annotator.pipeline.scene_job import SceneOptions
 
     own: ObjectOptions | SceneOptions = ObjectOptions(cell=cell, views=views)
     if scenes:

@@ -198,10 +198,10 @@ def clutter_removal_command(
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.objects import ObjectDiscoveryError, ObjectError, default_cache_dir, discover_objects
     from annotator.policies import PolicyError
+    from annotator.policies.clutter import ClutterJob, clutter_removal
     from annotator.policies.loop import check_signature
     from annotator.policies.predictions import check_predictions, read_predictions
     from annotator.policies.resolve import ORACLES, is_vision_policy, load_callable
-    from annotator.scenes.clutter import ClutterJob, clutter_removal
     from annotator.tools.common import ToolError, check_output_dir
 
     config = load_config(config_file)

@@ -46,8 +46,8 @@ def check_command(gripper: str, config_file, fast: bool) -> None:
     saying why) or a bad --config.
     """
     from annotator.grippers import DescriptionError, load_gripper
-    from annotator.grippers.check import check_gripper
     from annotator.tools.common import ToolError
+    from annotator.tools.gripper_check import check_gripper
 
     config = load_config(config_file)
     try:

@@ -64,7 +64,7 @@ class TaskContext:
 
 
 @dataclass
-class Plan:
+class WorkPlan:
     """What a run has left to do: ``total`` candidates of ``units`` units (objects, scenes),
     ``remaining`` label spans per unit; ``work(workers)`` the units in the order to hand them out
     for that many workers; ``decompositions``: objects whose decomposition task runs first;
@@ -99,7 +99,7 @@ class Job(Protocol):
         Inputs that cannot be used go into ``summary.failed``."""
         ...
 
-    def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> Plan | None:
+    def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> WorkPlan | None:
         """The work left after what ``store`` holds (``resume``); None when nothing is."""
         ...
 
@@ -193,7 +193,7 @@ def run_job(options: RunOptions, job: Job) -> Summary:
 def _execute(
     options: RunOptions,
     job: Job,
-    plan: Plan,
+    plan: WorkPlan,
     store: Store,
     summary: Summary,
     units: dict[str, str],

@@ -22,7 +22,7 @@ from annotator.grippers import (
 )
 from annotator.objects import ObjectDiscoveryError, ObjectError, ObjectSource, discover_objects, source_digest
 from annotator.pipeline.execution import UsageError
-from annotator.pipeline.lifecycle import Collector, Plan, TaskContext, loaded_gripper, merged, resumed
+from annotator.pipeline.lifecycle import Collector, TaskContext, WorkPlan, loaded_gripper, merged, resumed
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.plan import MAX_N, PlannedObject, candidates_to_do, chunk_size_for, spans_to_do
 from annotator.pipeline.schedule import Schedule
@@ -112,7 +112,7 @@ class ObjectUnitsJob:
         assert self.candidates is not None
         return dict(self.candidates.inputs())
 
-    def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> Plan | None:
+    def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> WorkPlan | None:
         assert self.gripper is not None and self.candidates is not None
         digests, candidates = self.digests, self.candidates
         store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
@@ -149,7 +149,7 @@ class ObjectUnitsJob:
         if total <= 0:
             return None
         todo = [p for p in planned if remaining[p.source.object_id] > 0]
-        return Plan(
+        return WorkPlan(
             total,
             len(planned),
             remaining,

@@ -1,7 +1,7 @@
 """The options every run has, whatever its job: inputs, output folder, workers, seed, trials, the
 gripper, the cache. A job's own options are its own record (``ObjectOptions`` of
 :mod:`annotator.pipeline.object_job`, ``EvaluateOptions`` of :mod:`annotator.pipeline.evaluate_job`,
-``SceneOptions`` of :mod:`annotator.scenes.run`)."""
+``SceneOptions`` of :mod:`annotator.pipeline.scene_job`)."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ Dask cluster, :mod:`annotator.pipeline.execution`).
 
 The jobs: :class:`~annotator.pipeline.object_job.ObjectJob` (objects, sampled candidates),
 :class:`~annotator.pipeline.evaluate_job.EvaluateJob` (objects, given grasps) and
-:class:`~annotator.scenes.run.SceneJob` (scenes). This module only chooses among them; none of
+:class:`~annotator.pipeline.scene_job.SceneJob` (scenes). This module only chooses among them; none of
 them imports another, or this module.
 
 Faults (README "Reliability"): a worker process that dies costs the spans it had one retry each,
@@ -23,8 +23,8 @@ from annotator.pipeline.execution import SchedulerLost, UsageError, Workers, exe
 from annotator.pipeline.lifecycle import Job, Terminated, run_job
 from annotator.pipeline.object_job import ObjectJob, ObjectOptions
 from annotator.pipeline.options import RunOptions
+from annotator.pipeline.scene_job import SceneJob, SceneOptions
 from annotator.pipeline.summary import Summary
-from annotator.scenes.run import SceneJob, SceneOptions
 
 __all__ = [
     "EvaluateOptions",

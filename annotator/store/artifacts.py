@@ -22,7 +22,7 @@ from annotator.store.names import ARTIFACTS_DIR, artifact_relpath, is_artifact_r
 WRITTEN_LIST = ".rg2-annotator-written"
 
 
-def _written(folder: Path) -> set[str]:
+def written_names(folder: Path) -> set[str]:
     """The names the tool wrote in ``folder`` (its :data:`WRITTEN_LIST`)."""
     try:
         return set((folder / WRITTEN_LIST).read_text(encoding="utf-8").split("\n")) - {""}
@@ -39,10 +39,10 @@ def _list_written(folder: Path, names: set[str]) -> None:
         path.unlink(missing_ok=True)
 
 
-def _tidy(folder: Path) -> None:
+def tidy(folder: Path) -> None:
     """Forget the listed names no longer there; remove the folder once nothing else is in it."""
     with contextlib.suppress(OSError):
-        listed = _written(folder)
+        listed = written_names(folder)
         present = {p.name for p in folder.iterdir()}
         if listed - present:
             _list_written(folder, listed & present)
@@ -60,7 +60,7 @@ def write_artifact(out_dir: Path, object_id: str, name: str, data: bytes) -> dic
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise output_error(path.parent, exc) from exc
-    listed = _written(path.parent)
+    listed = written_names(path.parent)
     if name not in listed:  # listed before it exists: a kill between the two leaves no orphan
         _list_written(path.parent, listed | {name})
     atomic_write(path, lambda fh: fh.write(data))
@@ -99,7 +99,7 @@ def delete_record(out_dir: Path, record: dict[str, Any]) -> None:
     for a in record.get("artifacts", {}).values():
         path = out_dir / a["file"]
         path.unlink(missing_ok=True)
-        _tidy(path.parent)  # the folder goes once empty of anything but the tool's list
+        tidy(path.parent)  # the folder goes once empty of anything but the tool's list
 
 
 def artifacts_ok(record: dict[str, Any]) -> bool:
@@ -122,14 +122,14 @@ def remove_artifacts(root: Path, keep: set[str]) -> int:
     for folder in root.iterdir():
         if not (folder.is_dir() and is_object_stem(folder.name)):
             continue
-        written = _written(folder)
+        written = written_names(folder)
         for p in folder.iterdir():
             relpath = f"{ARTIFACTS_DIR}/{folder.name}/{p.name}"
             ours = p.name in written and is_artifact_relpath(relpath)
             if p.is_file() and relpath not in keep and (ours or is_temp_file(p)):
                 p.unlink(missing_ok=True)
                 removed += 1
-        _tidy(folder)
+        tidy(folder)
     with contextlib.suppress(OSError):
         root.rmdir()
     return removed

@@ -28,7 +28,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from annotator import files
-from annotator.dataset import COLUMNS, STRING, SchemaError, validate_labels
+from annotator.label_table import COLUMNS, SchemaError, validate_labels
+from annotator.schema import STRING
 from annotator.store.names import (
     chunk_filename,
     is_label_filename,

@@ -1,7 +1,7 @@
 """Reconciling an output folder with its manifest and the run: pure functions, a plan out.
 
 Each function takes what the folder holds (a :class:`annotator.store.survey.Listing`, read
-beforehand) and the manifest, and returns a :class:`Plan`: the files to remove, put in place or set
+beforehand) and the manifest, and returns a :class:`FolderPlan`: the files to remove, put in place or set
 aside, the manifest operations (journal operations, :data:`annotator.store.manifest.OP_SCHEMAS`)
 and the lines to tell the user. Nothing here reads or writes a file; the store
 (:class:`annotator.store.Store`) applies the plan.
@@ -55,7 +55,7 @@ class Resume:
 
 
 @dataclass
-class Plan:
+class FolderPlan:
     """What the store does to a folder, in this order: put ``complete`` merges in place (hidden
     merged file -> object file), move the files of ``set_aside`` objects (and their artifacts) to
     ``_stale/``, remove ``unlink`` (paths relative to the folder), remove ``rmdirs`` if empty,
@@ -121,14 +121,14 @@ def folder_run_id(listing: Listing, run_key: str | None = None) -> str | None:
 # ---------------------------------------------------------------------------------- --overwrite
 
 
-def plan_overwrite(listing: Listing) -> tuple[str | None, Plan]:
+def plan_overwrite(listing: Listing) -> tuple[str | None, FolderPlan]:
     """--overwrite: remove the files of this folder's run (its manifest's, or, without one, the run
     most of its marked files belong to), leftovers, the manifest and its journal; never a user's
     file or another run's. Returns the folder's run id, which the new run keeps, and the plan."""
     recorded = listing.recorded
     assert recorded is not None, "survey with Need.OVERWRITE"
     run_id = recorded.run_id if recorded.readable else folder_run_id(listing)
-    plan = Plan()
+    plan = FolderPlan()
     removed = 0
     for name in listing.parquet:
         owner = listing.owner(name, run_id)
@@ -153,13 +153,13 @@ def plan_overwrite(listing: Listing) -> tuple[str | None, Plan]:
 # ------------------------------------------------------------------------------------- --repair
 
 
-def plan_rebuild(listing: Listing, spec: RunSpec) -> tuple[Manifest, Plan]:
+def plan_rebuild(listing: Listing, spec: RunSpec) -> tuple[Manifest, FolderPlan]:
     """--repair: a manifest from the files of this run (its settings; the run id most of them carry)
     that verify. Files that do not are left as they are and named; unreadable ones named as the
     tool names its files are its own, broken: removed."""
     run_id = folder_run_id(listing, spec.key)
     manifest = Manifest.fresh(spec, run_id)
-    plan = Plan()
+    plan = FolderPlan()
     kept = left = 0
     now = utc_now()
     for name in listing.parquet:
@@ -224,13 +224,13 @@ def _verified_record(listing: Listing, name: str, spec: RunSpec) -> dict[str, An
 # ------------------------------------------------------------------------------------- resuming
 
 
-def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Plan:
+def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> FolderPlan:
     """Every file the manifest vouches for must be a regular file matching its checksum; else its
     labels are redone (a merge that stopped after its chunks were removed is completed). Then files
     of this run the manifest does not vouch for (a chunk written just before a kill, a run stopped
     between writing and recording) and leftover temporary files go; every other file is left as it
     is and named. ``read_only``: the folder cannot be written: the manifest alone is corrected."""
-    plan = Plan()
+    plan = FolderPlan()
     dropped: set[str] = set()
     for oid, entry in manifest.objects_done.items():
         name, hidden = entry["file"], merging_name(entry["file"])
@@ -282,7 +282,7 @@ def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Pla
 
 
 def _distrust(
-    plan: Plan,
+    plan: FolderPlan,
     listing: Listing,
     manifest: Manifest,
     record: dict[str, Any],
@@ -300,7 +300,7 @@ def _distrust(
         plan.remove_record(record)
 
 
-def plan_sources(listing: Listing, manifest: Manifest, sources: dict[str, str]) -> Plan:
+def plan_sources(listing: Listing, manifest: Manifest, sources: dict[str, str]) -> FolderPlan:
     """Match the folder to the objects of this run, ``sources``: object id -> source digest.
 
     Objects whose source changed lose their labels (redone); objects no longer present have
@@ -310,7 +310,7 @@ def plan_sources(listing: Listing, manifest: Manifest, sources: dict[str, str]) 
     """
     _refuse_foreign_at(listing, manifest, sources)
     m = manifest
-    plan = Plan()
+    plan = FolderPlan()
     for oid in sorted(set(m.objects_done) | set(m.chunks_done)):
         recorded = (m.objects_done.get(oid) or m.chunks_done.get(oid))["source_sha256"]  # type: ignore[index]
         if oid not in sources:
@@ -334,7 +334,7 @@ def plan_sources(listing: Listing, manifest: Manifest, sources: dict[str, str]) 
     return plan
 
 
-def resume_of(manifest: Manifest, plan: Plan) -> Resume:
+def resume_of(manifest: Manifest, plan: FolderPlan) -> Resume:
     """What the folder holds once ``plan`` (of :func:`plan_sources`) is applied to ``manifest``."""
     chunks = {
         oid: {tuple(int(v) for v in key.split("-")) for key in entry["files"]}

@@ -13,7 +13,6 @@ records once. Opening a folder surveys it (:mod:`annotator.store.survey`), plans
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import logging
 import os
@@ -26,7 +25,7 @@ from typing import Any
 import pandas as pd
 
 import annotator.store.reconcile as reconcile
-from annotator.store.artifacts import delete_record, write_artifact
+from annotator.store.artifacts import delete_record, tidy, write_artifact
 from annotator.store.errors import JournalUnreadableError, ManifestUnreadableError, RunMismatchError
 from annotator.store.files import (
     FileRecord,
@@ -186,8 +185,8 @@ class Store:
             self.save(force=True)
         return reconcile.resume_of(self.manifest, plan)
 
-    def apply(self, plan: reconcile.Plan) -> None:
-        """Do what a reconcile plan says (:class:`annotator.store.reconcile.Plan`)."""
+    def apply(self, plan: reconcile.FolderPlan) -> None:
+        """Do what a reconcile plan says (:class:`annotator.store.reconcile.FolderPlan`)."""
         out = self.out_dir
         if plan.touches_files:
             self.require_writable()
@@ -200,9 +199,8 @@ class Store:
                 (out / relpath).unlink(missing_ok=True)
             except OSError as exc:
                 raise output_error(out / relpath, exc) from exc
-        for relpath in plan.rmdirs:
-            with contextlib.suppress(OSError):
-                (out / relpath).rmdir()
+        for relpath in plan.rmdirs:  # once empty of anything but the tool's list of what it wrote
+            tidy(out / relpath)
         for op in plan.ops:
             self.record(op)
         for line in plan.notes:

@@ -18,6 +18,7 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
+from annotator.store.artifacts import written_names
 from annotator.store.files import (
     Owner,
     file_sha256,
@@ -259,9 +260,11 @@ def _artifacts(out: Path, under: str) -> tuple[list[str], list[str]]:
         if not (folder.is_dir() and is_object_stem(folder.name)):
             continue
         dirs.append(f"{under}/{folder.name}")
+        written = written_names(folder)  # only what the tool wrote there: a user's file stays
         for p in sorted(folder.iterdir()):
             relpath = f"{ARTIFACTS_DIR}/{folder.name}/{p.name}"
-            if p.is_file() and (is_artifact_relpath(relpath) or is_temp_file(p)):
+            ours = p.name in written and is_artifact_relpath(relpath)
+            if p.is_file() and (ours or is_temp_file(p)):
                 found.append(f"{under}/{folder.name}/{p.name}")
     return found, [*dirs, under]
 

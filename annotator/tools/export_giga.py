@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from annotator.files import atomic_write_path
 from annotator.scenes.records import SceneRecord
-from annotator.tools.export import _write_atomically
 
 MESH_POSE_LIST = "mesh_pose_list"  # GIGA's folder name
 
@@ -60,6 +60,6 @@ def write_mesh_pose_lists(
         np.savez_compressed(buffer, pc=mesh_pose_list(record, mesh_paths))
         data = buffer.getvalue()
         path = root / MESH_POSE_LIST / f"{scene_name(record.scene_id)}.npz"
-        _write_atomically(path, lambda target, data=data: target.write_bytes(data))
+        atomic_write_path(path, lambda target, data=data: target.write_bytes(data), make_parents=True)
         paths.append(path)
     return paths

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from annotator.files import atomic_write_path
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription
 
@@ -138,14 +139,13 @@ def _shape_mesh(shape) -> trimesh.Trimesh:
 def write_graspgen_gripper(folder, depth, config=None) -> list[Path]:
     """Write ``gripper/<name>.yaml`` and its collision mesh through ``folder`` (an
     :class:`annotator.tools.export.ExportFolder`); returns the two paths."""
-    from annotator.tools.export import _write_atomically
 
     gg = graspgen_gripper(depth)
     mesh = collision_mesh(depth.description, gg.width, config)
     mesh_path = folder.target(f"gripper/{gg.collision_mesh_fname}")
     yaml_path = folder.target(f"gripper/{gg.name}.yaml")
     text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False, digits=10)
-    _write_atomically(mesh_path, lambda target: target.write_text(text))
+    atomic_write_path(mesh_path, lambda target: target.write_text(text), make_parents=True)
     yaml_text = gg.yaml_text(depth.description)
-    _write_atomically(yaml_path, lambda target: target.write_text(yaml_text))
+    atomic_write_path(yaml_path, lambda target: target.write_text(yaml_text), make_parents=True)
     return [yaml_path, mesh_path]

@@ -6,7 +6,7 @@ process never loads a mesh: it discovers the pool, binds the run (the configurat
 ``[scenes]`` section, the scene request and the pool in the manifest) and hands out spans; the
 worker of a scene's first span builds the scene and returns its record and views as artifacts
 (``_views/scene_000003-<hash>/scene.parquet``, ``vVV_*.png``, ``cameras.parquet``), which the main
-process then passes to the scene's later spans (:mod:`annotator.scenes.worker`).
+process then passes to the scene's later spans (:mod:`annotator.pipeline.scene_worker`).
 
 Every scene draws from the whole pool, so the pool is each scene's source: a changed, added or
 removed object redoes every scene. The number of scenes is not bound: ``--scenes 20`` on a folder of
@@ -27,14 +27,10 @@ from typing import Any
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
 from annotator.pipeline.execution import UsageError
-from annotator.pipeline.lifecycle import Collector, Plan, TaskContext, loaded_gripper, merged, resumed
+from annotator.pipeline.lifecycle import Collector, TaskContext, WorkPlan, loaded_gripper, merged, resumed
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.plan import FIRST_SPANS_AHEAD, MAX_N
-from annotator.pipeline.summary import Summary
-from annotator.pipeline.tasks import SpanResult
-from annotator.scenes.records import ARRANGEMENTS, SceneRecord
-from annotator.scenes.views import MAX_INSTANCE_ID
-from annotator.scenes.worker import (
+from annotator.pipeline.scene_worker import (
     SCENE_FILE,
     SceneRequest,
     SceneSpan,
@@ -42,6 +38,10 @@ from annotator.scenes.worker import (
     label_scene_span,
     record_from_artifact,
 )
+from annotator.pipeline.summary import Summary
+from annotator.pipeline.tasks import SpanResult
+from annotator.scenes.records import ARRANGEMENTS, SceneRecord
+from annotator.scenes.views import MAX_INSTANCE_ID
 from annotator.store import RunSpec, Store
 from annotator.store.names import scene_unit
 
@@ -188,7 +188,7 @@ class SceneJob:
         self.units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}
         return spec, self.units
 
-    def plan(self, options: RunOptions, store: Store, resume, summary: Summary) -> Plan | None:
+    def plan(self, options: RunOptions, store: Store, resume, summary: Summary) -> WorkPlan | None:
         self.store = store
         n, chunk = options.n, store.spec.chunk_size
         store.manifest.objects_planned = sorted(self.units)
@@ -219,7 +219,7 @@ class SceneJob:
             )
         if not todo:
             return None
-        return Plan(
+        return WorkPlan(
             total,
             len(todo),
             remaining,
