@@ -237,10 +237,22 @@ class GraspTrial:
         """Simulate one candidate grasp from the saved initial state.
 
         With a ``perturbation`` the grasp pose is ``T_obj_tcp * perturbation.T_tcp_tcp`` and the
-        object's friction and mass change for this trial only.
+        object's friction and mass change for this trial only: they are set back to the nominal
+        ones when it ends, however it ends. Whatever runs next in this world (the next
+        candidate's unperturbed trial 0, an object settling on the table in a new orientation,
+        another :class:`GraspTrial` of the same body reading its nominal dynamics) then finds the
+        object as ``--trials 1`` leaves it, so trial 0 is the same whatever K.
         """
+        if perturbation is None:
+            return self._run(T_obj_tcp, width_expected, Perturbation.none())
+        try:
+            return self._run(T_obj_tcp, width_expected, perturbation)
+        finally:
+            self._apply(Perturbation.none())
+
+    def _run(self, T_obj_tcp: Transform, width_expected: float, perturbation: Perturbation) -> TrialResult:
+        """:meth:`run` with the perturbation applied (its dynamics left as they were set)."""
         self.world.restore_state(self.state)
-        perturbation = perturbation or Perturbation.none()
         self._apply(perturbation)
         T_obj_tcp = T_obj_tcp * perturbation.T_tcp_tcp
         steps0 = self.world.steps
