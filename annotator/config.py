@@ -308,18 +308,28 @@ class ProtocolConfig(_Section):
 
 @dataclass(frozen=True)
 class RobustConfig(_Section):
-    """Perturbations of the K - 1 extra trials of ``--trials K`` (trial 0 is unperturbed).
-
-    A calibrated UR3 (repeatability +-0.1 mm, docs/robots.md) seen by a depth camera, whose object
-    pose error is a few millimetres and degrees: see docs/decisions/0011-robust-perturbations.md.
+    """Execution uncertainty: the perturbations of the K - 1 extra trials of ``--trials K`` (trial 0
+    is unperturbed). Each models one way a real execution of the grasp differs from the simulated
+    one; the ranges and their sources: docs/decisions/0017-execution-uncertainty.md.
     """
 
-    position_sigma: float = _field(0.002, ge=0.0)  # m, TCP position noise (Gaussian, per axis)
-    rotation_sigma: float = _field(
-        0.035, ge=0.0
-    )  # rad (2 deg), TCP rotation noise (Gaussian rotation vector)
-    friction_delta: float = _field(0.2, ge=0.0)  # object friction coefficient + uniform(-0.2, 0.2)
-    mass_delta: float = _field(0.3, ge=0.0, lt=1.0)  # object mass x uniform(0.7, 1.3)
+    # The robot's TCP, Gaussian per axis in the TCP frame: the UR3's (and the Panda's) repeatability
+    # +-0.1 mm (their datasheets); no datasheet gives an orientation repeatability: 0.
+    position_sigma: float = _field(0.0001, ge=0.0)  # m, across the approach (TCP x and y)
+    approach_sigma: float = _field(0.0001, ge=0.0)  # m, along the approach (TCP z)
+    rotation_sigma: float = _field(0.0, ge=0.0)  # rad, TCP rotation (Gaussian rotation vector)
+    # Where the object is against where it was planned (world frame, turned about its centre of
+    # mass): "a few mm", placed by hand on printed footprints (GRASPA); Dex-Net 2.0: sigma 5 mm.
+    object_position_sigma: float = _field(0.002, ge=0.0)  # m, per horizontal axis
+    object_yaw_sigma: float = _field(0.035, ge=0.0)  # rad (2 deg)
+    object_tilt_sigma: float = _field(0.0, ge=0.0)  # rad; 0: a resting object sits on its support
+    # Object friction coefficient + uniform(-d, d): sigma 0.115, as Dex-Net 2.0's sigma 0.1.
+    friction_delta: float = _field(0.2, ge=0.0)
+    # Object mass x uniform(1 - d, 1 + d), inertia with it: a mass from a density guess (chosen;
+    # 0 for weighed objects).
+    mass_delta: float = _field(0.3, ge=0.0, lt=1.0)
+    # Grip force x uniform(1 - d, 1 + d); 0: no public tolerance of the RG2's or the Panda's force.
+    grip_force_delta: float = _field(0.0, ge=0.0, lt=1.0)
 
 
 @dataclass(frozen=True)

@@ -154,3 +154,56 @@ def test_trial_0_is_the_same_whatever_the_number_of_trials():
             check_exact=True,
         )
         assert (rows[trials]["sim_steps"] > one["sim_steps"]).sum() >= 2  # perturbed trials ran
+
+
+def test_the_object_s_placement_error_moves_the_grasp_against_it():
+    """The robot grasps where the object was planned to be; it sits shifted and turned about the
+    vertical through its centre of mass, so the grasp moves by the inverse in the object's frame."""
+    T_world_obj = Transform([0.1, -0.2, 0.05], [0.0, 0.0, np.sin(0.3), np.cos(0.3)])
+    com = T_world_obj.apply(np.array([0.01, 0.0, 0.02]))
+    T_obj_tcp = Transform([0.03, 0.01, 0.08], [1.0, 0.0, 0.0, 0.0])  # from above
+    none = Perturbation.none()
+    assert np.allclose(none.T_obj_tcp(T_obj_tcp, T_world_obj, com).as_matrix(), T_obj_tcp.as_matrix())
+    shift = np.array([0.002, -0.001, 0.0])
+    moved = Perturbation(Transform.identity(), 0.0, 1.0, object_shift=shift)
+    T_world_tcp = T_world_obj * moved.T_obj_tcp(T_obj_tcp, T_world_obj, com)
+    assert np.allclose(T_world_tcp.pos, (T_world_obj * T_obj_tcp).pos - shift)
+    assert np.allclose(T_world_tcp.rotation, (T_world_obj * T_obj_tcp).rotation)
+    yaw = 0.1
+    turned = Perturbation(Transform.identity(), 0.0, 1.0, object_rotvec=np.array([0.0, 0.0, yaw]))
+    planned, executed = T_world_obj * T_obj_tcp, T_world_obj * turned.T_obj_tcp(T_obj_tcp, T_world_obj, com)
+    # the same distance from the vertical through the centre of mass, turned by -yaw about it
+    r0, r1 = (planned.pos - com)[:2], (executed.pos - com)[:2]
+    assert np.isclose(np.linalg.norm(r0), np.linalg.norm(r1))
+    assert np.isclose(np.arctan2(r0[0] * r1[1] - r0[1] * r1[0], r0 @ r1), -yaw)
+    assert np.isclose(executed.pos[2], planned.pos[2])
+    # the TCP's own error composes in the TCP frame, after the object's
+    tcp = Transform([0.0, 0.0, 0.001], [0.0, 0.0, 0.0, 1.0])
+    both = Perturbation(tcp, 0.0, 1.0, object_rotvec=np.array([0.0, 0.0, yaw]))
+    assert np.allclose(
+        both.T_obj_tcp(T_obj_tcp, T_world_obj, com).as_matrix(),
+        (turned.T_obj_tcp(T_obj_tcp, T_world_obj, com) * tcp).as_matrix(),
+    )
+
+
+def test_a_perturbed_grip_force_squeezes_with_it(brick):
+    """``force_scale`` scales the squeeze of that trial: half the force, half the pads' normal force."""
+    source, model, cands = brick
+    with World(CONFIG.physics) as world:
+        hand = FloatingGripper(world, CONFIG.gripper)
+        hand.teleport(Transform([0, 0, 2.0], [0, 0, 0, 1]), hand.gripper.max_width)
+        uid = create_body(world.client, model)
+        trial = GraspTrial(world, hand, uid, CONFIG)
+        k = next(
+            i
+            for i in range(len(cands))
+            if trial.run(Transform.from_matrix(cands.T_obj_tcp[i]), cands.width_expected[i]).outcome
+            == Outcome.SUCCESS
+        )
+        T, w = Transform.from_matrix(cands.T_obj_tcp[k]), cands.width_expected[k]
+        forces = []
+        for scale in (1.0, 0.5):
+            trial._run(T, w, Perturbation(Transform.identity(), 0.0, 1.0, force_scale=scale))
+            forces.append(float(np.sum(hand.gripper.pad_normal_forces(uid))))
+        trial.close()
+    assert forces[1] == pytest.approx(forces[0] / 2, rel=0.1), forces
