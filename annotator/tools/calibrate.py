@@ -589,7 +589,7 @@ def config_toml(config: AnnotatorConfig, header: str = "") -> str:
     defaults = AnnotatorConfig().to_dict()
     lines = [f"# {line}" for line in header.splitlines()]
     for section, values in config.to_dict().items():
-        changed = {k: v for k, v in values.items() if defaults[section].get(k) != v}
+        changed = {k: v for k, v in values.items() if defaults.get(section, {}).get(k) != v}
         if changed:
             lines.append(f"\n[{section}]")
             lines += [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
