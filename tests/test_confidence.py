@@ -82,3 +82,30 @@ def test_reliability_table_and_diagram():
     # something was drawn in the curve's colour
     pixels = np.asarray(image.convert("RGB")).reshape(-1, 3)
     assert (np.abs(pixels - np.array([31, 119, 180])).sum(axis=1) == 0).sum() > 20
+
+
+def test_labels_made_with_a_calibration_carry_p_success(tmp_path):
+    """``[confidence]`` in the configuration: every row's p_success is the mapping of its score;
+    without it no column; a run with another --trials than the mapping's is refused."""
+    import dataclasses
+
+    import trimesh
+
+    from annotator.config import AnnotatorConfig, ConfigError
+    from annotator.objects import ObjectSource
+    from annotator.pipeline.worker import Span, SpanTask, label_span
+
+    path = tmp_path / "brick.obj"
+    trimesh.creation.box((0.05, 0.04, 0.10)).export(path)
+    source = ObjectSource("brick", path)
+    plain = AnnotatorConfig()
+    calibrated = AnnotatorConfig.from_dict(
+        {"confidence": {"method": "isotonic", "trials": 2, "scores": [0.0, 1.0], "p_success": [0.2, 0.9]}}
+    )
+    rows = label_span(SpanTask(Span("brick", source, None, 0, 6), calibrated, 0, 6, 2)).rows
+    assert rows["p_success"].to_numpy() == pytest.approx(0.2 + 0.7 * rows["score"].to_numpy())
+    assert "p_success" not in label_span(SpanTask(Span("brick", source, None, 0, 6), plain, 0, 6, 2)).rows
+    with pytest.raises(ValueError, match="--trials 2"):
+        label_span(SpanTask(Span("brick", source, None, 0, 6), calibrated, 0, 6, 1))
+    with pytest.raises(ConfigError):
+        dataclasses.replace(calibrated.confidence, p_success=(0.9, 0.2))

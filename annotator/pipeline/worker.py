@@ -711,6 +711,9 @@ def simulate(
     cannot be executed).
     """
     model = loaded.model
+    mapping = config.confidence.mapping()  # a calibration: rows carry p_success
+    if mapping is not None and mapping.trials != trials:
+        raise ValueError(f"[confidence] fitted on --trials {mapping.trials} scores; this run has {trials}")
     rows = []
     # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
     sampled_quats = (
@@ -727,7 +730,8 @@ def simulate(
         trial, placement = _trial_for(loaded, T, None if placements is None else int(placements[k]), rest)
         run_T = T if loaded.resting is None else loaded.resting.grasp(rest, T)
         result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
-        rows.append(_row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials))
+        row = _row(result, T, width_expected, model, seed, object_id, grasp_id, gripper, trials, mapping)
+        rows.append(row)
         if loaded.cell is not None:  # placement, object pose on the table, reachability
             rows[-1].update(loaded.cell.columns(placement, T, width_expected, grasp_id))
         elif loaded.resting is not None:  # the object's settled pose on the table
@@ -803,8 +807,10 @@ def _row(
     grasp_id: int,
     gripper: str,
     trials: int,
+    mapping=None,
 ) -> dict[str, Any]:
-    """One label row (the columns of docs/labels.md, in their order)."""
+    """One label row (the columns of docs/labels.md, in their order); with a confidence
+    ``mapping`` (annotator.confidence.Mapping) also ``p_success``."""
     return {
         "object_id": object_id,
         "grasp_id": grasp_id,
@@ -830,6 +836,8 @@ def _row(
         "collision_error": model.collision_error.max,
         "collision_error_mean": model.collision_error.mean,
         "gripper": gripper,  # the gripper description's name (docs/grippers.md)
+        # P(the real grasp holds) of this score, [confidence] (annotator/confidence.py)
+        **({} if mapping is None else {"p_success": float(mapping.p_success(r.held / trials))}),
     }
 
 
