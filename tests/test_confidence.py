@@ -109,3 +109,30 @@ def test_labels_made_with_a_calibration_carry_p_success(tmp_path):
         label_span(SpanTask(Span("brick", source, None, 0, 6), calibrated, 0, 6, 1))
     with pytest.raises(ConfigError):
         dataclasses.replace(calibrated.confidence, p_success=(0.9, 0.2))
+
+
+def test_the_report_shows_the_calibration_s_reliability_and_brier():
+    import base64
+
+    import pandas as pd
+
+    from annotator.tools.report import _confidence_section
+
+    section = {
+        "method": "isotonic",
+        "trials": 5,
+        "scores": [0.0, 1.0],
+        "p_success": [0.3, 0.9],
+        "n": 200,
+        "brier": 0.171,
+        "reliability_p": [0.3, 0.9],
+        "reliability_rate": [0.25, 0.95],
+        "reliability_n": [80.0, 120.0],
+    }
+    manifest = {"run": {"config": {"confidence": section}}}
+    df = pd.DataFrame({"p_success": [0.3, 0.6, 0.9]})
+    html = _confidence_section(manifest, df)
+    assert "Brier score 0.171" in html and "mean p_success is 0.600" in html and "--trials 5" in html
+    png = base64.b64decode(html.split("base64,")[1].split("'")[0])
+    assert Image.open(io.BytesIO(png)).format == "PNG"
+    assert "No calibration" in _confidence_section({"run": {"config": {}}}, pd.DataFrame({"score": [1.0]}))
