@@ -291,3 +291,12 @@ def cross_validated_decisions(
         thresholds.append(t)
         out[held] = score[held] >= t
     return out, thresholds
+
+
+def trials_mismatch(config, trials: int) -> str | None:
+    """Why a run with ``--trials trials`` cannot use ``config``'s ``[confidence]`` (fitted at
+    another K), or None."""
+    fitted = config.confidence.trials if config.confidence.method != "none" else None
+    if fitted is None or fitted == trials:
+        return None
+    return f"its [confidence] maps the score of --trials {fitted}: run with --trials {fitted}"

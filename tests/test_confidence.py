@@ -136,3 +136,18 @@ def test_the_report_shows_the_calibration_s_reliability_and_brier():
     png = base64.b64decode(html.split("base64,")[1].split("'")[0])
     assert Image.open(io.BytesIO(png)).format == "PNG"
     assert "No calibration" in _confidence_section({"run": {"config": {}}}, pd.DataFrame({"score": [1.0]}))
+
+
+def test_annotate_refuses_a_calibration_fitted_at_another_number_of_trials(tmp_path):
+    from click.testing import CliRunner
+
+    from annotator.cli import annotate_command
+
+    config = tmp_path / "calibrated.toml"
+    config.write_text(
+        '[confidence]\nmethod = "isotonic"\ntrials = 5\nscores = [0.0, 1.0]\np_success = [0.2, 0.9]\n'
+    )
+    args = ["--objects", str(tmp_path), "--n", "2", "--out", str(tmp_path / "out"), "--config", str(config)]
+    result = CliRunner().invoke(annotate_command, args)
+    assert result.exit_code == 2 and "run with --trials 5" in result.output, result.output
+    assert "Traceback" not in result.output
