@@ -1,6 +1,6 @@
 """The label's confidence: a mapping from ``score`` to the probability that the real grasp holds.
 
-``annotator calibrate --confidence`` fits it on real trials (:func:`fit_isotonic`), cross-validated
+``annotator calibrate --trials K`` fits it on real trials (:func:`fit_isotonic`), cross-validated
 by object (:func:`cross_validated`), and writes it into the configuration's ``[confidence]``
 section; labels made with that configuration carry ``p_success`` (:meth:`Mapping.p_success`).
 
