@@ -44,6 +44,12 @@ _TYPES: dict[str, tuple[str, Any, Any]] = {
     "int": ("an integer", lambda v: isinstance(v, int) and not isinstance(v, bool), int),
     "bool": ("true or false", lambda v: isinstance(v, bool), bool),
     "str": ("a string", lambda v: isinstance(v, str), str),
+    "tuple[float, ...]": (
+        "a list of numbers",
+        lambda v: isinstance(v, list | tuple)
+        and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v),
+        lambda v: tuple(float(x) for x in v),
+    ),
 }
 _BOUNDS = (
     ("gt", operator.gt, ">"),
@@ -65,6 +71,8 @@ def _checked(where: str, kind: str, meta: dict[str, Any], value: Any) -> Any:
     value = convert(value)
     if kind == "float" and not math.isfinite(value):
         raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+    if kind.startswith("tuple") and not all(math.isfinite(x) for x in value):
+        raise ConfigError(f"{where}: expected finite numbers, got {list(value)!r}")
     if meta.get("choices") is not None and value not in meta["choices"]:
         raise ConfigError(f"{where}: must be one of {list(meta['choices'])}, got {value!r}")
     if any(meta.get(k) is not None and not op(value, meta[k]) for k, op, _ in _BOUNDS):
@@ -308,18 +316,71 @@ class ProtocolConfig(_Section):
 
 @dataclass(frozen=True)
 class RobustConfig(_Section):
-    """Perturbations of the K - 1 extra trials of ``--trials K`` (trial 0 is unperturbed).
-
-    A calibrated UR3 (repeatability +-0.1 mm, docs/robots.md) seen by a depth camera, whose object
-    pose error is a few millimetres and degrees: see docs/decisions/0011-robust-perturbations.md.
+    """Execution uncertainty: the perturbations of the K - 1 extra trials of ``--trials K`` (trial 0
+    is unperturbed). Each models one way a real execution of the grasp differs from the simulated
+    one; the ranges and their sources: docs/decisions/0018-execution-uncertainty.md.
     """
 
-    position_sigma: float = _field(0.002, ge=0.0)  # m, TCP position noise (Gaussian, per axis)
-    rotation_sigma: float = _field(
-        0.035, ge=0.0
-    )  # rad (2 deg), TCP rotation noise (Gaussian rotation vector)
-    friction_delta: float = _field(0.2, ge=0.0)  # object friction coefficient + uniform(-0.2, 0.2)
-    mass_delta: float = _field(0.3, ge=0.0, lt=1.0)  # object mass x uniform(0.7, 1.3)
+    # The robot's TCP, Gaussian per axis in the TCP frame: the UR3's (and the Panda's) repeatability
+    # +-0.1 mm (their datasheets); no datasheet gives an orientation repeatability: 0.
+    position_sigma: float = _field(0.0001, ge=0.0)  # m, across the approach (TCP x and y)
+    approach_sigma: float = _field(0.0001, ge=0.0)  # m, along the approach (TCP z)
+    rotation_sigma: float = _field(0.0, ge=0.0)  # rad, TCP rotation (Gaussian rotation vector)
+    # Where the object is against where it was planned (world frame, turned about its centre of
+    # mass): "a few mm", placed by hand on printed footprints (GRASPA); Dex-Net 2.0: sigma 5 mm.
+    object_position_sigma: float = _field(0.002, ge=0.0)  # m, per horizontal axis
+    object_yaw_sigma: float = _field(0.035, ge=0.0)  # rad (2 deg)
+    object_tilt_sigma: float = _field(0.0, ge=0.0)  # rad; 0: a resting object sits on its support
+    # Object friction coefficient + uniform(-d, d): sigma 0.115, as Dex-Net 2.0's sigma 0.1.
+    friction_delta: float = _field(0.2, ge=0.0)
+    # Object mass x uniform(1 - d, 1 + d), inertia with it: a mass from a density guess (chosen;
+    # 0 for weighed objects).
+    mass_delta: float = _field(0.3, ge=0.0, lt=1.0)
+    # Grip force x uniform(1 - d, 1 + d); 0: no public tolerance of the RG2's or the Panda's force.
+    grip_force_delta: float = _field(0.0, ge=0.0, lt=1.0)
+
+
+@dataclass(frozen=True)
+class ConfidenceConfig(_Section):
+    """The label's confidence: ``score`` mapped to the probability that the real grasp holds,
+    fitted by ``annotator calibrate --trials K`` on real trials (annotator/confidence.py; docs/
+    decisions/0019-score-calibration.md). Labels made with it carry ``p_success``; a run binds it
+    only when it is set, so folders of runs made without it still resume.
+    """
+
+    method: str = _field("none", choices=("none", "isotonic"))  # none: no p_success column
+    trials: int = _field(0, ge=0)  # the --trials K of the scores it was fitted on (a run must match)
+    scores: tuple[float, ...] = ()  # knots, increasing in [0, 1]
+    p_success: tuple[float, ...] = ()  # P(real success) at each knot, not decreasing; linear between
+    n: int = _field(0, ge=0)  # real trials it was fitted on
+    brier: float = _field(0.0, ge=0.0, le=1.0)  # its Brier score on them, cross-validated by object
+    # The reliability diagram of the fit (annotator report draws it): per bin of P, its trials' mean
+    # P, real success rate and count, cross-validated by object.
+    reliability_p: tuple[float, ...] = ()
+    reliability_rate: tuple[float, ...] = ()
+    reliability_n: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.method == "none":
+            return
+        knots, p = self.scores, self.p_success
+        if not knots or len(knots) != len(p):
+            raise ConfigError("[confidence] scores, p_success: one probability per knot, at least one")
+        if any(b <= a for a, b in zip(knots, knots[1:], strict=False)) or not 0 <= knots[0] <= knots[-1] <= 1:
+            raise ConfigError(f"[confidence] scores: increasing values in [0, 1], got {list(knots)}")
+        if any(b < a for a, b in zip(p, p[1:], strict=False)) or not 0 <= p[0] <= p[-1] <= 1:
+            raise ConfigError(f"[confidence] p_success: non-decreasing values in [0, 1], got {list(p)}")
+        if self.trials < 1:
+            raise ConfigError("[confidence] trials: the --trials K the mapping was fitted on (>= 1)")
+
+    def mapping(self):
+        """The :class:`annotator.confidence.Mapping`, or None (``method = "none"``)."""
+        if self.method == "none":
+            return None
+        from annotator.confidence import Mapping
+
+        return Mapping(self.scores, self.p_success, self.trials, self.n)
 
 
 @dataclass(frozen=True)
@@ -503,6 +564,8 @@ class AnnotatorConfig:
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
     robust: RobustConfig = field(default_factory=RobustConfig)
+    # Bound in a run's manifest only when set (a calibration: labels carry p_success).
+    confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     cell: CellConfig = field(default_factory=CellConfig)
     kinect: KinectConfig = field(default_factory=KinectConfig)
     # Bound in a run's manifest only by scene runs (to_dict(scenes=True)).
@@ -550,6 +613,8 @@ class AnnotatorConfig:
         data = dataclasses.asdict(self)
         if not scenes:
             data.pop("scenes")
+        if self.confidence.method == "none":
+            data.pop("confidence")
         return data
 
     @classmethod
@@ -592,6 +657,7 @@ _SECTION_NAMES = {
     "SamplerConfig": "sampler",
     "ProtocolConfig": "protocol",
     "RobustConfig": "robust",
+    "ConfidenceConfig": "confidence",
     "CellConfig": "cell",
     "KinectConfig": "kinect",
     "SceneConfig": "scenes",

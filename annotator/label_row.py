@@ -73,12 +73,15 @@ def label_row(
     gripper: str,
     extra: Mapping[str, Any] | None = None,
     reasons: Mapping[str, str] | None = None,
+    p_success: float | None = None,
 ) -> dict[str, Any]:
     """One label row of ``mode``: the object columns from the trials' ``result`` (of ``trials``
     trials), the commanded grasp ``T_cmd`` (object mesh frame) at ``cmd_width`` (m), the object
     ``model`` and the run's ``seed``, plus the mode's own columns ``extra``; ordered as the mode's
-    columns. ``reasons``: a given grasp's :data:`annotator.schema.REASON_COLUMNS` (why a collision is
-    one), after the mode's columns. Raises ValueError when the columns are not exactly the mode's."""
+    columns. After them, with a calibration, ``p_success`` (the probability that the real grasp
+    holds: :data:`annotator.schema.CONFIDENCE_COLUMNS`), then a given grasp's ``reasons``
+    (:data:`annotator.schema.REASON_COLUMNS`: why a collision is one). Raises ValueError when the
+    columns are not exactly the mode's."""
     row: dict[str, Any] = {
         "object_id": object_id,
         "grasp_id": grasp_id,
@@ -112,6 +115,8 @@ def label_row(
         unknown = [n for n in row if n not in names]
         raise ValueError(f"a {mode} row: missing columns {missing}, columns not of the mode {unknown}")
     out = {n: row[n] for n in names}
+    if p_success is not None:
+        out["p_success"] = float(p_success)
     if reasons is not None:
         if tuple(reasons) != REASON_COLUMNS:
             raise ValueError(f"a {mode} row's reasons: {tuple(reasons)}, expected {REASON_COLUMNS}")

@@ -281,6 +281,21 @@ SCENE_GROUPS: tuple[ColumnGroup, ...] = (
 )
 
 
+# --- with a calibration ([confidence], annotator calibrate) ------------------------------------------
+
+CONFIDENCE_GROUPS: tuple[ColumnGroup, ...] = (
+    ColumnGroup(
+        ("p_success",),
+        FLOAT64,
+        "0 … 1",
+        "",
+        "only in labels made with a calibration (`[confidence]`, written by `annotator calibrate`): the "
+        "probability that the real grasp holds, the calibration's mapping of `score` "
+        "([tools.md](tools.md#the-labels-confidence-p_success))",
+    ),
+)
+
+
 def _names(groups: tuple[ColumnGroup, ...]) -> tuple[str, ...]:
     return tuple(n for g in groups for n in g.names)
 
@@ -289,6 +304,8 @@ OBJECT_COLUMNS = _names(OBJECT_GROUPS)
 # Why a given grasp's row is a collision (annotator evaluate, calibrate's replays): the scene rows'
 # columns of the same names, after the mode's columns
 REASON_COLUMNS: tuple[str, ...] = ("collided_with", "collision_stage")
+# With a calibration, after the mode's columns (and before the reasons)
+CONFIDENCE_COLUMNS: tuple[str, ...] = ("p_success",)
 # a scene row holds the object columns but writes its gripper after the scene's own
 _OBJECT_BUT_GRIPPER = tuple(c for c in OBJECT_COLUMNS if c != "gripper")
 
@@ -309,10 +326,11 @@ DOC_SECTIONS: dict[str, tuple[ColumnGroup, ...]] = {
     "cell": PLACEMENT_GROUPS + OBJECT_POSE_GROUPS + REACH_GROUPS,
     "resting": RESTING_GROUPS,
     "scene": SCENE_GROUPS,
+    "confidence": CONFIDENCE_GROUPS,
 }
 
 GROUPS: tuple[ColumnGroup, ...] = (
-    OBJECT_GROUPS + PLACEMENT_GROUPS + REACH_GROUPS + RESTING_GROUPS + SCENE_GROUPS
+    OBJECT_GROUPS + PLACEMENT_GROUPS + REACH_GROUPS + RESTING_GROUPS + SCENE_GROUPS + CONFIDENCE_GROUPS
 )
 
 

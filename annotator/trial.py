@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,13 +38,23 @@ log = logging.getLogger(__name__)
 APPROACH_HOLD = 0.1
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Perturbation:
-    """Changes of one robust trial: TCP pose offset (in the TCP frame), friction and mass."""
+    """Changes of one robust trial (RobustConfig; docs/decisions/0018-execution-uncertainty.md).
+
+    ``T_tcp_tcp``: the robot's TCP error, in the TCP frame. ``object_shift`` (3,) m and
+    ``object_rotvec`` (3,) rad: where the object really is against where the grasp was planned,
+    in the world frame, the rotation about the object's centre of mass (yaw about the vertical,
+    tilt about horizontal axes). ``friction_delta``: added to the object's friction coefficient;
+    ``mass_scale``: its mass and inertia; ``force_scale``: the grip force.
+    """
 
     T_tcp_tcp: Transform
     friction_delta: float
     mass_scale: float
+    object_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    object_rotvec: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    force_scale: float = 1.0
 
     @classmethod
     def none(cls) -> Perturbation:
@@ -52,14 +62,42 @@ class Perturbation:
 
     @classmethod
     def sample(cls, rng: np.random.Generator, robust: RobustConfig) -> Perturbation:
-        """Gaussian pose noise, uniform friction and mass changes (RobustConfig)."""
+        """One draw: Gaussian TCP and object pose errors, uniform friction, mass and force changes."""
         rotvec = rng.normal(0.0, robust.rotation_sigma, 3)
-        angle = float(np.linalg.norm(rotvec))
-        R = axis_angle_to_matrix(rotvec / angle, angle) if angle > 0 else np.eye(3)
-        pos = rng.normal(0.0, robust.position_sigma, 3)
+        pos = rng.normal(0.0, 1.0, 3) * np.array(
+            [robust.position_sigma, robust.position_sigma, robust.approach_sigma]
+        )
         friction = rng.uniform(-robust.friction_delta, robust.friction_delta)
         mass = rng.uniform(1.0 - robust.mass_delta, 1.0 + robust.mass_delta)
-        return cls(Transform.from_rotation(R, pos), float(friction), float(mass))
+        shift = np.append(rng.normal(0.0, robust.object_position_sigma, 2), 0.0)
+        tilt = rng.normal(0.0, robust.object_tilt_sigma, 2)
+        yaw = rng.normal(0.0, robust.object_yaw_sigma)
+        force = rng.uniform(1.0 - robust.grip_force_delta, 1.0 + robust.grip_force_delta)
+        return cls(
+            Transform.from_rotation(_rotation(rotvec), pos),
+            float(friction),
+            float(mass),
+            shift,
+            np.array([tilt[0], tilt[1], yaw]),
+            float(force),
+        )
+
+    def T_obj_tcp(self, T_obj_tcp: Transform, T_world_obj: Transform, com_world: np.ndarray) -> Transform:
+        """The grasp as executed, in the frame of the object as it really is: the robot goes to
+        ``T_world_obj_planned · T_obj_tcp · T_tcp_tcp`` while the object sits at ``E ·
+        T_world_obj_planned`` (``E``: the object's error, rotating about ``com_world`` (3,))."""
+        R = _rotation(self.object_rotvec)
+        c = np.asarray(com_world, dtype=np.float64)
+        if not np.any(self.object_rotvec) and not np.any(self.object_shift):
+            return T_obj_tcp * self.T_tcp_tcp
+        E = Transform.from_rotation(R, c - R @ c + self.object_shift)
+        return T_world_obj.inverse() * E.inverse() * T_world_obj * T_obj_tcp * self.T_tcp_tcp
+
+
+def _rotation(rotvec: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation of a rotation vector (rad)."""
+    angle = float(np.linalg.norm(rotvec))
+    return axis_angle_to_matrix(rotvec / angle, angle) if angle > 0 else np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -236,15 +274,29 @@ class GraspTrial:
     ) -> TrialResult:
         """Simulate one candidate grasp from the saved initial state.
 
-        With a ``perturbation`` the grasp pose is ``T_obj_tcp * perturbation.T_tcp_tcp`` and the
-        object's friction and mass change for this trial only.
+        With a ``perturbation`` the grasp is executed with its TCP and object pose errors
+        (:meth:`Perturbation.T_obj_tcp`) and grip force, and the object's friction and mass
+        change for this trial only: they are set back to the nominal
+        ones when it ends, however it ends. Whatever runs next in this world (the next
+        candidate's unperturbed trial 0, an object settling on the table in a new orientation,
+        another :class:`GraspTrial` of the same body reading its nominal dynamics) then finds the
+        object as ``--trials 1`` leaves it, so trial 0 is the same whatever K.
         """
+        if perturbation is None:
+            return self._run(T_obj_tcp, width_expected, Perturbation.none())
+        try:
+            return self._run(T_obj_tcp, width_expected, perturbation)
+        finally:
+            self._apply(Perturbation.none())
+
+    def _run(self, T_obj_tcp: Transform, width_expected: float, perturbation: Perturbation) -> TrialResult:
+        """:meth:`run` with the perturbation applied (its dynamics left as they were set)."""
         self.world.restore_state(self.state)
-        perturbation = perturbation or Perturbation.none()
         self._apply(perturbation)
-        T_obj_tcp = T_obj_tcp * perturbation.T_tcp_tcp
+        com_world = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)[0]
+        T_obj_tcp = perturbation.T_obj_tcp(T_obj_tcp, self._T_world_obj(), np.asarray(com_world))
         steps0 = self.world.steps
-        cfg, force = self.config.protocol, self.hand.grip_force
+        cfg, force = self.config.protocol, self.hand.grip_force * perturbation.force_scale
         if cfg.approach == "simulated":
             check = self._approach(T_obj_tcp, width_expected)
         else:

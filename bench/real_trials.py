@@ -214,12 +214,14 @@ def annotator(*args: object) -> str:
 
 
 def evaluate(
-    prepared: Prepared, out: Path, gripper: str, frame: str, workers: int, config=None
+    prepared: Prepared, out: Path, gripper: str, frame: str, workers: int, config=None, trials: int = 1
 ) -> pd.DataFrame:
-    """``annotator evaluate --resting`` of one grasp table; the rows in the trials' order."""
+    """``annotator evaluate --resting`` of one grasp table (``--trials trials``); the rows in the
+    trials' order."""
     table = prepared.grasps_base if frame == "base" else prepared.grasps_tcp
     args = ["evaluate", table, "--objects", prepared.objects, "--out", out, "--gripper", gripper]
     args += ["--frame", frame, "--resting-grasps", "table", "--workers", workers, "--quiet", "--overwrite"]
+    args += ["--trials", trials]
     if config is not None:
         args += ["--config", config]
     annotator(*args)
@@ -293,6 +295,11 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     ap.add_argument("--force", default="25,70,140", help="grip forces of the grid, N")
     ap.add_argument("--severity", default="0,0.5,1", help="shake severities of the grid (0: lift only)")
     ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument(
+        "--trials", type=int, default=5, help="--trials of the Panda's evaluate: its score and p_success"
+    )
+    ap.add_argument("--no-grid", action="store_true", help="skip calibrate's grid (the longest part)")
+    ap.add_argument("--no-rg2", action="store_true", help="skip the RG2 at the same TCP poses")
     ap.add_argument(
         "--pad-spinning-friction",
         type=float,
@@ -383,21 +390,33 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
     run.figure("chord_share_closing_x", chords["x"], note="the same along GRASPA's TCP x")
 
     rows: list[dict] = []
-    panda = evaluate(prepared, work / "ev_panda", "panda", "base", args.workers, config)
+    panda = evaluate(prepared, work / "ev_panda", "panda", "base", args.workers, config, args.trials)
     sim_panda = panda["success"].to_numpy(dtype=bool)
     rows.append(stat_row("panda (as shipped)", stats(real, sim_panda, boot)))
-
-    # the RG2 at the same TCP poses, closing on the chord the Panda's pads found there
-    tcp = pd.read_csv(prepared.grasps_tcp)
-    closed = panda["outcome"].ne("collision") & panda["width"].gt(0.001)
-    tcp["width"] = np.where(closed, panda["width"], np.nan)
-    tcp.to_csv(prepared.grasps_tcp, index=False, float_format="%.17g")
-    rg2 = evaluate(prepared, work / "ev_rg2", "rg2", "tcp", args.workers, config)
-    sim_rg2 = rg2["success"].to_numpy(dtype=bool)
-
     always = np.ones(len(real), dtype=bool)
     T_tcp = prepared.T_obj_graspa @ _rot(R_HAND_BASE) @ _tz(_panda_tcp_depth() - args.tcp_depth)
     cone = friction_cone_baseline(prepared, T_tcp, 0.080, CONE_FRICTION)
+    confidence_report(run, trials, real, panda, cone, args)
+
+    # the RG2 at the same TCP poses, closing on the chord the Panda's pads found there
+    sim_rg2 = rg2 = None
+    if not args.no_rg2:
+        tcp = pd.read_csv(prepared.grasps_tcp)
+        closed = panda["outcome"].ne("collision") & panda["width"].gt(0.001)
+        tcp["width"] = np.where(closed, panda["width"], np.nan)
+        tcp.to_csv(prepared.grasps_tcp, index=False, float_format="%.17g")
+        rg2 = evaluate(prepared, work / "ev_rg2", "rg2", "tcp", args.workers, config)
+        sim_rg2 = rg2["success"].to_numpy(dtype=bool)
+    if args.no_grid:
+        rows.append(stat_row("always success", stats(real, always, boot)))
+        rows.append(stat_row(f"friction cone (mu {CONE_FRICTION:g})", stats(real, cone, boot)))
+        if sim_rg2 is not None:
+            rows.append(stat_row("rg2 at the same TCP poses", stats(real, sim_rg2, boot)))
+        print("\nagreement with the real grasped, % [95 % bootstrap interval]:")
+        for row in rows:
+            print(show(row))
+        run.table("agreement", rows, note="simulated or predicted success against real grasped")
+        return
 
     # the grid, through the command (every simulated outcome written for the figures)
     outcomes_path, toml = work / "grid.parquet", work / "calibrated.toml"
@@ -443,7 +462,8 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
         rows.append(stat_row("panda, before (mu 1, 70 N, x1)", stats(real, simulated[before], boot)))
     rows.append(stat_row("always success", stats(real, always, boot)))
     rows.append(stat_row(f"friction cone (mu {CONE_FRICTION:g})", stats(real, cone, boot)))
-    rows.append(stat_row("rg2 at the same TCP poses", stats(real, sim_rg2, boot)))
+    if sim_rg2 is not None:
+        rows.append(stat_row("rg2 at the same TCP poses", stats(real, sim_rg2, boot)))
     print("\nagreement with the real grasped, % [95 % bootstrap interval]:")
     for row in rows:
         print(show(row))
@@ -481,6 +501,8 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
         note="object-wise cross-validation: the setting chosen on the other objects, scored on the held-out "
         "ones",
     )
+    if rg2 is None:
+        return
     run.table(
         "outcomes", _outcome_counts(panda, rg2), note="simulated outcomes of the shipped Panda and the RG2"
     )
@@ -495,6 +517,75 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
         (rg2["outcome"].eq("collision").mean() + 1e-9) / (panda["outcome"].eq("collision").mean() + 1e-9),
         note="share of collision outcomes, RG2 over the Panda, the same grasps",
     )
+
+
+def confidence_report(
+    run: Run, trials: pd.DataFrame, real: np.ndarray, panda: pd.DataFrame, cone: np.ndarray, args
+) -> None:
+    """The label's confidence against the real outcomes: AUC of ``score`` and of ``p_success``
+    (isotonic, cross-validated by object), balanced accuracy and precision at the threshold chosen
+    on the other objects, precision of the top-scored fifth and Brier score, each with a 95 %
+    bootstrap interval; beside trial 0's ``success``, always-success and the friction cone. The
+    reliability diagram is written to the work folder."""
+    from annotator import confidence as conf
+    from annotator.tools.calibrate import agreement, agreement_text
+
+    boot = args.bootstrap
+    score = panda["score"].to_numpy(dtype=np.float64)
+    objects = trials["object_id"].astype(str).to_numpy()
+    p_cv = conf.cross_validated(score, real, objects, args.trials, args.folds)
+    calls, thresholds = conf.cross_validated_decisions(score, real, objects, args.folds)
+    base_rate = np.full(len(real), real.mean())
+    predictors = [
+        (f"score (--trials {args.trials})", score, calls, score),
+        ("p_success (isotonic, CV by object)", p_cv, calls, p_cv),
+        ("success (trial 0)", panda["success"].to_numpy(dtype=float), panda["success"].to_numpy(bool), None),
+        ("always success", np.ones(len(real)), np.ones(len(real), dtype=bool), base_rate),
+        (f"friction cone (mu {CONE_FRICTION:g})", cone.astype(float), cone, None),
+    ]
+    table = []
+    print(
+        f"\nconfidence against the real grasped ({len(real)} trials, {real.mean():.1%} grasped); "
+        f"thresholds on score chosen on the other objects: {', '.join(f'{t:g}' for t in thresholds)}"
+    )
+    for name, ranking, decided, prob in predictors:
+        a = conf.bootstrap(conf.auc, real, ranking, boot)
+        top = conf.bootstrap(conf.top_fraction_precision, real, ranking, boot)
+        b = conf.bootstrap(conf.brier, real, prob if prob is not None else ranking, boot)
+        ag = agreement(real, decided, boot)
+        row = {"predictor": name, "n": len(real)}
+        for key, m in (("auc", a), ("top_fifth_precision", top), ("brier", b)):
+            row[key], row[f"{key}_lo"], row[f"{key}_hi"] = m.value, m.low, m.high
+        for key in ("balanced", "precision", "recall"):
+            row[key] = ag.value(key)
+            row[f"{key}_lo"], row[f"{key}_hi"] = ag.interval(key)
+        table.append(row)
+        calls_text = agreement_text(ag, ("balanced", "precision"))
+        print(
+            f"{name:>36}: AUC {a.text()}, {calls_text}, top fifth {top.text(percent=True)}, Brier {b.text()}",
+            flush=True,
+        )
+    run.table(
+        "confidence",
+        table,
+        note=f"--trials {args.trials}: ranking (AUC, top fifth), calls at the CV threshold (balanced, "
+        "precision), probabilities (Brier; score as a probability, the base rate for always-success)",
+    )
+    for row, key in zip(table[:2], ("score", "p_success"), strict=True):
+        run.figure(f"{key}_auc", row["auc"], note=f"95 % CI {row['auc_lo']:.3f}..{row['auc_hi']:.3f}")
+        run.figure(f"{key}_brier", row["brier"], note=f"95 % CI {row['brier_lo']:.3f}..{row['brier_hi']:.3f}")
+    run.figure("cv_threshold_balanced", table[1]["balanced"], note="p_success at the CV threshold")
+    run.figure("cv_threshold_precision", table[1]["precision"], note="p_success at the CV threshold")
+    run.figure("score_top_fifth_precision", table[0]["top_fifth_precision"])
+    png = conf.reliability_png(
+        [
+            ("score as a probability", conf.reliability(real, score)),
+            ("p_success (CV by object)", conf.reliability(real, p_cv)),
+        ],
+        title=f"GRASPA calibration split, --trials {args.trials}",
+    )
+    (args.work / "reliability.png").write_bytes(png)
+    print(f"reliability diagram: {args.work / 'reliability.png'}", flush=True)
 
 
 def _outcome_counts(panda: pd.DataFrame, rg2: pd.DataFrame) -> list[dict]:

@@ -44,9 +44,19 @@ def test_every_field_has_a_type_the_checks_know():
     config = AnnotatorConfig()
     for section in dataclasses.fields(config):
         for f in dataclasses.fields(getattr(config, section.name)):
-            # "float | None": the gripper's own numbers, None leaving them to its description
-            known = ("float", "int", "bool", "str", "float | None", "str | None")
+            # "float | None": the gripper's own numbers, None leaving them to its description;
+            # "tuple[float, ...]": a list of numbers ([confidence]'s knots)
+            known = ("float", "int", "bool", "str", "float | None", "str | None", "tuple[float, ...]")
             assert f.type in known, (section.name, f.name, f.type)
+
+
+def test_a_list_of_numbers_is_checked_like_a_number():
+    section = {"method": "isotonic", "trials": 5, "scores": [0, 1], "p_success": [0, 1]}
+    ok = AnnotatorConfig.from_dict({"confidence": section})
+    assert ok.confidence.scores == (0.0, 1.0)
+    for bad in ("0.5", [0.0, float("nan")], [0.0, True]):
+        with pytest.raises(ConfigError, match=r"\[confidence\] scores"):
+            AnnotatorConfig.from_dict({"confidence": {"scores": bad}})
 
 
 def test_integers_for_floats_are_stored_as_floats():

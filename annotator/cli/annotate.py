@@ -191,6 +191,10 @@ def annotate_command(
     """
     setup_logging(quiet, verbose)
     config = load_config(config_file)
+    from annotator.confidence import trials_mismatch
+
+    if trials_mismatch(config, trials):
+        raise click.UsageError(f"--config {config_file}: {trials_mismatch(config, trials)}")
     if overwrite and repair:
         raise click.UsageError("--overwrite and --repair exclude each other")
     if views and not (cell or scenes):

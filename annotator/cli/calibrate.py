@@ -86,6 +86,24 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     help="Where to write the best setting as a TOML file for annotate --config.",
 )
 @click.option(
+    "--trials",
+    "trials_k",
+    type=click.IntRange(min=1),
+    default=5,
+    show_default=True,
+    help="Simulate every real trial this many times (annotate --trials K) at the best setting and map "
+    "its score to the probability that the real grasp holds (isotonic, cross-validated by object): "
+    "written as [confidence]; labels made with the file and the same --trials carry p_success.",
+)
+@click.option(
+    "--reliability",
+    "reliability_out",
+    default=None,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Where to draw the reliability diagram of p_success (PNG) [default: beside --write-config, "
+    "NAME.reliability.png].",
+)
+@click.option(
     "--outcomes",
     "outcomes_out",
     default=None,
@@ -142,6 +160,8 @@ def calibrate_command(
     objective,
     folds,
     config_out,
+    trials_k,
+    reliability_out,
     outcomes_out,
     gripper,
     frame,
@@ -155,7 +175,7 @@ def calibrate_command(
     force_write,
     verbose,
 ):
-    """Fit pad friction, grip force and shake severity to real trials of grasps.
+    """Fit pad friction, grip force and shake severity to real trials, and the label's confidence.
 
     LABELS is a labels folder or file of this tool (its commanded grasps are replayed with the
     gripper, configuration and resting mode recorded with them) or a grasp table as evaluate reads
@@ -165,13 +185,16 @@ def calibrate_command(
     the grid; the agreement with the real outcomes (accuracy, balanced accuracy, precision and
     recall of success, with 95 % bootstrap intervals) is printed per setting, the choice is
     cross-validated by object (--folds), and the best setting is written as a TOML file for
-    annotate --config.
+    annotate --config. Then every trial is simulated --trials K times at the best setting and
+    the share that held (score) is mapped to the probability that the real grasp holds: the
+    mapping goes into the file ([confidence]), its reliability diagram beside it (PNG) and its
+    Brier score is printed; labels made with the file and --trials K carry p_success.
 
     \b
     Example:
       annotator calibrate labels/ real_trials.csv --objects objects/
       annotator calibrate evaluated/ real.csv --objects ycb/ --severity 0,0.5,1 --folds 5
-      annotate --objects objects/ --n 500 --config calibrated.toml --out labels_calibrated/
+      annotate --objects objects/ --n 500 --trials 5 --config calibrated.toml --out calibrated/
     """
     setup_logging(False, verbose, default=logging.WARNING)
     import os
@@ -181,6 +204,9 @@ def calibrate_command(
     frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
     check_output_file(config_out, "--write-config")  # before the simulation, not after it
     check_replaceable(config_out, "--write-config", cal.written_by_calibrate, force_write)
+    if reliability_out is None:
+        reliability_out = config_out.with_suffix(".reliability.png")
+    check_output_file(reliability_out, "--reliability")
     if outcomes_out is not None:
         check_output_file(outcomes_out, "--outcomes")
     resting = resting_grasps or ("object" if resting else None)
@@ -219,14 +245,38 @@ def calibrate_command(
         f"{100 * a.accuracy_ci[1]:.0f}] over {a.n} trials; "
         f"{cal.agreement_text(a, ('balanced', 'precision', 'recall', 'f1'))}"
     )
+    import dataclasses
+
+    from annotator import confidence as conf
+
+    fit = cal.fit_confidence(
+        trials,
+        b,
+        base,
+        objects_dir,
+        trials_k,
+        workers or os.cpu_count() or 1,
+        seed,
+        gripper=source.gripper,
+        resting=source.resting,
+        folds=folds,
+    )
+    click.echo(cal.confidence_text(fit))
+    title = f"{source.gripper.name}, --trials {trials_k}, by object; Brier {fit.brier.value:.3f}"
+    reliability_out.write_bytes(conf.reliability_png([("p_success", fit.bins)], title))
+    click.echo(f"wrote {reliability_out}")
+    written = dataclasses.replace(result.config, confidence=fit.section())
     header = (
         f"annotator calibrate {labels} {real_csv}: best of {len(settings)} settings over {a.n} real trials "
         f"({source.gripper.name}, {objective})\n"
         f"accuracy {a.accuracy:.3f} (95 % CI {a.accuracy_ci[0]:.3f}..{a.accuracy_ci[1]:.3f}), "
         f"balanced {a.balanced:.3f}, precision {a.precision:.3f}, recall {a.recall:.3f}\n"
-        f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --config THIS_FILE"
+        f"[confidence]: p_success of the score of --trials {trials_k}, Brier {fit.brier.value:.3f} "
+        "cross-validated by object\n"
+        f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --trials {trials_k} "
+        "--config THIS_FILE"
     )
-    config_out.write_text(cal.config_toml(result.config, header), encoding="utf-8")
+    config_out.write_text(cal.config_toml(written, header), encoding="utf-8")
     click.echo(f"wrote {config_out}")
     if outcomes_out is not None:
         cal.outcomes_table(trials, result.simulated).to_parquet(outcomes_out, index=False)

@@ -140,6 +140,10 @@ def evaluate_command(
     grasps = read_grasps(grasps_file, frame)
     chosen = labelling_config(grasps_file, config_file)
     config = chosen.config
+    from annotator.confidence import trials_mismatch
+
+    if trials_mismatch(config, trials):
+        raise click.UsageError(f"{chosen.line()}: {trials_mismatch(config, trials)}")
     click.echo(chosen.line(), err=True)
     hand = labelling_gripper(grasps_file, gripper)
     click.echo(hand.line(), err=True)

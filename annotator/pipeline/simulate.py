@@ -66,6 +66,9 @@ def simulate(
     cannot be executed).
     """
     model = loaded.model
+    mapping = config.confidence.mapping()  # a calibration: rows carry p_success
+    if mapping is not None and mapping.trials != trials:
+        raise ValueError(f"[confidence] fitted on --trials {mapping.trials} scores; this run has {trials}")
     rows = []
     # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
     sampled_quats = (
@@ -98,6 +101,7 @@ def simulate(
                 gripper=gripper,
                 extra=placed.columns(placement, T, width_expected, grasp_id, rest),
                 reasons=_reasons(result.check, trial) if reasons else None,
+                p_success=None if mapping is None else mapping.p_success(result.held / trials),
             )
         )
     return pd.DataFrame(rows)

@@ -312,10 +312,10 @@ def default_forces(gripper=None) -> tuple[float, ...]:
     )
 
 
-def _simulate_task(setting, base, span, force, seed, gripper, resting):
+def _simulate_task(setting, base, span, force, seed, gripper, resting, k=1):
     from annotator.tools.given import simulate_given
 
-    rows, error = simulate_given(span, setting.config(base, force), seed, gripper=gripper, resting=resting)
+    rows, error = simulate_given(span, setting.config(base, force), seed, k, gripper=gripper, resting=resting)
     return setting, span.object_id, force, rows, error
 
 
@@ -328,9 +328,13 @@ def simulate_grid(
     seed: int = 0,
     gripper=None,
     resting: bool | str | None = False,
+    k: int = 1,
+    column: str = "success",
 ) -> dict[Setting, np.ndarray]:
     """Simulated success of every trial (row order of ``trials``) under every setting, with
-    ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's ``rest_q*``)."""
+    ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's ``rest_q*``);
+    ``k``: ``--trials`` of each simulation, ``column``: the label column returned (``score``:
+    floats)."""
     import joblib
 
     from annotator.objects import ObjectDiscoveryError, discover_objects
@@ -373,18 +377,119 @@ def simulate_grid(
     # setting after setting: a worker rebuilds its world when the configuration changes, and keeps
     # the objects it had while it does not (annotator.pipeline.worker.WorkerState)
     tasks = [
-        joblib.delayed(_simulate_task)(setting, base, span, force, seed, gripper, resting)
+        joblib.delayed(_simulate_task)(setting, base, span, force, seed, gripper, resting, k)
         for setting in settings
         for span, force in spans
     ]
-    out = {s: np.zeros(len(trials), dtype=bool) for s in settings}
+    kind = bool if column == "success" else np.float64
+    out = {s: np.zeros(len(trials), dtype=kind) for s in settings}
     for setting, oid, force, rows, error in joblib.Parallel(n_jobs=workers, return_as="generator_unordered")(
         tasks
     ):
         if error is not None:
             raise ToolError(f"{oid}: {error}")
-        out[setting][where[(oid, force)]] = rows["success"].to_numpy(dtype=bool)
+        out[setting][where[(oid, force)]] = rows[column].to_numpy(dtype=kind)
     return out
+
+
+# ------------------------------------------------------------------------------------ confidence
+
+
+@dataclass(frozen=True)
+class ConfidenceFit:
+    """``score`` of ``--trials k`` mapped to P(real success) (annotator/confidence.py).
+
+    ``mapping``: fitted on every trial (what labels use); ``score`` (n,): each trial's simulated
+    score; ``p_cv`` (n,): P(success) from the mapping fitted on the other objects' trials (NaN
+    with one object); ``brier`` / ``auc_score`` / ``auc_p``: the held-out Brier score and the
+    AUCs with 95 % bootstrap intervals (:class:`annotator.confidence.Measure`); ``base_brier``:
+    always predicting the real success rate; ``bins``: the held-out reliability table.
+    """
+
+    mapping: object  # annotator.confidence.Mapping
+    score: np.ndarray
+    p_cv: np.ndarray
+    brier: object
+    auc_score: object
+    auc_p: object
+    base_brier: float
+    bins: list
+    fitted_brier: float = float("nan")  # on the trials it was fitted on (no cross-validation)
+
+    def section(self):
+        """The ``[confidence]`` section that carries the mapping into ``annotate --config``."""
+        from annotator.config import ConfidenceConfig
+
+        m = self.mapping
+        used = [b for b in self.bins if b.n > 0]
+        brier = self.brier.value if np.isfinite(self.brier.value) else self.fitted_brier
+        return ConfidenceConfig(
+            method="isotonic",
+            trials=m.trials,
+            scores=m.scores,
+            p_success=m.p,
+            n=m.n,
+            brier=float(brier),
+            reliability_p=tuple(b.mean_p for b in used),
+            reliability_rate=tuple(b.real_rate for b in used),
+            reliability_n=tuple(float(b.n) for b in used),
+        )
+
+
+def fit_confidence(
+    trials: pd.DataFrame,
+    setting: Setting,
+    base: AnnotatorConfig,
+    objects_dir: Path,
+    k: int,
+    workers: int = 1,
+    seed: int = 0,
+    *,
+    gripper=None,
+    resting: bool | str | None = False,
+    folds: int = DEFAULT_FOLDS,
+    bootstrap: int = BOOTSTRAP_SAMPLES,
+) -> ConfidenceFit:
+    """Simulate every real trial with ``--trials k`` at ``setting`` and map its score to the real
+    outcome (isotonic), cross-validated by object for the figures."""
+    from annotator import confidence as conf
+    from annotator.config import ConfidenceConfig
+
+    base = dataclasses.replace(base, confidence=ConfidenceConfig())  # no p_success while fitting it
+    score = simulate_grid(
+        trials, [setting], base, objects_dir, workers, seed, gripper, resting, k, "score"
+    )[setting]
+    real = trials["real_success"].to_numpy(dtype=bool)
+    objects = trials["object_id"].astype(str).to_numpy()
+    mapping = conf.fit_isotonic(score, real, k)
+    if len(set(objects)) >= 2 and folds >= 2:
+        p_cv = conf.cross_validated(score, real, objects, k, folds, seed)
+    else:
+        p_cv = np.full(len(real), np.nan)
+    held = np.isfinite(p_cv)
+    return ConfidenceFit(
+        mapping,
+        score,
+        p_cv,
+        conf.bootstrap(conf.brier, real[held], p_cv[held], bootstrap, seed),
+        conf.bootstrap(conf.auc, real, score, bootstrap, seed),
+        conf.bootstrap(conf.auc, real[held], p_cv[held], bootstrap, seed),
+        conf.brier(real, np.full(len(real), real.mean())),
+        conf.reliability(real[held], p_cv[held]),
+        conf.brier(real, mapping.p_success(score)),
+    )
+
+
+def confidence_text(fit: ConfidenceFit) -> str:
+    """What the confidence fit found, a few lines."""
+    m = fit.mapping
+    knots = ", ".join(f"{s:.2f} -> {p:.2f}" for s, p in zip(m.scores, m.p, strict=True))
+    lines = [
+        f"confidence (--trials {m.trials}, isotonic over {m.n} real trials): score {knots}",
+        f"AUC of score {fit.auc_score.text()}; cross-validated by object: AUC of p_success "
+        f"{fit.auc_p.text()}, Brier {fit.brier.text()} (always the success rate: {fit.base_brier:.3f})",
+    ]
+    return "\n".join(lines)
 
 
 def _gripper_settings(config: AnnotatorConfig, gripper=None):
@@ -604,7 +709,7 @@ def config_toml(config: AnnotatorConfig, header: str = "") -> str:
     defaults = AnnotatorConfig().to_dict()
     lines = [f"# {line}" for line in header.splitlines()]
     for section, values in config.to_dict().items():
-        changed = {k: v for k, v in values.items() if defaults[section].get(k) != v}
+        changed = {k: v for k, v in values.items() if defaults.get(section, {}).get(k) != v}
         if changed:
             lines.append(f"\n[{section}]")
             lines += [f"{k} = {_toml_value(v)}" for k, v in changed.items()]

@@ -431,6 +431,41 @@ def written_report(path: Path) -> bool:
         return GENERATOR.encode() in f.read(1024)
 
 
+def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
+    """The label's confidence ([confidence], annotator calibrate): the mapping's reliability
+    diagram and Brier score on the real trials it was fitted on, and the labels' p_success."""
+    from annotator import confidence as conf
+    from annotator.tools.common import run_settings
+
+    section = (run_settings(manifest).get("config") or {}).get("confidence") or {}
+    if section.get("method", "none") == "none" or "p_success" not in df.columns:
+        return (
+            "<p class='muted'>No calibration: these labels carry no p_success (annotator calibrate "
+            "fits one on real trials; annotate --config with its file adds the column).</p>"
+        )
+    bins = [
+        conf.ReliabilityBin(float("nan"), float("nan"), int(k), float(p), float(r))
+        for p, r, k in zip(
+            section.get("reliability_p", ()),
+            section.get("reliability_rate", ()),
+            section.get("reliability_n", ()),
+            strict=False,
+        )
+    ]
+    brier = float(section.get("brier", float("nan")))
+    png = conf.reliability_png([("p_success", bins)], f"Brier {brier:.3f}, cross-validated by object")
+    pairs = zip(section.get("scores", ()), section.get("p_success", ()), strict=False)
+    knots = ", ".join(f"{s:.2f}&rarr;{p:.2f}" for s, p in pairs)
+    p = df["p_success"].to_numpy(dtype=float)
+    return (
+        f"<p>p_success maps the score of --trials {int(section.get('trials', 0))} to the probability "
+        f"that the real grasp holds (isotonic over {int(section.get('n', 0))} real trials; score "
+        f"{knots}). Brier score {brier:.3f}, cross-validated by object. The labels' mean p_success "
+        f"is {np.nanmean(p):.3f}: the share of them a real robot is expected to hold.</p>"
+        f"<img alt='reliability diagram' src='data:image/png;base64,{base64.b64encode(png).decode('ascii')}'>"
+    )
+
+
 def report(
     labels_dir: Path,
     out: Path,
@@ -481,6 +516,7 @@ def report(
 <h2>Failures</h2>{_failures_section(manifest, df)}
 <h2>Objects</h2>{_objects_section(table)}
 <h2>Width and score</h2>{_histograms_section(df, max_width)}
+<h2>Confidence</h2>{_confidence_section(manifest, df)}
 <h2>Approach directions</h2>
 <p class="muted">The approach is the TCP's +z (from the gripper into the object) in the object's mesh
 frame. Equal-area cells.</p>

@@ -72,6 +72,7 @@ def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
     out = tmp_path / "calibrated.toml"
     grid = ",".join(map(str, GRID))
     cmd = ["calibrate", str(labels_dir), str(csv), "--objects", str(objects), "--friction", grid]
+    cmd += ["--trials", "2"]
     result = CliRunner().invoke(main, [*cmd, "--severity", "1", "--workers", "2", "--write-config", str(out)])
     assert result.exit_code == 0, result.output
     config = AnnotatorConfig.from_toml(out)
@@ -85,6 +86,12 @@ def test_calibration_recovers_hidden_friction(tmp_path: Path) -> None:
     true_agreement = (n - FLIPS) / n
     assert true_agreement - 1.5 / n <= accuracy <= 1.0
     assert low <= true_agreement <= high
+    # the label's confidence: score of --trials 2 mapped to P(real success), written with the config
+    c = config.confidence
+    assert c.method == "isotonic" and c.trials == 2 and c.n == n
+    assert 0.0 <= c.p_success[0] <= c.p_success[-1] <= 1.0 and 0.0 <= c.brier <= 0.25
+    assert "Brier" in result.output and "AUC of score" in result.output
+    assert (tmp_path / "calibrated.reliability.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.mark.parametrize(

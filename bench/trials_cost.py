@@ -1,0 +1,86 @@
+"""The cost of robust labels: candidates per CPU-second of ``--trials K`` against ``--trials 1``.
+
+    python -m bench.trials_cost                    # the sample objects, 30 candidates each, K = 5
+    python -m bench.trials_cost --n 50 --trials 3 --repeat 2
+
+In one process (one worker's world, as a worker labels spans), every sample object's first N
+candidates are labelled with ``--trials 1`` and with ``--trials K``, alternately, ``--repeat``
+times; the CPU time of each (this process's, objects loaded and decomposed beforehand: a warm
+worker) gives candidates per CPU-second, and their ratio is the cost of the extra trials in the
+same run. The rows of trial 0 are checked equal between the two (trial 0 is the ``--trials 1``
+label). Prints figures and writes a record (bench/harness.py); asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from annotator.config import AnnotatorConfig
+from annotator.objects import discover_objects
+from annotator.pipeline.worker import Span, SpanTask, label_span
+from bench.harness import ROOT, Run
+
+TRIAL0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
+
+
+def label(sources, n: int, trials: int, config: AnnotatorConfig) -> tuple[pd.DataFrame, float]:
+    """Every object's first ``n`` candidates with ``--trials trials``; (rows, CPU seconds)."""
+    t0 = time.process_time()
+    parts = []
+    for source in sources:
+        result = label_span(SpanTask(Span(source.object_id, source, None, 0, n), config, 0, n, trials))
+        if result.error is None:
+            parts.append(result.rows)
+        else:
+            print(f"{source.object_id}: {result.error}")
+    return pd.concat(parts, ignore_index=True), time.process_time() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+    ap.add_argument("--n", type=int, default=30, help="candidates per object")
+    ap.add_argument("--trials", type=int, default=5, help="the K compared with --trials 1")
+    ap.add_argument("--repeat", type=int, default=2)
+    args = ap.parse_args()
+    config = AnnotatorConfig()
+    sources = discover_objects(args.objects)
+    label(sources, 1, 1, config)  # load (and decompose, cold) every object first
+    rates: dict[int, list[float]] = {1: [], args.trials: []}
+    rows = {}
+    with Run("trials_cost", config=vars(args) | {"objects": args.objects.name}) as run:
+        for r in range(args.repeat):
+            for k in (1, args.trials):
+                table, cpu = label(sources, args.n, k, config)
+                rates[k].append(len(table) / cpu)
+                rows[k] = table
+                print(
+                    f"run {r + 1}: --trials {k}: {len(table)} candidates in {cpu:.1f} CPU-s, "
+                    f"{len(table) / cpu:.2f} per CPU-s",
+                    flush=True,
+                )
+        same = bool(rows[1][TRIAL0].equals(rows[args.trials][TRIAL0]))
+        held = rows[args.trials]["success"].mean()
+        ratio = np.median(rates[args.trials]) / np.median(rates[1])
+        print(
+            f"--trials {args.trials} / --trials 1, candidates per CPU-second: {ratio:.3f} "
+            f"(trial 0 identical: {same}; {held:.1%} held at trial 0)"
+        )
+        for k, values in rates.items():
+            run.figure(
+                f"candidates_per_cpu_s_k{k}",
+                float(np.median(values)),
+                "1/CPU-s",
+                spread=(min(values), max(values)),
+            )
+        run.ratio(f"k{args.trials}_over_k1", ratio, note="candidates per CPU-second, --trials K / --trials 1")
+        run.figure("trial0_identical", int(same), note="trial 0's outcome, width and pose equal at K and 1")
+
+
+if __name__ == "__main__":
+    main()
