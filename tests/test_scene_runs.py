@@ -25,9 +25,9 @@ from scene_helpers import CONCAVE, REPO
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_scenes, scene_labels
 from annotator.objects import discover_objects
+from annotator.pipeline import scene_worker as worker
 from annotator.pipeline.scene_job import SCENE_CHUNK_SIZE, plan_scene_spans
 from annotator.scenes import records as scene_records
-from annotator.scenes import worker
 from annotator.scenes.labels import SCENE_LABEL_COLUMNS
 from annotator.store import MANIFEST_NAME
 
@@ -91,7 +91,7 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
 
     def run(order, record=None):
         worker.scene_worker_state().close_scene()
-        worker._State.instance = None
+        worker._SceneWorkerSlot.instance = None
         frames, files = [], {}
         for k in order:
             result = worker.label_scene_span(worker.SceneTask(spans[k], job, config, record=record))
@@ -111,7 +111,7 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
     record = worker.record_from_artifact(files[worker.SCENE_FILE])
     given, _ = run([1, 0], record)
     pd.testing.assert_frame_equal(given, forward, check_exact=True)
-    worker._State.instance = None
+    worker._SceneWorkerSlot.instance = None
 
 
 @pytest.mark.slow

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from annotator.grippers.description import TOML_NAME, DescriptionError, GripperDescription
+from annotator.grippers.loading import is_shipped, load_gripper
 
 
 @dataclass(frozen=True)
@@ -44,8 +45,6 @@ class GripperFiles:
     def unpack(self, root: str | os.PathLike) -> GripperDescription:
         """The description loaded from ``root/grippers/<digest>/`` (written there first if it is not
         yet); DescriptionError if what loads there is not this gripper."""
-        from annotator.grippers import load_gripper
-
         folder = Path(root) / "grippers" / self.digest
         if not (folder / TOML_NAME).is_file():
             self._write(folder)
@@ -88,8 +87,6 @@ def resolve_gripper(
     or :class:`GripperFiles`) unpacked into ``cache_dir/grippers/<digest>/`` and loaded from
     there, so a worker never reads the user's folder (edited mid-run, its labels would mix two
     grippers under one digest). A shipped gripper and a name or folder are loaded as they are."""
-    from annotator.grippers import load_gripper
-
     if isinstance(gripper, GripperDescription) and not is_shipped(gripper):
         if gripper.files:
             gripper = GripperFiles.of(gripper)
@@ -98,16 +95,6 @@ def resolve_gripper(
     if isinstance(gripper, GripperFiles):
         return gripper.unpack(cache_dir)
     return load_gripper(gripper)
-
-
-def is_shipped(description: GripperDescription) -> bool:
-    """Is ``description`` read from the package's own ``assets/grippers/<name>`` folder?"""
-    from annotator.grippers import gripper_dir
-
-    try:
-        return description.folder.resolve() == gripper_dir(description.name).resolve()
-    except OSError:
-        return False
 
 
 def gripper_record(description: GripperDescription) -> dict[str, str]:
