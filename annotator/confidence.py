@@ -47,6 +47,14 @@ class Mapping:
         return np.interp(np.asarray(score, dtype=np.float64), self.scores, self.p)
 
 
+def mapping_of(section) -> Mapping | None:
+    """The :class:`Mapping` a ``[confidence]`` section (:class:`annotator.config.ConfidenceConfig`)
+    holds, or None (``method = "none"``: labels carry no ``p_success``)."""
+    if section.method == "none":
+        return None
+    return Mapping(section.scores, section.p_success, section.trials, section.n)
+
+
 def fit_isotonic(score: np.ndarray, real: np.ndarray, trials: int) -> Mapping:
     """The isotonic regression of ``real`` (bool (n,)) on ``score`` (float (n,)) by pool adjacent
     violators: the mean real outcome at each distinct score, blocks pooled (weighted by their

@@ -374,14 +374,6 @@ class ConfidenceConfig(_Section):
         if self.trials < 1:
             raise ConfigError("[confidence] trials: the --trials K the mapping was fitted on (>= 1)")
 
-    def mapping(self):
-        """The :class:`annotator.confidence.Mapping`, or None (``method = "none"``)."""
-        if self.method == "none":
-            return None
-        from annotator.confidence import Mapping
-
-        return Mapping(self.scores, self.p_success, self.trials, self.n)
-
 
 @dataclass(frozen=True)
 class CellConfig(_Section):

@@ -95,7 +95,8 @@ def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_the_graph_sees_the_package():
     graph = import_graph()
     assert "annotator.outcome" in graph["annotator.label_row"]
-    assert "annotator.schema" in graph["annotator.dataset"]
+    assert "annotator.label_table" in graph["annotator.dataset"]
+    assert "annotator.schema" in graph["annotator.label_table"]
     assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from annotator.confidence import mapping_of
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
@@ -66,7 +67,7 @@ def simulate(
     cannot be executed).
     """
     model = loaded.model
-    mapping = config.confidence.mapping()  # a calibration: rows carry p_success
+    mapping = mapping_of(config.confidence)  # a calibration: rows carry p_success
     if mapping is not None and mapping.trials != trials:
         raise ValueError(f"[confidence] fitted on --trials {mapping.trials} scores; this run has {trials}")
     rows = []
