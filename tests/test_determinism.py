@@ -84,12 +84,14 @@ def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     _fresh_worker()
     reference = _run(firsts + rest, config)
     loads, samplings = [], []
-    load_object, object_candidates = worker.load_object, worker.object_candidates
+    from annotator.pipeline import modes  # the floating mode samples an object's candidates
+
+    load_object, object_candidates = worker.load_object, modes.object_candidates
     monkeypatch.setattr(
         worker, "load_object", lambda source, *a, **k: loads.append(source) or load_object(source, *a, **k)
     )
     monkeypatch.setattr(
-        worker, "object_candidates", lambda model, *a: samplings.append(model) or object_candidates(model, *a)
+        modes, "object_candidates", lambda model, *a: samplings.append(model) or object_candidates(model, *a)
     )
     monkeypatch.setattr(worker, "RECENT_OBJECT_BYTES", budget)
     _fresh_worker()

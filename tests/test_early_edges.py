@@ -61,3 +61,32 @@ def test_an_interrupt_while_the_libraries_load_ends_the_command_with_130(tmp_pat
     assert "interrupted" in done.stderr and "Aborted!" not in done.stderr
     assert "Traceback" not in done.stderr
     assert not list(out.glob("*.parquet"))
+
+
+# The console script's own first step: an interrupt while annotator.cli itself is still being
+# imported (before it can handle one) ends the command with 130 and one line, no traceback.
+_INTERRUPT_BEFORE_THE_CLI = """
+import os, signal, sys, threading, time
+
+def watch():
+    while "annotator.entry" not in sys.modules or "click" not in sys.modules:
+        time.sleep(0.0002)
+    os.kill(os.getpid(), signal.SIGINT)
+
+threading.Thread(target=watch, daemon=True).start()
+sys.argv = ["annotate", *sys.argv[1:]]
+from annotator.entry import annotate_main
+annotate_main()
+"""
+
+
+@pytest.mark.slow
+def test_an_interrupt_before_the_cli_is_imported_ends_the_command_with_130(tmp_path, objects):
+    out = tmp_path / "labels"
+    args = ["--objects", str(objects), "--n", "4", "--out", str(out), "--workers", "1", "-q"]
+    done = subprocess.run(
+        [sys.executable, "-c", _INTERRUPT_BEFORE_THE_CLI, *args], capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 130, done.stdout + done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "interrupted" and "Traceback" not in done.stderr
+    assert not out.exists() or not list(out.glob("*.parquet"))

@@ -115,6 +115,24 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_a_file_that_cannot_be_read_is_left_out_of_the_scenes_and_named(concave, tmp_path):
+    """One file in the folder that is no mesh (random bytes named .stl): the scenes draw from the
+    other objects and are labelled, the summary names the file and why, and the run ends with
+    exit 1 (some failed), not with every scene refused."""
+    objs = tmp_path / "objs"
+    shutil.copytree(concave, objs)
+    (objs / "broken.stl").write_bytes(np.random.default_rng(0).bytes(2000))
+    out = tmp_path / "labels"
+    args = ["--scenes", 2, "--per-scene", "2-3", "--n", N, "--workers", 1]
+    result = run_annotate("--objects", objs, "--out", out, *args, check=1)
+    assert "broken" in result.output and "not an STL mesh" in result.output
+    labels = _labels(out)
+    assert sorted(labels["scene_id"].unique()) == [0, 1]
+    assert labels.groupby("scene_id").size().tolist() == [N, N]
+    assert "broken" not in set(labels["object_id"])
+
+
 def test_scene_labels_and_views_are_identical_on_any_worker_count(concave, tmp_path):
     config = tmp_path / "views.toml"
     config.write_text(QUICK_VIEWS)

@@ -152,16 +152,15 @@ class SceneJob:
         except ObjectDiscoveryError as exc:
             raise UsageError(str(exc)) from exc
         digests: dict[str, str] = {}
-        unreadable = []
         for source in sources:
             try:
                 digests[source.object_id] = source_digest(source, self.config.objects.memory_budget)
-            except ObjectError as exc:
-                unreadable.append(f"{source.object_id}: {exc}")
-        if unreadable:
-            raise UsageError(
-                f"scenes draw from every object; {len(unreadable)} cannot be read: {unreadable[0]}"
-            )
+            except ObjectError as exc:  # a file that cannot be read: the scenes draw from the others
+                summary.failed[source.object_id] = f"left out of every scene: {exc}"
+        sources = [s for s in sources if s.object_id in digests]
+        if not sources:
+            first = next(iter(summary.failed.values()))
+            raise UsageError(f"no object in {options.objects_dir} can be read: {first}")
         lo, hi = own.per_scene
         self.request = job = SceneRequest(
             tuple(sources),

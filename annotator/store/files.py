@@ -59,7 +59,7 @@ def output_error(path: Path | str, exc: OSError) -> OutputError:
     return err
 
 
-def atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+def atomic_write(path: Path, write: Callable[[IO[bytes]], object]) -> None:
     """Write ``path`` whole or not at all (:func:`annotator.files.atomic_write`: a hidden temporary
     file in the same folder, fsync, os.replace).
 

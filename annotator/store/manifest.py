@@ -26,7 +26,7 @@ import stat
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import numpy as np
 
@@ -394,7 +394,7 @@ class Manifest:
 
     def apply(self, op: dict[str, Any]) -> None:
         """Apply one journal operation (:data:`OP_SCHEMAS`, already checked)."""
-        kind, oid = op["op"], op.get("oid")
+        kind, oid = op["op"], cast(str, op.get("oid"))  # every operation but the run's own names its unit
         if kind == "chunk":
             entry = self.chunks_done.setdefault(oid, {"source_sha256": op["source_sha256"], "files": {}})
             entry["files"][op["key"]] = op["record"]
