@@ -28,6 +28,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     8: ("pipeline", "policies"),
     9: ("learn", "seed_scene", "tools"),
     10: ("cli",),
+    11: ("entry",),
 }
 FLOOR_OF = {unit: floor for floor, units in FLOORS.items() for unit in units}
 
