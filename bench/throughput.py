@@ -7,12 +7,20 @@
     python -m bench.throughput --n 0 --scaling-n 0 --modes-n 0 --versus bench/before_speed.toml
                                           # main command runs alternate: default, the model before
     python -m bench.throughput --modes-only         # floating vs --cell vs --cell --views 1
+    python -m bench.throughput --n 0 --scaling-n 0 --modes-n 0 --main-n 100 \
+        --versus-install ../old --versus-cache ../old-cache --cache ./cache
+                                          # main command runs alternate: this code, another version
 
 Every throughput figure comes first as a ratio to a reference measured in the same run
 (bench/reference.py): the cost of a candidate in free steps, one free step being
 ``stepSimulation`` of the gripper squeezing the sample box, timed before each part and each run
 of the main command. A slower or busier machine makes both dearer, so the ratio stays where
-candidates per second do not. ``--versus`` adds the ratio to the model before.
+candidates per second do not. ``--versus`` adds the ratio to the model before;
+``--versus-install DIR`` the ratio to another version of the code: DIR is a checkout of it,
+installed in its own ``DIR/.venv`` (``git worktree add DIR COMMIT``, then ``python3 -m venv
+DIR/.venv`` and ``DIR/.venv/bin/pip install -e DIR``), whose ``annotate`` runs alternate with this
+one's on the same objects. Give each version its own warm decomposition cache (``--cache``,
+``--versus-cache``) when their cache keys differ, or the first runs pay for decompositions.
 
 The modes are run alternately, --repeat times each, with the load average printed before each run.
 The main command also reports candidates per CPU-second (user + system time of the command and its
@@ -106,16 +114,56 @@ class MainCommand:
     last_line: str
 
 
-def main_command(objects: Path, n: int, workers: int | None, config_file: Path | None = None) -> MainCommand:
+@dataclass(frozen=True)
+class Contender:
+    """One side of the main command's alternating runs: a label, a ``--config`` file, an install.
+
+    ``exe`` is the ``annotate`` executable to run (None: this installation's); ``cache`` the
+    decomposition cache it runs with (``RG2_CACHE_DIR``; None: the environment's).
+    """
+
+    label: str
+    config_file: Path | None = None
+    exe: Path | None = None
+    cache: Path | None = None
+
+
+def _this_annotate() -> Path:
+    exe = shutil.which("annotate", path=str(Path(sys.executable).parent)) or shutil.which("annotate")
+    if exe is None:
+        raise SystemExit("the annotate command is not installed (pip install -e .)")
+    return Path(exe)
+
+
+def _install_commit(install: Path) -> str:
+    """The commit ``install`` (a git checkout) is at, with ``+changes`` if its tree is dirty."""
+    git = ["git", "-C", str(install)]
+    head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    if head.returncode != 0:
+        return "unknown commit"
+    dirty = subprocess.run(
+        [*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True
+    )
+    return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
+
+
+def main_command(
+    objects: Path,
+    n: int,
+    workers: int | None,
+    config_file: Path | None = None,
+    contender: Contender | None = None,
+) -> MainCommand:
     """The README's ``annotate --objects objects/ --n N`` as a subprocess (all cores by default).
 
     Its CPU time is what ``os.wait4`` reports for that process: its own and that of the workers it
     waited for, nothing else. (This process's children-wide counter would also collect, whenever
     they end, the workers of the in-process runs before it, which joblib keeps for reuse.)
     """
-    exe = shutil.which("annotate", path=str(Path(sys.executable).parent)) or shutil.which("annotate")
-    if exe is None:
-        raise SystemExit("the annotate command is not installed (pip install -e .)")
+    exe = contender.exe if contender is not None and contender.exe is not None else _this_annotate()
+    env = dict(os.environ)
+    if contender is not None and contender.cache is not None:
+        env["RG2_CACHE_DIR"] = str(contender.cache)
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile("w+") as log:
         out = Path(tmp) / "labels"
         extra = ["--workers", str(workers)] if workers else []
@@ -126,6 +174,7 @@ def main_command(objects: Path, n: int, workers: int | None, config_file: Path |
             stdout=log,
             stderr=subprocess.STDOUT,
             text=True,
+            env=env,
         )
         first = None
         while True:
@@ -157,7 +206,21 @@ def main() -> None:
     ap.add_argument("--modes-only", action="store_true", help="only compare floating, --cell, --views 1")
     ap.add_argument("--config", type=Path, help="a --config FILE.toml for every run (default: none)")
     ap.add_argument("--versus", type=Path, help="FILE.toml: main command runs alternate with this config")
+    ap.add_argument(
+        "--versus-install",
+        type=Path,
+        help="DIR: a checkout of another version, installed in DIR/.venv; the main command's runs "
+        "alternate with its annotate",
+    )
+    ap.add_argument("--cache", type=Path, help="RG2_CACHE_DIR of this version's main command runs")
+    ap.add_argument("--versus-cache", type=Path, help="RG2_CACHE_DIR of the --versus-install runs")
     args = ap.parse_args()
+    if args.versus and args.versus_install:
+        ap.error("--versus and --versus-install compare one thing each: give one")
+    if args.versus_install is not None:
+        exe = args.versus_install / ".venv" / "bin" / "annotate"
+        if not exe.is_file():
+            ap.error(f"--versus-install {args.versus_install}: no {exe} (install it in DIR/.venv first)")
     logging.basicConfig(level=logging.WARNING)
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     if args.modes_only:
@@ -260,11 +323,20 @@ def main_command_runs(args: argparse.Namespace, record: Run, references: list[Fr
     """The README's main command as a user runs it, ``--repeat`` times (alternating with ``--versus``)."""
     cores = min(args.workers, os.cpu_count() or 1)
     total_n = args.main_n * len(discover_objects(args.objects))
-    configs = [("", args.config)] + ([("versus ", args.versus)] if args.versus else [])
+    contenders = [Contender("", args.config, cache=args.cache)]
+    versus_what = ""
+    if args.versus:
+        contenders.append(Contender("versus ", args.versus, cache=args.cache))
+        versus_what = f"--config {args.versus}"
+    elif args.versus_install:
+        exe = args.versus_install / ".venv" / "bin" / "annotate"
+        contenders.append(Contender("versus ", args.config, exe=exe, cache=args.versus_cache))
+        versus_what = f"the code at {_install_commit(args.versus_install)}"
+    configs = [(c.label, c.config_file) for c in contenders]
     print(
         f"\n== README main command: annotate --objects objects/ --n {args.main_n} "
         f"({args.workers} workers), {args.repeat} runs"
-        + (f", alternating with --config {args.versus}" if args.versus else "")
+        + (f", alternating with {versus_what}" if versus_what else "")
         + " =="
     )
     per_core: dict[str, list[float]] = {label: [] for label, _ in configs}
@@ -274,11 +346,12 @@ def main_command_runs(args: argparse.Namespace, record: Run, references: list[Fr
     # one reference for both configurations: the ratio of their free steps per candidate is theirs
     base = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     for r in range(args.repeat):
-        for label, config_file in configs:
+        for contender in contenders:
+            label, config_file = contender.label, contender.config_file
             before, load0 = load(), os.getloadavg()[0]
             ref = free_step(base)
             references.append(ref)
-            result = main_command(args.objects, args.main_n, args.workers, config_file)
+            result = main_command(args.objects, args.main_n, args.workers, config_file, contender)
             first, total, cpu, last = result.first_label_s, result.exit_s, result.cpu_s, result.last_line
             per_core[label].append(total_n / total / cores)
             per_cpu[label].append(total_n / cpu)
@@ -295,6 +368,7 @@ def main_command_runs(args: argparse.Namespace, record: Run, references: list[Fr
                 {
                     "run": r + 1,
                     "config": str(config_file or "default"),
+                    "code": "this" if contender.exe is None else str(args.versus_install),
                     "first_label_s": first,
                     "exit_s": total,
                     "cpu_s": cpu,
@@ -320,20 +394,20 @@ def main_command_runs(args: argparse.Namespace, record: Run, references: list[Fr
         note=f"{what}: CPU time per candidate / CPU time of a free step measured just before; "
         f"median of {args.repeat} runs",
     )
-    if args.versus:
+    if versus_what:
         ratio = statistics.median(per_cpu["versus "]) / statistics.median(per_cpu[""])
         print(f"versus / base, median candidates per CPU-second: {ratio:.2f}")
         record.ratio(
             "main_versus_vs_base",
             ratio,
-            note=f"candidates per CPU-second, --config {args.versus} / the default (medians; runs alternate)",
+            note=f"candidates per CPU-second, {versus_what} / this code's default (medians; runs alternate)",
         )
         vs = free_steps["versus "]
         record.ratio(
             "main_versus_free_steps_per_candidate",
             statistics.median(vs),
             spread=(min(vs), max(vs)),
-            note=f"as main_free_steps_per_candidate, with --config {args.versus}",
+            note=f"as main_free_steps_per_candidate, with {versus_what}",
         )
     b = per_cpu[""]
     record.figure(
