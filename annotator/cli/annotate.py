@@ -12,12 +12,19 @@ from annotator.cli.common import (
     CONFIG_OPTION,
     CONTEXT,
     GRIPPER_OPTION,
-    SEED,
+    QUIET_OPTION,
     VERBOSE_OPTION,
+    count_option,
+    folder_option,
     load_config,
-    positive_finite,
+    objects_option,
+    overwrite_option,
     run_pipeline,
+    scale_option,
+    seed_option,
     setup_logging,
+    trials_option,
+    workers_option,
 )
 
 # Grasps per scene unless --n says otherwise: VGN's GRASPS_PER_SCENE (scripts/generate_data.py).
@@ -28,61 +35,37 @@ SCENE_GRASPS = 120
     "annotate",
     context_settings=CONTEXT,
 )
-@click.option(
-    "--objects",
-    "objects_dir",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+@objects_option(
     help="Folder of object meshes (.obj .stl .ply .off .glb) and object .urdf files, searched "
-    "recursively. Units are metres.",
+    "recursively. Units are metres."
 )
-@click.option(
+@count_option(
     "--n",
     "n",
     default=None,
-    type=click.IntRange(min=1, max=1_000_000),
+    high=1_000_000,
     help="Grasp candidates per object (every one becomes a row, failures included); with --scenes, "
     f"per scene [default: {SCENE_GRASPS}, as VGN].",
 )
-@click.option(
+@folder_option(
     "--out",
     "out_dir",
     default=Path("labels"),
     show_default=True,
-    type=click.Path(path_type=Path, file_okay=False),
     help="Output folder: one Parquet file per object (chunk files while it runs) plus _manifest.json.",
 )
-@click.option(
-    "--workers",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Worker processes [default: all cores]. Labels do not depend on it.",
-)
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every random draw.")
-@click.option(
-    "--trials",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Perturbed trials per candidate; score = fraction that held.",
-)
+@workers_option("Worker processes [default: all cores]. Labels do not depend on it.")
+@seed_option("Seed of every random draw.")
+@trials_option("Perturbed trials per candidate; score = fraction that held.")
 @click.option(
     "--scheduler",
     default=None,
     metavar="ADDRESS",
     help="Dask scheduler (tcp://host:8786): run the same work on a cluster (needs the 'cluster' extra).",
 )
-@click.option(
-    "--scale",
-    type=float,
-    default=None,
-    callback=positive_finite,
-    help="Scale every mesh by this factor (0.001 for mm). Labels are in the scaled frame.",
-)
-@click.option(
-    "--overwrite",
-    is_flag=True,
-    help="Discard the labels this tool wrote in --out and start over (other files are never touched).",
+@scale_option("Scale every mesh by this factor (0.001 for mm). Labels are in the scaled frame.")
+@overwrite_option(
+    "Discard the labels this tool wrote in --out and start over (other files are never touched)."
 )
 @click.option(
     "--repair",
@@ -95,9 +78,9 @@ SCENE_GRASPS = 120
     help="Objects rest on the seed's table in their stable poses (the table takes part in every "
     "collision check); extra columns: placement, object pose, UR3 reachability (q_grasp_0..5).",
 )
-@click.option(
+@count_option(
     "--views",
-    type=click.IntRange(min=0),
+    low=0,
     default=0,
     show_default=True,
     metavar="K",
@@ -105,9 +88,8 @@ SCENE_GRASPS = 120
     "object): depth/colour/segmentation PNGs and camera tables in OUT/_views/. With --scenes: K "
     "views per scene on VGN's sphere.",
 )
-@click.option(
+@count_option(
     "--scenes",
-    type=click.IntRange(min=1),
     default=None,
     metavar="N",
     help="Label N scenes of several objects drawn from --objects and settled on the table, each grasp "
@@ -132,7 +114,7 @@ SCENE_GRASPS = 120
 @GRIPPER_OPTION
 @CONFIG_OPTION
 @CACHE_OPTION
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
+@QUIET_OPTION
 @VERBOSE_OPTION
 @click.version_option(__version__, prog_name="annotate")
 def annotate_command(

@@ -12,10 +12,16 @@ from annotator.cli.common import (
     CONTEXT,
     LABELS,
     LABELS_GRIPPER_OPTION,
-    SEED,
     VERBOSE_OPTION,
-    positive_finite,
+    config_option,
+    count_option,
+    file_option,
+    objects_option,
+    overwrite_option,
+    scale_option,
+    seed_option,
     setup_logging,
+    workers_option,
 )
 from annotator.cli.evaluate import FRAME_OPTION, RESTING_GRASPS_OPTION
 from annotator.tools import calibrate as cal
@@ -36,13 +42,7 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
 @click.command("calibrate", context_settings=CONTEXT)
 @LABELS
 @click.argument("real_csv", type=click.Path(path_type=Path, dir_okay=False))
-@click.option(
-    "--objects",
-    "objects_dir",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    help="The folder the labels were made from (annotate --objects).",
-)
+@objects_option(help="The folder the labels were made from (annotate --objects).")
 @click.option(
     "--friction",
     default=",".join(map(str, cal.DEFAULT_FRICTIONS)),
@@ -69,45 +69,41 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     help="What the best setting maximises: balanced accuracy (the mean of the success and failure "
     "rates recovered; not fooled by a majority class) or accuracy.",
 )
-@click.option(
+@count_option(
     "--folds",
-    type=click.IntRange(min=0),
     default=cal.DEFAULT_FOLDS,
     show_default=True,
     help="Cross-validate the choice by object in this many folds (at most one per object; 0 or 1: no "
     "cross-validation): the setting is chosen on the other objects' trials and scored on the fold's.",
+    low=0,
 )
-@click.option(
+@file_option(
     "--write-config",
     "config_out",
     default=Path("calibrated.toml"),
     show_default=True,
-    type=click.Path(path_type=Path, dir_okay=False),
     help="Where to write the best setting as a TOML file for annotate --config.",
 )
-@click.option(
+@count_option(
     "--trials",
     "trials_k",
-    type=click.IntRange(min=1),
     default=5,
     show_default=True,
     help="Simulate every real trial this many times (annotate --trials K) at the best setting and map "
     "its score to the probability that the real grasp holds (isotonic, cross-validated by object): "
     "written as [confidence]; labels made with the file and the same --trials carry p_success.",
 )
-@click.option(
+@file_option(
     "--reliability",
     "reliability_out",
     default=None,
-    type=click.Path(path_type=Path, dir_okay=False),
     help="Where to draw the reliability diagram of p_success (PNG) [default: beside --write-config, "
     "NAME.reliability.png].",
 )
-@click.option(
+@file_option(
     "--outcomes",
     "outcomes_out",
     default=None,
-    type=click.Path(path_type=Path, dir_okay=False),
     help="Also write every simulated outcome of the grid here (Parquet: object_id, grasp_id, "
     "real_success, friction, force, severity, sim_success), for analyses of your own.",
 )
@@ -120,35 +116,20 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     "the labels were simulated; a grasp table: floating].",
 )
 @RESTING_GRASPS_OPTION
-@click.option(
-    "--scale",
-    type=float,
-    default=None,
-    callback=positive_finite,
-    help="A grasp table's objects: scale every mesh by this factor (labels: their own object_scale).",
+@scale_option("A grasp table's objects: scale every mesh by this factor (labels: their own object_scale).")
+@config_option(
+    "The configuration the grid varies [default: the one recorded beside the labels, else the defaults]."
 )
-@click.option(
-    "--config",
-    "config_file",
-    type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    default=None,
-    help="The configuration the grid varies [default: the one recorded beside the labels, else the "
-    "defaults].",
-)
-@click.option(
-    "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
-)
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the bootstrap and the folds.")
-@click.option(
+@workers_option("Worker processes [default: all cores].")
+@seed_option("Seed of the bootstrap and the folds.")
+@count_option(
     "--scene",
-    type=click.IntRange(min=0),
     default=None,
     help="Scene labels (annotate --scenes): the scene whose grasps were tried; (object_id, grasp_id) "
     "repeats across scenes, so scene labels need it.",
+    low=0,
 )
-@click.option(
-    "--overwrite", "force_write", is_flag=True, help="Replace a --write-config file this tool did not write."
-)
+@overwrite_option("Replace a --write-config file this tool did not write.", dest="force_write")
 @VERBOSE_OPTION
 def calibrate_command(
     labels,

@@ -10,7 +10,19 @@ from pathlib import Path
 
 import click
 
-from annotator.cli.common import CONFIG_OPTION, CONTEXT, SEED, VERBOSE_OPTION, load_config, setup_logging
+from annotator.cli.common import (
+    CONFIG_OPTION,
+    CONTEXT,
+    VERBOSE_OPTION,
+    folder_option,
+    load_config,
+    objects_option,
+    overwrite_option,
+    seed_option,
+    setup_logging,
+    trials_option,
+    workers_option,
+)
 
 OUTPUTS = ("rounds.csv", "grasps.csv")
 MARKER = ".clutter-removal.json"  # what this tool wrote in --out: {file name: sha256}
@@ -81,13 +93,7 @@ def _workspace(config):
 
 
 @click.command("clutter-removal", context_settings=CONTEXT)
-@click.option(
-    "--objects",
-    "objects_dir",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    help="Folder of objects the piles are drawn from (as annotate --objects).",
-)
+@objects_option(help="Folder of objects the piles are drawn from (as annotate --objects).")
 @click.option("--rounds", required=True, type=click.IntRange(min=1, max=100_000), help="Piles to clear.")
 @click.option(
     "--per-scene",
@@ -134,34 +140,16 @@ def _workspace(config):
     help="Depth views a vision policy sees at every attempt (views 0..K-1 of the scene, as annotate "
     "--views renders them).",
 )
-@click.option(
-    "--seed", type=SEED, default=0, show_default=True, help="Round r is scene r of annotate --scenes."
-)
-@click.option(
-    "--trials",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="labels policy: trials per grasp (--trials of annotate); the best score wins.",
-)
-@click.option(
-    "--workers",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Processes [default: all cores]; rounds in parallel.",
-)
-@click.option(
+@seed_option("Round r is scene r of annotate --scenes.")
+@trials_option("labels policy: trials per grasp (--trials of annotate); the best score wins.")
+@workers_option("Processes [default: all cores]; rounds in parallel.")
+@folder_option(
     "--out",
     "out_dir",
-    type=click.Path(path_type=Path, file_okay=False),
     default=None,
     help="Write rounds.csv and grasps.csv (one row per attempt) here.",
 )
-@click.option(
-    "--overwrite",
-    is_flag=True,
-    help="Replace a rounds.csv or grasps.csv in --out that clutter-removal did not write.",
-)
+@overwrite_option("Replace a rounds.csv or grasps.csv in --out that clutter-removal did not write.")
 @CONFIG_OPTION
 @VERBOSE_OPTION
 def clutter_removal_command(

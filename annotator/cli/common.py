@@ -9,6 +9,7 @@ import math
 import os
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -29,25 +30,80 @@ CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 OUTCOMES = ("success", "collision", "no_contact", "slipped_lift", "slipped_shake", "error")
 
 LABELS = click.argument("labels", type=click.Path(path_type=Path))
-OBJECTS_OPTION = click.option(
-    "--objects",
-    "objects_dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=None,
-    help="The folder the labels were made from (annotate --objects): where the object meshes are.",
-)
-CONFIG_OPTION = click.option(
-    "--config",
-    "config_file",
-    type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    default=None,
-    help="TOML file overriding constants by section, e.g. [protocol] lift_height = 0.15.",
-)
 VERBOSE_OPTION = click.option("--verbose", "-v", is_flag=True, help="Debug logging.")
-CACHE_OPTION = click.option(
+
+
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
+
+
+def folder_option(*decls: str, help: str, **kwargs: Any) -> Decorator:
+    """An option naming a folder (a :class:`Path`; a file there is a usage error)."""
+    return click.option(*decls, type=click.Path(path_type=Path, file_okay=False), help=help, **kwargs)
+
+
+def file_option(*decls: str, help: str, exists: bool = False, **kwargs: Any) -> Decorator:
+    """An option naming a file (a :class:`Path`; a folder there is a usage error; ``exists``: it
+    must exist)."""
+    kind = click.Path(path_type=Path, dir_okay=False, exists=exists)
+    return click.option(*decls, type=kind, help=help, **kwargs)
+
+
+def count_option(*decls: str, help: str, low: int = 1, high: int | None = None, **kwargs: Any) -> Decorator:
+    """An option taking a whole number in ``low..high`` (``high`` None: no upper bound)."""
+    return click.option(*decls, type=click.IntRange(min=low, max=high), help=help, **kwargs)
+
+
+def objects_option(help: str, **kwargs: Any) -> Decorator:
+    """``--objects DIR``, the folder of object meshes (required unless a ``default`` is given)."""
+    kwargs.setdefault("required", "default" not in kwargs)
+    return folder_option("--objects", "objects_dir", help=help, **kwargs)
+
+
+def workers_option(help: str = "Worker processes [default: all cores].") -> Decorator:
+    """``--workers N``, processes (None: all cores)."""
+    return count_option("--workers", help=help, default=None)
+
+
+def seed_option(help: str) -> Decorator:
+    """``--seed``, 0 by default, refused beyond int64 (seeds are stored in every label row)."""
+    return click.option("--seed", type=SEED, default=0, show_default=True, help=help)
+
+
+def trials_option(help: str) -> Decorator:
+    """``--trials K``, trials per grasp, 1 by default."""
+    return count_option("--trials", help=help, default=1, show_default=True)
+
+
+def scale_option(help: str) -> Decorator:
+    """``--scale``, a finite factor > 0 on every mesh (None: as given)."""
+    return click.option("--scale", type=float, default=None, callback=positive_finite, help=help)
+
+
+def overwrite_option(help: str, dest: str = "overwrite") -> Decorator:
+    """``--overwrite``, a flag that lets a command replace what it would otherwise refuse to."""
+    return click.option("--overwrite", dest, is_flag=True, help=help)
+
+
+QUIET_OPTION = click.option(
+    "--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only."
+)
+OBJECTS_OPTION = objects_option(
+    help="The folder the labels were made from (annotate --objects): where the object meshes are.",
+    default=None,
+)
+
+
+def config_option(help: str) -> Decorator:
+    """``--config FILE.toml``, constants overridden by section (None: the defaults)."""
+    return file_option("--config", "config_file", help=help, exists=True, default=None)
+
+
+CONFIG_OPTION = config_option(
+    "TOML file overriding constants by section, e.g. [protocol] lift_height = 0.15."
+)
+CACHE_OPTION = folder_option(
     "--cache",
     "cache_dir",
-    type=click.Path(path_type=Path, file_okay=False),
     default=None,
     metavar="DIR",
     help="Decomposition cache folder for every worker, local or on a cluster (e.g. a shared "

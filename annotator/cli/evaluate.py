@@ -11,11 +11,18 @@ from annotator.cli.common import (
     CACHE_OPTION,
     CONTEXT,
     LABELS_GRIPPER_OPTION,
-    SEED,
+    QUIET_OPTION,
     VERBOSE_OPTION,
-    positive_finite,
+    config_option,
+    folder_option,
+    objects_option,
+    overwrite_option,
     run_pipeline,
+    scale_option,
+    seed_option,
     setup_logging,
+    trials_option,
+    workers_option,
 )
 
 RESTING_GRASPS_OPTION = click.option(
@@ -39,43 +46,24 @@ FRAME_OPTION = click.option(
 
 @click.command("evaluate", context_settings=CONTEXT)
 @click.argument("grasps_file", metavar="GRASPS", type=click.Path(path_type=Path))
-@click.option(
-    "--objects",
-    "objects_dir",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    help="Folder of the objects the grasps refer to (object_id = path without suffix, as annotate).",
+@objects_option(
+    help="Folder of the objects the grasps refer to (object_id = path without suffix, as annotate)."
 )
-@click.option(
+@folder_option(
     "--out",
     "out_dir",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
     help="Output folder: label files (one per object) and _manifest.json, as annotate writes.",
 )
-@click.option(
-    "--workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores]."
-)
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the perturbed trials.")
-@click.option(
-    "--trials", type=click.IntRange(min=1), default=1, show_default=True, help="Perturbed trials per grasp."
-)
+@workers_option()
+@seed_option("Seed of the perturbed trials.")
+@trials_option("Perturbed trials per grasp.")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler (tcp://host:8786).")
-@click.option(
-    "--scale",
-    type=float,
-    default=None,
-    callback=positive_finite,
-    help="Scale every mesh by this factor (as annotate --scale).",
-)
-@click.option("--overwrite", is_flag=True, help="Discard existing labels in --out and start over.")
-@click.option(
-    "--config",
-    "config_file",
-    type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    default=None,
-    help="TOML file overriding constants, as for annotate [default: the configuration recorded "
-    "beside GRASPS when it is a labels folder or file of this tool, else the defaults].",
+@scale_option("Scale every mesh by this factor (as annotate --scale).")
+@overwrite_option("Discard existing labels in --out and start over.")
+@config_option(
+    "TOML file overriding constants, as for annotate [default: the configuration recorded "
+    "beside GRASPS when it is a labels folder or file of this tool, else the defaults]."
 )
 @LABELS_GRIPPER_OPTION
 @FRAME_OPTION
@@ -88,7 +76,7 @@ FRAME_OPTION = click.option(
 )
 @RESTING_GRASPS_OPTION
 @CACHE_OPTION
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar; warnings and the summary only.")
+@QUIET_OPTION
 @VERBOSE_OPTION
 def evaluate_command(
     grasps_file,

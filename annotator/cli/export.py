@@ -13,6 +13,7 @@ from annotator.cli.common import (
     LABELS_GRIPPER_OPTION,
     OBJECTS_OPTION,
     VERBOSE_OPTION,
+    overwrite_option,
     setup_logging,
 )
 
@@ -32,11 +33,9 @@ from annotator.cli.common import (
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
 @OBJECTS_OPTION
 @click.option("--object", "object_ids", multiple=True, help="Only this object (repeat for several).")
-@click.option(
-    "--overwrite",
-    is_flag=True,
-    help="Replace an earlier export in --out (only the files it wrote are removed; a file no export "
-    "wrote is never replaced).",
+@overwrite_option(
+    "Replace an earlier export in --out (only the files it wrote are removed; a file no export "
+    "wrote is never replaced)."
 )
 @click.option(
     "--partial",

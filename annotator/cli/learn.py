@@ -8,7 +8,13 @@ from pathlib import Path
 
 import click
 
-from annotator.cli.common import CONTEXT, VERBOSE_OPTION, setup_logging
+from annotator.cli.common import (
+    CONTEXT,
+    VERBOSE_OPTION,
+    file_option,
+    overwrite_option,
+    setup_logging,
+)
 
 
 @click.group("learn", context_settings=CONTEXT)
@@ -26,8 +32,11 @@ def learn_group() -> None:
 @click.argument(
     "labels", nargs=-1, required=True, type=click.Path(path_type=Path, exists=True, file_okay=False)
 )
-@click.option(
-    "--out", "out", required=True, type=click.Path(path_type=Path, dir_okay=False), help="The model (.npz)."
+@file_option(
+    "--out",
+    "out",
+    required=True,
+    help="The model (.npz).",
 )
 @click.option(
     "--holdout",
@@ -36,7 +45,7 @@ def learn_group() -> None:
     show_default=True,
     help="Share of the scenes (the last by id) kept out to report the model's AUC, then trained on too.",
 )
-@click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
+@overwrite_option("Replace an existing --out file.")
 @VERBOSE_OPTION
 def train_command(labels, out, holdout, overwrite, verbose):
     """Train on the labels of annotate --scenes ... --views K runs (LABELS: their folders).

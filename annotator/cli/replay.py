@@ -7,7 +7,15 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CACHE_OPTION, CONTEXT, LABELS_GRIPPER_OPTION
+from annotator.cli.common import (
+    CACHE_OPTION,
+    CONTEXT,
+    LABELS_GRIPPER_OPTION,
+    config_option,
+    count_option,
+    file_option,
+    objects_option,
+)
 
 
 def _fmt_q(q: np.ndarray) -> str:
@@ -18,16 +26,15 @@ def _fmt_q(q: np.ndarray) -> str:
 @click.argument("labels", type=click.Path(path_type=Path, exists=True))
 @click.option("--object", "object_id", required=True, help="The label's object_id.")
 @click.option("--grasp", "grasp_id", required=True, type=int, help="The label's grasp_id.")
-@click.option(
-    "--objects",
-    "objects_dir",
+@objects_option(
     default=Path("objects"),
     show_default=True,
-    type=click.Path(path_type=Path, file_okay=False),
     help="The folder the labels were made from (the object is found there by its id).",
 )
-@click.option(
-    "--gif", "gif_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the replay as a GIF."
+@file_option(
+    "--gif",
+    "gif_path",
+    help="Write the replay as a GIF.",
 )
 @click.option("--gui", is_flag=True, help="Show the replay in the PyBullet GUI at real time.")
 @click.option(
@@ -39,18 +46,13 @@ def _fmt_q(q: np.ndarray) -> str:
 @click.option(
     "--size", default=(320, 240), show_default=True, type=(int, int), help="GIF frame width height."
 )
-@click.option(
-    "--config",
-    "config_file",
-    type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    help="Simulate with this TOML file [default: the configuration recorded beside the labels].",
-)
-@click.option(
+@config_option("Simulate with this TOML file [default: the configuration recorded beside the labels].")
+@count_option(
     "--scene",
-    type=click.IntRange(min=0),
     default=None,
     help="Scene labels (annotate --scenes): the label's scene; (object_id, grasp_id) repeats across "
     "scenes, so scene labels need it.",
+    low=0,
 )
 @LABELS_GRIPPER_OPTION
 @CACHE_OPTION

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import click
 
@@ -13,29 +12,31 @@ from annotator.cli.common import (
     LABELS_GRIPPER_OPTION,
     OBJECTS_OPTION,
     VERBOSE_OPTION,
+    count_option,
+    file_option,
+    overwrite_option,
     setup_logging,
 )
 
 
 @click.command("report", context_settings=CONTEXT)
 @LABELS
-@click.option(
+@file_option(
     "--html",
     "html_path",
     required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
     help="The report to write (one file; open it in any browser, offline).",
 )
 @OBJECTS_OPTION
-@click.option(
+@count_option(
     "--pictures",
     "picture_objects",
     default=3,
     show_default=True,
-    type=click.IntRange(min=0),
     help="Objects shown with pictures (those with the most successes); 0 for none.",
+    low=0,
 )
-@click.option("--overwrite", is_flag=True, help="Replace an --html file this tool did not write.")
+@overwrite_option("Replace an --html file this tool did not write.")
 @LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
 def report_command(labels, html_path, objects_dir, picture_objects, overwrite, gripper, verbose):

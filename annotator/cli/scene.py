@@ -7,33 +7,33 @@ from pathlib import Path
 import click
 import numpy as np
 
-from annotator.cli.common import CONTEXT, GRIPPER_OPTION
+from annotator.cli.common import (
+    CONTEXT,
+    GRIPPER_OPTION,
+    file_option,
+)
 
 
 @click.command("scene", context_settings=CONTEXT)
 @click.option("--headless", is_flag=True, help="No window: play the scripted sequence in DIRECT mode.")
-@click.option(
+@file_option(
     "--gif",
     "gif_path",
-    type=click.Path(dir_okay=False, path_type=Path),
     help="Headless: write an animated GIF.",
 )
-@click.option(
+@file_option(
     "--png",
     "png_path",
-    type=click.Path(dir_okay=False, path_type=Path),
     help="Headless: write the last frame as PNG.",
 )
-@click.option(
+@file_option(
     "--kinect-png",
     "kinect_path",
-    type=click.Path(dir_okay=False, path_type=Path),
     help="Headless: write the Kinect v2's colour image at the end (1920x1080, 84.1 x 53.8 deg) as PNG.",
 )
-@click.option(
+@file_option(
     "--kinect-depth",
     "kinect_depth_path",
-    type=click.Path(dir_okay=False, path_type=Path),
     help="Headless: write the Kinect v2's depth at the end (512x424, 70.6 x 60 deg) as a 16-bit PNG in mm.",
 )
 @click.option(
@@ -50,10 +50,9 @@ from annotator.cli.common import CONTEXT, GRIPPER_OPTION
 @click.option(
     "--seconds", type=click.FloatRange(min=0), help="GUI: quit after this much simulated (= real) time."
 )
-@click.option(
+@file_option(
     "--screenshot",
     "screenshot_path",
-    type=click.Path(dir_okay=False, path_type=Path),
     help="GUI: save the window's view as PNG once --screenshot-at seconds have run.",
 )
 @click.option(
@@ -62,16 +61,15 @@ from annotator.cli.common import CONTEXT, GRIPPER_OPTION
 @click.option(
     "--demo", is_flag=True, help="GUI: play the scripted sequence (looping) instead of reading the sliders."
 )
-@click.option(
+@file_option(
     "--object",
     "object_path",
-    type=click.Path(dir_okay=False, exists=True, path_type=Path),
     help="An object (mesh or object URDF, metres) instead of the seed's cube, resting on the table "
     "0.35 m in front of the arm.",
+    exists=True,
 )
-@click.option(
+@file_option(
     "--capture-out",
-    type=click.Path(dir_okay=False, path_type=Path),
     default=Path("captures.parquet"),
     show_default=True,
     help="GUI: Enter captures the current grasp on the object, runs the label protocol on it and "

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import click
 
@@ -13,8 +12,11 @@ from annotator.cli.common import (
     LABELS_GRIPPER_OPTION,
     OBJECTS_OPTION,
     OUTCOMES,
-    SEED,
     VERBOSE_OPTION,
+    count_option,
+    file_option,
+    overwrite_option,
+    seed_option,
     setup_logging,
 )
 
@@ -22,15 +24,18 @@ from annotator.cli.common import (
 @click.command("show", context_settings=CONTEXT)
 @LABELS
 @click.option("--object", "object_id", default=None, help="Object id, as in the labels' object_id column.")
-@click.option(
+@count_option(
     "--scene",
     "scene_id",
-    type=click.IntRange(min=0),
     default=None,
     help="Instead of --object: a picture of this scene of annotate --scenes with its grasps.",
+    low=0,
 )
-@click.option(
-    "--png", "png", required=True, type=click.Path(path_type=Path, dir_okay=False), help="Sheet to write."
+@file_option(
+    "--png",
+    "png",
+    required=True,
+    help="Sheet to write.",
 )
 @click.option(
     "--outcome",
@@ -42,19 +47,22 @@ from annotator.cli.common import (
 @click.option(
     "--grasp", "grasp_ids", multiple=True, type=int, help="These grasp ids instead of a random choice."
 )
-@click.option(
-    "--n", "n", default=8, show_default=True, type=click.IntRange(min=1), help="Grasps on the sheet."
+@count_option(
+    "--n",
+    "n",
+    default=8,
+    show_default=True,
+    help="Grasps on the sheet.",
 )
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random choice of grasps.")
-@click.option(
+@seed_option("Seed of the random choice of grasps.")
+@file_option(
     "--overview",
     "overview_png",
-    type=click.Path(path_type=Path, dir_okay=False),
     default=None,
     help="Overview picture to write [default: <png>-overview.png].",
 )
 @OBJECTS_OPTION
-@click.option("--overwrite", is_flag=True, help="Replace pictures of these names this tool did not write.")
+@overwrite_option("Replace pictures of these names this tool did not write.")
 @LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
 def show_command(

@@ -6,7 +6,13 @@ from pathlib import Path
 
 import click
 
-from annotator.cli.common import CONTEXT, SEED
+from annotator.cli.common import (
+    CONTEXT,
+    count_option,
+    file_option,
+    overwrite_option,
+    seed_option,
+)
 
 
 @click.group("trials", context_settings=CONTEXT)
@@ -44,15 +50,16 @@ def _pose(text: str | None):
 
 @trials_group.command("sheet", context_settings=CONTEXT)
 @click.argument("labels", type=click.Path(path_type=Path))
-@click.option(
+@file_option(
     "--out",
     "out_file",
     required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
     help="The sheet to write (CSV).",
 )
-@click.option(
-    "--n", type=click.IntRange(min=1), default=None, help="Grasps per object [default: every executable one]."
+@count_option(
+    "--n",
+    default=None,
+    help="Grasps per object [default: every executable one].",
 )
 @click.option(
     "--select",
@@ -62,9 +69,8 @@ def _pose(text: str | None):
     help="Which simulated outcomes: balanced (half successes, half others, as far as there are), "
     "all, success or failure. Collisions, errors and unreachable grasps are never on a sheet.",
 )
-@click.option(
+@count_option(
     "--repeats",
-    type=click.IntRange(min=1),
     default=1,
     show_default=True,
     help="Times each grasp is executed (rows repeat 0..R-1).",
@@ -78,8 +84,8 @@ def _pose(text: str | None):
     "frame (UR3 base_link), so the sheet gives the grasps in the robot's frame [default: "
     "cell and resting labels use where the object rests in the cell; floating: left empty].",
 )
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the selection.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing sheet.")
+@seed_option("Seed of the selection.")
+@overwrite_option("Replace an existing sheet.")
 def sheet_command(labels, out_file, n, select, repeats, objects, object_pose, seed, overwrite):
     """Write a sheet of LABELS' grasps to execute on your robot, one row per trial.
 
@@ -121,11 +127,10 @@ def sheet_command(labels, out_file, n, select, repeats, objects, object_pose, se
 
 @trials_group.command("read", context_settings=CONTEXT)
 @click.argument("sheet_file", metavar="SHEET", type=click.Path(path_type=Path, dir_okay=False))
-@click.option(
+@file_option(
     "--out",
     "out_file",
     required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
     help="REAL.csv for calibrate: object_id, grasp_id, real_success, grip_force, repeat, trial_id.",
 )
 @click.option(
@@ -139,7 +144,7 @@ def sheet_command(labels, out_file, n, select, repeats, objects, object_pose, se
     is_flag=True,
     help="Leave grip_force out, so calibrate searches the grip force (--force) too.",
 )
-@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@overwrite_option("Replace an existing output file.")
 def read_command(sheet_file, out_file, labels, without_force, overwrite):
     """Read a filled SHEET back into the real-trial file annotator calibrate reads.
 
