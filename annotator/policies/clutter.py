@@ -44,7 +44,7 @@ from annotator.policies.predictions import PREDICTION_COLUMNS, read_predictions 
 from annotator.policies.records import Proposal
 from annotator.scenes.arrange import SceneBuilder
 from annotator.scenes.records import KEPT, Instance, SceneRecord, SceneSpec
-from annotator.scenes.world import LoadedScene, load_scene
+from annotator.scenes.world import LoadedScene, load_scene_with_arm
 from annotator.sim import pb
 from annotator.sim.world import World
 
@@ -183,16 +183,7 @@ class Round:
         self.gripper = gripper
         self.world = World(config.physics.whole_linkage())
         try:
-            self.scene: LoadedScene = load_scene(
-                self.world,
-                record,
-                models,
-                cell_config=config.cell,
-                robot=True,
-                gripper=config.gripper,
-                kinect_config=config.kinect,
-                description=gripper,
-            )
+            self.scene: LoadedScene = load_scene_with_arm(self.world, record, models, config, gripper)
             self.present: dict[int, int] = dict(self.scene.uids)  # instance -> body, still on the table
             self._home()
         except BaseException:

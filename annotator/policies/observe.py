@@ -40,9 +40,7 @@ def observe(round_: Round, attempt: int, views: int) -> Observation:
     )
     rendered = [_without_the_arm(v) for v in rendered]
     workspace = record.workspace
-    images = tuple(
-        CameraImage(_frozen(v.depth, np.float32), v.depth_K, v.T_table_camera) for v in rendered
-    )
+    images = tuple(CameraImage(_frozen(v.depth, np.float32), v.depth_K, v.T_table_camera) for v in rendered)
     points = np.concatenate([v.points_in_table() for v in rendered]) if rendered else np.zeros((0, 3))
     cloud = points[workspace.contains(points)] if len(points) else points
     tsdf = fuse(rendered, workspace.size, TSDF_RESOLUTION, workspace.T_table_task)

@@ -114,5 +114,3 @@ def file_policy(predictions: pd.DataFrame) -> RoundPolicy:
         return None
 
     return propose
-
-

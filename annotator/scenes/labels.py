@@ -49,7 +49,7 @@ from annotator.label_row import TrialsResult, canonical, label_row
 from annotator.objects import ObjectModel, get_object_pose, physics_for
 from annotator.rng import keyed_rng, trial_rng
 from annotator.scenes.records import SceneRecord
-from annotator.scenes.world import LoadedScene, load_scene
+from annotator.scenes.world import LoadedScene, load_scene, load_scene_with_arm
 from annotator.schema import MODES, OBJECT_COLUMNS
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
@@ -282,16 +282,7 @@ class SceneArm:
         self.config = config
         self.world = World(config.physics.whole_linkage())
         try:
-            self.scene = load_scene(
-                self.world,
-                record,
-                models,
-                cell_config=config.cell,
-                robot=True,
-                gripper=config.gripper,
-                kinect_config=config.kinect,
-                description=gripper,
-            )
+            self.scene = load_scene_with_arm(self.world, record, models, config, gripper)
             cell = self.scene.cell
             assert cell.gripper is not None
             cell.reset_arm(READY)

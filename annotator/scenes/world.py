@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from annotator.cell.world import Cell, build_cell
-from annotator.config import CellConfig, GripperConfig, KinectConfig
+from annotator.config import AnnotatorConfig, CellConfig, GripperConfig, KinectConfig
 from annotator.grippers import GripperDescription
 from annotator.objects import ObjectModel, create_body
 from annotator.scenes.records import SceneRecord
@@ -79,3 +79,25 @@ def load_scene(
         T_world_obj = record.T_world_table * inst.T_table_obj
         uids[inst.instance_id] = create_body(world.client, models[inst.object_id], T_world_obj)
     return LoadedScene(record, cell, uids)
+
+
+def load_scene_with_arm(
+    world: World,
+    record: SceneRecord,
+    models: Mapping[str, ObjectModel],
+    config: AnnotatorConfig,
+    description: GripperDescription | str | None = None,
+) -> LoadedScene:
+    """:func:`load_scene` with the UR3 and the gripper ``description`` in the cell (no Kinect):
+    the world in which the arm reaches for a scene's grasps (labels of ``--scenes --cell``,
+    clutter removal). ``config`` gives the cell, the gripper's settings and the Kinect's pose."""
+    return load_scene(
+        world,
+        record,
+        models,
+        cell_config=config.cell,
+        robot=True,
+        gripper=config.gripper,
+        kinect_config=config.kinect,
+        description=description,
+    )
