@@ -4,7 +4,7 @@ its text); every other package is held to its recorded count (tests/mypy_baselin
 fails, and so does a fall until it is recorded (``python -m tests.test_types`` writes the lower
 counts), so the baseline only goes down.
 
-mypy runs once per session, its cache in pytest's cache folder (``.pytest_cache``, ignored by git;
+mypy runs once per test run, its cache in pytest's cache folder (``.pytest_cache``, ignored by git;
 in pytest's temporary folder when the cache is off), so an unchanged tree is checked again in a few
 seconds and the work tree gets no ``.mypy_cache``.
 """
