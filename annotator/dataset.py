@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -31,6 +32,9 @@ from annotator.label_table import (  # noqa: F401  (re-exported)
 )
 from annotator.outcome import OUTCOMES, Outcome  # noqa: F401  (re-exported: the schema's outcomes)
 from annotator.rng import keyed_rng
+
+if TYPE_CHECKING:
+    import trimesh  # loaded with the objects, only by load_object_mesh
 
 log = logging.getLogger(__name__)
 
@@ -229,9 +233,9 @@ def load_geometry(labels_dir: str | Path) -> pd.DataFrame:
     return pd.DataFrame(rows).drop_duplicates("object_id").set_index("object_id").sort_index()
 
 
-def load_object_mesh(labels_dir: str | Path, object_id: str):
+def load_object_mesh(labels_dir: str | Path, object_id: str) -> trimesh.Trimesh:
     """The mesh of ``object_id`` exactly as its poses see it: read from the source the labels name,
-    scaled and cleaned the same way, in the pose frame (metres). Returns a ``trimesh.Trimesh``.
+    scaled and cleaned the same way, in the pose frame (metres).
 
     Raises ``FileNotFoundError`` when the record or the source is gone and ``ValueError`` when
     the source changed since it was labelled (its digest differs). Imports pybullet (through

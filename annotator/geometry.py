@@ -130,8 +130,9 @@ class Transform:
         self._R: np.ndarray | None = None
 
     @classmethod
-    def _trusted(cls, pos: np.ndarray, quat: np.ndarray, R: np.ndarray) -> Transform:
-        """Build from already valid float64 arrays (no checks): the hot path of ``*``."""
+    def _trusted(cls, pos: np.ndarray, quat: np.ndarray, R: np.ndarray | None) -> Transform:
+        """Build from already valid float64 arrays (no checks; ``R`` None: computed when first
+        asked for): the hot path of ``*``."""
         t = cls.__new__(cls)
         t.pos, t.quat, t._R = pos, quat, R
         return t

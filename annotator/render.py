@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from annotator.sim import pb
 
@@ -142,9 +143,9 @@ def project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 def look_at_camera(
-    eye: np.ndarray,
-    target: np.ndarray,
-    up: np.ndarray,
+    eye: ArrayLike,
+    target: ArrayLike,
+    up: ArrayLike,
     width: int,
     height: int,
     fov: float = 40.0,

@@ -121,7 +121,10 @@ def _first_hits(
         # Nearest hit per ray: sort by (ray, t), keep the first of each ray.
         order = np.lexsort((t, ray_i))
         rays_sorted = ray_i[order]
-        first = np.flatnonzero(np.r_[True, rays_sorted[1:] != rays_sorted[:-1]]) if rays_sorted.size else []
+        if rays_sorted.size:
+            first = np.flatnonzero(np.r_[True, rays_sorted[1:] != rays_sorted[:-1]])
+        else:
+            first = np.zeros(0, dtype=np.intp)
         rows = start + rays_sorted[first]
         t_best[rows] = t[order][first]
         face_best[rows] = face_i[order][first]

@@ -140,8 +140,16 @@ def test_seed_script_runs_on_combined_model_as_written(position, yaw):
     """The seed's loop, verbatim: the base stays put, the arm reaches the sliders, the fingers follow."""
     urdf = paths.ur3_rg2_urdf()
     rg2, samples = default_gripper(), GripperConfig().width_table_samples
+    lower, upper = SEED_GRIPPER_LIMITS
     table = fk_table(
-        str(urdf), rg2.drive_joint, rg2.pad_links, rg2.base_link, None, *SEED_GRIPPER_LIMITS, samples
+        str(urdf),
+        drive=rg2.drive_joint,
+        pads=rg2.pad_links,
+        base_link=rg2.base_link,
+        pad_thickness=None,
+        lower=lower,
+        upper=upper,
+        samples=samples,
     )
     orientation = [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
     with World(PhysicsConfig(gravity=-9.8)) as world:

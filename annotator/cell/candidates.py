@@ -260,13 +260,13 @@ def sample_placement(
     if not parts:
         return Candidates(np.zeros((0, 4, 4)), np.zeros(0), np.zeros(0, dtype=bool), np.zeros((0, 2, 3)))
     T = np.concatenate([_poses(side, *part) for part in parts])
-    pairs = [part[0] for part in parts]
+    chosen = [part[0] for part in parts]
     return Candidates(
         T_obj_tcp=T,
-        width_expected=np.concatenate([p.width for p in pairs]).astype(np.float64),
-        antipodal=np.concatenate([p.antipodal for p in pairs]).astype(bool),
+        width_expected=np.concatenate([p.width for p in chosen]).astype(np.float64),
+        antipodal=np.concatenate([p.antipodal for p in chosen]).astype(bool),
         contacts=np.stack(
-            [np.concatenate([p.p1 for p in pairs]), np.concatenate([p.p2 for p in pairs])], axis=1
+            [np.concatenate([p.p1 for p in chosen]), np.concatenate([p.p2 for p in chosen])], axis=1
         ),
     )
 

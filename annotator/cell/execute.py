@@ -157,9 +157,14 @@ def execute_plan(
     cell.reset_arm(path[0])
     gripper.reset_width(plan.open_width)
     _follow(cell, path[:1], SETTLE_TIME, hold_open, rec)
+
+    def hold_open_and_watch() -> None:
+        hold_open()
+        watch_contacts()
+
     approach_seconds = p.approach_distance / APPROACH_SPEED
-    _follow(cell, path, approach_seconds, lambda: (hold_open(), watch_contacts()), rec)
-    _follow(cell, path[-1:], SETTLE_TIME, lambda: (hold_open(), watch_contacts()), rec)
+    _follow(cell, path, approach_seconds, hold_open_and_watch, rec)
+    _follow(cell, path[-1:], SETTLE_TIME, hold_open_and_watch, rec)
 
     # close: the arm holds the grasp, the gripper squeezes until the fingers stall
     driven = robot.joints[gripper.driven].index

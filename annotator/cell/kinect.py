@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from annotator.config import KinectConfig
 from annotator.geometry import Transform
@@ -110,7 +111,7 @@ def view_matrix(T_world_optical: Transform) -> tuple[float, ...]:
     return tuple(V.T.reshape(-1).tolist())
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> Transform:
+def look_at(eye: np.ndarray, target: np.ndarray, up: ArrayLike = (0.0, 0.0, 1.0)) -> Transform:
     """``T_world_optical`` of a camera at ``eye`` (3,) looking at ``target`` (3,), image-up towards ``up``.
 
     When the view is along ``up`` the image's up is taken towards world +x instead.
@@ -118,10 +119,10 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
     eye, target = np.asarray(eye, dtype=float), np.asarray(target, dtype=float)
     z = target - eye
     z /= np.linalg.norm(z)
-    up = np.asarray(up, dtype=float)
-    if abs(float(np.dot(z, up / np.linalg.norm(up)))) > 1 - 1e-9:
-        up = np.array([1.0, 0.0, 0.0])
-    x = np.cross(-up, z)  # image right: x = y cross z with y (image down) along -up
+    up_world = np.asarray(up, dtype=float)
+    if abs(float(np.dot(z, up_world / np.linalg.norm(up_world)))) > 1 - 1e-9:
+        up_world = np.array([1.0, 0.0, 0.0])
+    x = np.cross(-up_world, z)  # image right: x = y cross z with y (image down) along -up
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return Transform.from_rotation(np.column_stack([x, y, z]), eye)

@@ -14,6 +14,7 @@ from annotator.grippers.description import (
     GripperDescription,
     read_description,
 )
+from annotator.grippers.urdf import UrdfModel, read_urdf_bytes
 
 DEFAULT_GRIPPER = "rg2"
 # The model's FK must reach the stated stroke within this (m): a stroke is a datasheet figure, the
@@ -135,10 +136,8 @@ def check_kinematics(description: GripperDescription) -> None:
         )
 
 
-def description_model(description: GripperDescription):
+def description_model(description: GripperDescription) -> UrdfModel:
     """The :class:`annotator.grippers.urdf.UrdfModel` of the URDF bytes ``description`` holds."""
-    from annotator.grippers.urdf import read_urdf_bytes
-
     relative = description.urdf.resolve().relative_to(description.folder.resolve()).as_posix()
     return read_urdf_bytes(dict(description.files)[relative], description.urdf)
 

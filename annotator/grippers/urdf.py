@@ -157,6 +157,26 @@ def _floats(text: str | None, n: int, default: float = 0.0) -> tuple[float, ...]
     return values
 
 
+def _vec3(text: str | None, default: float = 0.0) -> tuple[float, float, float]:
+    """Three finite numbers from ``text`` ((default,) * 3 when None); ValueError otherwise."""
+    x, y, z = _floats(text, 3, default)
+    return (x, y, z)
+
+
+def _scalar(text: str | None) -> float:
+    """One finite number from ``text`` (0.0 when None); ValueError otherwise."""
+    return _floats(text, 1)[0]
+
+
+def _link_of(joint: ET.Element, tag: str) -> str:
+    """The ``link`` attribute of the joint's ``<parent>`` or ``<child>``; KeyError when either is
+    missing."""
+    element = joint.find(tag)
+    if element is None:
+        raise KeyError(f"no <{tag}>")
+    return element.attrib["link"]
+
+
 def read_urdf(path: Path | str) -> UrdfModel:
     """Parse ``path``; ValueError (one line) when it is not a URDF this reader understands or is
     larger than :data:`MAX_URDF_BYTES` (checked before it is read)."""
@@ -178,15 +198,18 @@ def parse_xml(data: bytes, name: str) -> ET.Element:
     declaration, elements at most :data:`MAX_URDF_DEPTH` deep. ValueError (one line) otherwise."""
     if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
         raise ValueError(f"{name}: a DOCTYPE or ENTITY declaration is not accepted in a gripper's URDF")
-    parser = ET.XMLPullParser(events=("start", "end"))
-    root = None
+    parser: ET.XMLPullParser[ET.Element] = ET.XMLPullParser(events=("start", "end"))
+    root: ET.Element | None = None
     depth = 0
     step = 1 << 16
     try:
         for start in range(0, max(len(data), 1), step):
             parser.feed(data[start : start + step])
-            for event, element in parser.read_events():
-                if event == "start":
+            for event in parser.read_events():
+                element = event[-1]
+                if not isinstance(element, ET.Element):
+                    continue  # a namespace event: only starts and ends were asked for
+                if event[0] == "start":
                     depth += 1
                     root = element if root is None else root
                     if depth > MAX_URDF_DEPTH:
@@ -234,43 +257,42 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
                     offset=float(mimic_el.attrib.get("offset", 0.0)),
                 )
             axis_el, limit = el.find("axis"), el.find("limit")
-            if axis_el is not None and not any(_floats(axis_el.attrib.get("xyz"), 3, 1.0)):
+            axis = (1.0, 0.0, 0.0) if axis_el is None else _vec3(axis_el.attrib.get("xyz"), 1.0)
+            if not any(axis):
                 raise ValueError("its axis is zero")
             joints[name] = UrdfJoint(
                 name=name,
                 kind=el.attrib["type"],
-                parent=el.find("parent").attrib["link"],  # type: ignore[union-attr]
-                child=el.find("child").attrib["link"],  # type: ignore[union-attr]
-                xyz=_floats(None if origin is None else origin.attrib.get("xyz"), 3),  # type: ignore[arg-type]
-                rpy=_floats(None if origin is None else origin.attrib.get("rpy"), 3),  # type: ignore[arg-type]
+                parent=_link_of(el, "parent"),
+                child=_link_of(el, "child"),
+                xyz=_vec3(None if origin is None else origin.attrib.get("xyz")),
+                rpy=_vec3(None if origin is None else origin.attrib.get("rpy")),
                 mimic=mimic,
-                axis=_floats(None if axis_el is None else axis_el.attrib.get("xyz"), 3, 1.0)
-                if axis_el is not None
-                else (1.0, 0.0, 0.0),
-                lower=_floats(None if limit is None else limit.attrib.get("lower"), 1)[0],
-                upper=_floats(None if limit is None else limit.attrib.get("upper"), 1)[0],
+                axis=axis,
+                lower=_scalar(None if limit is None else limit.attrib.get("lower")),
+                upper=_scalar(None if limit is None else limit.attrib.get("upper")),
             )
         except (KeyError, AttributeError, ValueError) as exc:
             raise ValueError(f"{path.name}: joint {name!r} is malformed ({exc})") from exc
     meshes = tuple(m.attrib.get("filename", "") for m in root.iter("mesh"))
-    collision_meshes = {}
+    collision_meshes: dict[str, tuple[tuple[str, tuple[float, float, float]], ...]] = {}
     for link in root.findall("link"):
-        found = []
+        found: list[tuple[str, tuple[float, float, float]]] = []
         for mesh in link.findall("collision/geometry/mesh"):
             try:
-                scale = _floats(mesh.attrib.get("scale"), 3, default=1.0)
+                scale = _vec3(mesh.attrib.get("scale"), default=1.0)
             except ValueError as exc:
                 name = link.attrib.get("name", "")
                 raise ValueError(f"{path.name}: link {name!r}: mesh scale {exc}") from None
             found.append((mesh.attrib.get("filename", ""), scale))
         if found:
             collision_meshes[link.attrib.get("name", "")] = tuple(found)
-    box_sizes = {}
+    box_sizes: dict[str, tuple[float, float, float]] = {}
     for link in root.findall("link"):
         box = link.find("collision/geometry/box")
         if box is not None:
             try:
-                box_sizes[link.attrib.get("name", "")] = _floats(box.attrib.get("size"), 3)
+                box_sizes[link.attrib.get("name", "")] = _vec3(box.attrib.get("size"))
             except ValueError as exc:
                 name = link.attrib.get("name", "")
                 raise ValueError(f"{path.name}: link {name!r}: box size {exc}") from None

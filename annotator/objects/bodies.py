@@ -14,12 +14,17 @@ import os
 import sys
 import tempfile
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from annotator.config import ObjectConfig
 from annotator.geometry import Transform
 from annotator.objects.errors import ObjectError
 from annotator.sim import pb
+
+if TYPE_CHECKING:
+    from annotator.objects.model import ObjectModel
 
 log = logging.getLogger(__name__)
 
@@ -63,14 +68,19 @@ def principal_axes(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(moments, 0.0), R
 
 
-def create_body(client: int, model, T_world_obj: Transform | None = None, config=None) -> int:
+def create_body(
+    client: int,
+    model: ObjectModel,
+    T_world_obj: Transform | None = None,
+    config: ObjectConfig | None = None,
+) -> int:
     """A dynamic PyBullet body for ``model`` (an ObjectModel) in ``client``; returns its body id.
 
     Collision: the convex hull, or a compound of the convex parts (the cached multi-part .obj).
     Visual: the mesh. Mass and inertia from the model with the inertial frame at the centre of
     mass along the principal axes, so the body's link frame is the mesh frame; ``T_world_obj``
     places that frame. Friction: the model's (sidecar or ``config``); the contact settings of
-    ``config`` (an ObjectConfig, by default the one the model was loaded with).
+    ``config`` (by default the one the model was loaded with).
     """
     config = config or model.config
     T_world_obj = T_world_obj or Transform.identity()

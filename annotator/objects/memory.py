@@ -19,6 +19,7 @@ import struct
 from pathlib import Path
 
 from annotator.config import ObjectConfig
+from annotator.objects.discovery import ObjectSource
 from annotator.objects.errors import ObjectError
 
 # A load's peak RSS (MB), from bench/memory.py (binary STL UV spheres, the format that costs most
@@ -126,8 +127,8 @@ def estimate_mb(faces: int, max_faces: int = ObjectConfig.max_faces) -> float:
     return MB_FIXED + MB_PER_FACE * min(faces, max_faces) + MB_PER_FACE_ABOVE * max(0, faces - max_faces)
 
 
-def check(source, config: ObjectConfig) -> None:
-    """Raise :class:`ObjectError` when ``source`` (an ObjectSource) would need more than
+def check(source: ObjectSource, config: ObjectConfig) -> None:
+    """Raise :class:`ObjectError` when ``source`` would need more than
     ``config.memory_budget`` MB to load."""
     if source.is_urdf:
         from annotator.objects import urdf

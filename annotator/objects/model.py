@@ -14,7 +14,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 import trimesh
@@ -28,6 +28,7 @@ from annotator.objects.decomposition import CollisionGeometry, Progress, collisi
 from annotator.objects.discovery import ObjectSource
 from annotator.objects.errors import ObjectError
 from annotator.objects.fidelity import CollisionError
+from annotator.objects.properties import ObjectProperties
 
 log = logging.getLogger(__name__)
 
@@ -190,7 +191,13 @@ def source_digest(source: ObjectSource | Path, budget_mb: float | None = None) -
 _HASH_CHUNK = 1 << 20
 
 
-def _hash_file(h, path: Path, name: str) -> None:
+class _Hasher(Protocol):
+    """What a hashlib object offers that the source digest uses."""
+
+    def update(self, data: bytes, /) -> None: ...
+
+
+def _hash_file(h: _Hasher, path: Path, name: str) -> None:
     """Feed ``name``, the size and the bytes of ``path`` to ``h``, read in chunks; ObjectError if
     the file changes size while it is read."""
     size = path.stat().st_size
@@ -426,7 +433,7 @@ def read_object_mesh(
     return read_object(source, config, scale).mesh
 
 
-def _weigh(read: _Read, props, config: ObjectConfig) -> mass_model.MassProperties:
+def _weigh(read: _Read, props: ObjectProperties, config: ObjectConfig) -> mass_model.MassProperties:
     """Mass properties: a sidecar mass, else a URDF's ``<inertial>``, else the mass model."""
     weighed = mass_model.weigh(
         read.mesh,

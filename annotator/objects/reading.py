@@ -12,9 +12,11 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import trimesh
+import trimesh.parent
 
 from annotator.objects import gltf, wavefront
 from annotator.objects.errors import ObjectError
@@ -138,6 +140,7 @@ def read_triangles(path: Path, node: int | None = None) -> trimesh.Trimesh:
     if path.suffix.lower() == ".glb":
         mesh = gltf.read_nodes(path, None if node is None else gltf.body_members(path, node))
     else:
+        loaded: trimesh.parent.Geometry  # trimesh.load may give a point cloud or a path
         try:
             if path.suffix.lower() == ".obj":
                 loaded = wavefront.read(path, node)
@@ -274,7 +277,8 @@ def separate_at_shared_edges(mesh: trimesh.Trimesh, report: Cleaning) -> trimesh
     if not pieces:
         return None
     report.shared_edges = int(np.sum(uses > 2))
-    return trimesh.util.concatenate(pieces)
+    # trimesh annotates concatenate as any Geometry; of Trimeshes it makes a Trimesh
+    return cast(trimesh.Trimesh, trimesh.util.concatenate(pieces))
 
 
 def overlapping(shells: list[trimesh.Trimesh], tolerance: float = 1e-9) -> bool:

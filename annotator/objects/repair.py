@@ -21,9 +21,13 @@ digitized polygon meshes", The Visual Computer 2010).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
+
+if TYPE_CHECKING:
+    from pymeshfix import PyTMesh  # loaded on first use: a repair is rare
 
 # A repair may change the surface area by this share at most: filling holes and removing a fin or
 # a self-intersection changes it a little (a 50 mm box with a 35 mm fin: 6 %), while a repair that
@@ -121,7 +125,7 @@ def drop_fragments(mesh: trimesh.Trimesh, max_share: float) -> tuple[trimesh.Tri
     return out, Dropped(len(drop), int((~keep).sum()), float(p.area[drop].sum() / total_area))
 
 
-def _meshfix(mesh: trimesh.Trimesh):
+def _meshfix(mesh: trimesh.Trimesh) -> PyTMesh:
     import pymeshfix
 
     tin = pymeshfix.PyTMesh()
@@ -137,7 +141,7 @@ def _closed(mesh: trimesh.Trimesh) -> bool:
     return bool(len(mesh.faces) and mesh.is_watertight and mesh.is_winding_consistent)
 
 
-def _arrays_mesh(tin) -> trimesh.Trimesh:
+def _arrays_mesh(tin: PyTMesh) -> trimesh.Trimesh:
     v, f = tin.return_arrays()
     return trimesh.Trimesh(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64), process=False)
 

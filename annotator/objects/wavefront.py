@@ -24,6 +24,7 @@ import mmap
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import trimesh
@@ -51,14 +52,20 @@ class ObjPart:
     spans: tuple[tuple[int, int], ...]
 
 
+# (kind, current o name, current g name, start, end, holds faces) of a stretch between statements
+Segment = tuple[str, str | None, str | None, int, int, bool]
+# (name, stretches holding its faces, all its stretches) of an o object or a g group
+NamedPart = tuple[str, list[tuple[int, int]], list[tuple[int, int]]]
+
+
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._")
 
 
-def _segments(data: bytes | mmap.mmap) -> list[tuple[str, str | None, str | None, int, int, bool]]:
+def _segments(data: bytes | mmap.mmap) -> list[Segment]:
     """(kind, current o name, current g name, start, end, holds faces) of each stretch between
     statements. Lines before any statement belong to no object and no group (names None)."""
-    out: list[tuple[str, str | None, str | None, int, int, bool]] = []
+    out: list[Segment] = []
     obj: str | None = None
     grp: str | None = None
     kind = ""
@@ -76,7 +83,7 @@ def _segments(data: bytes | mmap.mmap) -> list[tuple[str, str | None, str | None
     return out
 
 
-def _group_by(segments, key: int) -> list[tuple[str, list[tuple[int, int]], list[tuple[int, int]]]]:
+def _group_by(segments: list[Segment], key: Literal[1, 2]) -> list[NamedPart]:
     """(name, stretches holding its faces, all its stretches) per o (key 1) or g (key 2) name
     that has faces, in order of first appearance."""
     faces: dict[str | None, list[tuple[int, int]]] = {}
@@ -101,7 +108,7 @@ def _bounds(data: bytes | mmap.mmap, stretches: list[tuple[int, int]]) -> np.nda
     return np.array([xyz.min(axis=0), xyz.max(axis=0)])
 
 
-def _vertex_sets(data: bytes | mmap.mmap, groups) -> list[np.ndarray] | None:
+def _vertex_sets(data: bytes | mmap.mmap, groups: list[NamedPart]) -> list[np.ndarray] | None:
     """The vertex indices (0-based) each group's faces use; None when a face uses a relative
     (negative) index, which would need every vertex line's position."""
     out = []
@@ -122,7 +129,7 @@ def _disjoint(sets: list[np.ndarray]) -> bool:
     return len(np.unique(np.concatenate(sets))) == total if sets else True
 
 
-def _bodies(data: bytes | mmap.mmap) -> tuple[list, str]:
+def _bodies(data: bytes | mmap.mmap) -> tuple[list[NamedPart], str]:
     """The explicit objects of the file (name, face stretches, all stretches) and their statement
     kind: ``o`` objects if there are two or more with faces, else vertex-disjoint ``g`` groups;
     ([], "") when neither gives two."""
@@ -139,7 +146,7 @@ def _bodies(data: bytes | mmap.mmap) -> tuple[list, str]:
     return by_group, "g"
 
 
-def _names(chosen: list, groups: list[list[int]], kind: str) -> list[str]:
+def _names(chosen: list[NamedPart], groups: list[list[int]], kind: str) -> list[str]:
     """A file-safe name per body (its first object's), or ``<kind><index>`` when any is empty or
     two are the same."""
     names = [_safe(chosen[g[0]][0]) for g in groups]

@@ -15,7 +15,7 @@ import contextlib
 import logging
 import os
 import weakref
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,10 +128,12 @@ class Workers:
         status.request_stop(self.status_dir)
         _, not_done = cf.wait(out, timeout=self.STOP_SECONDS)
         log.debug("stopping: %d of %d spans out ended by themselves", len(out) - len(not_done), len(out))
-        if executor is None:
+        from joblib.externals.loky.process_executor import ProcessPoolExecutor as LokyExecutor
+
+        if not isinstance(executor, LokyExecutor):  # None, or not the local pool: nothing to kill
             return
-        with contextlib.suppress(Exception):  # loky's executor: kill_workers
-            executor.shutdown(wait=False, kill_workers=bool(not_done))  # type: ignore[call-arg]
+        with contextlib.suppress(Exception):
+            executor.shutdown(wait=False, kill_workers=bool(not_done))
 
 
 # A unit of work (an object's Span or Prepare, a scene's SceneSpan): it has a ``key`` (its order
@@ -211,7 +213,7 @@ class _Execution:
         self.source.record(result)
         self.on_result(result)
 
-    def _collect(self, done) -> list[Unit]:
+    def _collect(self, done: Iterable[cf.Future]) -> list[Unit]:
         """Hand on the results of ``done``; returns the units whose worker died."""
         crashed = []
         for future in done:
@@ -241,7 +243,14 @@ class _Execution:
             self._deliver(_retry_alone(unit, self.make_task, self.workers, self.died, self.on_tick, self.fn))
 
 
-def _retry_alone(span: Unit, make_task, workers: Workers, died, on_tick, fn) -> SpanResult:
+def _retry_alone(
+    span: Unit,
+    make_task: Callable[[Unit], Task],
+    workers: Workers,
+    died: tuple[type[BaseException], ...],
+    on_tick: Callable[[], None],
+    fn: Callable[[Task], SpanResult],
+) -> SpanResult:
     future = workers.submit(make_task(span), fn)
     while True:
         done, _ = cf.wait([future], timeout=TICK_SECONDS)
@@ -262,7 +271,7 @@ def _retry_alone(span: Unit, make_task, workers: Workers, died, on_tick, fn) -> 
         return _failed(span, f"a worker process died twice while {_doing(span)} ({what})")
 
 
-def _doing(unit) -> str:
+def _doing(unit: Unit) -> str:
     """What a worker was doing with ``unit`` (a span of another kind says it by its candidates)."""
     describe = getattr(unit, "describe", None)
     return describe() if describe is not None else f"simulating candidates {unit.start}-{unit.stop - 1}"

@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import FrameType
 from typing import Any, Protocol
 
 from annotator.dataset import Outcome
@@ -32,7 +33,7 @@ from annotator.pipeline.options import RunOptions
 from annotator.pipeline.progress import Progress
 from annotator.pipeline.summary import ObjectStats, Summary, format_summary
 from annotator.pipeline.tasks import SpanResult
-from annotator.store import OutputError, RunSpec, Store, StoreError
+from annotator.store import OutputError, Resume, RunSpec, Store, StoreError
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,7 @@ class Job(Protocol):
         Inputs that cannot be used go into ``summary.failed``."""
         ...
 
-    def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> WorkPlan | None:
+    def plan(self, options: RunOptions, store: Store, resume: Resume, summary: Summary) -> WorkPlan | None:
         """The work left after what ``store`` holds (``resume``); None when nothing is."""
         ...
 
@@ -295,7 +296,7 @@ def check_cache(options: RunOptions) -> RunOptions:
     return dataclasses.replace(options, cache_dir=folder)
 
 
-def open_store(options: RunOptions, spec: RunSpec, units: dict[str, str]):
+def open_store(options: RunOptions, spec: RunSpec, units: dict[str, str]) -> tuple[Store, Resume]:
     """The output folder opened for ``spec`` and reconciled with the run's units of work (object
     or scene id -> digest); returns ``(store, what to resume)``. A folder that cannot be opened or
     reconciled is a usage error."""
@@ -336,7 +337,7 @@ def running(store: Store, summary: Summary) -> Iterator[str]:
         print_summary(summary)
 
 
-def _raise_terminated(signum, frame) -> None:
+def _raise_terminated(signum: int, frame: FrameType | None) -> None:
     raise Terminated()
 
 

@@ -30,7 +30,7 @@ from annotator.pipeline.source import GivenCandidates, SampledCandidates
 from annotator.pipeline.summary import Summary
 from annotator.pipeline.tasks import CellOptions, Prepare, Span, SpanResult, SpanTask
 from annotator.pipeline.worker import label_span
-from annotator.store import RunSpec, Store
+from annotator.store import Resume, RunSpec, Store
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class ObjectUnitsJob:
         assert self.candidates is not None
         return dict(self.candidates.inputs())
 
-    def plan(self, options: RunOptions, store: Store, resume: Any, summary: Summary) -> WorkPlan | None:
+    def plan(self, options: RunOptions, store: Store, resume: Resume, summary: Summary) -> WorkPlan | None:
         assert self.gripper is not None and self.candidates is not None
         digests, candidates = self.digests, self.candidates
         store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))

@@ -13,7 +13,10 @@ convex, are not listed).
 from __future__ import annotations
 
 import sys
-from typing import IO
+from typing import IO, TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tqdm.auto import tqdm
 
 
 class Progress:
@@ -40,7 +43,7 @@ class Progress:
             from tqdm.auto import tqdm
 
             self.bar = tqdm(total=total, unit="grasp", smoothing=0.1, dynamic_ncols=True, file=self.stream)
-            self._stage()
+            self._stage(self.bar)
 
     def advance(self, candidates: int) -> None:
         if self.bar is not None and candidates:
@@ -56,7 +59,7 @@ class Progress:
         was not, or it failed; the failure is its object's line)."""
         self.ready += 1
         if self.bar is not None:
-            self._stage()
+            self._stage(self.bar)
         elif text is not None and not self.quiet:
             print(
                 f"[decomposed, {self.ready}/{self.decompositions} objects ready] {object_id}: {text}",
@@ -74,12 +77,12 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
 
-    def _stage(self) -> None:
-        """The bar's label: the decomposition stage's count while it lasts."""
+    def _stage(self, bar: tqdm) -> None:
+        """``bar``'s label: the decomposition stage's count while it lasts."""
         if self.ready < self.decompositions:
-            self.bar.set_description_str(f"decomposing {self.ready}/{self.decompositions}", refresh=True)
+            bar.set_description_str(f"decomposing {self.ready}/{self.decompositions}", refresh=True)
         else:
-            self.bar.set_description_str("", refresh=True)
+            bar.set_description_str("", refresh=True)
 
 
 def _is_terminal(stream: IO[str]) -> bool:

@@ -42,7 +42,7 @@ from annotator.pipeline.summary import Summary
 from annotator.pipeline.tasks import SpanResult
 from annotator.scenes.records import ARRANGEMENTS, SceneRecord
 from annotator.scenes.views import MAX_INSTANCE_ID
-from annotator.store import RunSpec, Store
+from annotator.store import Resume, RunSpec, Store
 from annotator.store.names import scene_unit
 
 log = logging.getLogger(__name__)
@@ -187,7 +187,7 @@ class SceneJob:
         self.units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}
         return spec, self.units
 
-    def plan(self, options: RunOptions, store: Store, resume, summary: Summary) -> WorkPlan | None:
+    def plan(self, options: RunOptions, store: Store, resume: Resume, summary: Summary) -> WorkPlan | None:
         self.store = store
         n, chunk = options.n, store.spec.chunk_size
         store.manifest.objects_planned = sorted(self.units)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import pybullet as pb
@@ -33,6 +34,7 @@ from annotator.sim.contacts import Contact, contact_points
 from annotator.sim.width_table import WidthTable, fk_table
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 # Self-collision on, minus parent/child pairs; ParallelGripper filters the remaining in-finger pairs.
 GRIPPER_LOAD_FLAGS = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
@@ -55,7 +57,7 @@ class GripperSettings:
         """``config``'s overrides on ``description``'s values; ConfigError (one line) for a grip force
         outside the gripper's range."""
 
-        def pick(override, default):
+        def pick(override: T | None, default: T) -> T:
             return default if override is None else override
 
         settings = cls(
@@ -262,13 +264,13 @@ class ParallelGripper:
         d, driven = self.description, self.body.joints[self.driven]
         return fk_table(
             str(self.urdf),
-            d.drive_joint,
-            d.pad_links,
-            d.base_link,
-            None if d.pad_size is None else d.pad_size[0],
-            driven.lower,
-            driven.upper,
-            self.config.width_table_samples,
+            drive=d.drive_joint,
+            pads=d.pad_links,
+            base_link=d.base_link,
+            pad_thickness=None if d.pad_size is None else d.pad_size[0],
+            lower=driven.lower,
+            upper=driven.upper,
+            samples=self.config.width_table_samples,
         )
 
     # --- kinematics ----------------------------------------------------------------------------

@@ -470,8 +470,16 @@ def arm_frames(
         samples = (gripper_config or GripperConfig()).width_table_samples
         thickness = None if gripper.pad_size is None else gripper.pad_size[0]
         drive = gripper.drive_joint
+        lower, upper = limits[drive]
         table = fk_table(
-            str(path), drive, gripper.pad_links, gripper.base_link, thickness, *limits[drive], samples
+            str(path),
+            drive=drive,
+            pads=gripper.pad_links,
+            base_link=gripper.base_link,
+            pad_thickness=thickness,
+            lower=lower,
+            upper=upper,
+            samples=samples,
         )
     return ArmFrames(T_baselink_base, T_tool0_gripper, table)
 

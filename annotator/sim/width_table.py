@@ -33,8 +33,8 @@ class WidthTable:
     angle: np.ndarray
     width: np.ndarray
     tcp: np.ndarray
-    # (k,) dw/d(drive), m/rad or m/m; None: from the table's finite differences (set after init)
-    slope: np.ndarray = None  # type: ignore[assignment]
+    # (k,) dw/d(drive), m/rad or m/m, from the table's finite differences (derived in __post_init__)
+    slope: np.ndarray = field(init=False)
     # derived in __post_init__: plain lists for the scalar lookups, the table by increasing width
     _angles: list[float] = field(init=False, repr=False, compare=False)
     _slopes: list[float] = field(init=False, repr=False, compare=False)
@@ -43,8 +43,7 @@ class WidthTable:
     _w_tcp: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if self.slope is None:
-            object.__setattr__(self, "slope", np.gradient(self.width, self.angle))
+        object.__setattr__(self, "slope", np.gradient(self.width, self.angle))
         # plain lists for the per-step scalar lookup (np.interp costs ~5 us per scalar call)
         object.__setattr__(self, "_angles", self.angle.tolist())
         object.__setattr__(self, "_slopes", self.slope.tolist())
@@ -117,6 +116,7 @@ class WidthTable:
 @functools.lru_cache(maxsize=8)
 def fk_table(
     urdf: str,
+    *,
     drive: str,
     pads: tuple[str, str],
     base_link: str,
@@ -129,7 +129,8 @@ def fk_table(
 
     ``urdf`` holds the gripper (alone or on an arm), ``drive`` its driven joint, ``pads`` the pad
     links of finger 1 and finger 2, ``base_link`` the gripper's base, ``pad_thickness`` (m) the
-    pads' extent along the closing axis (None: their collision boxes' x extent). Runs the URDF's
+    pads' extent along the closing axis (None: their collision boxes' x extent), ``lower`` ..
+    ``upper`` the drive's range (rad or m); all but ``urdf`` by keyword. Runs the URDF's
     forward kinematics (kinematic joint resets, no stepping) in a private DIRECT client, so a GUI
     client is never slowed down and every body of the same model in this process shares one table.
     ValueError when the width is not strictly monotonic in the drive.

@@ -194,6 +194,24 @@ def read_mark(path: Path) -> dict[str, Any] | None:
     return mark if isinstance(mark, dict) else None
 
 
+@dataclass(frozen=True)
+class MarkedSpan:
+    """What a label file's mark says it holds: rows ``start`` .. ``stop - 1`` of ``object_id``."""
+
+    object_id: str
+    start: int
+    stop: int
+
+
+def marked_span(mark: dict[str, Any]) -> MarkedSpan | None:
+    """The object and rows ``mark`` names; None when its id is not a string or a bound not an
+    integer (a mark this tool did not write)."""
+    oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
+    if isinstance(oid, str) and isinstance(start, int) and isinstance(stop, int):
+        return MarkedSpan(oid, start, stop)
+    return None
+
+
 class Owner(enum.Enum):
     """Who wrote a file found in an output folder, as far as the file itself can tell."""
 

@@ -27,7 +27,7 @@ import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from annotator.store.errors import ManifestUnreadableError
 from annotator.store.files import atomic_write, output_error
@@ -70,7 +70,7 @@ class JournalText:
     last: int
 
 
-def _lines(fh) -> Iterator[bytes]:
+def _lines(fh: BinaryIO) -> Iterator[bytes]:
     while True:
         line = fh.readline(MAX_LINE_BYTES)
         if not line:
@@ -89,15 +89,17 @@ def read_journal(path: Path) -> JournalText | None:
         raise ManifestUnreadableError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
     if not stat.S_ISREG(info.st_mode):
         raise ManifestUnreadableError(f"{path} is not a regular file")
-    journal_id, lines, number = None, [], 0
+    journal_id: str | None = None
+    lines: list[tuple[int, dict[str, Any] | None]] = []
+    number = 0
     try:
         with open(path, "rb") as fh:
             for number, line in enumerate(_lines(fh), start=1):
                 op = decode(line)
                 if number == 1:
-                    ok = op is not None and op["op"] == "begin" and isinstance(op.get("journal"), str)
-                    journal_id = op["journal"] if ok else None  # type: ignore[index]
-                    if not ok:
+                    if op is not None and op["op"] == "begin" and isinstance(op.get("journal"), str):
+                        journal_id = op["journal"]
+                    else:
                         lines.append((number, None))
                     continue
                 lines.append((number, op))

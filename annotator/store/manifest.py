@@ -273,6 +273,14 @@ def _range(key: str) -> tuple[int, int] | None:
     return (start, stop) if start < stop else None
 
 
+def chunk_range(key: str) -> tuple[int, int]:
+    """A chunk's key ``"start-stop"`` as (start, stop); Invalid when it is not one."""
+    bounds = _range(key)
+    if bounds is None:
+        raise Invalid(f"{key!r} is not a chunk's range")
+    return bounds
+
+
 def _check_names(data: dict[str, Any]) -> None:
     """Every label file is the one the tool names for its object (and range): a manifest can
     point the tool at no other file, in the folder or outside it."""
@@ -281,7 +289,7 @@ def _check_names(data: dict[str, Any]) -> None:
             raise Invalid(f"objects_done[{oid!r}].file: {entry['file']!r} is not this object's file")
     for oid, entry in data["chunks_done"].items():
         for key, rec in entry["files"].items():
-            start, stop = _range(key)  # type: ignore[misc]  # the schema checked the key
+            start, stop = chunk_range(key)
             if rec["file"] != chunk_filename(oid, start, stop) or rec["n"] != stop - start:
                 raise Invalid(f"chunks_done[{oid!r}][{key!r}]: {rec['file']!r} is not that chunk's file")
 
@@ -470,7 +478,7 @@ def check_op(op: dict[str, Any]) -> None:
         raise Invalid(f"unknown operation {op['op']!r}")
     schema.check({k: v for k, v in op.items() if k != "op"}, op["op"])
     if op["op"] == "chunk":
-        start, stop = _range(op["key"])  # type: ignore[misc]  # the schema checked the key
+        start, stop = chunk_range(op["key"])
         rec = op["record"]
         if rec["file"] != chunk_filename(op["oid"], start, stop) or rec["n"] != stop - start:
             raise Invalid(f"chunk {op['oid']!r} {op['key']}: {rec['file']!r} is not that chunk's file")
@@ -534,16 +542,17 @@ def load_state(out_dir: Path, *, repair: bool = False) -> LoadedState:
         return state  # none yet, or one this manifest already holds
     state.journal_current = not state.skipped
     for number, op in text.lines:
-        why = "does not verify (cut short, a flipped byte or not a record)" if op is None else None
-        if op is not None:
+        if op is None:
+            why = "does not verify (cut short, a flipped byte or not a record)"
+        else:
             try:
                 check_op(op)
             except Invalid as exc:
                 why = f"is not a record of this tool ({exc})"
-        if why is None:
-            manifest.apply(op)  # type: ignore[arg-type]
-            state.pending += 1
-            continue
+            else:
+                manifest.apply(op)
+                state.pending += 1
+                continue
         state.journal_current = False
         line = f"{jpath.name} line {number} {why}; left out"
         if number != text.last and not repair:

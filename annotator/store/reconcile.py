@@ -27,10 +27,10 @@ from typing import Any
 
 from annotator.store.artifacts import artifacts_ok
 from annotator.store.errors import StoreError
-from annotator.store.files import Owner
-from annotator.store.manifest import Manifest, RunSpec, utc_now
+from annotator.store.files import Owner, marked_span
+from annotator.store.manifest import Manifest, RunSpec, chunk_range, utc_now
 from annotator.store.names import STALE_DIR, merging_name, object_filename, object_stem
-from annotator.store.survey import Listing
+from annotator.store.survey import NO_SPAN, Listing
 
 _CHUNK_RANGE = re.compile(r"\.\d{6,7}-\d{6,7}$")  # a chunk file's range after its object's stem
 
@@ -199,7 +199,10 @@ def plan_rebuild(listing: Listing, spec: RunSpec) -> tuple[Manifest, FolderPlan]
 def _verified_record(listing: Listing, name: str, spec: RunSpec) -> dict[str, Any] | str:
     """The manifest record of a marked file of this run that verifies, or why it does not."""
     mark = listing.marks.get(name) or {}
-    oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
+    span = marked_span(mark)
+    if span is None:
+        return NO_SPAN
+    oid, start, stop = span.object_id, span.start, span.stop
     why = listing.labels_why.get(name, "not verified")
     artifacts = mark.get("artifacts", {})
     if why is None and not artifacts_ok(mark):
@@ -292,8 +295,8 @@ def _distrust(
 ) -> None:
     name = record["file"]
     owner = listing.owner(name, manifest.run_id) if name in listing.present else None
-    if owner in _KEEP_OWNERS:
-        plan.note_foreign(name, owner)  # type: ignore[arg-type]  # recorded name, not this run's file
+    if owner is not None and owner in _KEEP_OWNERS:  # a recorded name, not this run's file
+        plan.note_foreign(name, owner)
         return
     plan.note(f"{name} {why}: redoing those labels of {oid}")
     if not read_only:
@@ -312,7 +315,7 @@ def plan_sources(listing: Listing, manifest: Manifest, sources: dict[str, str]) 
     m = manifest
     plan = FolderPlan()
     for oid in sorted(set(m.objects_done) | set(m.chunks_done)):
-        recorded = (m.objects_done.get(oid) or m.chunks_done.get(oid))["source_sha256"]  # type: ignore[index]
+        recorded = (m.objects_done.get(oid) or m.chunks_done[oid])["source_sha256"]
         if oid not in sources:
             plan.stale.append(oid)
             plan.set_aside.append(oid)
@@ -337,10 +340,9 @@ def plan_sources(listing: Listing, manifest: Manifest, sources: dict[str, str]) 
 def resume_of(manifest: Manifest, plan: FolderPlan) -> Resume:
     """What the folder holds once ``plan`` (of :func:`plan_sources`) is applied to ``manifest``."""
     chunks = {
-        oid: {tuple(int(v) for v in key.split("-")) for key in entry["files"]}
-        for oid, entry in manifest.chunks_done.items()
+        oid: {chunk_range(key) for key in entry["files"]} for oid, entry in manifest.chunks_done.items()
     }
-    return Resume(set(manifest.objects_done), chunks, plan.stale, plan.changed)  # type: ignore[arg-type]
+    return Resume(set(manifest.objects_done), chunks, plan.stale, plan.changed)
 
 
 def _refuse_foreign_at(listing: Listing, manifest: Manifest, sources: dict[str, str]) -> None:

@@ -57,6 +57,7 @@ from annotator.store.names import (
     object_filename,
     object_stem,
 )
+from annotator.store.reconcile import FolderPlan, Resume
 from annotator.store.stats import object_stats
 from annotator.store.survey import Need, survey
 
@@ -137,7 +138,8 @@ class Store:
             state = LoadedState(None)
         for line in state.skipped:
             self._note(line)
-        if state.manifest is None:
+        manifest = state.manifest
+        if manifest is None:
             listing = survey(out, Need.REPAIR if repair else Need.MARKS, run_key=spec.key)
             marked = [name for name in listing.parquet if listing.marks.get(name) is not None]
             if marked and not repair:
@@ -154,14 +156,14 @@ class Store:
                 manifest = Manifest.fresh(spec)
             state = LoadedState(manifest)
         else:
-            diffs = spec.differences(state.manifest.run)
+            diffs = spec.differences(manifest.run)
             if diffs:
                 shown = "; ".join(diffs[:4]) + (f"; and {len(diffs) - 4} more" if len(diffs) > 4 else "")
                 raise RunMismatchError(
                     f"{out} holds a run with other settings ({shown}); pass --overwrite to start over or "
                     "choose another --out"
                 )
-        self.manifest = state.manifest  # type: ignore[assignment]  # set above
+        self.manifest = manifest
         self._header = (self.manifest.objects_planned, self.manifest.gripper_folder)
         if not self.read_only and state.journal_current and state.pending == 0:
             self._journal = JournalWriter(journal_path(out))  # a closed run's: appended to
@@ -175,7 +177,7 @@ class Store:
         if self.read_only:
             raise output_error(self.out_dir, OSError(errno.EROFS, "the folder is read-only"))
 
-    def reconcile(self, sources: dict[str, str]) -> reconcile.Resume:
+    def reconcile(self, sources: dict[str, str]) -> Resume:
         """Match the folder to this run's objects (object id -> source digest); see
         :func:`annotator.store.reconcile.plan_sources`."""
         listing = survey(self.out_dir, Need.SOURCES, self.manifest)
@@ -185,7 +187,7 @@ class Store:
             self.save(force=True)
         return reconcile.resume_of(self.manifest, plan)
 
-    def apply(self, plan: reconcile.FolderPlan) -> None:
+    def apply(self, plan: FolderPlan) -> None:
         """Do what a reconcile plan says (:class:`annotator.store.reconcile.FolderPlan`)."""
         out = self.out_dir
         if plan.touches_files:

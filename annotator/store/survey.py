@@ -24,6 +24,7 @@ from annotator.store.files import (
     file_sha256,
     is_regular_file,
     is_temp_file,
+    marked_span,
     read_labels,
     read_mark,
     verify_labels,
@@ -42,6 +43,9 @@ from annotator.store.names import (
     object_filename,
 )
 from annotator.store.stats import object_stats
+
+# why a marked file is not trusted when its mark names no object id or no integer rows
+NO_SPAN = "its mark names no object and rows"
 
 
 class Need(enum.Enum):
@@ -192,9 +196,11 @@ def survey(
         mark = listing.marks.get(name)
         if not mark:
             continue
-        oid, start, stop = mark.get("object_id"), mark.get("start"), mark.get("stop")
-        ok = isinstance(oid, str)
-        why = verify_labels(out / name, run_key, oid, start, stop) if ok else "no id"
+        span = marked_span(mark)
+        if span is None:
+            listing.labels_why[name] = NO_SPAN
+            continue
+        why = verify_labels(out / name, run_key, span.object_id, span.start, span.stop)
         listing.labels_why[name] = why
         if why is not None:
             continue
@@ -203,7 +209,7 @@ def survey(
         for a in artifacts.values() if isinstance(artifacts, dict) else []:
             if isinstance(a, dict) and is_artifact_relpath(a.get("file")):
                 _hash(listing, a["file"])
-        if name == object_filename(oid):
+        if name == object_filename(span.object_id):
             listing.stats[name] = object_stats(read_labels(out, [name]))
     return listing
 

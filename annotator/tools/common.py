@@ -356,7 +356,7 @@ def labelling_config(labels: str | Path | None, config_file: Path | None = None)
             raise ToolError(f"--config {config_file}: {exc}") from None
     manifest = read_manifest(labels) if labels is not None and Path(labels).exists() else None
     config = run_settings(manifest).get("config")
-    if not config:
+    if not config or labels is None:  # no labels, no manifest: nothing but the defaults
         return LabellingConfig(AnnotatorConfig(), "the defaults (no manifest beside the labels)")
     try:
         return LabellingConfig(

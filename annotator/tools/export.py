@@ -27,8 +27,10 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -188,10 +190,10 @@ class ExportFolder:
         self.written.append(name)
         return path
 
-    def close(self, fmt: str, labels: Path, left_out: list[LeftOut] = ()) -> None:
+    def close(self, fmt: str, labels: Path, left_out: Sequence[LeftOut] = ()) -> None:
         """Record what this export wrote (so a later --overwrite removes exactly that) and the
         grasps it left out (``left_out``: one entry per reason)."""
-        record = {"format": fmt, "labels": str(labels), "files": sorted(self.written)}
+        record: dict[str, Any] = {"format": fmt, "labels": str(labels), "files": sorted(self.written)}
         if left_out:
             record["left_out"] = [x.to_json() for x in left_out]
         text = json.dumps(record, indent=1)
