@@ -99,11 +99,11 @@ def simulate_given(
         rest = np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)) if span.rest_quat is None else np.asarray(span.rest_quat)
     given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64), span.quat, rest)
     task = SpanTask(
-        Span(span.object_id, span.source, span.scale, 0, k, given),
-        config,
-        seed,
-        k,
-        trials,
+        span=Span(span.object_id, span.source, span.scale, 0, k, given),
+        config=config,
+        seed=seed,
+        n=k,
+        trials=trials,
         gripper=gripper,
         resting=resting,
     )

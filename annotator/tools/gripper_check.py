@@ -299,10 +299,10 @@ def wider_than_stroke(description: GripperDescription, config: AnnotatorConfig) 
         c = sample_candidates(mesh, WIDE_CANDIDATES, object_rng(0, "wide"), config.sampler, stroke)
         given = GivenGrasps(c.T_obj_tcp, c.width_expected)
         task = SpanTask(
-            Span("wide", source, None, 0, len(c.width_expected), given),
-            config,
-            0,
-            len(c.width_expected),
+            span=Span("wide", source, None, 0, len(c.width_expected), given),
+            config=config,
+            seed=0,
+            n=len(c.width_expected),
             gripper=description,
         )
         result = label_span(task)
