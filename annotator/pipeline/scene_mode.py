@@ -21,16 +21,15 @@ import io
 from collections import OrderedDict
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.grippers import GripperDescription
-from annotator.objects import ObjectError, ObjectModel, ObjectSource, load_object
+from annotator.objects import ObjectError, ObjectModel, ObjectSource
 from annotator.pipeline import status
-from annotator.pipeline.loaded import object_info
+from annotator.pipeline.loaded import load_model, object_info
 from annotator.pipeline.modes import Labelled
 from annotator.pipeline.tasks import SceneTask
 from annotator.scenes.arrange import SceneBuilder
@@ -169,9 +168,7 @@ class SceneMode:
         if key in self.models:
             self.models.move_to_end(key)
             return self.models[key]
-        status.write(task.status_dir, f"loading {source.object_id}")
-        cache = Path(task.cache_dir) if task.cache_dir is not None else None
-        model = load_object(source, task.config.objects, scale=task.request.scale, cache_dir=cache)
+        model = load_model(source, task.config.objects, task.request.scale, task.cache_dir, task.status_dir)
         self.models[key] = model
         while len(self.models) > RECENT_MODELS:
             self.models.popitem(last=False)

@@ -159,7 +159,7 @@ class SpanTask(WorkerTask):
 
     @property
     def mode_key(self) -> tuple:
-        """The worker mode it labels in (:func:`annotator.pipeline.modes.build_mode`)."""
+        """The worker mode it labels in (:func:`annotator.pipeline.worker.build_mode`)."""
         from annotator.cell.resting import resting_mode
 
         return ("object", self.cell is not None, resting_mode(self.resting))
@@ -233,7 +233,7 @@ class SceneTask(WorkerTask):
 
     @property
     def mode_key(self) -> tuple:
-        """The worker mode it labels in (:func:`annotator.pipeline.modes.build_mode`)."""
+        """The worker mode it labels in (:func:`annotator.pipeline.worker.build_mode`)."""
         return ("scene", self.request.cell)
 
 

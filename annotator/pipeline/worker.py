@@ -30,7 +30,6 @@ import logging
 import os
 import time
 from collections import OrderedDict
-from pathlib import Path
 
 import numpy as np
 
@@ -42,12 +41,11 @@ from annotator.objects import (
     ObjectModel,
     create_body,
     default_cache_dir,
-    load_object,
     physics_for,
 )
 from annotator.pipeline import status
-from annotator.pipeline.loaded import LoadedObject, object_info
-from annotator.pipeline.modes import PlacedObject, WorkerMode
+from annotator.pipeline.loaded import LoadedObject, load_model, object_info
+from annotator.pipeline.modes import WorkerMode
 from annotator.pipeline.object_modes import UPRIGHT, ObjectMode, build_object_mode
 from annotator.pipeline.process import check_versions, cpu_seconds, task_stats, watch_parent
 from annotator.pipeline.simulate import TrialSettings, object_candidates, simulate
@@ -75,7 +73,6 @@ __all__ = [
     "CellOptions",
     "GivenGrasps",
     "LoadedObject",
-    "PlacedObject",
     "Prepare",
     "PreparedObject",
     "REASON_COLUMNS",
@@ -236,18 +233,11 @@ class WorkerState:
         return model, candidates
 
     def _load(self, task: SpanTask, key: tuple) -> ObjectModel:
-        unit, config = task.span, task.config
-        status.write(task.status_dir, f"loading {unit.object_id}")
-        status_dir = task.status_dir
+        """The task's object loaded (:func:`annotator.pipeline.loaded.load_model`); its error is
+        kept, so its other spans fail at once."""
+        unit = task.span
         try:
-            cache = Path(task.cache_dir) if task.cache_dir is not None else None
-            return load_object(
-                unit.source,
-                config.objects,
-                scale=unit.scale,
-                cache_dir=cache,
-                progress=lambda oid, message: status.write(status_dir, f"{oid}: {message}"),
-            )
+            return load_model(unit.source, task.config.objects, unit.scale, task.cache_dir, task.status_dir)
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
