@@ -52,7 +52,7 @@ CELL_ONLY = ("cell", "kinect")
 
 
 def label(chunks: list[Span], config: AnnotatorConfig, seed: int, workers: int) -> pd.DataFrame:
-    tasks = (SpanTask(c, config, seed, c.size) for c in chunks)
+    tasks = (SpanTask(span=c, config=config, seed=seed, n=c.size) for c in chunks)
     out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
     return pd.concat([r.rows for r in out], ignore_index=True).sort_values(KEY, ignore_index=True)
 

@@ -32,7 +32,9 @@ def label_all(sources, gripper, n: int, config: AnnotatorConfig) -> tuple[float,
     rows = simulated = 0
     for source in sources:
         span = worker.Span(source.object_id, source, None, 0, n)
-        result = worker.label_span(worker.SpanTask(span, config, 0, n, gripper=description))
+        result = worker.label_span(
+            worker.SpanTask(span=span, config=config, seed=0, n=n, gripper=description)
+        )
         if result.error is not None:
             raise RuntimeError(f"{source.object_id}: {result.error}")
         rows += len(result.rows)

@@ -33,7 +33,11 @@ def label(sources, n: int, trials: int, config: AnnotatorConfig) -> tuple[pd.Dat
     t0 = time.process_time()
     parts = []
     for source in sources:
-        result = label_span(SpanTask(Span(source.object_id, source, None, 0, n), config, 0, n, trials))
+        result = label_span(
+            SpanTask(
+                span=Span(source.object_id, source, None, 0, n), config=config, seed=0, n=n, trials=trials
+            )
+        )
         if result.error is None:
             parts.append(result.rows)
         else:

@@ -162,7 +162,9 @@ def test_a_puck_lower_than_the_pads_is_held_from_above(tmp_path):
     (source,) = discover_objects(tmp_path)
     n = 8
     config = AnnotatorConfig.from_dict({"cell": {"placements_per_object": 1}})  # flat, not on its rim
-    task = worker.SpanTask(worker.Span("puck", source, None, 0, n), config, 0, n, cell=worker.CellOptions())
+    task = worker.SpanTask(
+        span=worker.Span("puck", source, None, 0, n), config=config, seed=0, n=n, cell=worker.CellOptions()
+    )
     result = worker.label_span(task)
     assert result.error is None, result.error
     rows = result.rows

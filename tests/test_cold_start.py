@@ -229,7 +229,13 @@ def test_each_object_is_decomposed_once_by_a_worker_before_any_of_its_spans(tmp_
         execute(
             Schedule(planned, 20, 10, None, workers.count),
             lambda unit: SpanTask(
-                unit, config, 0, 20, parent_pid=os.getpid(), status_dir=str(notes), cache_dir=str(cache)
+                span=unit,
+                config=config,
+                seed=0,
+                n=20,
+                parent_pid=os.getpid(),
+                status_dir=str(notes),
+                cache_dir=str(cache),
             ),
             workers,
             results.append,

@@ -113,7 +113,11 @@ def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_a
         state = WorkerState()
         try:
             task = SpanTask(
-                Span("corner", source, None, start, start + 3), cfg, 0, 6, cache_dir=str(tmp_path / "c")
+                span=Span("corner", source, None, start, start + 3),
+                config=cfg,
+                seed=0,
+                n=6,
+                cache_dir=str(tmp_path / "c"),
             )
             result = state.label(task)
         finally:

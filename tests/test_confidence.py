@@ -102,11 +102,18 @@ def test_labels_made_with_a_calibration_carry_p_success(tmp_path):
     calibrated = AnnotatorConfig.from_dict(
         {"confidence": {"method": "isotonic", "trials": 2, "scores": [0.0, 1.0], "p_success": [0.2, 0.9]}}
     )
-    rows = label_span(SpanTask(Span("brick", source, None, 0, 6), calibrated, 0, 6, 2)).rows
+    rows = label_span(
+        SpanTask(span=Span("brick", source, None, 0, 6), config=calibrated, seed=0, n=6, trials=2)
+    ).rows
     assert rows["p_success"].to_numpy() == pytest.approx(0.2 + 0.7 * rows["score"].to_numpy())
-    assert "p_success" not in label_span(SpanTask(Span("brick", source, None, 0, 6), plain, 0, 6, 2)).rows
+    assert (
+        "p_success"
+        not in label_span(
+            SpanTask(span=Span("brick", source, None, 0, 6), config=plain, seed=0, n=6, trials=2)
+        ).rows
+    )
     with pytest.raises(ValueError, match="--trials 2"):
-        label_span(SpanTask(Span("brick", source, None, 0, 6), calibrated, 0, 6, 1))
+        label_span(SpanTask(span=Span("brick", source, None, 0, 6), config=calibrated, seed=0, n=6, trials=1))
     with pytest.raises(ConfigError):
         dataclasses.replace(calibrated.confidence, p_success=(0.9, 0.2))
 

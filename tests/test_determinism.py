@@ -46,7 +46,7 @@ def _fresh_worker() -> None:
 def _run(spans, config) -> pd.DataFrame:
     frames = []
     for span in spans:
-        result = worker.label_span(worker.SpanTask(span, config, 0, N))
+        result = worker.label_span(worker.SpanTask(span=span, config=config, seed=0, n=N))
         assert result.error is None, result.error
         frames.append(result.rows)
     return pd.concat(frames).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
@@ -171,7 +171,7 @@ QUICK_VIEWS = AnnotatorConfig.from_dict({"kinect": {"views_color_scale": 0.25}})
 def _run_cell(spans, config, cell) -> tuple[pd.DataFrame, dict[str, bytes]]:
     frames, artifacts = [], {}
     for span in spans:
-        result = worker.label_span(worker.SpanTask(span, config, 0, CELL_N, cell=cell))
+        result = worker.label_span(worker.SpanTask(span=span, config=config, seed=0, n=CELL_N, cell=cell))
         assert result.error is None, result.error
         frames.append(result.rows)
         for name, data in (result.artifacts or {}).items():

@@ -271,7 +271,11 @@ def test_a_worker_keeps_its_objects_across_configurations_with_the_same_labels(t
 
     def task(config):
         return worker.SpanTask(
-            worker.Span("box", source, None, 0, 6), config, 0, 6, gripper=load_gripper("panda")
+            span=worker.Span("box", source, None, 0, 6),
+            config=config,
+            seed=0,
+            n=6,
+            gripper=load_gripper("panda"),
         )
 
     reused = worker.WorkerState()

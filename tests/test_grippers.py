@@ -230,7 +230,7 @@ def _label(source: ObjectSource, mesh, gripper: str, n: int, workers: int = 1) -
         b = min(n, a + 10)
         given = GivenGrasps(c.T_obj_tcp[a:b], c.width_expected[a:b])
         span = Span(source.object_id, source, None, a, b, given)
-        tasks.append(SpanTask(span, CONFIG, 0, b - a, gripper=load_gripper(gripper)))
+        tasks.append(SpanTask(span=span, config=CONFIG, seed=0, n=b - a, gripper=load_gripper(gripper)))
     out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
     assert all(r.error is None for r in out), [r.error for r in out]
     return pd.concat([r.rows for r in out], ignore_index=True), c
@@ -284,7 +284,7 @@ def test_mug_labels_do_not_depend_on_workers_or_span_order(mug, name):
     spans = [Span(mug.object_id, mug, None, a, a + 10) for a in range(0, n, 10)]
 
     def run(order, workers: int = 1) -> pd.DataFrame:
-        tasks = [SpanTask(spans[i], CONFIG, 0, n, gripper=gripper) for i in order]
+        tasks = [SpanTask(span=spans[i], config=CONFIG, seed=0, n=n, gripper=gripper) for i in order]
         out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
         assert all(r.error is None for r in out), [r.error for r in out]
         return pd.concat([r.rows for r in out]).sort_values("grasp_id", ignore_index=True)
@@ -292,7 +292,7 @@ def test_mug_labels_do_not_depend_on_workers_or_span_order(mug, name):
     worker._State.instance = None
     reference = run(range(len(spans)))
     other = "panda" if name != "panda" else "rg2"  # the worker rebuilds its world for another gripper
-    label_span(SpanTask(spans[0], CONFIG, 0, n, gripper=load_gripper(other)))
+    label_span(SpanTask(span=spans[0], config=CONFIG, seed=0, n=n, gripper=load_gripper(other)))
     pd.testing.assert_frame_equal(run(reversed(range(len(spans)))), reference)
     pd.testing.assert_frame_equal(run(range(len(spans)), workers=2), reference)
     assert (reference["outcome"] != "collision").sum() >= 3, reference["outcome"].value_counts().to_dict()

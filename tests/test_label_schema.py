@@ -122,6 +122,6 @@ def test_worker_rows_are_the_object_mode(tmp_path):
 
     config = AnnotatorConfig()
     (source,) = [s for s in discover_objects(SAMPLES) if s.object_id == "box"]
-    task = worker.SpanTask(worker.Span("box", source, None, 0, 4), config, 0, 4)
+    task = worker.SpanTask(span=worker.Span("box", source, None, 0, 4), config=config, seed=0, n=4)
     rows = worker.label_span(task).rows
     assert mode_errors(rows, "object") == []

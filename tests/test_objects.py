@@ -818,7 +818,9 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
             len(chosen),
             GivenGrasps(cands.T_obj_tcp[chosen], cands.width_expected[chosen]),
         )
-        rows = label_span(SpanTask(span, cfg, 0, len(chosen), cache_dir=str(cache_dir))).rows
+        rows = label_span(
+            SpanTask(span=span, config=cfg, seed=0, n=len(chosen), cache_dir=str(cache_dir))
+        ).rows
         wins = rows[rows["success"]]
         triangles = np.asarray(model.mesh.triangles)
         gap = [
@@ -897,7 +899,9 @@ def test_a_crashing_decomposition_still_labels_its_object_in_a_worker(tmp_path, 
     state = WorkerState()
     try:
         results = {
-            s.object_id: state.label(SpanTask(Span(s.object_id, s, None, 0, 5), AnnotatorConfig(), 0, 5))
+            s.object_id: state.label(
+                SpanTask(span=Span(s.object_id, s, None, 0, 5), config=AnnotatorConfig(), seed=0, n=5)
+            )
             for s in discover_objects(objects)
         }
     finally:

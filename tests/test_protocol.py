@@ -37,7 +37,7 @@ def candidates(mesh: trimesh.Trimesh, object_id: str, n: int, seed: int = 0):
 def given(source: ObjectSource, start: int, T_obj_tcp, width, config=CONFIG, trials: int = 1) -> SpanTask:
     """A worker task simulating the given poses (k, 4, 4) and chords (k,), numbered from ``start``."""
     span = Span(source.object_id, source, None, start, start + len(width), GivenGrasps(T_obj_tcp, width))
-    return SpanTask(span, config, 0, len(width), trials)
+    return SpanTask(span=span, config=config, seed=0, n=len(width), trials=trials)
 
 
 def label(

@@ -286,7 +286,7 @@ def _execute_spans(objs: Path, workers: Workers, fn=label_span) -> list[SpanResu
     try:
         execute(
             Schedule(planned, 20, 10, None, workers.count),
-            lambda span: SpanTask(span, config, 0, 20, parent_pid=os.getpid()),
+            lambda span: SpanTask(span=span, config=config, seed=0, n=20, parent_pid=os.getpid()),
             workers,
             results.append,
             fn=fn,

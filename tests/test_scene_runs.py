@@ -25,7 +25,7 @@ from scene_helpers import CONCAVE, REPO
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_scenes, scene_labels
 from annotator.objects import discover_objects
-from annotator.pipeline import scene_worker as worker
+from annotator.pipeline import scene_mode, worker
 from annotator.pipeline.scene_job import SCENE_CHUNK_SIZE, plan_scene_spans
 from annotator.scenes import records as scene_records
 from annotator.scenes.labels import SCENE_LABEL_COLUMNS
@@ -90,11 +90,13 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
     spans = [worker.SceneSpan(1, a, a + SCENE_CHUNK_SIZE) for a in range(0, N, SCENE_CHUNK_SIZE)]
 
     def run(order, record=None):
-        worker.scene_worker_state().close_scene()
-        worker._SceneWorkerSlot.instance = None
+        worker.worker_state().close()
+        worker._State.instance = None
         frames, files = [], {}
         for k in order:
-            result = worker.label_scene_span(worker.SceneTask(spans[k], job, config, record=record))
+            result = worker.label_span(
+                worker.SceneTask(span=spans[k], request=job, config=config, record=record)
+            )
             assert result.error is None, result.error
             frames.append(result.rows)
             files.update(result.artifacts or {})
@@ -108,10 +110,11 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
     backward, files_back = run([1, 0])
     pd.testing.assert_frame_equal(backward, forward, check_exact=True)
     assert files_back == files
-    record = worker.record_from_artifact(files[worker.SCENE_FILE])
+    record = scene_mode.record_from_artifact(files[scene_mode.SCENE_FILE])
     given, _ = run([1, 0], record)
     pd.testing.assert_frame_equal(given, forward, check_exact=True)
-    worker._SceneWorkerSlot.instance = None
+    worker.worker_state().close()
+    worker._State.instance = None
 
 
 @pytest.mark.slow

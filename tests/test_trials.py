@@ -87,7 +87,7 @@ def test_a_perturbation_applies_inside_its_trial_and_not_in_the_next(brick):
 
 def _scores(source, cands, config: AnnotatorConfig, trials: int):
     span = Span("brick", source, None, 0, len(cands), GivenGrasps(cands.T_obj_tcp, cands.width_expected))
-    return label_span(SpanTask(span, config, 0, len(cands), trials)).rows
+    return label_span(SpanTask(span=span, config=config, seed=0, n=len(cands), trials=trials)).rows
 
 
 @pytest.mark.slow
@@ -142,7 +142,9 @@ def test_trial_0_is_the_same_whatever_the_number_of_trials():
     for trials in (3, 1, 5):  # each under its own id: a fresh body, settled afresh
         oid = f"box_k{trials}"
         span = Span(oid, source, None, 0, len(above), given)
-        result = label_span(SpanTask(span, CONFIG, 0, len(above), trials, resting="table"))
+        result = label_span(
+            SpanTask(span=span, config=CONFIG, seed=0, n=len(above), trials=trials, resting="table")
+        )
         assert result.error is None, result.error
         rows[trials] = result.rows
     one = rows[1]

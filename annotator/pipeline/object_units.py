@@ -165,11 +165,11 @@ class ObjectUnitsJob:
             # a cluster's workers may not see the gripper's folder: they get its files
             self._sent = self.gripper if context.local else _gripper_files(self.gripper)
         return SpanTask(
-            unit,
-            self.config,
-            options.seed,
-            options.n,
-            options.trials,
+            span=unit,
+            config=self.config,
+            seed=options.seed,
+            n=options.n,
+            trials=options.trials,
             source_sha256=self.digests[unit.object_id],
             versions=context.versions,
             parent_pid=context.parent_pid,

@@ -32,7 +32,9 @@ def load_prepared(
         pass
     from joblib.executor import get_memmapping_executor
 
-    task = SpanTask(Prepare(source.object_id, source, scale), config, 0, 1, cache_dir=str(cache))
+    task = SpanTask(
+        span=Prepare(source.object_id, source, scale), config=config, seed=0, n=1, cache_dir=str(cache)
+    )
     result = get_memmapping_executor(1).submit(label_span, task).result()
     if result.error is not None:
         raise ObjectError(result.error)

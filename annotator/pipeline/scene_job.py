@@ -6,7 +6,8 @@ process never loads a mesh: it discovers the pool, binds the run (the configurat
 ``[scenes]`` section, the scene request and the pool in the manifest) and hands out spans; the
 worker of a scene's first span builds the scene and returns its record and views as artifacts
 (``_views/scene_000003-<hash>/scene.parquet``, ``vVV_*.png``, ``cameras.parquet``), which the main
-process then passes to the scene's later spans (:mod:`annotator.pipeline.scene_worker`).
+process then passes to the scene's later spans. A worker labels a scene's span in the scene mode
+(:mod:`annotator.pipeline.scene_mode`) of the one worker state, as it labels an object's span.
 
 Every scene draws from the whole pool, so the pool is each scene's source: a changed, added or
 removed object redoes every scene. The number of scenes is not bound: ``--scenes 20`` on a folder of
@@ -22,7 +23,6 @@ import logging
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
@@ -30,16 +30,10 @@ from annotator.pipeline.execution import UsageError
 from annotator.pipeline.lifecycle import Collector, TaskContext, WorkPlan, loaded_gripper, merged, resumed
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.plan import FIRST_SPANS_AHEAD, MAX_N
-from annotator.pipeline.scene_worker import (
-    SCENE_FILE,
-    SceneRequest,
-    SceneSpan,
-    SceneTask,
-    label_scene_span,
-    record_from_artifact,
-)
+from annotator.pipeline.scene_mode import SCENE_FILE, record_from_artifact
 from annotator.pipeline.summary import Summary
-from annotator.pipeline.tasks import SpanResult
+from annotator.pipeline.tasks import SceneRequest, SceneSpan, SceneTask, SpanResult
+from annotator.pipeline.worker import label_span
 from annotator.scenes.records import ARRANGEMENTS, SceneRecord
 from annotator.scenes.views import MAX_INSTANCE_ID
 from annotator.store import Resume, RunSpec, Store
@@ -129,7 +123,7 @@ class SceneJob:
 
     unit = "scene"
     noun = "grasps"
-    worker = staticmethod(label_scene_span)
+    worker = staticmethod(label_span)
 
     def __init__(self, config: AnnotatorConfig, own: SceneOptions) -> None:
         self.config = config
@@ -239,9 +233,9 @@ class SceneJob:
     def make_task(self, span: SceneSpan, context: TaskContext) -> SceneTask:
         assert self.request is not None
         return SceneTask(
-            span,
-            self.request,
-            self.config,
+            span=span,
+            request=self.request,
+            config=self.config,
             record=self.records.get(span.scene_id),
             versions=context.versions,
             parent_pid=context.parent_pid,
@@ -251,7 +245,8 @@ class SceneJob:
 
     def take(self, result: SpanResult, collector: Collector) -> None:
         """Write a span's artifacts and labels (or fail its scene); merge a finished scene."""
-        span: Any = result.span  # a SceneSpan
+        span = result.span
+        assert isinstance(span, SceneSpan)
         unit = span.object_id
         collector.progress.advance(span.size)
         collector.account(result)

@@ -1,10 +1,12 @@
 """The trials of a span and its label rows: each grasp runs in the trial of its mode (floating, a
 cell placement, resting on the table), trial 0 unperturbed and K-1 perturbed, and becomes one row
-(:func:`annotator.label_row.label_row`)."""
+(:func:`annotator.label_row.label_row`). :func:`simulate` takes what the span is
+(:class:`annotator.pipeline.tasks.SpanGrasps`) and the run's settings (:class:`TrialSettings`)."""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -17,13 +19,14 @@ from annotator.geometry import Transform, matrix_to_quat
 from annotator.grippers import DEFAULT_GRIPPER
 from annotator.label_row import TrialsResult, label_row
 from annotator.objects import ObjectModel
+from annotator.pipeline.tasks import SpanGrasps
 from annotator.rng import object_rng, trial_rng
 from annotator.sampler import sample_candidates
 from annotator.schema import REASON_COLUMNS  # noqa: F401  (named in the docstring; the workers' import)
 from annotator.trial import CollisionCheck, GraspTrial, Perturbation
 
 if TYPE_CHECKING:
-    from annotator.pipeline.worker import LoadedObject
+    from annotator.pipeline.loaded import LoadedObject
 
 log = logging.getLogger(__name__)
 
@@ -33,32 +36,31 @@ def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorCo
     return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
 
 
-def simulate(
-    loaded: LoadedObject,
-    T_obj_tcp: np.ndarray,
-    widths: np.ndarray,
-    first_id: int,
-    config: AnnotatorConfig,
-    seed: int,
-    trials: int,
-    object_id: str,
-    quats: np.ndarray | None = None,
-    *,
-    placements: np.ndarray | None = None,
-    rest_quats: np.ndarray | None = None,
-    gripper: str = DEFAULT_GRIPPER,
-    reasons: bool = False,
-) -> pd.DataFrame:
-    """Label rows of poses ``T_obj_tcp`` (k, 4, 4) with expected chords ``widths`` (k,), numbered
-    from ``first_id``; ``quats`` (k, 4): their rotations bit for bit (see :class:`GivenGrasps`);
-    ``placements`` (k,): in the cell, the placement each was sampled for (None: the placement
-    where it approaches most from above, :meth:`annotator.cell.batch.CellObject.placement_for`);
-    ``rest_quats`` (k, 4): resting, the orientation each grasp's object rests in (None: upright);
-    ``gripper``: the name written in every row's ``gripper`` column; ``reasons``: each row also says
-    why a ``collision`` is one (:data:`REASON_COLUMNS`; given grasps only: sampled labels keep their
-    columns). The object ``placed`` in the
-    worker's mode (:mod:`annotator.pipeline.modes`) gives each grasp its trial, the pose to run it
-    at and the row's columns of the mode.
+@dataclass(frozen=True, kw_only=True)
+class TrialSettings:
+    """The run's settings every trial of a span shares: the ``config``, the run's ``seed``,
+    ``trials`` per grasp (trial 0 unperturbed), the ``gripper``'s name written in every row's
+    ``gripper`` column, and ``reasons``: each row also says why a ``collision`` is one
+    (:data:`REASON_COLUMNS`; given grasps only: sampled labels keep their columns)."""
+
+    config: AnnotatorConfig
+    seed: int
+    trials: int
+    gripper: str = DEFAULT_GRIPPER
+    reasons: bool = False
+
+
+def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) -> pd.DataFrame:
+    """Label rows of the span's ``grasps`` (:class:`annotator.pipeline.tasks.SpanGrasps`): poses
+    ``T_obj_tcp`` (k, 4, 4) in the object's mesh frame with expected chords ``width`` (k,, m),
+    numbered from ``first_id``; ``quat`` (k, 4) xyzw: their rotations bit for bit (see
+    :class:`GivenGrasps`); ``placements`` (k,): in the cell, the placement each was sampled for
+    (None: the placement where it approaches most from above,
+    :meth:`annotator.cell.batch.CellObject.placement_for`); ``rest_quat`` (k, 4): resting, the
+    orientation each grasp's object rests in (None: upright). ``run``: the run's settings
+    (:class:`TrialSettings`). The object ``placed`` in the worker's mode
+    (:mod:`annotator.pipeline.modes`) gives each grasp its trial, the pose to run it at and the
+    row's columns of the mode.
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -66,6 +68,9 @@ def simulate(
     collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
     cannot be executed).
     """
+    config, seed, trials, gripper = run.config, run.seed, run.trials, run.gripper
+    object_id, first_id, T_obj_tcp, widths = grasps.object_id, grasps.first_id, grasps.T_obj_tcp, grasps.width
+    quats, placements, rest_quats = grasps.quat, grasps.placements, grasps.rest_quat
     model = loaded.model
     mapping = mapping_of(config.confidence)  # a calibration: rows carry p_success
     if mapping is not None and mapping.trials != trials:
@@ -101,8 +106,8 @@ def simulate(
                 seed=seed,
                 gripper=gripper,
                 extra=placed.columns(placement, T, width_expected, grasp_id, rest),
-                reasons=_reasons(result.check, trial) if reasons else None,
-                p_success=None if mapping is None else mapping.p_success(result.held / trials),
+                reasons=_reasons(result.check, trial) if run.reasons else None,
+                p_success=None if mapping is None else float(mapping.p_success(result.held / trials)),
             )
         )
     return pd.DataFrame(rows)

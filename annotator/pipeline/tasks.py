@@ -1,13 +1,15 @@
 """What passes between the main process and a worker: units of work (a :class:`Span` of an object's
-candidates, a :class:`Prepare` decomposition task), the task that carries one (:class:`SpanTask`)
-and what comes back (:class:`SpanResult`). Plain records: they travel by pickle to local workers
-and to a Dask cluster.
+candidates, a :class:`Prepare` decomposition task, a :class:`SceneSpan` of a scene's grasps), the
+task that carries one (:class:`SpanTask`, :class:`SceneTask`: both a :class:`WorkerTask`, what every
+task carries for the worker's checks) and what comes back (:class:`SpanResult`). Plain records: they
+travel by pickle to local workers and to a Dask cluster.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -15,6 +17,10 @@ import pandas as pd
 from annotator.config import AnnotatorConfig
 from annotator.grippers import GripperDescription, GripperFiles
 from annotator.objects import ObjectModel, ObjectSource
+from annotator.store.names import scene_unit
+
+if TYPE_CHECKING:
+    from annotator.scenes.records import SceneRecord, SceneSpec
 
 
 @dataclass(frozen=True)
@@ -34,11 +40,14 @@ class GivenGrasps:
     rest_quat: np.ndarray | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SpanGrasps:
-    """The grasps a worker simulates for one span: as :class:`GivenGrasps`, plus ``placements``
-    (k,) int, the cell placement each sampled candidate rests in (None: not in the cell)."""
+    """The grasps a worker simulates for one span: grasps ``first_id``.. of object ``object_id``
+    (its store unit id), as :class:`GivenGrasps`, plus ``placements`` (k,) int, the cell placement
+    each sampled candidate rests in (None: not in the cell)."""
 
+    object_id: str
+    first_id: int
     T_obj_tcp: np.ndarray
     width: np.ndarray
     quat: np.ndarray | None = None
@@ -105,37 +114,127 @@ class CellOptions:
         return {"views": int(self.views)}
 
 
-@dataclass(frozen=True)
-class SpanTask:
-    """What a worker is asked to do (``span``: a :class:`Span` to label, or a :class:`Prepare`), with
-    what it needs to check that it may.
+@dataclass(frozen=True, kw_only=True)
+class WorkerTask:
+    """What every task carries besides its unit, for the worker's checks before it labels
+    (:class:`annotator.pipeline.worker.WorkerState`, the one place they are made).
 
-    ``source_sha256``: the object's source digest (a worker keeps a loaded object only while it is
-    the same); ``versions``: the label-shaping versions the run expects (a cluster worker with
-    others fails the span instead of mixing); ``parent_pid``: the local main process (a worker
-    exits when it dies), None on a cluster; ``status_dir``: where a local worker says what it is
-    doing; ``cache_dir``: the decomposition cache the main process chose (None: the worker's
-    default, as on a cluster); ``cell``: label in the robot cell (None: the floating gripper);
-    ``gripper``: the gripper simulated (None: the default, the RG2), or its files
-    (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache);
-    ``resting``: the object rests on the cell's table while the given grasps close (``evaluate
-    --resting``, :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it
-    settles; ``"table"``, they stay where they were given in the table frame.
+    ``config``: the run's configuration; ``versions``: the label-shaping versions the run expects (a
+    cluster worker with others fails the unit instead of mixing); ``parent_pid``: the local main
+    process (a worker exits when it dies), None on a cluster; ``status_dir``: where a local worker
+    says what it is doing; ``cache_dir``: the decomposition cache the main process chose (None: the
+    worker's default, as on a cluster; the gripper's files are unpacked there too); ``gripper``:
+    the gripper simulated (None: the default, the RG2), or its files
+    (:class:`annotator.grippers.GripperFiles`, a run on a cluster: unpacked into the worker's cache).
     """
 
-    span: Span | Prepare
     config: AnnotatorConfig
-    seed: int
-    n: int
-    trials: int = 1
-    source_sha256: str | None = None
     versions: dict[str, str] | None = None
     parent_pid: int | None = None
     status_dir: str | None = None
     cache_dir: str | None = None
-    cell: CellOptions | None = None
     gripper: GripperDescription | GripperFiles | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpanTask(WorkerTask):
+    """What a worker is asked to do with an object (``span``: a :class:`Span` to label, or a
+    :class:`Prepare`), with the run's checks (:class:`WorkerTask`).
+
+    ``seed``, ``n`` candidates per object, ``trials`` per candidate: the run's; ``source_sha256``:
+    the object's source digest (a worker keeps a loaded object only while it is the same);
+    ``cell``: label in the robot cell (None: the floating gripper); ``resting``: the object rests on
+    the cell's table while the given grasps close (``evaluate --resting``,
+    :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it settles;
+    ``"table"``, they stay where they were given in the table frame.
+    """
+
+    span: Span | Prepare
+    seed: int
+    n: int
+    trials: int = 1
+    source_sha256: str | None = None
+    cell: CellOptions | None = None
     resting: bool | str = False
+
+    @property
+    def mode_key(self) -> tuple:
+        """The worker mode it labels in (:func:`annotator.pipeline.worker.build_mode`)."""
+        from annotator.cell.resting import resting_mode
+
+        return ("object", self.cell is not None, resting_mode(self.resting))
+
+
+@dataclass(frozen=True)
+class SceneSpan:
+    """Grasps ``start..stop-1`` of scene ``scene_id``; ``object_id`` is its store unit id."""
+
+    scene_id: int
+    start: int
+    stop: int
+
+    @property
+    def object_id(self) -> str:
+        return scene_unit(self.scene_id)
+
+    @property
+    def size(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.object_id, self.start)
+
+
+@dataclass(frozen=True)
+class SceneRequest:
+    """What every span of a scene run shares: the ``pool`` of objects (sorted by id) with their
+    source ``digests``, the scenes asked for (``arrangement``, objects per scene
+    ``min_objects``..``max_objects``), grasps per scene ``n``, ``seed``, ``trials`` per grasp,
+    ``views`` per scene, ``cell`` (the UR3's reachability) and the mesh ``scale``."""
+
+    pool: tuple[ObjectSource, ...]
+    digests: Mapping[str, str] | None
+    arrangement: str
+    min_objects: int
+    max_objects: int
+    n: int
+    seed: int
+    trials: int = 1
+    views: int = 0
+    cell: bool = False
+    scale: float | None = None
+
+    def spec(self, scene_id: int) -> SceneSpec:
+        from annotator.scenes.records import SceneSpec
+
+        return SceneSpec(scene_id, self.seed, self.arrangement, self.min_objects, self.max_objects)
+
+    def to_json(self) -> dict[str, Any]:
+        """What the manifest binds (RunSpec.inputs['scenes']): everything that shapes a scene's labels
+        except the number of scenes (a run with more scenes extends a folder)."""
+        return {
+            "arrangement": self.arrangement,
+            "per_scene": [int(self.min_objects), int(self.max_objects)],
+            "pool": [s.object_id for s in self.pool],
+            "views": int(self.views),
+            "cell": bool(self.cell),
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneTask(WorkerTask):
+    """A span of a scene with what the worker needs: the ``request``, the scene's ``record`` when
+    the main process has it (None: the worker builds it), and the run's checks (:class:`WorkerTask`)."""
+
+    span: SceneSpan
+    request: SceneRequest
+    record: SceneRecord | None = None
+
+    @property
+    def mode_key(self) -> tuple:
+        """The worker mode it labels in (:func:`annotator.pipeline.worker.build_mode`)."""
+        return ("scene", self.request.cell)
 
 
 @dataclass(frozen=True)
@@ -212,9 +311,10 @@ class SpanResult:
     """A span's labels (``rows``), or the object's one-line ``error``; ``info`` describes the object
     as simulated (mass, scale, ...) for the manifest; ``artifacts``: files that belong with the
     span's labels (file name -> bytes: the Kinect views it rendered), written by the main process;
-    ``prepared``: what a decomposition task (``span`` a :class:`Prepare`) found."""
+    ``prepared``: what a decomposition task (``span`` a :class:`Prepare`) found. A scene's span
+    (:class:`SceneSpan`) comes back the same way, its ``artifacts`` its scene file and views."""
 
-    span: Span | Prepare
+    span: Span | Prepare | SceneSpan
     rows: pd.DataFrame | None
     error: str | None
     stats: WorkerStats

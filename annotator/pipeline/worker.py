@@ -1,19 +1,27 @@
-"""The worker side of the job: one world per process, objects loaded on demand, spans labelled.
+"""The worker side of the job: one state per process (:class:`WorkerState`), its mode with its
+world (:mod:`annotator.pipeline.modes`), objects loaded on demand, spans labelled.
 
-A worker builds its world once (PyBullet DIRECT, floating gripper) and keeps it between spans. Before
-any span of an object, one worker runs the object's decomposition task (:class:`Prepare`): it loads
-the object, which makes its collision shape and writes it to the content-addressed cache unless the
-cache holds it already, and keeps the model for its own spans of it. When a span of an object
-arrives the worker takes the object it keeps, or loads it (the collision shape from the cache),
-samples its N candidates (the same on every worker: the Generator is keyed on seed and object id)
-and creates its body. Each candidate starts from a restored snapshot with no contact memory
+Every task (a :class:`SpanTask` of an object, a :class:`SceneTask` of a scene) runs through
+:meth:`WorkerState.label`, which makes the checks a task needs once for every mode (the parent
+watch, the label-shaping versions, the gripper resolved in the cache), builds the task's mode when
+it is not the one the worker holds (:func:`build_mode`), has the mode load the task's unit and the
+unit label the span, and turns a unit's error into the span's one-line error.
+
+A worker builds its world once and keeps it between spans. Before any span of an object, one worker
+runs the object's decomposition task (:class:`Prepare`): it loads the object, which makes its
+collision shape and writes it to the content-addressed cache unless the cache holds it already,
+and keeps the model for its own spans of it. When a span of an object arrives the worker takes the
+object it keeps, or loads it (the collision shape from the cache), samples its N candidates (the
+same on every worker: the Generator is keyed on seed and object id) and creates its body. Each
+candidate starts from a restored snapshot with no contact memory
 (:meth:`annotator.sim.world.World.restore_state`), so a label depends only on (object, seed,
 candidate), never on which worker ran it or what it ran before.
 
 With ``--cell`` (:class:`CellOptions`) the world also holds the seed's table, the object rests on
 it in its placements and each row gains the cell's columns (annotator.cell.batch); with
 ``--views K`` the span holding grasp ``p`` also renders placement ``p``'s K Kinect views, returned
-as files for the main process to write.
+as files for the main process to write. A scene's span (:mod:`annotator.pipeline.scene_mode`)
+builds or takes its scene and labels its grasps.
 """
 
 from __future__ import annotations
@@ -22,9 +30,6 @@ import logging
 import os
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -36,18 +41,22 @@ from annotator.objects import (
     ObjectModel,
     create_body,
     default_cache_dir,
-    load_object,
     physics_for,
 )
 from annotator.pipeline import status
-from annotator.pipeline.modes import UPRIGHT, PlacedObject, WorkerMode, build_mode
+from annotator.pipeline.loaded import LoadedObject, load_model, object_info
+from annotator.pipeline.modes import WorkerMode
+from annotator.pipeline.object_modes import UPRIGHT, ObjectMode, build_object_mode
 from annotator.pipeline.process import check_versions, cpu_seconds, task_stats, watch_parent
-from annotator.pipeline.simulate import object_candidates, simulate
+from annotator.pipeline.simulate import TrialSettings, object_candidates, simulate
 from annotator.pipeline.tasks import (
     CellOptions,
     GivenGrasps,
     Prepare,
     PreparedObject,
+    SceneRequest,
+    SceneSpan,
+    SceneTask,
     Span,
     SpanGrasps,
     SpanResult,
@@ -67,12 +76,17 @@ __all__ = [
     "Prepare",
     "PreparedObject",
     "REASON_COLUMNS",
+    "SceneRequest",
+    "SceneSpan",
+    "SceneTask",
     "Span",
     "SpanGrasps",
     "SpanResult",
     "SpanTask",
+    "TrialSettings",
     "WorkerState",
     "WorkerStats",
+    "build_mode",
     "label_span",
     "max_width",
     "object_candidates",
@@ -96,21 +110,7 @@ BYTES_PER_FACE = 200
 # Where the floating gripper waits while no trial runs: 2 m above the object's mesh frame.
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 
-
-@dataclass
-class LoadedObject:
-    """The object a worker has in its world: model, body, the object ``placed`` in the worker's
-    mode (:mod:`annotator.pipeline.modes`: its trials), sampled candidates by (seed, n)."""
-
-    key: tuple
-    model: ObjectModel
-    uid: int
-    placed: PlacedObject
-    candidates: dict[tuple[int, int], Candidates] = field(default_factory=dict)
-
-    def release(self) -> None:
-        """Free its trials and snapshots; the trial world's body is the caller's."""
-        self.placed.release()
+Task = SpanTask | SceneTask
 
 
 def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]) -> int:
@@ -120,100 +120,81 @@ def _footprint(model: ObjectModel, candidates: dict[tuple[int, int], Candidates]
     return BYTES_PER_FACE * faces + sum(a.nbytes for a in arrays)
 
 
-def object_info(model: ObjectModel) -> dict[str, Any]:
-    """What the object was simulated as, for the manifest (JSON-ready)."""
-    return {
-        "source": str(model.path),
-        "scale": float(model.scale),
-        "mass": float(model.mass),
-        "volume": float(model.volume),
-        "mesh_sha256": model.mesh_sha256,
-        "watertight": bool(model.watertight),
-        "convex": bool(model.convex),
-        "parts": len(model.parts),
-        "lateral_friction": float(model.friction),
-        "collision_error_mean": float(model.collision_error.mean),
-        "collision_error_max": float(model.collision_error.max),
-        "geometry": model.geometry_record(),  # dataset.load_geometry reads these back
-        "warnings": list(model.warnings),  # reported once per object per run
-    }
+def build_mode(key: tuple, config: AnnotatorConfig, gripper: GripperDescription) -> WorkerMode:
+    """The mode of ``key`` (a task's ``mode_key``: ``("object", cell, resting mode)`` or
+    ``("scene", cell)``) with its world, for ``config`` and the resolved ``gripper``."""
+    if key[0] == "scene":
+        from annotator.pipeline.scene_mode import SceneMode
+
+        return SceneMode(config, gripper, cell=key[1])
+    return build_object_mode(key, config, gripper)
 
 
 class WorkerState:
-    """This process's world, gripper and current object, built on first use and kept between spans."""
+    """This process's mode with its world, gripper and objects, built on first use and kept between
+    tasks; the one place the checks every task needs are made (:meth:`label`)."""
 
     def __init__(self) -> None:
         self.config: AnnotatorConfig | None = None
-        self.mode: tuple[bool, str | None] = (False, None)  # (cell, resting mode) of the world built
-        self.world = None  # annotator.sim.world.World
-        self.hand = None  # annotator.sim.hand.FloatingGripper
-        self.gripper_key: tuple[str, str] | None = None  # (name, digest) of the gripper in the world
-        self.world_mode: WorkerMode | None = None  # the mode's part of the world (annotator.pipeline.modes)
+        self.gripper: GripperDescription | None = None  # the gripper of the mode built, resolved
+        self.mode: WorkerMode | None = None  # the task's mode with its world (annotator.pipeline.modes)
+        # what the loaded models and candidates depend on: (objects, sampler and cell config,
+        # gripper key, mode key) of the mode built; a change forgets them
+        self.memory_key: tuple | None = None
         self.obj: LoadedObject | None = None
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
 
-    # --- the world ------------------------------------------------------------------------------
+    # --- the checks and the mode ------------------------------------------------------------------
 
-    def world_for(
-        self,
-        config: AnnotatorConfig,
-        cell: bool = False,
-        gripper: GripperDescription | GripperFiles | None = None,
-        cache_dir: str | None = None,
-        resting: bool | str = False,
-    ):
-        """The world and floating gripper for ``config`` (rebuilt only when the config, the gripper
-        or the mode changes: a floating world never holds the table)."""
-        from annotator.cell.resting import resting_mode
-        from annotator.sim.hand import FloatingGripper
-        from annotator.sim.world import World
+    def begin(self, task: Task) -> WorkerMode:
+        """The checks before a task (its label-shaping versions: ObjectError when they are not the
+        run's) and its mode (:meth:`mode_for`)."""
+        check_versions(task.versions)
+        return self.mode_for(task)
 
-        resting = resting_mode(resting)
+    def gripper_for(self, task: Task) -> GripperDescription:
+        """The task's gripper, frozen in the cache (:func:`annotator.grippers.resolve_gripper`):
+        the files a cluster's main process sent are unpacked once and then taken as held."""
+        gripper = task.gripper
+        if isinstance(gripper, GripperFiles) and self.gripper is not None and gripper.key == self.gripper.key:
+            return self.gripper  # unpacked already
+        return resolve_gripper(gripper, task.cache_dir if task.cache_dir is not None else default_cache_dir())
 
-        if isinstance(gripper, GripperFiles) and self.hand is not None and gripper.key == self.gripper_key:
-            gripper = self.hand.description  # unpacked already
-        else:
-            gripper = resolve_gripper(gripper, cache_dir if cache_dir is not None else default_cache_dir())
-        changed = self.config != config or self.gripper_key != gripper.key
-        if changed or self.mode != (cell, resting) or self.world is None:
+    def mode_for(self, task: Task) -> WorkerMode:
+        """The task's mode with its world (rebuilt only when the config, the gripper or the mode
+        changes: a floating world never holds the table)."""
+        config, key = task.config, task.mode_key
+        gripper = self.gripper_for(task)
+        changed = self.config != config or self.gripper is None or self.gripper.key != gripper.key
+        if changed or self.mode is None or self.mode.key != key:
             # loaded models and candidates depend on these only: a calibration grid, which changes
             # the gripper's or the protocol's numbers from task to task, keeps them
-            kept = (config.objects, config.sampler, config.cell, gripper.key, cell, resting)
-            previous = None
-            if self.config is not None:
-                previous = (self.config.objects, self.config.sampler, self.config.cell, self.gripper_key)
-                previous += self.mode
-            if previous == kept and self.obj is not None:
+            kept = (config.objects, config.sampler, config.cell, gripper.key, key)
+            if kept == self.memory_key and self.obj is not None:
                 # its model and candidates serve the new world too
                 self._keep(self.obj.key, self.obj.model, self.obj.candidates)
             self.close()
-            self.world = World(config.physics)
-            self.hand = FloatingGripper(self.world, config.gripper, gripper)
-            self.gripper_key = gripper.key
-            self.world_mode = build_mode((cell, resting), self.world, self.hand, config)
-            self.config = config
-            self.mode = (cell, resting)
-            if previous != kept:  # the keys do not hold the configuration
+            self.mode = build_mode(key, config, gripper)
+            self.config, self.gripper = config, gripper
+            if kept != self.memory_key:  # the keys do not hold the configuration
                 self.failed = {}
                 self.recent.clear()
-        return self.world, self.hand
+            self.memory_key = kept
+        return self.mode
 
     def close(self) -> None:
-        if self.world_mode is not None:
-            self.world_mode.close()
-        if self.world is not None:
-            self.world.close()
-        self.world = self.hand = self.obj = self.world_mode = None
+        """Free the mode and its world (the objects kept in memory stay)."""
+        if self.mode is not None:
+            self.mode.close()
+        self.mode = self.obj = None
 
     # --- objects ---------------------------------------------------------------------------------
 
-    def object_for(self, task: SpanTask) -> LoadedObject:
-        """The span's object in this world (its body is created once per object); ObjectError."""
-        world, _ = self.world_for(
-            task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting
-        )
+    def object_for(self, task: SpanTask, mode: ObjectMode) -> LoadedObject:
+        """The span's object placed in ``mode``'s world (its body is created once per object);
+        ObjectError."""
         key = self._key(task)
         if key in self.failed:
             raise ObjectError(self.failed[key])
@@ -222,12 +203,12 @@ class WorkerState:
         if self.obj is not None:
             self._keep(self.obj.key, self.obj.model, self.obj.candidates)
             self.obj.release()
-            world.remove_body(self.obj.uid)
+            mode.world.remove_body(self.obj.uid)
             self.obj = None
         model, candidates = self._kept(key)
         if model is None:
             model = self._load(task, key)
-        self.obj = self._create(model, key, candidates)
+        self.obj = self._create(model, key, candidates, mode)
         return self.obj
 
     def _key(self, task: SpanTask) -> tuple:
@@ -252,18 +233,11 @@ class WorkerState:
         return model, candidates
 
     def _load(self, task: SpanTask, key: tuple) -> ObjectModel:
-        unit, config = task.span, task.config
-        status.write(task.status_dir, f"loading {unit.object_id}")
-        status_dir = task.status_dir
+        """The task's object loaded (:func:`annotator.pipeline.loaded.load_model`); its error is
+        kept, so its other spans fail at once."""
+        unit = task.span
         try:
-            cache = Path(task.cache_dir) if task.cache_dir is not None else None
-            return load_object(
-                unit.source,
-                config.objects,
-                scale=unit.scale,
-                cache_dir=cache,
-                progress=lambda oid, message: status.write(status_dir, f"{oid}: {message}"),
-            )
+            return load_model(unit.source, task.config.objects, unit.scale, task.cache_dir, task.status_dir)
         except ObjectError as exc:
             self.failed[key] = str(exc)
             raise
@@ -285,8 +259,7 @@ class WorkerState:
         watch_parent(task.parent_pid, task.status_dir)
         unit = task.span
         try:
-            check_versions(task.versions)
-            self.world_for(task.config, task.cell is not None, task.gripper, task.cache_dir, task.resting)
+            self.begin(task)
             key = self._key(task)
             if key in self.failed:
                 raise ObjectError(self.failed[key])
@@ -294,34 +267,32 @@ class WorkerState:
             if self.obj is not None and self.obj.key == key:
                 model = self.obj.model
             else:
-                model, candidates = self._kept(key)
-                if model is None:
+                kept, candidates = self._kept(key)
+                if kept is None:
                     model, candidates = self._load(task, key), {}
                     made = not model.from_cache
+                else:
+                    model = kept
                 self._keep(key, model, candidates)
-        except ObjectError as exc:
-            return SpanResult(unit, None, str(exc), task_stats(t0, 0.0))
-        except Exception as exc:  # an unexpected failure is this object's, not the run's
-            log.exception("%s: unexpected error while loading", unit.object_id)
-            return SpanResult(unit, None, f"{type(exc).__name__}: {exc}", task_stats(t0, 0.0))
+        except Exception as exc:
+            return self._failed(task, exc, t0)
         finally:
             status.write(task.status_dir, None)
         prepared = PreparedObject.of(model, made, cpu_seconds() - cpu0)
         return SpanResult(unit, None, None, task_stats(t0, 0.0), prepared=prepared)
 
-    def _create(self, model: ObjectModel, key: tuple, candidates: dict) -> LoadedObject:
-        """The object's body in this world, its trial (or its placements on the table)."""
-        config = self.config
-        world, hand = self.world, self.hand
-        physics = physics_for(model, config.physics)  # a light object needs a finer time step
+    def _create(self, model: ObjectModel, key: tuple, candidates: dict, mode: ObjectMode) -> LoadedObject:
+        """The object's body in ``mode``'s world, placed in the mode (its trial, or its placements
+        on the table)."""
+        world, hand = mode.world, mode.hand
+        physics = physics_for(model, mode.config.physics)  # a light object needs a finer time step
         if world.physics != physics:
             world.physics = physics
             world.configure()
         hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)
-        assert self.world_mode is not None
         try:
-            placed = self.world_mode.place(model, uid)
+            placed = mode.place(model, uid)
         except ObjectError as exc:  # no stable placement on the table
             world.remove_body(uid)
             self.failed[key] = str(exc)
@@ -331,76 +302,38 @@ class WorkerState:
             raise
         return LoadedObject(key, model, uid, placed, candidates)
 
-    def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
-        """The object's N candidates, sampled once per (seed, N) and kept."""
-        cands = loaded.candidates.get((seed, n))
-        if cands is None:
-            cands = loaded.placed.candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
-            loaded.candidates[(seed, n)] = cands
-        return cands
-
     # --- a span ---------------------------------------------------------------------------------
 
-    def label(self, task: SpanTask) -> SpanResult:
-        """Labels of one span, or its object's one-line error (a :class:`Prepare`: :meth:`prepare`)."""
-        if isinstance(task.span, Prepare):
+    def label(self, task: Task) -> SpanResult:
+        """Labels of one span (of an object or a scene), or its unit's one-line error (a
+        :class:`Prepare`: :meth:`prepare`)."""
+        if isinstance(task, SpanTask) and isinstance(task.span, Prepare):
             return self.prepare(task)
         t0 = time.perf_counter()
         watch_parent(task.parent_pid, task.status_dir)
-        span = task.span
         try:
-            check_versions(task.versions)
-            loaded = self.object_for(task)
-            grasps = self._grasps(task, loaded)
-        except ObjectError as exc:
-            return SpanResult(span, None, str(exc), task_stats(t0, 0.0))
-        except Exception as exc:  # an unexpected failure is this object's, not the run's
-            log.exception("%s: unexpected error while loading", span.object_id)
-            return SpanResult(span, None, f"{type(exc).__name__}: {exc}", task_stats(t0, 0.0))
-        status.write(task.status_dir, f"simulating {span.object_id}")
-        world = self.world
-        assert world is not None and self.hand is not None
-        steps0 = world.step_seconds
-        rows = simulate(
-            loaded,
-            grasps.T_obj_tcp,
-            grasps.width,
-            span.start,
-            task.config,
-            task.seed,
-            task.trials,
-            span.object_id,
-            grasps.quat,
-            placements=grasps.placements,
-            rest_quats=grasps.rest_quat,
-            gripper=self.hand.description.name,
-            reasons=span.given is not None,
-        )
-        artifacts = None
-        if task.cell is not None and task.cell.views > 0:
-            views, seed = task.cell.views, task.seed
-            artifacts = loaded.placed.views(span.start, span.stop, task.n, views, seed, task.status_dir)
-        stats = task_stats(t0, world.step_seconds - steps0)
+            unit = self.begin(task).load(self, task)
+        except Exception as exc:
+            return self._failed(task, exc, t0)
+        labelled = unit.label(task)
+        stats = task_stats(t0, labelled.step_seconds)
         status.write(task.status_dir, None)
-        info = {**object_info(loaded.model), **loaded.placed.info()}
-        return SpanResult(span, rows, None, stats, info, artifacts)
+        return SpanResult(task.span, labelled.rows, None, stats, labelled.info, labelled.artifacts)
 
-    def _grasps(self, task: SpanTask, loaded: LoadedObject) -> SpanGrasps:
-        """What the span simulates: its share of the object's sampled candidates, or its given grasps."""
-        span = task.span
-        if span.given is not None:
-            g = span.given
-            if loaded.placed.mode != "resting" and g.rest_quat is not None:
-                raise ObjectError("grasps given with resting orientations, but the run is not --resting")
-            return SpanGrasps(g.T_obj_tcp, g.width, g.quat, None, g.rest_quat)
-        cands = self.candidates(loaded, task.seed, task.n, task.config)
-        placements = None if cands.placement is None else cands.placement[span.start : span.stop]
-        return SpanGrasps(
-            cands.T_obj_tcp[span.start : span.stop],
-            cands.width_expected[span.start : span.stop],
-            None,
-            placements,
-        )
+    @staticmethod
+    def _failed(task: Task, exc: Exception, t0: float) -> SpanResult:
+        """The unit's one-line error: an ObjectError's text (an object's names it; a scene's is
+        prefixed with the scene), or an unexpected failure's type and text (the unit's, not the
+        run's)."""
+        unit = task.span
+        if isinstance(exc, ObjectError):
+            error = str(exc)
+        else:
+            log.exception("%s: unexpected error while loading", unit.object_id)
+            error = f"{type(exc).__name__}: {exc}"
+        if isinstance(task, SceneTask):
+            error = f"{unit.object_id}: {error}"
+        return SpanResult(unit, None, error, task_stats(t0, 0.0))
 
 
 class _State:
@@ -415,8 +348,9 @@ def worker_state() -> WorkerState:
     return _State.instance
 
 
-def label_span(task: SpanTask) -> SpanResult:
-    """Entry point of a worker process (loky or Dask): label one span with this process's state."""
+def label_span(task: Task) -> SpanResult:
+    """Entry point of a worker process (loky or Dask): label one span (of an object or a scene), or
+    run an object's decomposition task, with this process's state."""
     return worker_state().label(task)
 
 

@@ -19,11 +19,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
+
+if TYPE_CHECKING:
+    from annotator.objects import ObjectSource
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +42,7 @@ class GivenSpan:
     object rests in for each grasp (resting trials; None: upright)."""
 
     object_id: str
-    source: object  # an annotator.objects.ObjectSource
+    source: ObjectSource
     scale: float | None
     T_obj_tcp: np.ndarray
     width: np.ndarray
@@ -99,11 +103,11 @@ def simulate_given(
         rest = np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)) if span.rest_quat is None else np.asarray(span.rest_quat)
     given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64), span.quat, rest)
     task = SpanTask(
-        Span(span.object_id, span.source, span.scale, 0, k, given),
-        config,
-        seed,
-        k,
-        trials,
+        span=Span(span.object_id, span.source, span.scale, 0, k, given),
+        config=config,
+        seed=seed,
+        n=k,
+        trials=trials,
         gripper=gripper,
         resting=resting,
     )
@@ -111,5 +115,6 @@ def simulate_given(
     if result.error is not None:
         return None, result.error
     rows = result.rows
+    assert rows is not None  # a span without an error has its rows
     rows["grasp_id"] = np.asarray(span.grasp_id, dtype=np.int64)
     return rows, None

@@ -299,21 +299,23 @@ def wider_than_stroke(description: GripperDescription, config: AnnotatorConfig) 
         c = sample_candidates(mesh, WIDE_CANDIDATES, object_rng(0, "wide"), config.sampler, stroke)
         given = GivenGrasps(c.T_obj_tcp, c.width_expected)
         task = SpanTask(
-            Span("wide", source, None, 0, len(c.width_expected), given),
-            config,
-            0,
-            len(c.width_expected),
+            span=Span("wide", source, None, 0, len(c.width_expected), given),
+            config=config,
+            seed=0,
+            n=len(c.width_expected),
             gripper=description,
         )
         result = label_span(task)
     name = "no success wider than the stroke"
     if result.error is not None:
         return Verdict(name, False, f"the cube could not be labelled: {result.error}", "see the error")
-    outcomes = result.rows["outcome"].value_counts().to_dict()
+    rows = result.rows
+    assert rows is not None  # a span without an error has its rows
+    outcomes = rows["outcome"].value_counts().to_dict()
     wins = int(outcomes.get("success", 0))
     shown = ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items()))
     figure = (
-        f"{wins} of {len(result.rows)} grasps on a {side * 1000:.0f} mm cube (the stroke "
+        f"{wins} of {len(rows)} grasps on a {side * 1000:.0f} mm cube (the stroke "
         f"{description.stroke_max * 1000:.0f} mm + {WIDE_MARGIN * 1000:g}) succeeded ({shown})"
     )
     advice = (

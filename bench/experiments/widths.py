@@ -90,7 +90,12 @@ def measure(source, args: argparse.Namespace, config: AnnotatorConfig, pad_face)
     """Label ``source``'s candidates, print its line; its table row."""
     model = load_object(source, config.objects)
     tasks = [
-        SpanTask(Span(source.object_id, source, None, a, min(args.n, a + 25)), config, args.seed, args.n)
+        SpanTask(
+            span=Span(source.object_id, source, None, a, min(args.n, a + 25)),
+            config=config,
+            seed=args.seed,
+            n=args.n,
+        )
         for a in range(0, args.n, 25)
     ]
     t0 = time.perf_counter()
