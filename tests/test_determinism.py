@@ -84,14 +84,16 @@ def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     _fresh_worker()
     reference = _run(firsts + rest, config)
     loads, samplings = [], []
-    from annotator.pipeline import modes  # the floating mode samples an object's candidates
+    from annotator.pipeline import loaded, object_modes  # the loader; the floating mode samples
 
-    load_object, object_candidates = worker.load_object, modes.object_candidates
+    load_object, object_candidates = loaded.load_object, object_modes.object_candidates
     monkeypatch.setattr(
-        worker, "load_object", lambda source, *a, **k: loads.append(source) or load_object(source, *a, **k)
+        loaded, "load_object", lambda source, *a, **k: loads.append(source) or load_object(source, *a, **k)
     )
     monkeypatch.setattr(
-        modes, "object_candidates", lambda model, *a: samplings.append(model) or object_candidates(model, *a)
+        object_modes,
+        "object_candidates",
+        lambda model, *a: samplings.append(model) or object_candidates(model, *a),
     )
     monkeypatch.setattr(worker, "RECENT_OBJECT_BYTES", budget)
     _fresh_worker()

@@ -52,7 +52,7 @@ class TrialSettings:
 
 def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) -> pd.DataFrame:
     """Label rows of the span's ``grasps`` (:class:`annotator.pipeline.tasks.SpanGrasps`): poses
-    ``T_obj_tcp`` (k, 4, 4) in the object's mesh frame with expected chords ``width`` (k,, m),
+    ``T_obj_tcp`` (k, 4, 4) in the object's mesh frame with expected chords ``width`` (k,) in m,
     numbered from ``first_id``; ``quat`` (k, 4) xyzw: their rotations bit for bit (see
     :class:`GivenGrasps`); ``placements`` (k,): in the cell, the placement each was sampled for
     (None: the placement where it approaches most from above,
