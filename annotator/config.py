@@ -10,6 +10,7 @@ import dataclasses
 import math
 import operator
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,11 +60,11 @@ _BOUNDS = (
 )
 
 
-def _range_text(meta: dict[str, Any]) -> str:
+def _range_text(meta: Mapping[str, Any]) -> str:
     return " and ".join(f"{sign} {meta[k]:g}" for k, _, sign in _BOUNDS if meta.get(k) is not None)
 
 
-def _checked(where: str, kind: str, meta: dict[str, Any], value: Any) -> Any:
+def _checked(where: str, kind: str, meta: Mapping[str, Any], value: Any) -> Any:
     """``value`` as a field of type ``kind`` with ``meta``'s range and choices, or ConfigError."""
     want, test, convert = _TYPES[kind]
     if not test(value):

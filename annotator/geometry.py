@@ -130,7 +130,7 @@ class Transform:
         self._R: np.ndarray | None = None
 
     @classmethod
-    def _trusted(cls, pos: np.ndarray, quat: np.ndarray, R: np.ndarray) -> Transform:
+    def _trusted(cls, pos: np.ndarray, quat: np.ndarray, R: np.ndarray | None) -> Transform:
         """Build from already valid float64 arrays (no checks): the hot path of ``*``."""
         t = cls.__new__(cls)
         t.pos, t.quat, t._R = pos, quat, R

@@ -68,7 +68,7 @@ def _stl(name: str, data: bytes) -> MeshFacts:
     head = data[:512].lstrip()
     if not head.startswith(b"solid"):
         raise MeshError(f"{name} is neither a binary STL (its size does not match its count) nor ASCII")
-    points = []
+    vertices: list[list[float]] = []
     faces = 0
     for line in data.splitlines():
         words = line.split()
@@ -76,12 +76,12 @@ def _stl(name: str, data: bytes) -> MeshFacts:
             continue
         if words[0] == b"vertex" and len(words) == 4:
             try:
-                points.append([float(w) for w in words[1:]])
+                vertices.append([float(w) for w in words[1:]])
             except ValueError:
                 raise MeshError(f"{name}: a vertex line is not three numbers") from None
         elif words[0] == b"endfacet":
             faces += 1
-    extents = _extents(np.asarray(points, dtype=float).reshape(-1, 3), name) if faces else (0.0, 0.0, 0.0)
+    extents = _extents(np.asarray(vertices, dtype=float).reshape(-1, 3), name) if faces else (0.0, 0.0, 0.0)
     return MeshFacts(faces, extents)
 
 

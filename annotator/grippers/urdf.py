@@ -148,6 +148,12 @@ def rpy_matrix(rpy: tuple[float, float, float]) -> np.ndarray:
     return Rz @ Ry @ Rx
 
 
+def _floats3(text: str | None, default: float = 0.0) -> tuple[float, float, float]:
+    """Three finite numbers of ``text`` (``default`` each when it is None); ValueError otherwise."""
+    x, y, z = _floats(text, 3, default)
+    return x, y, z
+
+
 def _floats(text: str | None, n: int, default: float = 0.0) -> tuple[float, ...]:
     if text is None:
         return (default,) * n
@@ -178,17 +184,18 @@ def parse_xml(data: bytes, name: str) -> ET.Element:
     declaration, elements at most :data:`MAX_URDF_DEPTH` deep. ValueError (one line) otherwise."""
     if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
         raise ValueError(f"{name}: a DOCTYPE or ENTITY declaration is not accepted in a gripper's URDF")
-    parser = ET.XMLPullParser(events=("start", "end"))
-    root = None
+    parser: ET.XMLPullParser[ET.Element] = ET.XMLPullParser(events=("start", "end"))
+    root: ET.Element | None = None
     depth = 0
     step = 1 << 16
     try:
         for start in range(0, max(len(data), 1), step):
             parser.feed(data[start : start + step])
-            for event, element in parser.read_events():
+            for event, element in parser.read_events():  # type: ignore[misc]  # ("start" | "end", Element)
                 if event == "start":
                     depth += 1
-                    root = element if root is None else root
+                    if root is None and isinstance(element, ET.Element):
+                        root = element
                     if depth > MAX_URDF_DEPTH:
                         raise ValueError(
                             f"{name}: elements nested more than {MAX_URDF_DEPTH} deep: not a URDF"
@@ -244,7 +251,7 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
                 xyz=_floats(None if origin is None else origin.attrib.get("xyz"), 3),  # type: ignore[arg-type]
                 rpy=_floats(None if origin is None else origin.attrib.get("rpy"), 3),  # type: ignore[arg-type]
                 mimic=mimic,
-                axis=_floats(None if axis_el is None else axis_el.attrib.get("xyz"), 3, 1.0)
+                axis=_floats3(None if axis_el is None else axis_el.attrib.get("xyz"), 1.0)
                 if axis_el is not None
                 else (1.0, 0.0, 0.0),
                 lower=_floats(None if limit is None else limit.attrib.get("lower"), 1)[0],
@@ -258,7 +265,7 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
         found = []
         for mesh in link.findall("collision/geometry/mesh"):
             try:
-                scale = _floats(mesh.attrib.get("scale"), 3, default=1.0)
+                scale = _floats3(mesh.attrib.get("scale"), default=1.0)
             except ValueError as exc:
                 name = link.attrib.get("name", "")
                 raise ValueError(f"{path.name}: link {name!r}: mesh scale {exc}") from None
@@ -270,7 +277,7 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
         box = link.find("collision/geometry/box")
         if box is not None:
             try:
-                box_sizes[link.attrib.get("name", "")] = _floats(box.attrib.get("size"), 3)
+                box_sizes[link.attrib.get("name", "")] = _floats3(box.attrib.get("size"))
             except ValueError as exc:
                 name = link.attrib.get("name", "")
                 raise ValueError(f"{path.name}: link {name!r}: box size {exc}") from None
