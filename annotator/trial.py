@@ -27,7 +27,7 @@ from annotator.outcome import Outcome
 from annotator.rng import trial_rng  # noqa: F401  (re-exported)
 from annotator.sim import pb
 from annotator.sim.contacts import closest_points, touching
-from annotator.sim.hand import FloatingGripper
+from annotator.sim.hand import FloatingGripper, ShakeMotion
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -317,7 +317,7 @@ class GraspTrial:
             if start_width < open_width and self._intersects():
                 self.hand.teleport(T_world_base, open_width)
         self.world.set_gravity(self.resting)
-        self.hand.close(force, max_steps=round(cfg.close_timeout / self.world.dt))
+        self.hand.close(force=force, max_steps=round(cfg.close_timeout / self.world.dt))
         width = self.hand.gripper.measured_width()
         T_obj_tcp_closed = (
             self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.gripper.T_base_tcp(width)
@@ -336,22 +336,16 @@ class GraspTrial:
         start = self.hand.target
         lifted = Transform(start.pos + np.array([0.0, 0.0, cfg.lift_height]), start.quat)
         lost = self._loss_monitor(grasped_at)
-        self.hand.move(lifted, cfg.lift_duration, force, on_step=lost)
+        self.hand.move(lifted, duration=cfg.lift_duration, force=force, on_step=lost)
         if lost.lost:
             return result(Outcome.SLIPPED_LIFT)
 
         # 5. shake
         lost = self._loss_monitor(grasped_at)
         if self.shake:
-            self.hand.shake(
-                cfg.shake_amplitude,
-                cfg.shake_angle,
-                cfg.shake_duration,
-                force,
-                lost,
-                cfg.shake_cycles,
-                cfg.shake_paired,
-            )
+            self.hand.shake(ShakeMotion.of(cfg), force=force, on_step=lost)
+        if lost.lost:  # the object left the pads: no settling can bring it back
+            return result(Outcome.SLIPPED_SHAKE, self._slip(grasped_at))
         # let the last motion settle, then judge
         for _ in range(round(cfg.settle_time / self.world.dt)):
             self.hand.gripper.squeeze(force)
@@ -370,7 +364,8 @@ class GraspTrial:
         hand = pb.getBasePositionAndOrientation(self.hand.uid, physicsClientId=self.client)
         obj = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
         inv = pb.invertTransform(hand[0], hand[1])
-        return pb.multiplyTransforms(inv[0], inv[1], obj[0], obj[1])[0]
+        x, y, z = pb.multiplyTransforms(inv[0], inv[1], obj[0], obj[1])[0]
+        return x, y, z
 
     def _slip(self, reference: np.ndarray) -> float:
         """How far the object moved in the hand since ``reference`` (from _hand_obj_position), m."""

@@ -65,7 +65,7 @@ def free_step(config: AnnotatorConfig | None = None, steps: int = 240, blocks: i
         top = model.mesh.bounds[1][2] - TCP_BELOW_TOP
         T_world_tcp = Transform([*model.center_mass[:2], top], DOWN)
         hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, BOX_WIDTH), BOX_WIDTH + 0.02)
-        hand.close(config.gripper.grip_force, 240)
+        hand.close(force=config.gripper.grip_force, max_steps=240)
         if not pb.getContactPoints(hand.uid, uid, physicsClientId=world.client):
             raise SystemExit("the reference grasp does not touch the box: update bench/reference.py")
         cpu, wall = [], []

@@ -8,7 +8,10 @@ candidates are labelled with ``--trials 1`` and with ``--trials K``, alternately
 times; the CPU time of each (this process's, objects loaded and decomposed beforehand: a warm
 worker) gives candidates per CPU-second, and their ratio is the cost of the extra trials in the
 same run. The rows of trial 0 are checked equal between the two (trial 0 is the ``--trials 1``
-label). Prints figures and writes a record (bench/harness.py); asserts nothing.
+label). Where the extra time goes: the physics steps of all K trials (``sim_steps``) against trial
+0's, overall and by trial 0's outcome (a ``collision`` runs no perturbed trial; a candidate that
+holds runs every perturbed trial through close, lift and shake unless it slips). Prints figures and
+writes a record (bench/harness.py); asserts nothing.
 """
 
 from __future__ import annotations
@@ -84,6 +87,34 @@ def main() -> None:
             )
         run.ratio(f"k{args.trials}_over_k1", ratio, note="candidates per CPU-second, --trials K / --trials 1")
         run.figure("trial0_identical", int(same), note="trial 0's outcome, width and pose equal at K and 1")
+        steps1, stepsk = int(rows[1]["sim_steps"].sum()), int(rows[args.trials]["sim_steps"].sum())
+        run.ratio(
+            f"steps_k{args.trials}_over_k1",
+            stepsk / steps1,
+            note="physics steps of all K trials / of trial 0, the same candidates",
+        )
+        print(f"physics steps, --trials {args.trials} / --trials 1: {stepsk / steps1:.3f}")
+        run.table("steps_by_outcome", steps_by_outcome(rows[1], rows[args.trials], args.trials))
+
+
+def steps_by_outcome(one: pd.DataFrame, many: pd.DataFrame, k: int) -> list[dict]:
+    """Per trial 0 outcome: candidates, mean steps of trial 0, mean steps of each perturbed trial
+    (``(all K - trial 0) / (K - 1)``), and the outcome's share of the extra steps."""
+    extra = many["sim_steps"].to_numpy() - one["sim_steps"].to_numpy()
+    total = max(1, int(extra.sum()))
+    out = []
+    for outcome, idx in one.groupby("outcome").indices.items():
+        out.append(
+            {
+                "trial0_outcome": str(outcome),
+                "candidates": len(idx),
+                "held_share_at_k": float(many["score"].iloc[idx].mean()),
+                "steps_trial0": float(one["sim_steps"].iloc[idx].mean()),
+                "steps_per_perturbed_trial": float(extra[idx].mean() / max(1, k - 1)),
+                "share_of_extra_steps": float(extra[idx].sum() / total),
+            }
+        )
+    return out
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from annotator.sampler import _first_hits, object_rng, sample_candidates
 from annotator.sim import ur3
 from annotator.sim.body import Body
 from annotator.sim.gripper import ParallelGripper
-from annotator.sim.hand import FloatingGripper
+from annotator.sim.hand import FloatingGripper, ShakeMotion
 from annotator.sim.world import World
 
 GRIPPERS = ("rg2", "panda", "robotiq_2f85")
@@ -66,7 +66,7 @@ def grasp_box(hand: FloatingGripper, box: int, size: float) -> None:
     )
     hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, size), min(size + 0.02, hand.gripper.max_width))
     hand.world.set_gravity(False)
-    hand.close(None, max_steps=480)
+    hand.close(max_steps=480)
 
 
 def box_pos(world: World, box: int) -> np.ndarray:
@@ -187,8 +187,9 @@ def test_followers_stay_coupled_and_a_box_is_held_through_lift_and_shake(name, p
             return False
 
         p = CONFIG.protocol
-        hand.move(lifted, p.lift_duration, force, on_step=watch)
-        hand.shake(p.shake_amplitude, p.shake_angle, p.shake_duration, force, on_step=watch, paired=True)
+        hand.move(lifted, duration=p.lift_duration, force=force, on_step=watch)
+        shake = ShakeMotion(p.shake_amplitude, p.shake_angle, p.shake_duration, paired=True)
+        hand.shake(shake, force=force, on_step=watch)
         assert np.all(np.abs(forces - force) < 0.1 * force), forces
         bound = FOLLOWER_BOUND[(hand.description.drive_kind, passive)]
         if name == "robotiq_2f85" and passive == "simulated":
@@ -206,7 +207,7 @@ def test_closing_on_nothing_ends_closed_without_contact(name):
         box = make_box(world, 0.04, 0.05, pos=(0.5, 0.0, 0.1))  # far away
         hand.teleport(Transform([0, 0, 0.5], DOWN), hand.gripper.max_width)
         world.set_gravity(False)
-        steps = hand.close(None, max_steps=480)
+        steps = hand.close(max_steps=480)
         assert steps < 480, "closing never finished"
         assert hand.gripper.measured_width() < 0.002
         assert not any(hand.gripper.pad_contacts(box))

@@ -12,6 +12,7 @@ from annotator.geometry import Transform
 from annotator.grippers import default_gripper, read_mimic_table
 from annotator.sim.body import Body
 from annotator.sim.gripper import ParallelGripper
+from annotator.sim.hand import ShakeMotion
 from annotator.sim.world import World
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # TCP +z pointing down (-z world): a top grasp
@@ -61,7 +62,7 @@ def test_shake_moves_the_gripper_by_its_amplitude_and_angle(world, hand, paired)
         return False
 
     amplitude, angle = 0.03, np.radians(20)
-    steps = hand.shake(amplitude, angle, duration=1.2, force=40.0, on_step=record, paired=paired)
+    steps = hand.shake(ShakeMotion(amplitude, angle, 1.2, paired=paired), force=40.0, on_step=record)
     motions = 3 if paired else 6
     assert steps == motions * round(1.2 / motions / world.dt) == len(shifts)
     for _ in range(48):  # the carrier lags the target a little: 0.2 s to settle

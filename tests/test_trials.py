@@ -209,3 +209,78 @@ def test_a_perturbed_grip_force_squeezes_with_it(brick):
             forces.append(float(np.sum(hand.gripper.pad_normal_forces(uid))))
         trial.close()
     assert forces[1] == pytest.approx(forces[0] / 2, rel=0.1), forces
+
+
+def _brick_trial(world: World, model, config: AnnotatorConfig) -> GraspTrial:
+    """The brick's trial in ``world``, set up as a floating worker sets it up (gripper parked)."""
+    hand = FloatingGripper(world, config.gripper)
+    hand.teleport(Transform([0, 0, 2.0], [0, 0, 0, 1]), hand.gripper.max_width)
+    return GraspTrial(world, hand, create_body(world.client, model), config)
+
+
+def _same(a, b) -> bool:
+    """Two trial results equal to the bit: outcome, width, steps, slip, closed pose."""
+    return (
+        a.outcome == b.outcome
+        and a.width == b.width
+        and a.steps == b.steps
+        and (a.slip == b.slip or (np.isnan(a.slip) and np.isnan(b.slip)))
+        and np.array_equal(a.T_obj_tcp.pos, b.T_obj_tcp.pos)
+        and np.array_equal(a.T_obj_tcp.quat, b.T_obj_tcp.quat)
+    )
+
+
+@pytest.mark.slow
+def test_a_perturbed_trial_in_the_shared_world_equals_it_in_a_fresh_world(brick):
+    """The K trials of a candidate share the world and the object's saved state: a perturbed trial
+    run after other candidates' trials and its own candidate's earlier trials gives, to the bit,
+    what it gives alone in a world built for it."""
+    _, model, cands = brick
+    rng = np.random.default_rng(7)
+    runs = []  # (pose, chord, perturbation, result) of every perturbed trial run in the shared world
+    with World(CONFIG.physics) as world:
+        trial = _brick_trial(world, model, CONFIG)
+        for i in range(8):
+            T, width = Transform.from_matrix(cands.T_obj_tcp[i]), cands.width_expected[i]
+            if trial.run(T, width).outcome == Outcome.COLLISION:
+                continue
+            for _ in range(2):
+                p = Perturbation.sample(rng, CONFIG.robust)
+                runs.append((T, width, p, trial.run(T, width, p)))
+    assert len(runs) >= 4 and any(r.outcome == Outcome.SUCCESS for *_, r in runs)
+    for T, width, p, shared in runs[-1:] + runs[1::3]:
+        with World(CONFIG.physics) as world:
+            fresh = _brick_trial(world, model, CONFIG).run(T, width, p)
+        assert _same(shared, fresh), (shared, fresh)
+
+
+@pytest.mark.slow
+def test_leaving_a_trial_once_the_object_is_lost_gives_the_full_trial_s_verdict(brick):
+    """The loss monitor ends a lift or shake once the object has left the pads, and a trial lost in
+    the shake skips the settling before the verdict. With a check too rare to ever fire the same
+    trials run to the end: the same candidates hold, and those lost in the shake end
+    ``slipped_shake`` either way, in fewer steps when they leave early."""
+    _, model, cands = brick
+    settle = dataclasses.replace(CONFIG.protocol, settle_time=0.05)
+    early = dataclasses.replace(CONFIG, protocol=settle)
+    full = dataclasses.replace(CONFIG, protocol=dataclasses.replace(settle, check_every=1_000_000))
+    slippery = Perturbation(Transform.identity(), friction_delta=-0.85, mass_scale=4.0)
+    results = []
+    for config in (early, full):
+        with World(config.physics) as world:
+            trial = _brick_trial(world, model, config)
+            results.append(
+                [
+                    trial.run(Transform.from_matrix(cands.T_obj_tcp[i]), cands.width_expected[i], slippery)
+                    for i in range(12)
+                ]
+            )
+    left_early = 0
+    for a, b in zip(*results, strict=True):
+        assert (a.outcome == Outcome.SUCCESS) == (b.outcome == Outcome.SUCCESS)
+        if a.outcome == Outcome.SLIPPED_SHAKE:
+            assert b.outcome == Outcome.SLIPPED_SHAKE and a.steps <= b.steps
+            left_early += a.steps < b.steps
+        elif a.outcome != Outcome.SLIPPED_LIFT:
+            assert a.outcome == b.outcome and a.steps == b.steps
+    assert left_early >= 2

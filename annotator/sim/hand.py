@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
 
-from annotator.config import GripperConfig
+from annotator.config import GripperConfig, ProtocolConfig
 from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.sim.body import Body
@@ -16,6 +17,38 @@ from annotator.sim.gripper import GRIPPER_LOAD_FLAGS, ParallelGripper
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
+
+
+# A per-step callback of a motion: called with the 1-based step index, True stops the motion.
+StepCallback = Callable[[int], bool]
+
+
+@dataclass(frozen=True)
+class ShakeMotion:
+    """The shake's motions (docs/decisions/0004-short-paired-shake.md).
+
+    ``amplitude`` (m) of the translations and ``angle`` (rad) of the rotations, about the gripper
+    base's axes; ``duration`` (s) of all motions together; ``cycles`` sine periods per motion;
+    ``paired``: three motions, each translating along and turning about one axis at once (else six,
+    translations then rotations).
+    """
+
+    amplitude: float
+    angle: float
+    duration: float
+    cycles: int = 1
+    paired: bool = False
+
+    @classmethod
+    def of(cls, protocol: ProtocolConfig) -> ShakeMotion:
+        """The protocol's shake (``shake_amplitude``, ``shake_angle``, ``shake_duration``, ...)."""
+        return cls(
+            protocol.shake_amplitude,
+            protocol.shake_angle,
+            protocol.shake_duration,
+            protocol.shake_cycles,
+            protocol.shake_paired,
+        )
 
 
 class FloatingGripper:
@@ -96,9 +129,11 @@ class FloatingGripper:
 
     # --- motion --------------------------------------------------------------------------------
 
-    def close(self, force: float | None, max_steps: int, on_step: Callable[[], None] | None = None) -> int:
-        """Close with squeeze ``force`` (N; None: the run's grip force) until the fingers stall or
-        ``max_steps``; returns steps used."""
+    def close(
+        self, *, force: float | None = None, max_steps: int, on_step: Callable[[], None] | None = None
+    ) -> int:
+        """Close with squeeze ``force`` (N per pad; None: the run's grip force) until the fingers
+        stall or ``max_steps``; ``on_step()`` runs after every step. Returns steps used."""
         force = self.grip_force if force is None else force
         stalled = 0
         gripper = self.gripper
@@ -123,7 +158,7 @@ class FloatingGripper:
         pos: np.ndarray,
         quat: np.ndarray,
         force: float,
-        on_step: Callable[[int], bool] | None,
+        on_step: StepCallback | None,
     ) -> int:
         """Step once per row of ``pos`` (n, 3) / ``quat`` (n, 4), moving the constraint target.
 
@@ -152,13 +187,15 @@ class FloatingGripper:
     def move(
         self,
         T_world_base_goal: Transform,
+        *,
         duration: float,
         force: float,
-        on_step: Callable[[int], bool] | None = None,
+        on_step: StepCallback | None = None,
     ) -> int:
-        """Move the constraint target to the goal: smoothstep in position, slerp in rotation.
+        """Move the constraint target to the goal in ``duration`` s: smoothstep in position, slerp
+        in rotation.
 
-        ``force`` keeps the fingers squeezing. ``on_step(i)`` may return True to stop early.
+        ``force`` (N per pad) keeps the fingers squeezing. ``on_step(i)`` may return True to stop early.
         Returns the number of steps simulated.
         """
         start = self.target
@@ -194,24 +231,19 @@ class FloatingGripper:
         self.set_target(self.base_pose())
         return steps + hold
 
-    def shake(
-        self,
-        amplitude: float,
-        angle: float,
-        duration: float,
-        force: float,
-        on_step: Callable[[int], bool] | None = None,
-        cycles: int = 1,
-        paired: bool = False,
-    ) -> int:
-        """Shake about the current target along and about the gripper base axes x, y, z.
+    def shake(self, motion: ShakeMotion, *, force: float, on_step: StepCallback | None = None) -> int:
+        """Shake about the current target along and about the gripper base axes x, y, z, squeezing
+        with ``force`` (N per pad).
 
-        Sequential (default): six motions, a translation along x, y, z then a rotation about x, y,
-        z. ``paired``: three motions, each translating along and rotating about the same axis at
-        once. Each motion is ``cycles`` sine periods over ``duration / motions`` seconds, amplitude
-        ``amplitude`` metres and ``angle`` radians; rotations turn about the closed TCP (the grasp,
-        not the flange). Returns steps simulated; ``on_step(i)`` returning True stops early.
+        Sequential: six motions, a translation along x, y, z then a rotation about x, y, z.
+        ``motion.paired``: three motions, each translating along and rotating about the same axis
+        at once. Each motion is ``motion.cycles`` sine periods over ``motion.duration / motions``
+        seconds, amplitude ``motion.amplitude`` metres and ``motion.angle`` radians; rotations turn
+        about the closed TCP (the grasp, not the flange). Returns steps simulated; ``on_step(i)``
+        returning True stops early.
         """
+        amplitude, angle, duration = motion.amplitude, motion.angle, motion.duration
+        cycles, paired = motion.cycles, motion.paired
         centre = self.target
         motions = 3 if paired else 6
         per = max(1, round(duration / motions / self.world.dt))
@@ -237,7 +269,8 @@ class FloatingGripper:
 
 def _smoothstep(s: np.ndarray) -> np.ndarray:
     """Zero-velocity start and end for constraint motions (less jerk than a linear ramp)."""
-    return s * s * (3 - 2 * s)
+    out: np.ndarray = s * s * (3 - 2 * s)
+    return out
 
 
 def _slerp(qa: np.ndarray, qb: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -250,4 +283,5 @@ def _slerp(qa: np.ndarray, qb: np.ndarray, s: np.ndarray) -> np.ndarray:
     else:
         theta = np.arccos(dot)
         q = (np.sin((1 - s) * theta)[:, None] * qa + np.sin(s * theta)[:, None] * qb) / np.sin(theta)
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    out: np.ndarray = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return out

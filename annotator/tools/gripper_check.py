@@ -158,7 +158,7 @@ def squeeze_box(description: GripperDescription, config: AnnotatorConfig) -> Squ
     force (gravity off), squeezed, then lifted and shaken as the protocol does (gravity on)."""
     from annotator.geometry import Transform
     from annotator.sim import pb
-    from annotator.sim.hand import FloatingGripper
+    from annotator.sim.hand import FloatingGripper, ShakeMotion
     from annotator.sim.world import World
 
     p = config.protocol
@@ -174,7 +174,7 @@ def squeeze_box(description: GripperDescription, config: AnnotatorConfig) -> Squ
         T_world_tcp = Transform([0.0, 0.0, 0.1], DOWN)
         hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, BOX_SIZE), min(BOX_SIZE + 0.02, g.max_width))
         world.set_gravity(False)
-        steps = hand.close(force, max_steps=CLOSE_STEPS)
+        steps = hand.close(force=force, max_steps=CLOSE_STEPS)
         errors: list[float] = []
         for _ in range(SQUEEZE_STEPS):
             g.squeeze(force)
@@ -188,16 +188,8 @@ def squeeze_box(description: GripperDescription, config: AnnotatorConfig) -> Squ
             errors.append(float(g.follower_errors().max(initial=0.0)))
             return False
 
-        hand.move(lifted, p.lift_duration, force, on_step=watch)
-        hand.shake(
-            p.shake_amplitude,
-            p.shake_angle,
-            p.shake_duration,
-            force,
-            on_step=watch,
-            cycles=p.shake_cycles,
-            paired=p.shake_paired,
-        )
+        hand.move(lifted, duration=p.lift_duration, force=force, on_step=watch)
+        hand.shake(ShakeMotion.of(p), force=force, on_step=watch)
         box_pos = np.asarray(pb.getBasePositionAndOrientation(box, physicsClientId=world.client)[0])
         in_hand = (hand.base_pose().inverse() * Transform(box_pos, [0.0, 0.0, 0.0, 1.0])).pos
         slip = float(np.linalg.norm(in_hand - g.T_base_tcp(BOX_SIZE).pos))

@@ -23,7 +23,7 @@ import pybullet as pb
 
 from annotator.config import AnnotatorConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
-from annotator.sim.hand import FloatingGripper
+from annotator.sim.hand import FloatingGripper, ShakeMotion
 from annotator.sim.world import World
 from bench.harness import Run
 
@@ -52,7 +52,7 @@ def run(
         T_world_tcp = Transform([0.0, 0.0, 0.1], DOWN)
         hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, SIZE), min(SIZE + 0.02, g.max_width))
         world.set_gravity(False)
-        steps = hand.close(force, max_steps=480)
+        steps = hand.close(force=force, max_steps=480)
         errors = []
 
         def watch(_: int = 0) -> bool:
@@ -66,11 +66,14 @@ def run(
         forces, width = g.pad_normal_forces(uid), g.measured_width()
         world.set_gravity(True)
         hand.move(
-            Transform(hand.target.pos + [0, 0, 0.1], hand.target.quat), protocol.lift_duration, force, watch
+            Transform(hand.target.pos + [0, 0, 0.1], hand.target.quat),
+            duration=protocol.lift_duration,
+            force=force,
+            on_step=watch,
         )
-        hand.shake(
-            protocol.shake_amplitude, protocol.shake_angle, protocol.shake_duration, force, watch, paired=True
-        )
+        p = protocol
+        shake = ShakeMotion(p.shake_amplitude, p.shake_angle, p.shake_duration, paired=True)
+        hand.shake(shake, force=force, on_step=watch)
         pos = pb.getBasePositionAndOrientation(uid, physicsClientId=world.client)[0]
         in_hand = (hand.base_pose().inverse() * Transform(pos, [0, 0, 0, 1])).pos
         slip = np.linalg.norm(in_hand - g.T_base_tcp(SIZE).pos)

@@ -41,7 +41,7 @@ def squeeze(
         pb.changeDynamics(box, -1, lateralFriction=1.0, physicsClientId=world.client)
         hand.teleport(hand.T_world_base_for_tcp(Transform([0, 0, 0.1], DOWN), size), size + 0.02)
         world.set_gravity(False)
-        hand.close(force, 480)
+        hand.close(force=force, max_steps=480)
         errors = []
         for _ in range(240):
             hand.gripper.command(-1.0, force)
