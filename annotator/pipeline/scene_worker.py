@@ -121,6 +121,21 @@ class SceneTask:
     gripper: GripperDescription | None = None
 
 
+class UnusableObject(ObjectError):
+    """An object of the pool that a worker cannot load although its file passed the main process's
+    checks (size, header): a degenerate mesh, one that cleaning leaves empty. ``object_id`` goes
+    back with the failed span, so that the main process reports the object once, not each scene
+    that draws it."""
+
+    def __init__(self, object_id: str, reason: str) -> None:
+        super().__init__(reason if reason.startswith(f"{object_id}:") else f"{object_id}: {reason}")
+        self.object_id = object_id
+
+
+# SpanResult.info key of a failed span: the pool object the scene could not load (UnusableObject).
+UNUSABLE_OBJECT = "unusable_object"
+
+
 def record_from_artifact(data: bytes) -> SceneRecord:
     """The scene of a :data:`SCENE_FILE` artifact's bytes."""
     records = scenes_from_table(pd.read_parquet(io.BytesIO(data)))
@@ -143,7 +158,12 @@ class _Pool(Mapping[str, ObjectModel]):
         self.sources = {s.object_id: s for s in task.request.pool}
 
     def __getitem__(self, object_id: str) -> ObjectModel:
-        return self.state.model(self.task, self.sources[object_id])
+        try:
+            return self.state.model(self.task, self.sources[object_id])
+        except UnusableObject:
+            raise
+        except ObjectError as exc:
+            raise UnusableObject(object_id, str(exc)) from exc
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.sources)
@@ -265,7 +285,8 @@ class SceneWorkerState:
             check_versions(task.versions)
             current, built = self.scene_for(task)
         except ObjectError as exc:
-            return _failed(span, f"{span.object_id}: {exc}", task_stats(t0, 0.0))
+            unusable = exc.object_id if isinstance(exc, UnusableObject) else None
+            return _failed(span, f"{span.object_id}: {exc}", task_stats(t0, 0.0), unusable)
         except Exception as exc:  # an unexpected failure is this scene's, not the run's
             log.exception("%s: unexpected error while building", span.object_id)
             return _failed(span, f"{span.object_id}: {type(exc).__name__}: {exc}", task_stats(t0, 0.0))
@@ -311,8 +332,9 @@ class SceneWorkerState:
         return files
 
 
-def _failed(span: SceneSpan, error: str, stats) -> SpanResult:
-    return SpanResult(span, None, error, stats)  # type: ignore[arg-type]
+def _failed(span: SceneSpan, error: str, stats, unusable: str | None = None) -> SpanResult:
+    info = None if unusable is None else {UNUSABLE_OBJECT: unusable}
+    return SpanResult(span, None, error, stats, info)  # type: ignore[arg-type]
 
 
 def _empty_scene(record: SceneRecord) -> str:
