@@ -20,10 +20,13 @@ def _interrupted_while_loading(signum: int, frame: FrameType | None) -> None:
 
 
 def _run(command: str) -> object:
-    signal.signal(signal.SIGINT, _interrupted_while_loading)
-    from annotator import cli
+    try:
+        signal.signal(signal.SIGINT, _interrupted_while_loading)
+        from annotator import cli
 
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # the command's own handling from here
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # the command's own handling from here
+    except KeyboardInterrupt:  # it came while the handler was being put in place (Python's raised it)
+        _interrupted_while_loading(signal.SIGINT, None)
     return getattr(cli, command)()
 
 

@@ -23,11 +23,12 @@ from helpers import run_annotate
 from scene_helpers import CONCAVE, REPO
 
 from annotator.config import AnnotatorConfig
-from annotator.dataset import load_scenes, scene_labels
+from annotator.dataset import keyed_rng, load_scenes, scene_labels
 from annotator.objects import discover_objects
 from annotator.pipeline import scene_mode, worker
 from annotator.pipeline.scene_job import SCENE_CHUNK_SIZE, plan_scene_spans
 from annotator.scenes import records as scene_records
+from annotator.scenes.arrange import draw_objects
 from annotator.scenes.labels import SCENE_LABEL_COLUMNS
 from annotator.store import MANIFEST_NAME
 
@@ -118,7 +119,6 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_a_file_that_cannot_be_read_is_left_out_of_the_scenes_and_named(concave, tmp_path):
     """One file in the folder that is no mesh (random bytes named .stl): the scenes draw from the
     other objects and are labelled, the summary names the file and why, and the run ends with
@@ -134,8 +134,48 @@ def test_a_file_that_cannot_be_read_is_left_out_of_the_scenes_and_named(concave,
     assert sorted(labels["scene_id"].unique()) == [0, 1]
     assert labels.groupby("scene_id").size().tolist() == [N, N]
     assert "broken" not in set(labels["object_id"])
+    assert "broken" in json.loads((out / MANIFEST_NAME).read_text())["objects_failed"]
 
 
+# One triangle: an OBJ of the right size and header (the main process's checks pass) that no
+# worker can load (degenerate: nothing to weigh or grasp).
+ONE_TRIANGLE = "v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nf 1 2 3\n"
+
+
+@pytest.mark.slow
+def test_an_object_no_worker_can_load_fails_only_the_scenes_that_draw_it_named_once(tmp_path):
+    """A degenerate mesh in the folder of a scene run: the scene that draws it fails, the object is
+    named once (one line in the summary, one entry in the manifest, listing the scene), the other
+    scene is labelled, and a re-run resumes it and fails the same scene again."""
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    shutil.copy(REPO / "objects" / "box.obj", objs)  # boxes stay on the table (a can may roll off)
+    (objs / "flat.obj").write_text(ONE_TRIANGLE)
+    pool = ["box", "flat"]
+
+    def draws_flat(seed: int, scene: int) -> bool:
+        spec = scene_records.SceneSpec(scene, seed, "pile", 2, 2)
+        return "flat" in draw_objects(spec, pool, keyed_rng("scene", seed, scene))
+
+    seed = next(s for s in range(100) if draws_flat(s, 0) and not draws_flat(s, 1))
+    out = tmp_path / "labels"
+    args = ["--objects", objs, "--out", out, "--scenes", 2, "--per-scene", 2, "--n", 5, "--seed", seed]
+    for attempt in range(2):  # the run, then its re-run
+        result = run_annotate(*args, "--workers", 1, check=1)
+        failed = [line for line in result.output.splitlines() if "FAILED" in line]
+        assert len(failed) == 1 and failed[0].startswith("flat "), result.output
+        assert "degenerate mesh" in failed[0] and "scene_000000" in failed[0]
+        (done,) = [line for line in result.output.splitlines() if line.startswith("scene_000001 ")]
+        assert done.endswith("earlier") == (attempt == 1), result.output
+        manifest = json.loads((out / MANIFEST_NAME).read_text())
+        assert sorted(manifest["objects_failed"]) == ["flat", "scene_000000"]
+        assert "flat" in manifest["objects_failed"]["scene_000000"]
+        assert list(manifest["objects_done"]) == ["scene_000001"]
+        labels = _labels(out)
+        assert labels["scene_id"].tolist() == [1] * 5 and "flat" not in set(labels["object_id"])
+
+
+@pytest.mark.slow
 def test_scene_labels_and_views_are_identical_on_any_worker_count(concave, tmp_path):
     config = tmp_path / "views.toml"
     config.write_text(QUICK_VIEWS)

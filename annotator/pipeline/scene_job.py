@@ -32,7 +32,7 @@ from annotator.pipeline.options import RunOptions
 from annotator.pipeline.plan import FIRST_SPANS_AHEAD, MAX_N
 from annotator.pipeline.scene_mode import SCENE_FILE, record_from_artifact
 from annotator.pipeline.summary import Summary
-from annotator.pipeline.tasks import SceneRequest, SceneSpan, SceneTask, SpanResult
+from annotator.pipeline.tasks import UNUSABLE_OBJECT, SceneRequest, SceneSpan, SceneTask, SpanResult
 from annotator.pipeline.worker import label_span
 from annotator.scenes.records import ARRANGEMENTS, SceneRecord
 from annotator.scenes.views import MAX_INSTANCE_ID
@@ -132,6 +132,11 @@ class SceneJob:
         self.units: dict[str, str] = {}
         self.records: dict[int, SceneRecord] = {}
         self.store: Store | None = None
+        # objects left out of every scene (their files cannot be read): object id -> reason
+        self.left_out: dict[str, str] = {}
+        # objects a worker could not load: object id -> (reason, the scenes that draw it)
+        self.unusable: dict[str, tuple[str, list[str]]] = {}
+        self.failed_scenes: set[str] = set()
 
     def check(self, options: RunOptions) -> None:
         named = loaded_gripper(options.gripper).name
@@ -150,7 +155,8 @@ class SceneJob:
             try:
                 digests[source.object_id] = source_digest(source, self.config.objects.memory_budget)
             except ObjectError as exc:  # a file that cannot be read: the scenes draw from the others
-                summary.failed[source.object_id] = f"left out of every scene: {exc}"
+                self.left_out[source.object_id] = f"left out of every scene: {exc}"
+        summary.failed.update(self.left_out)
         sources = [s for s in sources if s.object_id in digests]
         if not sources:
             first = next(iter(summary.failed.values()))
@@ -185,6 +191,8 @@ class SceneJob:
         self.store = store
         n, chunk = options.n, store.spec.chunk_size
         store.manifest.objects_planned = sorted(self.units)
+        for oid, error in self.left_out.items():  # one line per object in the manifest as in the summary
+            store.fail_object(oid, error)
         resumed(store, summary, resume.done)
         todo = []
         remaining: dict[str, int] = {}
@@ -250,13 +258,49 @@ class SceneJob:
         unit = span.object_id
         collector.progress.advance(span.size)
         collector.account(result)
-        if unit in collector.summary.failed:
+        if unit in collector.summary.failed or unit in self.failed_scenes:
             return
         if result.error is not None:
-            collector.fail(unit, result.error)
-            collector.progress.object_done(unit, "failed")
+            unusable = (result.info or {}).get(UNUSABLE_OBJECT)
+            if unusable is None:
+                collector.fail(unit, result.error)
+                collector.progress.object_done(unit, "failed")
+            else:
+                self._fail_for_object(unit, unusable, result.error, collector)
             return
         files = result.artifacts or {}
         if SCENE_FILE in files:
             self.records[span.scene_id] = record_from_artifact(files[SCENE_FILE])
         collector.write(result)
+
+    def _fail_for_object(self, unit: str, oid: str, error: str, collector: Collector) -> None:
+        """Scene ``unit`` failed because a worker cannot load object ``oid`` (``error``: the span's
+        line, the scene's id then the object's reason). The object is reported once, by its name,
+        in the summary and the manifest, with the scenes that draw it; each such scene's own
+        manifest entry (it failed: retried on a resume, an export needs --partial) names it."""
+        assert self.store is not None
+        reason = error.removeprefix(f"{unit}: ")
+        self.failed_scenes.add(unit)
+        self.store.fail_object(unit, f"draws {oid}, which cannot be loaded: {reason}")
+        first = oid not in self.unusable
+        scenes = self.unusable.setdefault(oid, (reason, []))[1]
+        scenes.append(unit)
+        why = reason.removeprefix(f"{oid}: ")
+        drawn = _scenes_text(sorted(scenes))
+        line = f"cannot be loaded in a worker ({why}); not labelled, as they draw it: {drawn}"
+        collector.summary.failed[oid] = line
+        self.store.fail_object(oid, line)
+        if first:
+            log.error("%s: %s", oid, line)
+        collector.progress.object_done(unit, f"failed (draws {oid})")
+
+
+# Scene ids a failure line names before it counts the rest.
+NAMED_SCENES = 5
+
+
+def _scenes_text(units: list[str]) -> str:
+    """``scene_000000, scene_000003`` or, beyond :data:`NAMED_SCENES`, the first ones and a count."""
+    named = ", ".join(units[:NAMED_SCENES])
+    more = len(units) - NAMED_SCENES
+    return f"{named} and {more} more scenes" if more > 0 else named

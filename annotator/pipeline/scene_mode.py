@@ -31,7 +31,7 @@ from annotator.objects import ObjectError, ObjectModel, ObjectSource
 from annotator.pipeline import status
 from annotator.pipeline.loaded import load_model, object_info
 from annotator.pipeline.modes import Labelled
-from annotator.pipeline.tasks import SceneTask
+from annotator.pipeline.tasks import SceneTask, UnusableObject
 from annotator.scenes.arrange import SceneBuilder
 from annotator.scenes.labels import SceneArm, SceneCandidates, SceneTrials, label_scene
 from annotator.scenes.records import SceneRecord, scene_table, scenes_from_table
@@ -72,7 +72,12 @@ class _Pool(Mapping[str, ObjectModel]):
         self.sources = {s.object_id: s for s in task.request.pool}
 
     def __getitem__(self, object_id: str) -> ObjectModel:
-        return self.mode.model(self.task, self.sources[object_id])
+        try:
+            return self.mode.model(self.task, self.sources[object_id])
+        except UnusableObject:
+            raise
+        except ObjectError as exc:
+            raise UnusableObject(object_id, str(exc)) from exc
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.sources)

@@ -16,7 +16,7 @@ import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.grippers import GripperDescription, GripperFiles
-from annotator.objects import ObjectModel, ObjectSource
+from annotator.objects import ObjectError, ObjectModel, ObjectSource
 from annotator.store.names import scene_unit
 
 if TYPE_CHECKING:
@@ -304,6 +304,21 @@ class PreparedObject:
         else:
             how = f"{self.method}, {self.parts} part{plural}" + ("" if self.made else ", from the cache")
         return f"{how} (collision error {self.error_mean * 1e3:.2f} / {self.error_max * 1e3:.2f} mm)"
+
+
+class UnusableObject(ObjectError):
+    """An object of a scene's pool that a worker cannot load although its file passed the main
+    process's checks (size, header): a degenerate mesh, one that cleaning leaves empty.
+    ``object_id`` goes back with the failed span (:data:`UNUSABLE_OBJECT`), so that the main
+    process reports the object once, not each scene that draws it."""
+
+    def __init__(self, object_id: str, reason: str) -> None:
+        super().__init__(reason if reason.startswith(f"{object_id}:") else f"{object_id}: {reason}")
+        self.object_id = object_id
+
+
+# SpanResult.info key of a failed span: the pool object the scene could not load (UnusableObject).
+UNUSABLE_OBJECT = "unusable_object"
 
 
 @dataclass(frozen=True)

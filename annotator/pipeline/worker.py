@@ -50,6 +50,7 @@ from annotator.pipeline.object_modes import UPRIGHT, ObjectMode, build_object_mo
 from annotator.pipeline.process import check_versions, cpu_seconds, task_stats, watch_parent
 from annotator.pipeline.simulate import TrialSettings, object_candidates, simulate
 from annotator.pipeline.tasks import (
+    UNUSABLE_OBJECT,
     CellOptions,
     GivenGrasps,
     Prepare,
@@ -61,6 +62,7 @@ from annotator.pipeline.tasks import (
     SpanGrasps,
     SpanResult,
     SpanTask,
+    UnusableObject,
     WorkerStats,
 )
 from annotator.sampler import Candidates
@@ -333,7 +335,8 @@ class WorkerState:
             error = f"{type(exc).__name__}: {exc}"
         if isinstance(task, SceneTask):
             error = f"{unit.object_id}: {error}"
-        return SpanResult(unit, None, error, task_stats(t0, 0.0))
+        info = {UNUSABLE_OBJECT: exc.object_id} if isinstance(exc, UnusableObject) else None
+        return SpanResult(unit, None, error, task_stats(t0, 0.0), info)
 
 
 class _State:

@@ -40,6 +40,12 @@ def scene_unit(scene_id: int) -> str:
     return f"scene_{int(scene_id):06d}"
 
 
+def is_scene_unit(unit: str) -> bool:
+    """Whether ``unit`` is a scene's unit id (:func:`scene_unit`), not an object's."""
+    prefix, _, digits = unit.partition("_")
+    return prefix == "scene" and digits.isdigit() and scene_unit(int(digits)) == unit
+
+
 def object_filename(object_id: str) -> str:
     """A safe file name for ``object_id`` (which may contain ``/``), unique per id.
 

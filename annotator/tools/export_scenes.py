@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from annotator.store.names import is_scene_unit
 from annotator.tools.common import ToolError
 from annotator.tools.export import ExportFolder, ExportResult, LeftOut, TcpDepth
 from annotator.tools.scene_labels import SceneLabels, open_scene_labels
@@ -68,6 +69,7 @@ def _require_no_failed_scene(scenes: SceneLabels) -> None:
     """``--partial`` not given: a run in which a scene failed (its manifest's ``objects_failed``)
     is refused with one line, as an unfinished one is: the export would silently lack it."""
     failed = (scenes.run.manifest or {}).get("objects_failed") or {}
+    failed = {unit: why for unit, why in failed.items() if is_scene_unit(unit)}  # not an object's own line
     if failed:
         unit = sorted(failed)[0]
         more = f" and {len(failed) - 1} more" if len(failed) > 1 else ""
