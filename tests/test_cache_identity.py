@@ -62,7 +62,7 @@ def test_a_foreign_entry_is_a_miss_said_once_and_replaced(tmp_path, caplog):
     target = tmp_path / "poisoned" / fresh.file.name
     target.parent.mkdir()
     shutil.copyfile(own.file, target)
-    with caplog.at_level("WARNING", logger="annotator.objects.decomposition"):
+    with caplog.at_level("WARNING", logger="annotator.objects.collision_entry"):
         got = decomposition.collision_geometry(cylinder, "hull", config, tmp_path / "poisoned")
         again = decomposition.collision_geometry(cylinder, "hull", config, tmp_path / "poisoned")
     foreign = [r.getMessage() for r in caplog.records if "foreign collision cache entry" in r.getMessage()]

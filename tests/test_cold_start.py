@@ -22,6 +22,7 @@ from helpers import run_annotate, write_l
 
 import annotator.objects
 import annotator.objects.decomposition
+import annotator.objects.decomposition_child
 import annotator.objects.model
 import annotator.objects.reading
 import annotator.pipeline.worker
@@ -267,7 +268,7 @@ DECOMPOSING = (
     (annotator.objects.model, "load_object"),
     (annotator.objects.model, "collision_geometry"),
     (annotator.objects.decomposition, "collision_geometry"),
-    (annotator.objects.decomposition, "run_limited"),
+    (annotator.objects.decomposition_child, "run_limited"),
     (annotator.pipeline.worker, "load_object"),
 )
 READING = (
