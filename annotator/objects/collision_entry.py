@@ -80,15 +80,15 @@ class CollisionGeometry:
     ``method``: hull, shells, coacd, coacd-remeshed or vhacd (the rung that gave the parts);
     ``threshold``: CoACD's concavity threshold of the parts (0 otherwise); ``seconds``: CPU seconds
     it took to make them (all rungs); ``ladder``: the rungs tried, in order (empty for hull and
-    shells); ``file``: the cache entry; ``obj_file``: the multi-part .obj PyBullet loads (None for
-    one part).
+    shells); ``file``: the cache entry (None: a mesh that is its own hull, never cached);
+    ``obj_file``: the multi-part .obj PyBullet loads (None for one part).
     """
 
     parts: list[trimesh.Trimesh]
     error: CollisionError
     method: str
     threshold: float
-    file: Path
+    file: Path | None
     from_cache: bool
     seconds: float
     ladder: tuple[Rung, ...] = ()

@@ -23,6 +23,7 @@ from annotator.objects.collision_ladder import Progress, run_ladder, say
 from annotator.objects.decomposers import COPY_SAMPLES, METHOD, copy_sizes, thresholds
 from annotator.objects.errors import NotDecomposed
 from annotator.objects.fidelity import collision_error
+from annotator.objects.own_hull import own_hull_geometry
 
 __all__ = ["CollisionGeometry", "Progress", "Rung", "collision_geometry", "default_cache_dir", "thresholds"]
 
@@ -109,7 +110,9 @@ def collision_geometry(
     """The object's collision geometry by ``method``, cached: ``hull`` (the convex hull),
     ``shells`` (the hulls of the mesh's own convex ``shells``: a file written as convex parts,
     e.g. a V-HACD collision mesh, collides as those parts, as PyBullet itself would) or ``coacd``
-    (the ladder: CoACD, V-HACD, hull, within ``config.decomposition_budget``).
+    (the ladder: CoACD, V-HACD, hull, within ``config.decomposition_budget``). A closed mesh
+    that is its own convex hull (:mod:`annotator.objects.own_hull`) is its hull with no error, made
+    here and never cached: no error sampling, no cache entry to write or read.
 
     ``cache_dir``: the cache folder (None: :func:`default_cache_dir`). ``progress(object_id,
     message)`` hears when a decomposition starts, moves down the ladder and ends. Never raises for
@@ -122,6 +125,10 @@ def collision_geometry(
     """
     if method not in ("hull", "shells", METHOD):
         raise ValueError(f"unknown collision method {method!r}")
+    if method == "hull":
+        own = own_hull_geometry(mesh)  # a closed convex mesh: its hull, no error, nothing cached
+        if own is not None:
+            return own
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     inputs = geometry_inputs(mesh, method, config, shells if method == "shells" else ())
     path = root / f"{inputs.key}.npz"
