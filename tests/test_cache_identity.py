@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import trimesh
+from helpers import dimpled
 
 from annotator.config import ObjectConfig
 from annotator.objects import cache, decomposition
@@ -53,16 +54,18 @@ def test_an_entry_stores_its_inputs_and_a_reader_checks_them(tmp_path):
 
 
 def test_a_foreign_entry_is_a_miss_said_once_and_replaced(tmp_path, caplog):
-    """In process: the cylinder's hull read from a cache where the box's entry sits under its key."""
-    box = trimesh.creation.box((0.05, 0.04, 0.10))
-    cylinder = trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24)
+    """In process: the cylinder's hull read from a cache where the box's entry sits under its key
+    (both dimpled: their hulls' errors are measured and cached; a plain box or cylinder is its own
+    hull, never cached)."""
+    box = dimpled(trimesh.creation.box((0.05, 0.04, 0.10)))
+    cylinder = dimpled(trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24))
     config = ObjectConfig()
     own = decomposition.collision_geometry(box, "hull", config, tmp_path / "box")
     fresh = decomposition.collision_geometry(cylinder, "hull", config, tmp_path / "clean")
     target = tmp_path / "poisoned" / fresh.file.name
     target.parent.mkdir()
     shutil.copyfile(own.file, target)
-    with caplog.at_level("WARNING", logger="annotator.objects.decomposition"):
+    with caplog.at_level("WARNING", logger="annotator.objects.collision_entry"):
         got = decomposition.collision_geometry(cylinder, "hull", config, tmp_path / "poisoned")
         again = decomposition.collision_geometry(cylinder, "hull", config, tmp_path / "poisoned")
     foreign = [r.getMessage() for r in caplog.records if "foreign collision cache entry" in r.getMessage()]
@@ -87,8 +90,9 @@ def test_a_valid_entry_copied_under_another_objects_key_is_not_used(tmp_path):
     the entry is foreign, and the cylinder's own entry replaces the copy."""
     objects = tmp_path / "objects"
     objects.mkdir()
-    trimesh.creation.box((0.05, 0.04, 0.10)).export(objects / "box.obj")
-    trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24).export(objects / "cylinder.obj")
+    # dimpled: cached hulls (a plain box or cylinder is its own hull, never cached)
+    dimpled(trimesh.creation.box((0.05, 0.04, 0.10))).export(objects / "box.obj")
+    dimpled(trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24)).export(objects / "cylinder.obj")
     common = ("--objects", objects, "--n", 12, "--workers", 1)
     _annotate(*common, "-q", "--out", tmp_path / "clean", "--cache", tmp_path / "clean-cache")
     clean = _sorted(pd.read_parquet(tmp_path / "clean"))

@@ -22,6 +22,7 @@ from helpers import run_annotate, write_l
 
 import annotator.objects
 import annotator.objects.decomposition
+import annotator.objects.decomposition_child
 import annotator.objects.model
 import annotator.objects.reading
 import annotator.pipeline.worker
@@ -254,7 +255,7 @@ def test_each_object_is_decomposed_once_by_a_worker_before_any_of_its_spans(tmp_
         assert all(abs(r["child_cpu"]) < 1e-6 for r in spans), oid  # no span ran a decomposition
         if oid != "box":
             assert prepare["child_cpu"] > 0  # the decomposition ran, in its child process
-    assert len(list(cache.glob("*.npz"))) == 3  # one entry per object
+    assert len(list(cache.glob("*.npz"))) == 2  # one entry per concave object; the box is its own hull
     prepared = {r.span.object_id: r.prepared for r in results if isinstance(r.span, Prepare)}
     assert prepared["corner"].decomposed and prepared["corner"].method == "coacd"
     assert not prepared["box"].decomposed and prepared["box"].method == "hull"
@@ -273,7 +274,7 @@ DECOMPOSING = (
     (annotator.objects.model, "load_object"),
     (annotator.objects.model, "collision_geometry"),
     (annotator.objects.decomposition, "collision_geometry"),
-    (annotator.objects.decomposition, "run_limited"),
+    (annotator.objects.decomposition_child, "run_limited"),
     (annotator.pipeline.worker, "load_object"),
 )
 READING = (
@@ -346,7 +347,7 @@ def test_two_runs_sharing_one_cache_decompose_each_object_once(tmp_path):
         if line.startswith("[decomposed")
     ]
     assert sorted(decomposed) == ["corner", "large_corner"], outputs  # once each, in one run or the other
-    assert len(list(cache.glob("*.npz"))) == 3 and not list(cache.glob("*.tmp"))
+    assert len(list(cache.glob("*.npz"))) == 2 and not list(cache.glob("*.tmp"))  # the box: no entry
     first, second = (_labels(tmp_path / f"out{k}") for k in (1, 2))
     pd.testing.assert_frame_equal(first, second, check_exact=True)
 
@@ -396,5 +397,5 @@ def test_cache_reaches_the_dask_workers(tmp_path, monkeypatch):
             "--objects", objs, "--n", 10, "--out", tmp_path / "o", "--scheduler", cluster.scheduler_address,
             "--cache", tmp_path / "shared", "--quiet",
         )  # fmt: skip
-    assert len(list((tmp_path / "shared").glob("*.npz"))) == 3
+    assert len(list((tmp_path / "shared").glob("*.npz"))) == 2  # the concave blocks (the box: none)
     assert not (tmp_path / "default").exists()

@@ -18,7 +18,16 @@ from helpers import write_l
 
 from annotator import versions as label_versions
 from annotator.config import AnnotatorConfig, ObjectConfig
-from annotator.objects import cache, decomposition, discover_objects, load_object
+from annotator.objects import (
+    cache,
+    collision_entry,
+    collision_ladder,
+    decomposers,
+    decomposition,
+    decomposition_child,
+    discover_objects,
+    load_object,
+)
 from annotator.objects.fidelity import collision_error
 
 CONFIG = ObjectConfig()
@@ -67,7 +76,7 @@ def rimmed_can(segments: int = 40) -> trimesh.Trimesh:
 
 def seam(monkeypatch, commands: dict[str, list[str]], calls: list[str] | None = None) -> None:
     """Replace the child command of the rungs named in ``commands``; record every rung started."""
-    real = decomposition.child_command
+    real = decomposition_child.child_command
 
     def command(job: Path) -> list[str]:
         with np.load(job / "in.npz") as z:
@@ -76,7 +85,7 @@ def seam(monkeypatch, commands: dict[str, list[str]], calls: list[str] | None = 
             calls.append(rung)
         return commands.get(rung, real(job))
 
-    monkeypatch.setattr(decomposition, "child_command", command)
+    monkeypatch.setattr(decomposition_child, "child_command", command)
 
 
 # ---------------------------------------------------------------------------------------------- the ladder
@@ -190,14 +199,14 @@ def test_a_can_coacd_cannot_finish_within_its_budget_gets_vhacd(tmp_path):
 def test_each_coacd_rung_must_have_parts_by_its_point_of_the_budget():
     """CoACD as the mesh is: 0.3 of the 60 CPU-s budget (at the latest V-HACD's reserve before its
     limit); CoACD remeshed: V-HACD's reserve before its limit; V-HACD: its whole limit."""
-    assert decomposition.first_parts_by("coacd", 59, CONFIG) == pytest.approx(18.0)
-    assert decomposition.first_parts_by("coacd-remeshed", 39, CONFIG) == 31
-    assert decomposition.first_parts_by("vhacd", 39, CONFIG) is None
+    assert collision_ladder.first_parts_by("coacd", 59, CONFIG) == pytest.approx(18.0)
+    assert collision_ladder.first_parts_by("coacd-remeshed", 39, CONFIG) == 31
+    assert collision_ladder.first_parts_by("vhacd", 39, CONFIG) is None
     whole = dataclasses.replace(CONFIG, coacd_first_cut_share=1.0)
-    assert decomposition.first_parts_by("coacd", 59, whole) == 51
-    assert decomposition.first_parts_by("coacd", 5, CONFIG) == -3  # started with less: stopped at 1 CPU-s
+    assert collision_ladder.first_parts_by("coacd", 59, whole) == 51
+    assert collision_ladder.first_parts_by("coacd", 5, CONFIG) == -3  # started with less: stopped at 1 CPU-s
     no_reserve = dataclasses.replace(CONFIG, vhacd_reserve=0.0, coacd_first_cut_share=1.0)
-    assert decomposition.first_parts_by("coacd-remeshed", 39, no_reserve) is None
+    assert collision_ladder.first_parts_by("coacd-remeshed", 39, no_reserve) is None
 
 
 @pytest.mark.slow
@@ -216,7 +225,7 @@ def test_a_coacd_finishing_no_threshold_by_its_share_gets_coacd_on_the_remeshed_
     coacd, remeshed = geometry.ladder
     assert (coacd.method, coacd.outcome) == ("coacd", "over budget") and 2.5 <= coacd.cpu_seconds <= 4.5
     assert (remeshed.method, remeshed.outcome) == ("coacd-remeshed", "kept")
-    assert remeshed.threshold in decomposition.thresholds(config)
+    assert remeshed.threshold in decomposers.thresholds(config)
     assert calls == ["coacd", "coacd-remeshed"]
     assert model.collision_method == "coacd-remeshed" and len(model.parts) >= 2  # the L's two arms
     # the error is measured against the mesh itself, not against the remeshed copy CoACD cut
@@ -254,22 +263,22 @@ FIRST_THRESHOLD_THEN_SPIN = [
     "-c",
     "import sys, numpy as np, trimesh\n"
     "from pathlib import Path\n"
-    "from annotator.objects import decomposition as d\n"
+    "from annotator.objects import decomposition_child as d\n"
     "from annotator.objects.fidelity import collision_error\n"
     "job = Path(sys.argv[1])\n"
     "z = np.load(job / 'in.npz')\n"
     "mesh = trimesh.Trimesh(z['vertices'], z['faces'], process=False)\n"
     "parts = [mesh.convex_hull]\n"
-    "d._save_result(job, parts, collision_error(mesh, parts, 1000), 0.05, done=False)\n"
+    "d.save_result(job, parts, collision_error(mesh, parts, 1000), 0.05, done=False)\n"
     "while True: pass\n",
 ]
 
 
 @pytest.mark.slow
 def test_a_refinement_stopped_by_the_budget_keeps_the_best_threshold_it_finished(tmp_path, monkeypatch):
-    real = decomposition.child_command
+    real = decomposition_child.child_command
     monkeypatch.setattr(
-        decomposition,
+        decomposition_child,
         "child_command",
         lambda job: (
             FIRST_THRESHOLD_THEN_SPIN + [str(job)]
@@ -285,7 +294,7 @@ def test_a_refinement_stopped_by_the_budget_keeps_the_best_threshold_it_finished
     # V-HACD its reserve, 2 CPU-s before the end), and V-HACD never ran
     stopped = re.search(r"over budget: stopped at (\d+) CPU-s", model.collision_ladder)
     assert stopped is not None, model.collision_ladder
-    limit = config.decomposition_budget - decomposition.AFTER_LADDER_SECONDS
+    limit = config.decomposition_budget - collision_ladder.AFTER_LADDER_SECONDS
     assert limit - config.vhacd_reserve < int(stopped.group(1)) <= limit
     assert ";" not in model.collision_ladder
 
@@ -316,10 +325,10 @@ def test_a_scan_is_cut_as_the_smallest_copy_that_stays_within_the_tolerance():
 
     dense = trimesh.creation.torus(0.036, 0.009, major_sections=128, minor_sections=64)  # 16,384 faces
     config = dataclasses.replace(CONFIG, decomposition_max_faces=500, decomposition_copy_max_faces=2000)
-    assert decomposition.copy_sizes(config) == (500, 1000, 2000)
+    assert decomposers.copy_sizes(config) == (500, 1000, 2000)
 
-    def copy(tolerance: float) -> decomposition.Copy:
-        return decomposition.decomposition_copy(
+    def copy(tolerance: float) -> decomposers.Copy:
+        return decomposers.decomposition_copy(
             dense.vertices, dense.faces, dataclasses.replace(config, decomposition_copy_tolerance=tolerance)
         )
 
@@ -331,7 +340,7 @@ def test_a_scan_is_cut_as_the_smallest_copy_that_stays_within_the_tolerance():
     assert surface_deviation(dense, dense, 500) < 1e-9  # the measure itself: a mesh against itself
     # a mesh within max_faces is cut as itself
     small = trimesh.creation.torus(0.036, 0.009, major_sections=16, minor_sections=8)  # 256 faces
-    itself = decomposition.decomposition_copy(small.vertices, small.faces, config)
+    itself = decomposers.decomposition_copy(small.vertices, small.faces, config)
     np.testing.assert_array_equal(itself.faces, small.faces)
     assert itself.deviation == 0.0
 
@@ -452,7 +461,7 @@ def test_a_corrupt_entry_is_treated_as_missing_and_made_again(tmp_path):
 def test_the_parts_obj_is_named_by_its_text_and_a_damaged_one_is_written_again(tmp_path):
     path = write_two_boxes(tmp_path / "boxes.obj")
     first = load_object(path, CONFIG, cache_dir=tmp_path / "c")
-    text = decomposition.obj_text(first.parts)
+    text = collision_entry.obj_text(first.parts)
     assert first.collision_file.read_text() == text
     first.collision_file.write_text("o broken\n")
     again = load_object(path, CONFIG, cache_dir=tmp_path / "c")
@@ -499,7 +508,7 @@ def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sam
     def after_005(mean_mm: float, max_mm: float) -> float:
         todo = (0.03, 0.02)
         error = CollisionError(mean_mm / 1e3, max_mm / 1e3, 0.0, 0.0, 0.0, 0.0)
-        return todo[decomposition.next_threshold(todo, 0.05, error, CONFIG)]
+        return todo[decomposers.next_threshold(todo, 0.05, error, CONFIG)]
 
     assert after_005(0.345, 3.116) == after_005(0.52, 3.154) == after_005(0.343, 2.691) == 0.03
     assert after_005(0.477, 4.649) == 0.02
@@ -510,9 +519,9 @@ def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sam
     # (0.0198 would be enough) goes to 0.02, not to 0.01
     finer = (0.03, 0.02, 0.01)
     cracker = CollisionError(0.32e-3, 5.06e-3, 0.0, 0.0, 0.0, 0.0)
-    assert finer[decomposition.next_threshold(finer, 0.05, cracker, CONFIG)] == 0.02
+    assert finer[decomposers.next_threshold(finer, 0.05, cracker, CONFIG)] == 0.02
     hammer = CollisionError(0.25e-3, 2.78e-3, 0.0, 0.0, 0.0, 0.0)
-    assert decomposition.next_threshold((0.01,), 0.02, hammer, CONFIG) == 0
+    assert decomposers.next_threshold((0.01,), 0.02, hammer, CONFIG) == 0
 
 
 def test_a_near_miss_is_one_within_the_retry_margin_of_the_limits():
@@ -525,13 +534,13 @@ def test_a_near_miss_is_one_within_the_retry_margin_of_the_limits():
     def error(mean_mm: float, max_mm: float) -> CollisionError:
         return CollisionError(mean_mm / 1e3, max_mm / 1e3, 0.0, 0.0, 0.0, 0.0)
 
-    assert decomposition.near_miss(error(0.10, 2.03), CONFIG)
-    assert decomposition.near_miss(error(0.23, 2.06), CONFIG)
-    assert not decomposition.near_miss(error(0.29, 2.84), CONFIG)
-    assert not decomposition.near_miss(error(0.19, 2.13), CONFIG)
-    assert not decomposition.near_miss(error(0.10, 1.97), CONFIG)
-    assert decomposition.near_miss(error(0.52, 1.0), CONFIG)  # the mean can be the near miss
-    assert not decomposition.near_miss(error(0.10, 2.03), dataclasses.replace(CONFIG, coacd_retry_margin=0.0))
+    assert decomposers.near_miss(error(0.10, 2.03), CONFIG)
+    assert decomposers.near_miss(error(0.23, 2.06), CONFIG)
+    assert not decomposers.near_miss(error(0.29, 2.84), CONFIG)
+    assert not decomposers.near_miss(error(0.19, 2.13), CONFIG)
+    assert not decomposers.near_miss(error(0.10, 1.97), CONFIG)
+    assert decomposers.near_miss(error(0.52, 1.0), CONFIG)  # the mean can be the near miss
+    assert not decomposers.near_miss(error(0.10, 2.03), dataclasses.replace(CONFIG, coacd_retry_margin=0.0))
 
 
 def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_own_search(monkeypatch):
@@ -542,9 +551,9 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
 
     torus = trimesh.creation.torus(0.04, 0.012, major_sections=16, minor_sections=8)
     only = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, coacd_retry_margin=0.0)
-    _, bounded, _ = decomposition.refine_coacd(torus.vertices, torus.faces, only)
-    own_config = dataclasses.replace(only, coacd_search_iterations=decomposition.COACD_OWN_SEARCH_ITERATIONS)
-    _, own, _ = decomposition.refine_coacd(torus.vertices, torus.faces, own_config)
+    _, bounded, _ = decomposers.refine_coacd(torus.vertices, torus.faces, only)
+    own_config = dataclasses.replace(only, coacd_search_iterations=decomposers.COACD_OWN_SEARCH_ITERATIONS)
+    _, own, _ = decomposers.refine_coacd(torus.vertices, torus.faces, own_config)
     assert bounded.max > 0.0
 
     calls: list[tuple[float, int]] = []
@@ -558,19 +567,19 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
     retry = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, collision_mean_limit=1.0)
     near = dataclasses.replace(retry, collision_max_limit=bounded.max / 1.03)
     kept = []
-    _, error, threshold = decomposition.refine_coacd(
+    _, error, threshold = decomposers.refine_coacd(
         torus.vertices, torus.faces, near, lambda parts, e, t: kept.append(e.max)
     )
     assert calls == [
         (0.05, CONFIG.coacd_search_iterations),
-        (0.05, decomposition.COACD_OWN_SEARCH_ITERATIONS),
+        (0.05, decomposers.COACD_OWN_SEARCH_ITERATIONS),
     ]
     assert threshold == 0.05 and error.max == min(bounded.max, own.max)
     assert kept[0] == bounded.max  # the bounded cut was saved before the retry started
 
     calls.clear()
     far = dataclasses.replace(retry, collision_max_limit=bounded.max / 1.2)
-    _, error, _ = decomposition.refine_coacd(torus.vertices, torus.faces, far)
+    _, error, _ = decomposers.refine_coacd(torus.vertices, torus.faces, far)
     assert calls == [(0.05, CONFIG.coacd_search_iterations)] and error.max == bounded.max
 
 
@@ -585,6 +594,6 @@ def test_vhacd_gives_the_same_parts_every_time(tmp_path):
         job = tmp_path / f"job{i}"
         job.mkdir()
         with quiet_c_output("vhacd"):  # V-HACD prints its progress from C
-            parts = decomposition.run_vhacd(mesh.vertices, mesh.faces, CONFIG, job)
+            parts = decomposers.run_vhacd(mesh.vertices, mesh.faces, CONFIG, job)
         runs.append([(p.vertices.tobytes(), p.faces.tobytes()) for p in parts])
     assert len(runs[0]) >= 2 and runs[0] == runs[1]

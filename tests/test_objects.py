@@ -24,7 +24,9 @@ from annotator.objects import (
     ObjectError,
     ObjectSource,
     create_body,
+    decomposers,
     decomposition,
+    decomposition_child,
     discover_objects,
     get_object_pose,
     load_object,
@@ -559,11 +561,11 @@ def test_coacd_decomposes_a_copy_within_its_face_budget_and_only_that_changes_th
     bench/scale.py big-mesh): it gets a copy simplified to decomposition_max_faces."""
     dense = trimesh.creation.torus(0.036, 0.009, major_sections=128, minor_sections=64)  # 16,384
     budget = dataclasses.replace(CONFIG, decomposition_max_faces=2000)
-    v, f = decomposition.decomposition_input(dense.vertices, dense.faces, budget.decomposition_max_faces)
+    v, f = decomposers.decomposition_input(dense.vertices, dense.faces, budget.decomposition_max_faces)
     assert 1000 < len(f) <= 2000 and f.dtype == np.int32
     copy = trimesh.Trimesh(v, f)
     assert copy.is_watertight and copy.volume == pytest.approx(dense.volume, rel=0.02)
-    v, f = decomposition.decomposition_input(dense.vertices, dense.faces, len(dense.faces))
+    v, f = decomposers.decomposition_input(dense.vertices, dense.faces, len(dense.faces))
     np.testing.assert_array_equal(f, dense.faces)  # within the budget: the mesh itself
     key = decomposition.geometry_key
     assert key(dense, "coacd", budget) != key(dense, "coacd", CONFIG)  # the budget shapes this one
@@ -744,7 +746,7 @@ def test_a_crashing_decomposition_is_the_next_rungs_turn_not_a_failure(tmp_path,
     each rung's outcome, and that shape is cached like any other (no second attempt)."""
     concave = _write_l(tmp_path / "corner.obj")
     monkeypatch.setattr(
-        decomposition, "child_command", lambda job: [sys.executable, "-c", "import os; os.abort()"]
+        decomposition_child, "child_command", lambda job: [sys.executable, "-c", "import os; os.abort()"]
     )
     model = load_object(concave, CONFIG, cache_dir=tmp_path / "c")
     assert model.collision_method == "hull" and len(model.parts) == 1
@@ -891,7 +893,7 @@ def test_a_crashing_decomposition_still_labels_its_object_in_a_worker(tmp_path, 
 
     monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
     crash = [sys.executable, "-c", "import os; os.abort()"]
-    monkeypatch.setattr(decomposition, "child_command", lambda job: crash)
+    monkeypatch.setattr(decomposition_child, "child_command", lambda job: crash)
     objects = tmp_path / "objects"
     objects.mkdir()
     _write_l(objects / "corner.obj")

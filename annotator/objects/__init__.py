@@ -4,8 +4,12 @@
 Steps, one module each: :mod:`~annotator.objects.discovery` (what objects a folder holds),
 :mod:`~annotator.objects.memory` (the memory budget), :mod:`~annotator.objects.reading` (read +
 clean), :mod:`~annotator.objects.repair` (fragments, holes), :mod:`~annotator.objects.mass` (mass
-models), :mod:`~annotator.objects.decomposition` (collision geometry: the ladder of isolated
-decompositions within a CPU budget), :mod:`~annotator.objects.cache` (the content-addressed cache),
+models), :mod:`~annotator.objects.decomposition` (collision geometry, cached), its
+:mod:`~annotator.objects.collision_ladder` (which decomposer within a CPU budget),
+:mod:`~annotator.objects.decomposers` (CoACD, V-HACD and their settings),
+:mod:`~annotator.objects.decomposition_child` and :mod:`~annotator.objects.limited_process` (each
+decomposition in a child process under a CPU limit), :mod:`~annotator.objects.collision_entry` (the
+geometry's record and cache entry), :mod:`~annotator.objects.cache` (the content-addressed cache),
 :mod:`~annotator.objects.fidelity` (collision error), :mod:`~annotator.objects.bodies` (PyBullet),
 :mod:`~annotator.objects.properties` (the ``objects.toml`` sidecar), tied together by
 :mod:`~annotator.objects.model` (:func:`load_object`).
