@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pybullet as pb
 import pytest
+from gripper_helpers import users_rg2
 
 from annotator.config import GripperConfig, PhysicsConfig
 from annotator.sim.hand import FloatingGripper
@@ -39,3 +42,9 @@ def make_box(
         physicsClientId=world.client,
     )
     return uid
+
+
+@pytest.fixture
+def my_rg2(tmp_path) -> Path:
+    """A user's RG2 folder in the test's tmp_path: the shipped files under the name ``my_rg2``."""
+    return users_rg2(tmp_path)
