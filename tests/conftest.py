@@ -91,3 +91,11 @@ def convex_scene_run(convex_objects, tmp_path_factory) -> Path:
     ]
     run_annotate("--objects", convex_objects, "--out", out, "--quiet", *args)
     return out
+
+
+@pytest.fixture(scope="session")
+def shape_cache(tmp_path_factory) -> Path:
+    """A decomposition cache shared by the session's tests that need an object's collision shape
+    but do not test how it is made: the first such test decomposes, the others read it back (the
+    parts are the same float64 numbers either way). Tests of the cold path make their own cache."""
+    return tmp_path_factory.mktemp("shape-cache")
