@@ -107,6 +107,7 @@ def test_grasps_come_in_every_documented_form():
         Grasps.of(pd.DataFrame(rows))
 
 
+@pytest.mark.slow  # a settled pile seen from three views and its grasps checked: several seconds
 def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(convex_objects):
     """On a known pile, seen from three views: every grasp vision-random returns holds the pads
     across an observed pair (the TCP between observed points), and its open gripper, at the grasp
