@@ -1,5 +1,5 @@
 """Shared fixtures: real PyBullet worlds in DIRECT mode, closed after each test; a user's gripper
-folder; the convex sample objects and one small scene run of them, labelled once per session."""
+folder; the convex sample objects and one small scene run of them, labelled once a run."""
 
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ REPO = Path(__file__).resolve().parents[1]
 CONVEX_OBJECTS = ("box.obj", "can.stl")  # convex: no decomposition, graspable from above wherever they land
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # tests/ is no package: once a run
 def convex_objects(tmp_path_factory) -> Path:
     """A folder of the convex sample objects (box, can); tests only read it."""
     folder = tmp_path_factory.mktemp("convex-objects")
@@ -66,7 +66,7 @@ def convex_objects(tmp_path_factory) -> Path:
     return folder
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # tests/ is no package: once a run
 def convex_scene_run(convex_objects, tmp_path_factory) -> Path:
     """``annotate --scenes 2 --per-scene 3 --n 40 --views 1`` of the convex objects with one worker
     (about 15 CPU-seconds), labelled once for every test that reads a scene run; tests only read
@@ -93,9 +93,9 @@ def convex_scene_run(convex_objects, tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # tests/ is no package: once a run
 def shape_cache(tmp_path_factory) -> Path:
-    """A decomposition cache shared by the session's tests that need an object's collision shape
+    """A decomposition cache shared by the run's tests that need an object's collision shape
     but do not test how it is made: the first such test decomposes, the others read it back (the
     parts are the same float64 numbers either way). Tests of the cold path make their own cache."""
     return tmp_path_factory.mktemp("shape-cache")

@@ -15,7 +15,7 @@ from annotator.config import AnnotatorConfig
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
 
-SCENE_RUN_N = 40  # grasps per scene of the session's ``convex_scene_run`` (conftest.py)
+SCENE_RUN_N = 40  # grasps per scene of the run-wide ``convex_scene_run`` (conftest.py)
 QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"  # colour views at a quarter of the Kinect's size
 
 

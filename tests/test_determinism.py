@@ -32,7 +32,7 @@ def concave(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def cache(shape_cache):
-    """The session's shared decomposition cache as the default cache of this module's workers."""
+    """The run's shared decomposition cache as the default cache of this module's workers."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("RG2_CACHE_DIR", str(shape_cache))
         yield shape_cache

@@ -84,7 +84,7 @@ def mug_models(cache_dir):
 @pytest.fixture(scope="module")
 def shipped_models(shape_cache, mug_models):
     """The shipped objects but the bowl, loaded once per module: the mug from this module's cache
-    (decomposed here), the others through the session's shared cache (decomposed once a session)."""
+    (decomposed here), the others through the run's shared cache (decomposed once a run)."""
     models = {"mug": mug_models[1]}
     for s in discover_objects(REPO_OBJECTS):
         if s.object_id in SHIPPED_IN_TEST and s.object_id != "mug":
