@@ -10,16 +10,28 @@ import trimesh
 from click.testing import CliRunner, Result
 
 import annotator.dataset as ds
-from annotator.cli import annotate_command
+from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
+
+SCENE_RUN_N = 40  # grasps per scene of the run-wide ``convex_scene_run`` (conftest.py)
+QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"  # colour views at a quarter of the Kinect's size
 
 
 def run_annotate(*args, check: int | None = 0) -> Result:
     """Run ``annotate`` in process with ``args`` (anything str() turns into an argument); assert
     the exit code when ``check`` is not None, showing the output when it differs."""
     result = CliRunner().invoke(annotate_command, [str(a) for a in args], catch_exceptions=False)
+    if check is not None:
+        assert result.exit_code == check, f"exit {result.exit_code}, output:\n{result.output}"
+    return result
+
+
+def run_annotator(*args, check: int | None = 0) -> Result:
+    """Run the ``annotator`` command group in process with ``args`` (a subcommand first); assert
+    the exit code when ``check`` is not None, showing the output when it differs."""
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
     if check is not None:
         assert result.exit_code == check, f"exit {result.exit_code}, output:\n{result.output}"
     return result

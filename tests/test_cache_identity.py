@@ -15,7 +15,7 @@ import trimesh
 from helpers import dimpled
 
 from annotator.config import ObjectConfig
-from annotator.objects import cache, decomposition
+from annotator.objects import cache, decomposition, load_object
 
 
 def _sorted(df: pd.DataFrame) -> pd.DataFrame:
@@ -99,15 +99,11 @@ def test_a_valid_entry_copied_under_another_objects_key_is_not_used(tmp_path):
     assert set(clean["object_id"]) == {"box", "cylinder"}
 
     entries = {}
-    for name in ("box", "cylinder"):  # each object's entry, from a run of it alone
-        alone = tmp_path / f"{name}-objects"
-        alone.mkdir()
-        shutil.copy(objects / f"{name}.obj", alone)
-        _annotate(
-            "--objects", alone, "--n", 2, "--workers", 1, "-q",
-            "--out", tmp_path / f"{name}-out", "--cache", tmp_path / f"{name}-cache",
-        )
+    for name in ("box", "cylinder"):  # each object's entry, loaded alone as a worker loads it
+        load_object(objects / f"{name}.obj", ObjectConfig(), cache_dir=tmp_path / f"{name}-cache")
         (entries[name],) = (tmp_path / f"{name}-cache").glob("*.npz")
+    # the entries the clean run's worker wrote, by name
+    assert {p.name for p in (tmp_path / "clean-cache").glob("*.npz")} == {p.name for p in entries.values()}
     poisoned = tmp_path / "poisoned-cache"
     poisoned.mkdir()
     shutil.copyfile(entries["box"], poisoned / entries["box"].name)

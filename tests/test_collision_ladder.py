@@ -543,6 +543,7 @@ def test_a_near_miss_is_one_within_the_retry_margin_of_the_limits():
     assert not decomposers.near_miss(error(0.10, 2.03), dataclasses.replace(CONFIG, coacd_retry_margin=0.0))
 
 
+@pytest.mark.slow  # two CoACD searches of a real mesh: 18 s in CI
 def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_own_search(monkeypatch):
     """Real CoACD on a coarse torus at 0.05 only, the limits set from its measured error: missed by
     3 %, the threshold is cut again with CoACD's own 150 iterations and the better of the two kept;

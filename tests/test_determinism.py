@@ -31,11 +31,11 @@ def concave(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
+def cache(shape_cache):
+    """The run's shared decomposition cache as the default cache of this module's workers."""
     with pytest.MonkeyPatch.context() as mp:
-        path = tmp_path_factory.mktemp("rg2-cache")
-        mp.setenv("RG2_CACHE_DIR", str(path))
-        yield path
+        mp.setenv("RG2_CACHE_DIR", str(shape_cache))
+        yield shape_cache
 
 
 def _fresh_worker() -> None:
@@ -210,10 +210,11 @@ def test_cell_rows_and_views_do_not_depend_on_the_worker_history(cache):
 
 
 @pytest.mark.slow
-def test_cell_labels_and_views_are_identical_on_any_worker_count(concave, tmp_path, monkeypatch):
+def test_cell_labels_and_views_are_identical_on_any_worker_count(concave, cache, tmp_path):
+    """With the objects' shapes in the cache (cold or warm is the test above), one and two workers
+    give the same cell rows and view files."""
     import hashlib
 
-    monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
     config = tmp_path / "views.toml"
     config.write_text("[kinect]\nviews_color_scale = 0.25\n")
     outs = []

@@ -257,34 +257,48 @@ CELL_OBJECTS = ("box.obj", "can.stl")  # cell_labels/ : --cell --views 2, --n DO
 DOCS_N = 20
 
 
-def _annotate(folder: Path, *args: str) -> None:
+def _annotate(folder: Path, *args: str) -> subprocess.Popen:
+    """``annotate *args --quiet`` started in ``folder`` by the installed console script."""
     bindir = Path(sys.executable).parent
     exe = shutil.which("annotate", path=str(bindir)) or shutil.which("annotate")
     assert exe, "the annotate console script is not installed (pip install -e '.[test]')"
-    proc = subprocess.run([exe, *args, "--quiet"], cwd=folder, capture_output=True, text=True, timeout=900)
-    output = proc.stdout + proc.stderr
-    assert proc.returncode == 0, f"annotate {' '.join(args)} exited {proc.returncode}:\n{output}"
+    return subprocess.Popen(
+        [exe, *args, "--quiet"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
 
 
 @pytest.fixture(scope="module")
 def docs_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The folder the docs' examples run in: ``objects/`` (box, can, mug from the sample objects),
     ``labels/`` (``annotate --objects objects/ --n 20``), ``cell_labels/`` (box and can,
-    ``--cell --views 2 --n 20``) and ``scene_labels/`` (one pile of two of box and can, 20 grasps)."""
+    ``--cell --views 2 --n 20``) and ``scene_labels/`` (one pile of two of box and can, 20 grasps).
+    The three runs write apart and run side by side."""
     folder = tmp_path_factory.mktemp("docs")
     for sub, names in (("objects", LABELLED_OBJECTS), ("cell_objects", CELL_OBJECTS)):
         (folder / sub).mkdir()
         for name in names:
             shutil.copy(REPO / "objects" / name, folder / sub / name)
-    _annotate(folder, "--objects", "objects/", "--n", str(DOCS_N), "--out", "labels/", "--workers", "1")
-    _annotate(
-        folder, "--objects", "cell_objects/", "--n", str(DOCS_N), "--cell", "--views", "2",
-        "--out", "cell_labels/", "--workers", "1",
-    )  # fmt: skip
-    _annotate(
-        folder, "--objects", "cell_objects/", "--scenes", "1", "--per-scene", "2", "--n", str(DOCS_N),
-        "--out", "scene_labels/", "--workers", "1",
-    )  # fmt: skip
+    runs = [
+        ("--objects", "objects/", "--n", str(DOCS_N), "--out", "labels/", "--workers", "1"),
+        (
+            "--objects", "cell_objects/", "--n", str(DOCS_N), "--cell", "--views", "2",
+            "--out", "cell_labels/", "--workers", "1",
+        ),
+        (
+            "--objects", "cell_objects/", "--scenes", "1", "--per-scene", "2", "--n", str(DOCS_N),
+            "--out", "scene_labels/", "--workers", "1",
+        ),
+    ]  # fmt: skip
+    procs = [(args, _annotate(folder, *args)) for args in runs]
+    try:
+        for args, proc in procs:
+            output, _ = proc.communicate(timeout=900)
+            assert proc.returncode == 0, f"annotate {' '.join(args)} exited {proc.returncode}:\n{output}"
+    finally:
+        for _, proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
     return folder
 
 

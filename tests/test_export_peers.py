@@ -14,41 +14,13 @@ import numpy as np
 import pandas as pd
 import pytest
 import trimesh
-from click.testing import CliRunner
-from helpers import run_annotate
-from scene_helpers import REPO
+from helpers import SCENE_RUN_N, run_annotator
 
-from annotator.cli import main
 from annotator.tools import export_cgn
 from annotator.tools.common import object_mesh
 from annotator.tools.scene_labels import SceneLabels, open_scene_labels
 
-OBJECTS = ("box.obj", "can.stl")  # convex: no decomposition, graspable from above wherever they land
-N = 40
-QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"
-
-
-def annotator(*args, check: int | None = 0):
-    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-    if check is not None:
-        assert result.exit_code == check, result.output
-    return result
-
-
-@pytest.fixture(scope="module")
-def scene_run(tmp_path_factory) -> Path:
-    """Two scenes of three objects, 40 grasps each, one view: about 15 CPU-seconds."""
-    root = tmp_path_factory.mktemp("peers")
-    objects = root / "objects"
-    objects.mkdir()
-    for name in OBJECTS:
-        shutil.copy(REPO / "objects" / name, objects)
-    config = root / "views.toml"
-    config.write_text(QUICK_VIEWS)
-    out = root / "labels"
-    args = ["--scenes", 2, "--per-scene", 3, "--n", N, "--views", 1, "--config", config, "--workers", 1]
-    run_annotate("--objects", objects, "--out", out, "--quiet", *args)
-    return out
+N = SCENE_RUN_N
 
 
 # --- VGN --------------------------------------------------------------------------------------------
@@ -69,10 +41,10 @@ def vgn_dataset_items(root: Path) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path, monkeypatch):
+def test_vgn_export_leaves_out_grasps_outside_the_workspace(convex_scene_run, tmp_path, monkeypatch):
     """A grasp placed 2 cm outside the workspace cube is left out of both layouts and reported
     (the command's output and _export.json); every row VGN's Dataset reads has its voxel in the grid."""
-    scenes = open_scene_labels(scene_run, "test")
+    scenes = open_scene_labels(convex_scene_run, "test")
     record = scenes.records[0]
     moved = 7  # grasp id moved outside: below the cube's lower x side
     real_grasps = SceneLabels.grasps
@@ -85,7 +57,7 @@ def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path,
 
     monkeypatch.setattr(SceneLabels, "grasps", grasps)
     out = tmp_path / "vgn"
-    result = annotator("export", scene_run, "--format", "vgn", "--out", out)
+    result = run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
     assert "left out 1 grasps: outside the 0.3 m workspace cube" in result.output
     assert "wrote" in result.output and f"({2 * N - 1} grasps)" in result.output
     recorded = json.loads((out / "_export.json").read_text())["left_out"]
@@ -108,12 +80,12 @@ def test_vgn_export_leaves_out_grasps_outside_the_workspace(scene_run, tmp_path,
     )
 
 
-def test_vgn_dataset_csv_is_construct_datasets_with_round_trip_parsing(scene_run, tmp_path):
+def test_vgn_dataset_csv_is_construct_datasets_with_round_trip_parsing(convex_scene_run, tmp_path):
     """construct_dataset.py reads the raw CSV (read_df), divides x, y, z, width by the voxel and
     writes it with DataFrame.to_csv: with every number parsed exactly (round trip: Python's
     float(), what pandas' float_precision="round_trip" does) that is our dataset CSV byte for byte."""
     out = tmp_path / "vgn"
-    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
     voxel = 0.3 / 40
     columns = ["qx", "qy", "qz", "qw", "x", "y", "z", "width"]
     df = pd.read_csv(out / "grasps.csv", converters={c: float for c in columns})
@@ -143,11 +115,11 @@ def giga_scene(mesh_pose_list: np.ndarray) -> list[trimesh.Trimesh]:
     return meshes
 
 
-def test_giga_mesh_pose_list_rebuilds_each_scene(scene_run, tmp_path, monkeypatch):
+def test_giga_mesh_pose_list_rebuilds_each_scene(convex_scene_run, tmp_path, monkeypatch):
     out = tmp_path / "vgn"
-    annotator("export", scene_run, "--format", "vgn", "--out", out)
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
     monkeypatch.chdir(tmp_path)  # GIGA loads the mesh paths as given, from wherever it runs
-    scenes = open_scene_labels(scene_run, "test")
+    scenes = open_scene_labels(convex_scene_run, "test")
     raw = pd.read_csv(out / "grasps.csv")
     for scene_id in sorted(raw["scene_id"].unique()):
         # GIGA's dataset_voxel: raw_root / "mesh_pose_list" / (scene_id + ".npz"), key "pc"
@@ -157,7 +129,7 @@ def test_giga_mesh_pose_list_rebuilds_each_scene(scene_run, tmp_path, monkeypatc
         assert len(meshes) == len(record.kept) > 0
         T_task_table = record.workspace.T_table_task.inverse().as_matrix()
         for mesh, inst in zip(meshes, record.kept, strict=True):
-            want = object_mesh(scene_run, inst.object_id).apply_transform(
+            want = object_mesh(convex_scene_run, inst.object_id).apply_transform(
                 T_task_table @ inst.T_table_obj.as_matrix()
             )
             np.testing.assert_allclose(mesh.bounds, want.bounds, atol=1e-8)
@@ -179,10 +151,10 @@ def distance_to_mesh(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     return np.linalg.norm(closest - pairs[0], axis=1).reshape(len(points), len(tri)).min(axis=1)
 
 
-def test_contact_graspnet_contacts_lie_on_the_mesh_where_the_pads_close(scene_run, tmp_path):
+def test_contact_graspnet_contacts_lie_on_the_mesh_where_the_pads_close(convex_scene_run, tmp_path):
     out = tmp_path / "cgn"
-    result = annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
-    scenes = open_scene_labels(scene_run, "test")
+    result = run_annotator("export", convex_scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(convex_scene_run, "test")
     left_out = json.loads((out / "_export.json").read_text())["left_out"]
     no_contact = left_out[1]["grasps"]
     assert "failures" in left_out[0]["reason"] and "closing line" in left_out[1]["reason"]
@@ -218,13 +190,13 @@ def test_contact_graspnet_contacts_lie_on_the_mesh_where_the_pads_close(scene_ru
     assert "wrote" in result.output
 
 
-def test_contact_graspnet_camera_pose_is_opengl_as_its_training_converts_it(scene_run, tmp_path):
+def test_contact_graspnet_camera_pose_is_opengl_as_its_training_converts_it(convex_scene_run, tmp_path):
     """``camera_pose`` in views/ goes through Contact-GraspNet's center_pc_convert_cam (negate the
     y and z columns, invert) to the transform from its scene frame into the camera's OpenCV frame:
     a depth pixel's point in the scene projects back onto that pixel with ``K``."""
     out = tmp_path / "cgn"
-    annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
-    scenes = open_scene_labels(scene_run, "test")
+    run_annotator("export", convex_scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(convex_scene_run, "test")
     record, view = scenes.records[1], scenes.views(1)[0]
     with np.load(out / "views" / "000001_00.npz", allow_pickle=True) as data:
         depth, K, camera_pose = data["depth"], data["K"].reshape(3, 3), data["camera_pose"]
@@ -247,20 +219,20 @@ def test_contact_graspnet_camera_pose_is_opengl_as_its_training_converts_it(scen
 # --- refusals -----------------------------------------------------------------------------------------
 
 
-def test_scene_exports_refuse_a_run_with_a_failed_scene_without_partial(scene_run, tmp_path):
+def test_scene_exports_refuse_a_run_with_a_failed_scene_without_partial(convex_scene_run, tmp_path):
     """A run whose manifest records a failed scene (as annotate writes one: objects_failed) is
     refused in one line, exit 2; --partial exports the scenes that were labelled."""
     run = tmp_path / "labels"
-    shutil.copytree(scene_run, run)
+    shutil.copytree(convex_scene_run, run)
     manifest = json.loads((run / "_manifest.json").read_text())
     manifest["objects_failed"]["scene_000002"] = "the scene kept no object: every object left the workspace"
     (run / "_manifest.json").write_text(json.dumps(manifest))
     for fmt in ("vgn", "contact_graspnet"):
-        result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, check=2)
+        result = run_annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, check=2)
         assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
         assert "1 of its scenes failed (scene_000002" in result.output and "--partial" in result.output
         assert not (tmp_path / fmt / "_export.json").exists()
-        result = annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, "--partial")
+        result = run_annotator("export", run, "--format", fmt, "--out", tmp_path / fmt, "--partial")
         assert (tmp_path / fmt / "_export.json").is_file()
 
 
@@ -273,12 +245,12 @@ def test_scene_exports_refuse_a_run_with_a_failed_scene_without_partial(scene_ru
         ("contact_graspnet", "views/000000_00.npz"),
     ],
 )
-def test_scene_exports_never_replace_a_file_they_did_not_write(scene_run, tmp_path, fmt, name):
+def test_scene_exports_never_replace_a_file_they_did_not_write(convex_scene_run, tmp_path, fmt, name):
     out = tmp_path / "out"
     (out / name).parent.mkdir(parents=True)
     (out / name).write_text("mine")
     for extra in ((), ("--overwrite",)):
-        result = annotator("export", scene_run, "--format", fmt, "--out", out, *extra, check=2)
+        result = run_annotator("export", convex_scene_run, "--format", fmt, "--out", out, *extra, check=2)
         assert len(result.output.strip().splitlines()) == 1
         assert "was not written by an export" in result.output
         assert (out / name).read_text() == "mine" and not (out / "_export.json").exists()

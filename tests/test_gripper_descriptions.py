@@ -4,37 +4,13 @@ traceback from deep inside the simulation: each broken variant of the shipped RG
 from __future__ import annotations
 
 import re
-import shutil
-from pathlib import Path
 
 import pytest
+from gripper_helpers import description_error, edit
 
 from annotator.config import ConfigError, GripperConfig
-from annotator.grippers import DescriptionError, gripper_dir, load_gripper
+from annotator.grippers import DescriptionError, load_gripper
 from annotator.sim.gripper import GripperSettings
-
-
-@pytest.fixture
-def rg2(tmp_path) -> Path:
-    folder = tmp_path / "my_rg2"
-    shutil.copytree(gripper_dir("rg2"), folder, ignore=shutil.ignore_patterns("*.py", "*.md", "__pycache__"))
-    _edit(folder / "gripper.toml", 'name = "rg2"', 'name = "my_rg2"')  # edited, it is another model
-    return folder
-
-
-def _edit(path: Path, old: str, new: str, count: int = 1) -> None:
-    text = path.read_text()
-    assert old in text, old
-    path.write_text(text.replace(old, new, count))
-
-
-def _error(folder: Path) -> str:
-    with pytest.raises(DescriptionError) as info:
-        load_gripper(folder)
-    message = str(info.value)
-    assert "\n" not in message and "Traceback" not in message
-    return message
-
 
 TOML_BREAKS = [
     (
@@ -91,63 +67,71 @@ TOML_BREAKS = [
 
 
 @pytest.mark.parametrize("old, new, fragment", TOML_BREAKS)
-def test_a_broken_toml_is_one_line_naming_the_key(rg2, old, new, fragment):
-    _edit(rg2 / "gripper.toml", old, new)
+def test_a_broken_toml_is_one_line_naming_the_key(my_rg2, old, new, fragment):
+    edit(my_rg2 / "gripper.toml", old, new)
     if fragment is None:
-        assert load_gripper(rg2).name == "my_rg2"
+        assert load_gripper(my_rg2).name == "my_rg2"
         return
-    message = _error(rg2)
+    message = description_error(my_rg2)
     assert fragment in message, message
-    assert str(rg2 / "gripper.toml") in message
+    assert str(my_rg2 / "gripper.toml") in message
 
 
-def test_no_coupling_is_an_error(rg2):
-    urdf = rg2 / "rg2.urdf"
+def test_no_coupling_is_an_error(my_rg2):
+    urdf = my_rg2 / "rg2.urdf"
     urdf.write_text(re.sub(r"\s*<mimic [^>]*/>", "", urdf.read_text()))
-    assert "no <mimic> tag in rg2.urdf: nothing couples the fingers" in _error(rg2)
+    assert "no <mimic> tag in rg2.urdf: nothing couples the fingers" in description_error(my_rg2)
 
 
-def test_a_movable_joint_nothing_moves_is_an_error(rg2):
-    urdf = rg2 / "rg2.urdf"
+def test_a_movable_joint_nothing_moves_is_an_error(my_rg2):
+    urdf = my_rg2 / "rg2.urdf"
     text = urdf.read_text()
     urdf.write_text(
         re.sub(r'\s*<mimic joint="gripper_finger1_joint" multiplier="-1" offset="0"/>', "", text, count=1)
     )
-    assert "movable joint 'gripper_finger1_finger_tip_joint' neither is the drive nor mimics it" in _error(
-        rg2
+    assert (
+        "movable joint 'gripper_finger1_finger_tip_joint' neither is the drive nor mimics it"
+        in description_error(my_rg2)
     )
 
 
-def test_a_follower_of_another_joint_is_an_error(rg2):
-    _edit(
-        rg2 / "rg2.urdf",
+def test_a_follower_of_another_joint_is_an_error(my_rg2):
+    edit(
+        my_rg2 / "rg2.urdf",
         '<mimic joint="gripper_finger1_joint" multiplier="1"',
         '<mimic joint="gripper_finger2_joint" multiplier="1"',
     )
-    assert "mimics 'gripper_finger2_joint', not the drive 'gripper_finger1_joint'" in _error(rg2)
+    assert "mimics 'gripper_finger2_joint', not the drive 'gripper_finger1_joint'" in description_error(
+        my_rg2
+    )
 
 
-def test_a_missing_mesh_or_urdf_or_toml_is_an_error(rg2, tmp_path):
-    _edit(
-        rg2 / "rg2.urdf",
+def test_a_missing_mesh_or_urdf_or_toml_is_an_error(my_rg2, tmp_path):
+    edit(
+        my_rg2 / "rg2.urdf",
         '<geometry><box size="0.011450 0.020200 0.029800"/></geometry>',
         '<geometry><mesh filename="pad.stl"/></geometry>',
     )
-    assert "rg2.urdf references pad.stl, which does not exist" in _error(rg2)
-    (rg2 / "rg2.urdf").unlink()
-    assert "urdf: rg2.urdf does not exist beside gripper.toml" in _error(rg2)
-    (rg2 / "gripper.toml").write_text("[stroke\nmax = ")
-    assert "not TOML" in _error(rg2)
-    (rg2 / "gripper.toml").unlink()
-    assert "no gripper.toml" in _error(rg2)
+    assert "rg2.urdf references pad.stl, which does not exist" in description_error(my_rg2)
+    (my_rg2 / "rg2.urdf").unlink()
+    assert "urdf: rg2.urdf does not exist beside gripper.toml" in description_error(my_rg2)
+    (my_rg2 / "gripper.toml").write_text("[stroke\nmax = ")
+    assert "not TOML" in description_error(my_rg2)
+    (my_rg2 / "gripper.toml").unlink()
+    assert "no gripper.toml" in description_error(my_rg2)
     with pytest.raises(DescriptionError, match="no gripper 'robotiq_3f'"):
         load_gripper("robotiq_3f")
 
 
-def test_a_pad_without_a_box_needs_its_size_stated(rg2):
+def test_a_pad_without_a_box_needs_its_size_stated(my_rg2):
     pad = '<geometry><box size="0.011450 0.020200 0.029800"/></geometry>'
-    _edit(rg2 / "rg2.urdf", f'<collision><origin xyz="0.000000 0.000000 0.000000"/>{pad}</collision>', "", 2)
-    assert "[pads] link 'gripper_finger1_pad_link' has no collision box: state [pads] size" in _error(rg2)
+    edit(
+        my_rg2 / "rg2.urdf", f'<collision><origin xyz="0.000000 0.000000 0.000000"/>{pad}</collision>', "", 2
+    )
+    assert (
+        "[pads] link 'gripper_finger1_pad_link' has no collision box: state [pads] size"
+        in description_error(my_rg2)
+    )
 
 
 def test_grip_force_override_is_checked_against_the_gripper():

@@ -12,9 +12,10 @@ import numpy as np
 import pybullet as pb
 import pytest
 import trimesh
+from gripper_helpers import description_error, edit
 from helpers import run_annotate
 
-from annotator.grippers import DescriptionError, GripperFiles, gripper_dir, load_gripper, resolve_gripper
+from annotator.grippers import GripperFiles, gripper_dir, load_gripper, resolve_gripper
 from annotator.grippers.meshes import MAX_MESH_BYTES, MAX_MESH_FACES
 
 PAD_BOX = '<geometry><box size="0.011450 0.020200 0.029800"/></geometry>'
@@ -22,33 +23,10 @@ PAD_SIZE = (0.01145, 0.0202, 0.0298)
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture
-def mine(tmp_path) -> Path:
-    """A user's RG2: the shipped files under the user's own name."""
-    folder = tmp_path / "my_rg2"
-    shutil.copytree(gripper_dir("rg2"), folder, ignore=shutil.ignore_patterns("*.py", "*.md", "__pycache__"))
-    _edit(folder / "gripper.toml", 'name = "rg2"', 'name = "my_rg2"')
-    return folder
-
-
-def _edit(path: Path, old: str, new: str, count: int = 1) -> None:
-    text = path.read_text()
-    assert old in text, old
-    path.write_text(text.replace(old, new, count))
-
-
-def _error(folder: Path) -> str:
-    with pytest.raises(DescriptionError) as info:
-        load_gripper(folder)
-    message = str(info.value)
-    assert "\n" not in message and "Traceback" not in message
-    return message
-
-
 def _mesh_pads(folder: Path, name: str = "pad.obj") -> None:
     """Both pads' collision boxes become mesh ``name``, their size stated in the TOML."""
-    _edit(folder / "rg2.urdf", PAD_BOX, f'<geometry><mesh filename="{name}"/></geometry>', 2)
-    _edit(folder / "gripper.toml", "[pads]\n", f"[pads]\nsize = {list(PAD_SIZE)}\n")
+    edit(folder / "rg2.urdf", PAD_BOX, f'<geometry><mesh filename="{name}"/></geometry>', 2)
+    edit(folder / "gripper.toml", "[pads]\n", f"[pads]\nsize = {list(PAD_SIZE)}\n")
 
 
 # --- numbers: finite and in range ----------------------------------------------------------------------
@@ -68,25 +46,25 @@ NUMBER_BREAKS = [
 
 
 @pytest.mark.parametrize("old, new, fragment", NUMBER_BREAKS)
-def test_a_number_out_of_range_or_not_finite_is_one_line(mine, old, new, fragment):
-    _edit(mine / "gripper.toml", old, new)
-    assert fragment in _error(mine)
+def test_a_number_out_of_range_or_not_finite_is_one_line(my_rg2, old, new, fragment):
+    edit(my_rg2 / "gripper.toml", old, new)
+    assert fragment in description_error(my_rg2)
 
 
-def test_a_nan_in_the_urdf_is_one_line(mine):
+def test_a_nan_in_the_urdf_is_one_line(my_rg2):
     origin = '<origin xyz="-0.017000 0.000000 0.110000"'
-    _edit(mine / "rg2.urdf", origin, origin.replace("0.000000", "nan"))
-    assert "expected 3 finite numbers" in _error(mine)
+    edit(my_rg2 / "rg2.urdf", origin, origin.replace("0.000000", "nan"))
+    assert "expected 3 finite numbers" in description_error(my_rg2)
 
 
 # --- shapes PyBullet loads, of the stated size ---------------------------------------------------------
 
 
-def test_a_mesh_pad_of_the_stated_size_loads_and_pybullet_sees_that_size(mine):
-    trimesh.creation.box(extents=PAD_SIZE).export(mine / "pad.obj")
-    _mesh_pads(mine)
-    d = load_gripper(mine)
-    assert ("pad.obj", (mine / "pad.obj").read_bytes()) in d.files
+def test_a_mesh_pad_of_the_stated_size_loads_and_pybullet_sees_that_size(my_rg2):
+    trimesh.creation.box(extents=PAD_SIZE).export(my_rg2 / "pad.obj")
+    _mesh_pads(my_rg2)
+    d = load_gripper(my_rg2)
+    assert ("pad.obj", (my_rg2 / "pad.obj").read_bytes()) in d.files
     client = pb.connect(pb.DIRECT)
     try:
         uid = pb.loadURDF(str(d.urdf), useFixedBase=True, physicsClientId=client)
@@ -109,23 +87,23 @@ def test_a_mesh_pad_of_the_stated_size_loads_and_pybullet_sees_that_size(mine):
     ],
     ids=["empty", "random-bytes", "two-vertices"],
 )
-def test_a_pad_mesh_pybullet_would_not_load_is_one_line(mine, content, fragment):
-    (mine / "pad.obj").write_bytes(content)
-    _mesh_pads(mine)
-    assert fragment in _error(mine)
+def test_a_pad_mesh_pybullet_would_not_load_is_one_line(my_rg2, content, fragment):
+    (my_rg2 / "pad.obj").write_bytes(content)
+    _mesh_pads(my_rg2)
+    assert fragment in description_error(my_rg2)
 
 
-def test_a_pad_mesh_of_another_size_than_stated_is_one_line(mine):
-    trimesh.creation.box(extents=np.multiply(PAD_SIZE, 1000)).export(mine / "pad.obj")  # millimetres
-    _mesh_pads(mine)
-    assert "does not match pad 'gripper_finger1_pad_link''s mesh pad.obj" in _error(mine)
+def test_a_pad_mesh_of_another_size_than_stated_is_one_line(my_rg2):
+    trimesh.creation.box(extents=np.multiply(PAD_SIZE, 1000)).export(my_rg2 / "pad.obj")  # millimetres
+    _mesh_pads(my_rg2)
+    assert "does not match pad 'gripper_finger1_pad_link''s mesh pad.obj" in description_error(my_rg2)
 
 
-def test_random_bytes_as_a_finger_stl_are_one_line(mine):
-    (mine / "tip.stl").write_bytes(np.random.default_rng(1).bytes(1000))
+def test_random_bytes_as_a_finger_stl_are_one_line(my_rg2):
+    (my_rg2 / "tip.stl").write_bytes(np.random.default_rng(1).bytes(1000))
     tip = '<geometry><box size="0.003050 0.020200 0.055000"/></geometry>'
-    _edit(mine / "rg2.urdf", tip, '<geometry><mesh filename="tip.stl"/></geometry>')
-    assert "tip.stl is neither a binary STL" in _error(mine)
+    edit(my_rg2 / "rg2.urdf", tip, '<geometry><mesh filename="tip.stl"/></geometry>')
+    assert "tip.stl is neither a binary STL" in description_error(my_rg2)
 
 
 # --- budgets: faces and bytes, checked before reading --------------------------------------------------
@@ -139,24 +117,24 @@ def _binary_stl(path: Path, faces: int) -> None:
     path.write_bytes(b"\0" * 80 + struct.pack("<I", faces) + records.tobytes())
 
 
-def test_a_mesh_over_the_face_budget_is_refused_with_the_figure(mine):
-    _binary_stl(mine / "tip.stl", MAX_MESH_FACES + 5_000)
+def test_a_mesh_over_the_face_budget_is_refused_with_the_figure(my_rg2):
+    _binary_stl(my_rg2 / "tip.stl", MAX_MESH_FACES + 5_000)
     tip = '<geometry><box size="0.003050 0.020200 0.055000"/></geometry>'
-    _edit(mine / "rg2.urdf", tip, '<geometry><mesh filename="tip.stl"/></geometry>')
-    message = _error(mine)
+    edit(my_rg2 / "rg2.urdf", tip, '<geometry><mesh filename="tip.stl"/></geometry>')
+    message = description_error(my_rg2)
     faces = f"{MAX_MESH_FACES + 5_000:,}"
     assert f"the meshes hold {faces} faces (tip.stl: {faces})" in message
     assert f"budget of {MAX_MESH_FACES:,}" in message
 
 
 @pytest.mark.parametrize("size", [84 + 50 * 2_000_000, 20 * 1024**3], ids=["2M-face-stl", "20GB"])
-def test_a_huge_mesh_is_refused_by_its_size_before_it_is_read(mine, size):
+def test_a_huge_mesh_is_refused_by_its_size_before_it_is_read(my_rg2, size):
     """A sparse file (no disk used): 2 million faces' worth of binary STL, or 20 GB."""
-    with open(mine / "tip.stl", "wb") as f:
+    with open(my_rg2 / "tip.stl", "wb") as f:
         f.truncate(size)
     tip = '<geometry><box size="0.003050 0.020200 0.055000"/></geometry>'
-    _edit(mine / "rg2.urdf", tip, '<geometry><mesh filename="tip.stl"/></geometry>')
-    message = _error(mine)
+    edit(my_rg2 / "rg2.urdf", tip, '<geometry><mesh filename="tip.stl"/></geometry>')
+    message = description_error(my_rg2)
     budget = f"over the gripper's budget of {MAX_MESH_BYTES:,}"
     assert f"the meshes are {size:,} bytes (tip.stl: {size:,}), {budget}" in message
 
@@ -164,45 +142,45 @@ def test_a_huge_mesh_is_refused_by_its_size_before_it_is_read(mine, size):
 # --- paths: inside the folder only ---------------------------------------------------------------------
 
 
-def test_mesh_paths_outside_the_folder_are_refused_in_one_line(mine, tmp_path):
+def test_mesh_paths_outside_the_folder_are_refused_in_one_line(my_rg2, tmp_path):
     outside = tmp_path / "elsewhere"
     outside.mkdir()
     trimesh.creation.box(extents=PAD_SIZE).export(outside / "pad.obj")
-    (mine / "linked").symlink_to(outside, target_is_directory=True)
+    (my_rg2 / "linked").symlink_to(outside, target_is_directory=True)
     cases = {
         "/etc/passwd": "references /etc/passwd: an absolute path",
         "../elsewhere/pad.obj": "references ../elsewhere/pad.obj lies outside the gripper's folder",
         "linked/pad.obj": "references linked/pad.obj lies outside the gripper's folder",
         "package://rg2/pad.obj": "package:// is not resolved",
     }
-    _mesh_pads(mine, "MESH")
-    urdf = (mine / "rg2.urdf").read_text()
+    _mesh_pads(my_rg2, "MESH")
+    urdf = (my_rg2 / "rg2.urdf").read_text()
     for name, fragment in cases.items():
-        (mine / "rg2.urdf").write_text(urdf.replace("MESH", name))
-        assert fragment in _error(mine), name
-    _edit(mine / "gripper.toml", 'urdf = "rg2.urdf"', 'urdf = "../elsewhere/rg2.urdf"')
-    assert "urdf ../elsewhere/rg2.urdf lies outside the gripper's folder" in _error(mine)
+        (my_rg2 / "rg2.urdf").write_text(urdf.replace("MESH", name))
+        assert fragment in description_error(my_rg2), name
+    edit(my_rg2 / "gripper.toml", 'urdf = "rg2.urdf"', 'urdf = "../elsewhere/rg2.urdf"')
+    assert "urdf ../elsewhere/rg2.urdf lies outside the gripper's folder" in description_error(my_rg2)
 
 
-def test_a_urdf_nested_200000_deep_is_one_line(mine):
-    _edit(mine / "rg2.urdf", "</robot>", "<x>" * 200_000 + "</x>" * 200_000 + "</robot>")
-    assert "elements nested more than 32 deep: not a URDF" in _error(mine)
+def test_a_urdf_nested_200000_deep_is_one_line(my_rg2):
+    edit(my_rg2 / "rg2.urdf", "</robot>", "<x>" * 200_000 + "</x>" * 200_000 + "</robot>")
+    assert "elements nested more than 32 deep: not a URDF" in description_error(my_rg2)
 
 
-def test_an_entity_declaration_is_one_line(mine):
-    text = (mine / "rg2.urdf").read_text()
+def test_an_entity_declaration_is_one_line(my_rg2):
+    text = (my_rg2 / "rg2.urdf").read_text()
     lol = '<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">]>'
-    (mine / "rg2.urdf").write_text(text.replace("<robot", lol + "<robot", 1))
-    assert "a DOCTYPE or ENTITY declaration is not accepted" in _error(mine)
+    (my_rg2 / "rg2.urdf").write_text(text.replace("<robot", lol + "<robot", 1))
+    assert "a DOCTYPE or ENTITY declaration is not accepted" in description_error(my_rg2)
 
 
-def test_a_bad_gripper_on_the_command_line_is_one_line_and_exit_2(mine, tmp_path):
-    _mesh_pads(mine, "/etc/passwd")
+def test_a_bad_gripper_on_the_command_line_is_one_line_and_exit_2(my_rg2, tmp_path):
+    _mesh_pads(my_rg2, "/etc/passwd")
     objects = tmp_path / "objects"
     objects.mkdir()
     shutil.copy(REPO / "objects" / "box.obj", objects)
     out = tmp_path / "out"
-    result = run_annotate("--objects", objects, "--n", 2, "--out", out, "--gripper", mine, check=2)
+    result = run_annotate("--objects", objects, "--n", 2, "--out", out, "--gripper", my_rg2, check=2)
     assert "references /etc/passwd: an absolute path" in result.output
     assert "Traceback" not in result.output and not (tmp_path / "out").exists()
 
@@ -214,29 +192,29 @@ def test_a_shipped_name_on_another_model_is_refused_but_a_copy_keeps_it(tmp_path
     copy = tmp_path / "rg2_copy"
     shutil.copytree(gripper_dir("rg2"), copy)
     assert load_gripper(copy).digest == load_gripper("rg2").digest  # the same files: the same gripper
-    _edit(copy / "gripper.toml", "default = 40.0", "default = 30.0")
-    assert "name 'rg2' is a shipped gripper's and this model is another" in _error(copy)
+    edit(copy / "gripper.toml", "default = 40.0", "default = 30.0")
+    assert "name 'rg2' is a shipped gripper's and this model is another" in description_error(copy)
     other = tmp_path / "not_panda"
     shutil.copytree(gripper_dir("rg2"), other)
-    _edit(other / "gripper.toml", 'name = "rg2"', 'name = "panda"')
-    assert "name 'panda' is a shipped gripper's" in _error(other)
+    edit(other / "gripper.toml", 'name = "rg2"', 'name = "panda"')
+    assert "name 'panda' is a shipped gripper's" in description_error(other)
 
 
-def test_a_description_loads_without_a_physics_client(mine, monkeypatch):
+def test_a_description_loads_without_a_physics_client(my_rg2, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a physics client was opened to load a description")
 
     monkeypatch.setattr(pb, "connect", refuse)
-    assert load_gripper(mine).name == "my_rg2"
+    assert load_gripper(my_rg2).name == "my_rg2"
 
 
 # --- frozen: the workers simulate the files the run read -----------------------------------------------
 
 
-def test_a_worker_gets_the_files_read_at_the_start_not_the_edited_folder(mine, tmp_path):
-    run = load_gripper(mine)  # the main process reads the folder once
-    before = (mine / "rg2.urdf").read_bytes()
-    _edit(mine / "rg2.urdf", PAD_BOX, '<geometry><box size="0.011450 0.020200 0.002000"/></geometry>', 2)
+def test_a_worker_gets_the_files_read_at_the_start_not_the_edited_folder(my_rg2, tmp_path):
+    run = load_gripper(my_rg2)  # the main process reads the folder once
+    before = (my_rg2 / "rg2.urdf").read_bytes()
+    edit(my_rg2 / "rg2.urdf", PAD_BOX, '<geometry><box size="0.011450 0.020200 0.002000"/></geometry>', 2)
     worker = resolve_gripper(run, tmp_path / "cache")  # a worker starting (or restarting) after the edit
     assert worker.digest == run.digest and worker.folder == tmp_path / "cache" / "grippers" / run.digest
     assert worker.urdf.read_bytes() == before
@@ -245,7 +223,7 @@ def test_a_worker_gets_the_files_read_at_the_start_not_the_edited_folder(mine, t
 
 
 @pytest.mark.slow
-def test_a_gripper_edited_before_the_workers_start_gives_the_clean_labels(mine, tmp_path, monkeypatch):
+def test_a_gripper_edited_before_the_workers_start_gives_the_clean_labels(my_rg2, tmp_path, monkeypatch):
     """Two loky workers start after the user's URDF was edited (a restarted worker is the same
     case): every row is the clean run's, bit for bit."""
     import pandas as pd
@@ -258,10 +236,10 @@ def test_a_gripper_edited_before_the_workers_start_gives_the_clean_labels(mine, 
     shutil.copy(REPO / "objects" / "box.obj", objects)
     monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
     clean = tmp_path / "clean"
-    run_annotate("--objects", objects, "--n", 12, "--out", clean, "--workers", 1, "--gripper", mine, "-q")
-    description = load_gripper(mine)
+    run_annotate("--objects", objects, "--n", 12, "--out", clean, "--workers", 1, "--gripper", my_rg2, "-q")
+    description = load_gripper(my_rg2)
     # the pads become 2 mm tall slivers: a worker reading the folder would label another gripper
-    _edit(mine / "rg2.urdf", PAD_BOX, '<geometry><box size="0.011450 0.020200 0.002000"/></geometry>', 2)
+    edit(my_rg2 / "rg2.urdf", PAD_BOX, '<geometry><box size="0.011450 0.020200 0.002000"/></geometry>', 2)
     edited = tmp_path / "edited"
     options = RunOptions(objects, 12, edited, workers=2, quiet=True, gripper=description)
     run(options, AnnotatorConfig())

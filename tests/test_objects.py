@@ -15,6 +15,7 @@ import numpy as np
 import pybullet
 import pytest
 import trimesh
+from helpers import write_l
 
 from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.dataset import poses_as_matrices
@@ -83,12 +84,13 @@ def mug_models(cache_dir):
 
 
 @pytest.fixture(scope="module")
-def shipped_models(cache_dir, mug_models):
-    """The shipped objects but the bowl, loaded once per module (concave ones decomposed once)."""
+def shipped_models(shape_cache, mug_models):
+    """The shipped objects but the bowl, loaded once per module: the mug from this module's cache
+    (decomposed here), the others through the run's shared cache (decomposed once a run)."""
     models = {"mug": mug_models[1]}
     for s in discover_objects(REPO_OBJECTS):
         if s.object_id in SHIPPED_IN_TEST and s.object_id != "mug":
-            models[s.object_id] = load_object(s, CONFIG, cache_dir=cache_dir)
+            models[s.object_id] = load_object(s, CONFIG, cache_dir=shape_cache)
     return models
 
 
@@ -397,8 +399,10 @@ def test_mug_is_decomposed_and_cached(mug_models, cache_dir):
 
 @pytest.mark.slow
 def test_cache_dir_defaults_to_env_var(tmp_path, monkeypatch):
+    """A concave object decomposed without a cache_dir: its parts go to $RG2_CACHE_DIR (the L block,
+    split in two by CoACD within a second)."""
     monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "envcache"))
-    model = load_object(REPO_OBJECTS / "banana.obj", CONFIG)
+    model = load_object(write_l(tmp_path / "l.obj"), CONFIG)
     assert model.collision_file is not None
     assert model.collision_file.parent == tmp_path / "envcache"
 
@@ -789,7 +793,7 @@ def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_mo
 
 
 @pytest.mark.slow
-def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cache_dir, hand):
+def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cache_dir, shape_cache, hand):
     """On the mug's 4 mm wall and the banana's inner curve, a success's width is the opening the
     mesh gives the RG2's flat pads within ObjectConfig.collision_max_limit (2 mm).
 
@@ -803,10 +807,10 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
     stroke = hand.gripper.max_width
     checked = {}
     walls = [  # the mug's wall, gripped from above (rim grasps); any of the banana's candidates
-        ("mug", MUG_CONFIG, lambda c: (c.width_expected < 0.006) & (c.T_obj_tcp[:, 2, 2] < -0.8)),
-        ("banana", CONFIG, lambda c: c.width_expected > 0),
-    ]
-    for oid, objects, pick in walls:
+        ("mug", MUG_CONFIG, cache_dir, lambda c: (c.width_expected < 0.006) & (c.T_obj_tcp[:, 2, 2] < -0.8)),
+        ("banana", CONFIG, shape_cache, lambda c: c.width_expected > 0),
+    ]  # each from the cache its model was loaded through
+    for oid, objects, cache, pick in walls:
         model = shipped_models[oid]
         cfg = dataclasses.replace(config, objects=objects)
         cands = object_candidates(model, 400, 0, cfg, stroke)
@@ -820,9 +824,7 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
             len(chosen),
             GivenGrasps(cands.T_obj_tcp[chosen], cands.width_expected[chosen]),
         )
-        rows = label_span(
-            SpanTask(span=span, config=cfg, seed=0, n=len(chosen), cache_dir=str(cache_dir))
-        ).rows
+        rows = label_span(SpanTask(span=span, config=cfg, seed=0, n=len(chosen), cache_dir=str(cache))).rows
         wins = rows[rows["success"]]
         triangles = np.asarray(model.mesh.triangles)
         gap = [

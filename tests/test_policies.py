@@ -5,40 +5,20 @@ clear the observed cloud and the table; predictions files that cannot mean the p
 from __future__ import annotations
 
 import dataclasses
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
-from scene_helpers import REPO
+from helpers import run_annotator
 
-from annotator.cli import main
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import discover_objects
 from annotator.policies import Grasp, Grasps, Observation, PolicyError
 from annotator.policies.clutter import ClutterJob, clutter_removal
 
-OBJECTS = ("box.obj", "can.stl")
 SEEN: list[Observation] = []
 TOP_DOWN = (1.0, 0.0, 0.0, 0.0)  # xyzw: the TCP's +z (approach) along the table's -z
-
-
-def annotator(*args, check: int | None = 0):
-    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-    if check is not None:
-        assert result.exit_code == check, result.output
-    return result
-
-
-@pytest.fixture(scope="module")
-def objects(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("objects")
-    for name in OBJECTS:
-        shutil.copy(REPO / "objects" / name, folder)
-    return folder
 
 
 def above_the_highest_point(observation: Observation, depth: str = "0.01") -> list[Grasp]:
@@ -51,10 +31,10 @@ def above_the_highest_point(observation: Observation, depth: str = "0.01") -> li
     return [Grasp(side, 0.08, 0.1), Grasp(best, 0.08, 0.9)]
 
 
-def test_a_callable_sees_the_kinect_only_and_the_arm_executes_its_best_grasp(objects):
+def test_a_callable_sees_the_kinect_only_and_the_arm_executes_its_best_grasp(convex_objects):
     SEEN.clear()
     config = AnnotatorConfig()
-    sources = tuple(discover_objects(objects))
+    sources = tuple(discover_objects(convex_objects))
     name = f"{__name__}:above_the_highest_point"
     job = ClutterJob(sources, 2, 0, name, config, policy_args=(("depth", "0.02"),), views=2)
     summary = clutter_removal(job, 1)
@@ -86,9 +66,9 @@ def nonsense(observation: Observation) -> Grasps:
     return Grasps.from_rows(np.array([[100.0, 0, 0.1, 1, 0, 0, 0, 0.05, 1.0]]))
 
 
-def test_a_policys_nonsense_is_one_line(objects):
-    result = annotator(
-        "clutter-removal", "--objects", objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
+def test_a_policys_nonsense_is_one_line(convex_objects):
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
         "--policy", f"{__name__}:nonsense", check=2,
     )  # fmt: skip
     assert "outside the workspace" in result.output and "Traceback" not in result.output
@@ -96,10 +76,12 @@ def test_a_policys_nonsense_is_one_line(objects):
         (f"{__name__}:no_such_function", "has no no_such_function"),
         ("no_such_module_here:f", "cannot import"),
     ):
-        result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", policy, check=2)  # noqa: E501
+        result = run_annotator(
+            "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--policy", policy, check=2
+        )
         assert said in result.output, result.output
-    result = annotator(
-        "clutter-removal", "--objects", objects, "--rounds", 1, "--policy", f"{__name__}:nonsense",
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--policy", f"{__name__}:nonsense",
         "--policy-arg", "model=x", check=2,
     )  # fmt: skip
     assert "cannot take" in result.output
@@ -125,7 +107,8 @@ def test_grasps_come_in_every_documented_form():
         Grasps.of(pd.DataFrame(rows))
 
 
-def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(objects):
+@pytest.mark.slow  # a settled pile seen from three views and its grasps checked: several seconds
+def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(convex_objects):
     """On a known pile, seen from three views: every grasp vision-random returns holds the pads
     across an observed pair (the TCP between observed points), and its open gripper, at the grasp
     and every 5 mm back along the approach, holds no observed point above the table and stays above
@@ -140,7 +123,7 @@ def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(objects):
     from annotator.scenes import SceneBuilder, SceneSpec
 
     config = AnnotatorConfig()
-    models = {s.object_id: load_object(s, config.objects) for s in discover_objects(objects)}
+    models = {s.object_id: load_object(s, config.objects) for s in discover_objects(convex_objects)}
     record = SceneBuilder(models).build(SceneSpec(1, 0, "pile", 3, 3))
     round_ = Round(record, models, config, load_gripper(None))
     try:
@@ -192,41 +175,55 @@ def _predictions(**change) -> pd.DataFrame:
         ({"x": 100.0}, "outside the workspace"),
     ],
 )
-def test_predictions_that_cannot_mean_the_piles_are_refused(objects, tmp_path, change, said):
+def test_predictions_that_cannot_mean_the_piles_are_refused(convex_objects, tmp_path, change, said):
     path = tmp_path / "predictions.csv"
     _predictions(**change).to_csv(path, index=False)
-    result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", path, check=2)
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--policy", path, check=2
+    )
     assert said in result.output and "Traceback" not in result.output
     assert len(result.output.strip().splitlines()) == 1
 
 
-def test_a_repeated_predictions_column_is_refused(objects, tmp_path):
+def test_a_repeated_predictions_column_is_refused(convex_objects, tmp_path):
     path = tmp_path / "predictions.csv"
     table = _predictions()
     path.write_text(",".join([*table.columns, "x"]) + "\n" + ",".join(map(str, [*table.iloc[0], 9.0])) + "\n")
-    result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", path, check=2)
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--policy", path, check=2
+    )
     assert "['x'] appear more than once" in result.output
 
 
-def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(objects, tmp_path):
+def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(convex_objects, tmp_path):
     predictions = tmp_path / "predictions.csv"
     _predictions().to_csv(predictions, index=False)
     out = tmp_path / "out"
     out.mkdir()
     mine = out / "rounds.csv"
     mine.write_text("my own notes\n")
-    args = ["clutter-removal", "--objects", objects, "--rounds", 1, "--per-scene", 1, "--workers", 1]
+    args = [
+        "clutter-removal",
+        "--objects",
+        convex_objects,
+        "--rounds",
+        1,
+        "--per-scene",
+        1,
+        "--workers",
+        1,
+    ]
     args += ["--policy", predictions, "--out", out]
-    result = annotator(*args, check=2)
+    result = run_annotator(*args, check=2)
     assert "rounds.csv exists and clutter-removal did not write it" in result.output
     assert mine.read_text() == "my own notes\n"
-    annotator(*args, "--overwrite")
+    run_annotator(*args, "--overwrite")
     written = pd.read_csv(mine)
     assert list(written.columns) == ["round_id", "object_count", "successes", "attempts", "ended"]
-    annotator(*args)  # its own file: replaced without asking
+    run_annotator(*args)  # its own file: replaced without asking
     assert pd.read_csv(mine).equals(written)
     mine.write_text(mine.read_text() + "0,1,0,0,edited\n")  # edited since: not its own any more
-    assert "did not write it" in annotator(*args, check=2).output
+    assert "did not write it" in run_annotator(*args, check=2).output
 
 
 def test_policy_names_resolve_to_their_callables():

@@ -119,6 +119,7 @@ def test_collision_rows_carry_the_open_width_and_no_steps(box_and_can_labels):
         assert (hits["width"] > 0).all() and (hits["width"] <= MAX_WIDTH + 1e-9).all()
 
 
+@pytest.mark.slow  # 120 candidates labelled, then the box's again from fully open: several seconds
 def test_starting_the_close_near_the_chord_changes_no_label(box_and_can_labels, tmp_path):
     """The skipped free-space finger travel (preclose_gap) gives the labels of a close from fully open."""
     mesh, short = box_and_can_labels["box"]

@@ -94,10 +94,16 @@ def objs(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def reference(objs, tmp_path_factory) -> pd.DataFrame:
+def reference_out(objs, tmp_path_factory) -> Path:
+    """The output folder of one whole run of the three objects (tests copy it before they change it)."""
     out = tmp_path_factory.mktemp("ref") / "labels"
     run_annotate("--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet")
-    return _labels(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(reference_out) -> pd.DataFrame:
+    return _labels(reference_out)
 
 
 # --- 2. one run per output folder ----------------------------------------------------------------
@@ -188,10 +194,10 @@ def test_a_mesh_changed_behind_an_unchanged_urdf_is_redone(tmp_path):
 # --- 4. state that rots --------------------------------------------------------------------------------
 
 
-def test_a_truncated_label_file_is_named_and_redone(objs, reference, tmp_path):
+def test_a_truncated_label_file_is_named_and_redone(objs, reference_out, reference, tmp_path):
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet"]
-    run_annotate(*args)
+    shutil.copytree(reference_out, out)  # a whole run of args
     victim = out / object_filename("cylinder")
     victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
     r = run_annotate(*args)
@@ -201,10 +207,10 @@ def test_a_truncated_label_file_is_named_and_redone(objs, reference, tmp_path):
 
 
 @pytest.mark.parametrize("content", [b"[]", b"null", b"\x00\xff\x10binary", b'{"tool": "rg2-annotator"}'])
-def test_a_broken_manifest_is_one_line_and_repair_recovers(objs, reference, tmp_path, content):
+def test_a_broken_manifest_is_one_line_and_repair_recovers(objs, reference_out, reference, tmp_path, content):
     out = tmp_path / "out"
     args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out, "--quiet"]
-    run_annotate(*args)
+    shutil.copytree(reference_out, out)  # a whole run of args
     (out / MANIFEST_NAME).write_bytes(content)
     r = run_annotate(*args, check=2)
     assert "--repair" in r.output and "Traceback" not in r.output

@@ -3,17 +3,12 @@ picture, clutter removal on the UR3 with each policy."""
 
 from __future__ import annotations
 
-import shutil
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
-from helpers import run_annotate
+from helpers import SCENE_RUN_N, run_annotate, run_annotator
 from scene_helpers import REPO
 
-from annotator.cli import main
 from annotator.config import AnnotatorConfig
 from annotator.dataset import load_scenes
 from annotator.geometry import Transform
@@ -24,40 +19,13 @@ from annotator.tools import export_cgn, export_vgn
 from annotator.tools.export import TcpDepth
 from annotator.tools.scene_labels import open_scene_labels
 
-OBJECTS = ("box.obj", "can.stl")  # graspable from above wherever they land
-N = 40
-QUICK_VIEWS = "[kinect]\nviews_color_scale = 0.25\n"
+N = SCENE_RUN_N
 
 
-def annotator(*args, check: int | None = 0):
-    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
-    if check is not None:
-        assert result.exit_code == check, result.output
-    return result
-
-
-@pytest.fixture(scope="module")
-def objects(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("objects")
-    for name in OBJECTS:
-        shutil.copy(REPO / "objects" / name, folder)
-    return folder
-
-
-@pytest.fixture(scope="module")
-def scene_run(objects, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("scene_run") / "labels"
-    config = out.parent / "views.toml"
-    config.write_text(QUICK_VIEWS)
-    args = ["--scenes", 2, "--per-scene", 3, "--n", N, "--views", 1, "--config", config, "--workers", 1]
-    run_annotate("--objects", objects, "--out", out, "--quiet", *args)
-    return out
-
-
-def test_vgn_export_reads_back_as_vgn_reads_it(scene_run, tmp_path):
+def test_vgn_export_reads_back_as_vgn_reads_it(convex_scene_run, tmp_path):
     out = tmp_path / "vgn"
-    annotator("export", scene_run, "--format", "vgn", "--out", out)
-    scenes = open_scene_labels(scene_run, "test")
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
+    scenes = open_scene_labels(convex_scene_run, "test")
     setup = export_vgn.read_setup(out)
     views = scenes.views(0)
     assert setup["size"] == pytest.approx(0.3) and setup["finger_depth"] == pytest.approx(0.05)
@@ -83,10 +51,10 @@ def test_vgn_export_reads_back_as_vgn_reads_it(scene_run, tmp_path):
     np.testing.assert_allclose(dataset["i"].to_numpy(), df["x"].to_numpy() / (0.3 / 40), rtol=1e-12)
 
 
-def test_contact_graspnet_export_reads_back(scene_run, tmp_path):
+def test_contact_graspnet_export_reads_back(convex_scene_run, tmp_path):
     out = tmp_path / "cgn"
-    annotator("export", scene_run, "--format", "contact_graspnet", "--out", out)
-    scenes = open_scene_labels(scene_run, "test")
+    run_annotator("export", convex_scene_run, "--format", "contact_graspnet", "--out", out)
+    scenes = open_scene_labels(convex_scene_run, "test")
     infos = export_cgn.load_scene_contacts(out)
     assert len(infos) == 2
     for scene_id, info in enumerate(infos):
@@ -116,25 +84,27 @@ def scenes_mesh(scenes, object_id):
     return object_mesh(scenes.path, object_id)
 
 
-def test_exports_refuse_the_other_kind_of_labels(scene_run, tmp_path):
-    result = annotator("export", scene_run, "--format", "acronym", "--out", tmp_path / "a", check=2)
+def test_exports_refuse_the_other_kind_of_labels(convex_scene_run, tmp_path):
+    result = run_annotator(
+        "export", convex_scene_run, "--format", "acronym", "--out", tmp_path / "a", check=2
+    )
     assert "holds scenes" in result.output and "Traceback" not in result.output
     objects_run = tmp_path / "objects_run"
     run_annotate(
         "--objects", REPO / "objects" / "urdf", "--n", 10, "--out", objects_run, "--quiet", "--workers", 1
     )
-    result = annotator("export", objects_run, "--format", "vgn", "--out", tmp_path / "v", check=2)
+    result = run_annotator("export", objects_run, "--format", "vgn", "--out", tmp_path / "v", check=2)
     assert "holds no scenes" in result.output
 
 
-def test_show_scene_draws_the_scene_and_its_grasps(scene_run, tmp_path):
+def test_show_scene_draws_the_scene_and_its_grasps(convex_scene_run, tmp_path):
     from annotator.tools.scene_labels import open_scene_labels
     from annotator.tools.show_scene import choose_scene_grasps, render_scene
 
     png = tmp_path / "scene.png"
-    result = annotator("show", scene_run, "--scene", 1, "--png", png)
+    result = run_annotator("show", convex_scene_run, "--scene", 1, "--png", png)
     assert png.stat().st_size > 10_000 and "scene 1" in result.output
-    scenes = open_scene_labels(scene_run, "test")
+    scenes = open_scene_labels(convex_scene_run, "test")
     record, rows = scenes.records[1], scenes.rows(1)
     chosen = choose_scene_grasps(rows, 40, 0, ("success",))
     meshes = {oid: scenes_mesh(scenes, oid) for oid in {i.object_id for i in record.kept}}
@@ -149,9 +119,9 @@ def test_show_scene_draws_the_scene_and_its_grasps(scene_run, tmp_path):
         mask = top[row.instance_id]
         window = mask[max(0, v - 12) : v + 13, max(0, u - 12) : u + 13]
         assert window.any(), (row.grasp_id, u, v)
-    bad = annotator("show", scene_run, "--scene", 7, "--png", png, check=2)
+    bad = run_annotator("show", convex_scene_run, "--scene", 7, "--png", png, check=2)
     assert "no scene 7" in bad.output
-    both = annotator("show", scene_run, "--scene", 1, "--object", "box", "--png", png, check=2)
+    both = run_annotator("show", convex_scene_run, "--scene", 1, "--object", "box", "--png", png, check=2)
     assert "one of them" in both.output
 
 
@@ -162,14 +132,16 @@ def test_wilson_interval():
 
 
 @pytest.mark.slow
-def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(objects, scene_run, tmp_path):
+def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(
+    convex_objects, convex_scene_run, tmp_path
+):
     """Round 0 is scene 0 of annotate --scenes (same seed and count); the labels policy clears
     a pile of boxes and cans; a learner's file of the scene's successes is executed best first."""
     config = AnnotatorConfig()
-    sources = tuple(discover_objects(objects))
+    sources = tuple(discover_objects(convex_objects))
     models = {s.object_id: load_object(s, config.objects) for s in sources}
     built = SceneBuilder(models).build(SceneSpec(0, 0, "pile", 3, 3))
-    recorded = {r.scene_id: r for r in scenes_from_table(load_scenes(scene_run))}[0]
+    recorded = {r.scene_id: r for r in scenes_from_table(load_scenes(convex_scene_run))}[0]
     assert same_scene(built, recorded)
 
     summary = clutter_removal(ClutterJob(sources, 3, 0, "labels", config), 1)
@@ -181,7 +153,7 @@ def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(objec
     again = clutter_removal(ClutterJob(sources, 3, 0, "labels", config), 1)
     pd.testing.assert_frame_equal(again.tables()[1], summary.tables()[1], check_exact=True)
 
-    scenes = open_scene_labels(scene_run, "test")
+    scenes = open_scene_labels(convex_scene_run, "test")
     held = scenes.rows(0)
     held = held[held["success"]]
     cols = [f"table_tcp_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw")]
@@ -191,10 +163,10 @@ def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(objec
     predictions["score"] = np.linspace(1.0, 0.5, len(held))
     path = tmp_path / "predictions.csv"
     predictions.to_csv(path, index=False)
-    result = annotator(
+    result = run_annotator(
         "clutter-removal",
         "--objects",
-        objects,
+        convex_objects,
         "--rounds",
         1,
         "--per-scene",
@@ -217,5 +189,7 @@ def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(objec
     read_predictions(path)  # the file's contract
     broken = tmp_path / "broken.csv"
     predictions.drop(columns=["score"]).to_csv(broken, index=False)
-    result = annotator("clutter-removal", "--objects", objects, "--rounds", 1, "--policy", broken, check=2)
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--policy", broken, check=2
+    )
     assert "score" in result.output and "Traceback" not in result.output
