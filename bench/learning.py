@@ -254,7 +254,8 @@ def main() -> None:
     with Run("learning", config=recorded) as record, tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        if args.model is not None:
+        trained = args.model is not None or "learned" not in args.policies  # nothing to train
+        if trained:
             labels = []
         elif args.train_labels:
             labels = list(args.train_labels)
@@ -266,7 +267,7 @@ def main() -> None:
                     labels.append(folder)
                     cpu += seconds
             record.figure("labels_cpu_s", cpu, "CPU-s", note="annotate --scenes and its workers, every run")
-        if args.model is not None:
+        if trained:
             model = args.model
         else:
             model = train_model(labels, args.train_objects, work / "model.npz", record)
