@@ -74,7 +74,10 @@ def test_the_learner_trains_on_a_tiny_run_and_scores_vision_candidates(tiny_run,
     out = tmp_path / "cli_model.npz"
     result = runner.invoke(main, ["learn", "train", str(tiny_run), "--out", str(out), "--holdout", "0.5"])
     assert result.exit_code == 0, result.output
-    assert "40 grasps of 2 scenes" in result.output and "held-out 1 scenes" in result.output
+    assert (
+        "40 grasps of 2 scenes (0 vision candidates)" in result.output
+        and "held-out 1 scenes" in result.output
+    )
     np.testing.assert_allclose(load_model(str(out)).coef, model.coef, rtol=1e-6, atol=1e-9)
     result = runner.invoke(main, ["learn", "train", str(tiny_run), "--out", str(out)])
     assert result.exit_code == 2 and "exists" in result.output
@@ -118,3 +121,11 @@ def test_the_learner_is_also_shown_the_policys_own_candidates_tried_in_simulatio
     # every one was tried on an object (a candidate's TCP lies between two observed contacts)
     assert set(tried.outcome) <= {"success", "collision", "no_contact", "slipped_lift", "slipped_shake"}
     np.testing.assert_array_equal(tried.held, tried.outcome == "success")
+
+    out = tiny_run.parent / "with_candidates.npz"
+    result = CliRunner().invoke(
+        main,
+        ["learn", "train", str(tiny_run), "--objects", str(objects), "--out", str(out), "--holdout", "0"],
+    )
+    assert result.exit_code == 0, result.output
+    assert f"{len(data.y)} grasps of 2 scenes ({int(data.vision.sum())} vision candidates)" in result.output
