@@ -3,17 +3,25 @@ the learned policy and vision-random on the same rounds, piles and packed, grasp
 percent cleared with 95 % intervals.
 
     python -m bench.learning --train-objects DIR --test-objects DIR [--scenes 100 --packed-scenes 40]
-    python -m bench.learning --train-labels L1 L2 --test-objects DIR --rounds 5   # labels made already
+    python -m bench.learning --train-objects DIR --train-labels L1 L2 --test-objects DIR --rounds 5
 
 1. Labels: ``annotate --objects TRAIN --scenes S --per-scene 5 --n 120 --views K`` (piles) and the
    same with ``--arrangement packed`` (``--packed-scenes``), as subprocesses; their CPU time (the
-   command and its workers) is recorded. Or ``--train-labels`` folders made before.
-2. Training: ``annotator.learn`` on every labelled grasp of those runs (features of the observed
-   cloud, a logistic regression), its CPU time, and the held-out AUC on the last fifth of the scenes
-   (a model trained on the other four fifths).
+   command and its workers) is recorded. Or ``--train-labels`` folders made before (of the same
+   ``--train-objects``).
+2. Training: ``annotator.learn`` on every labelled grasp of those runs and on the learned policy's
+   own candidates in their scenes tried in simulation (``annotator.learn.candidates``; features of
+   the observed cloud, a logistic regression), its CPU time, and the held-out AUC on the last fifth
+   of the scenes (a model trained on the other four fifths), on their labels and on their vision
+   candidates apart.
 3. Clutter removal on ``--test-objects`` (other objects): rounds 0..R-1 of piles of 5 and of packed
    scenes of 5, each policy on the same rounds (round r is scene r of ``annotate --scenes`` with the
-   seed), the vision policies seeing ``--views`` depth views.
+   seed), the vision policies seeing ``--views`` depth views; the labels oracle (the slowest: it
+   labels the pile anew at every attempt) on its first ``--oracle-rounds`` only, if given.
+
+``--rounds 0`` trains only (``--keep`` keeps the model); ``--model`` clears piles with a model
+trained so (the training is then neither repeated nor recorded), e.g. the policies in two runs
+side by side on a busy machine.
 
 Printed against the targets: the learned policy's success at least vision-random's + 10 points and
 its percent cleared above vision-random's, the 95 % intervals apart, over at least 100 attempts
@@ -67,12 +75,12 @@ def make_labels(args, out: Path, arrangement: str, scenes: int) -> tuple[Path, f
     return out, _children_cpu() - before
 
 
-def train_model(labels: list[Path], out: Path, record: Run) -> Path:
+def train_model(labels: list[Path], objects: Path, out: Path, record: Run) -> Path:
     from annotator.learn.data import load_training_set
     from annotator.learn.model import auc, train
 
     c0, t0 = time.process_time(), time.perf_counter()
-    data = load_training_set(labels)
+    data = load_training_set(labels, objects)
     read_cpu = time.process_time() - c0
     scenes = np.unique(data.scene_id)
     held = np.isin(data.scene_id, scenes[len(scenes) - len(scenes) // 5 :])
@@ -80,18 +88,32 @@ def train_model(labels: list[Path], out: Path, record: Run) -> Path:
     model = train(data.X, data.y)
     fit_cpu = time.process_time() - c1
     model.save(out)
-    held_auc = float("nan")
+    held_auc = vision_auc = float("nan")
     if held.any() and (~held).any():
-        partial = train(data.X[~held], data.y[~held])
-        held_auc = auc(partial.probability(data.X[held]), data.y[held])
+        p = train(data.X[~held], data.y[~held]).probability(data.X)
+        held_auc = auc(p[held & ~data.vision], data.y[held & ~data.vision])
+        vision_auc = auc(p[held & data.vision], data.y[held & data.vision])
+    vision = int(data.vision.sum())
     print(
-        f"training: {len(data.y)} grasps of {len(scenes)} scenes, {int(data.y.sum())} held; features "
-        f"{read_cpu:.0f} CPU-s, fit {fit_cpu:.0f} CPU-s ({time.perf_counter() - t0:.0f} s); held-out AUC "
-        f"{held_auc:.3f}"
+        f"training: {len(data.y)} grasps of {len(scenes)} scenes ({vision} vision candidates, "
+        f"{int(data.y[data.vision].sum())} held; {len(data.y) - vision} labels, "
+        f"{int(data.y[~data.vision].sum())} held); features and simulation {read_cpu:.0f} CPU-s, fit "
+        f"{fit_cpu:.0f} CPU-s ({time.perf_counter() - t0:.0f} s); held-out AUC {held_auc:.3f} on labels, "
+        f"{vision_auc:.3f} on vision candidates"
     )
     record.figure("training_grasps", len(data.y), note=f"{len(scenes)} scenes, {int(data.y.sum())} held")
-    record.figure("training_cpu_s", read_cpu + fit_cpu, "CPU-s", note="features of every grasp + the fit")
-    record.figure("held_out_auc", held_auc, note="a model of four fifths of the scenes on the last fifth")
+    record.figure(
+        "training_vision_candidates", vision, note=f"{int(data.y[data.vision].sum())} held in simulation"
+    )
+    record.figure(
+        "training_cpu_s", read_cpu + fit_cpu, "CPU-s", note="features, candidates tried in simulation, fit"
+    )
+    record.figure(
+        "held_out_auc", held_auc, note="a model of four fifths of the scenes on the last fifth's labels"
+    )
+    record.figure(
+        "held_out_vision_auc", vision_auc, note="the same model on the last fifth's vision candidates"
+    )
     return out
 
 
@@ -116,7 +138,8 @@ def clutter(args, model: Path, record: Run) -> list[dict]:
                 views=args.views,
                 arrangement=arrangement,
             )
-            summary = clutter_removal(job, args.rounds, args.workers or os.cpu_count() or 1)
+            rounds = args.oracle_rounds if policy == "labels" and args.oracle_rounds else args.rounds
+            summary = clutter_removal(job, rounds, args.workers or os.cpu_count() or 1)
             lo, hi = wilson(summary.successes, summary.attempts)
             clo, chi = wilson(summary.successes, summary.objects)
             for line in summary.lines(f"{policy} ({arrangement})"):
@@ -160,7 +183,8 @@ def clutter(args, model: Path, record: Run) -> list[dict]:
     record.table(
         "clutter_removal",
         rows,
-        note=f"{args.rounds} rounds of 5 objects per row, seed {args.seed}, {args.views} view(s)",
+        note=f"{args.rounds} rounds of 5 objects per row (the labels oracle's: "
+        f"{args.oracle_rounds or args.rounds}), seed {args.seed}, {args.views} view(s)",
     )
     return rows
 
@@ -193,10 +217,11 @@ def targets(rows: list[dict]) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--train-objects", type=Path, help="objects whose scenes are labelled to train on")
-    source.add_argument(
-        "--train-labels", type=Path, nargs="+", help="annotate --scenes --views runs to train on"
+    parser.add_argument(
+        "--train-objects", type=Path, required=True, help="objects whose scenes are labelled to train on"
+    )
+    parser.add_argument(
+        "--train-labels", type=Path, nargs="+", help="annotate --scenes --views runs of them made already"
     )
     parser.add_argument("--test-objects", type=Path, required=True, help="other objects: the piles to clear")
     parser.add_argument("--scenes", type=int, default=100, help="training pile scenes (with --train-objects)")
@@ -204,18 +229,35 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=120, help="grasps per training scene")
     parser.add_argument("--train-seed", type=int, default=1000, help="the training scenes' seed")
     parser.add_argument("--views", type=int, default=3, help="depth views of training scenes and policies")
-    parser.add_argument("--rounds", type=int, default=40, help="clutter rounds per policy and arrangement")
+    parser.add_argument(
+        "--rounds", type=int, default=40, help="clutter rounds per policy and arrangement (0: train only)"
+    )
+    parser.add_argument(
+        "--oracle-rounds",
+        type=int,
+        default=None,
+        help="the labels oracle's rounds (its first ones; default --rounds)",
+    )
     parser.add_argument("--arrangements", nargs="+", default=["pile", "packed"], choices=["pile", "packed"])
     parser.add_argument("--policies", nargs="+", default=list(POLICIES), choices=list(POLICIES))
     parser.add_argument("--seed", type=int, default=0, help="the clutter rounds' seed")
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--keep", type=Path, default=None, help="keep the labels and the model here")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="a model trained already (--keep of a --rounds 0 run): no training",
+    )
     args = parser.parse_args()
     recorded = {k: str(v) for k, v in vars(args).items()}
     with Run("learning", config=recorded) as record, tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        if args.train_labels:
+        trained = args.model is not None or "learned" not in args.policies  # nothing to train
+        if trained:
+            labels = []
+        elif args.train_labels:
             labels = list(args.train_labels)
         else:
             labels, cpu = [], 0.0
@@ -225,7 +267,12 @@ def main() -> None:
                     labels.append(folder)
                     cpu += seconds
             record.figure("labels_cpu_s", cpu, "CPU-s", note="annotate --scenes and its workers, every run")
-        model = train_model(labels, work / "model.npz", record)
+        if trained:
+            model = args.model
+        else:
+            model = train_model(labels, args.train_objects, work / "model.npz", record)
+        if args.rounds <= 0:
+            return
         rows = clutter(args, model, record)
         for line in targets(rows):
             print(line)

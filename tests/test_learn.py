@@ -74,7 +74,58 @@ def test_the_learner_trains_on_a_tiny_run_and_scores_vision_candidates(tiny_run,
     out = tmp_path / "cli_model.npz"
     result = runner.invoke(main, ["learn", "train", str(tiny_run), "--out", str(out), "--holdout", "0.5"])
     assert result.exit_code == 0, result.output
-    assert "40 grasps of 2 scenes" in result.output and "held-out 1 scenes" in result.output
+    assert (
+        "40 grasps of 2 scenes (0 vision candidates)" in result.output
+        and "held-out 1 scenes" in result.output
+    )
     np.testing.assert_allclose(load_model(str(out)).coef, model.coef, rtol=1e-6, atol=1e-9)
     result = runner.invoke(main, ["learn", "train", str(tiny_run), "--out", str(out)])
     assert result.exit_code == 2 and "exists" in result.output
+
+
+@pytest.mark.slow
+def test_the_learner_is_also_shown_the_policys_own_candidates_tried_in_simulation(tiny_run):
+    """The labels are grasps around the true meshes (mostly collisions); the policy scores vision
+    candidates that clear the observed cloud. Training adds those candidates, each tried by the
+    floating gripper on the object nearest its TCP, so the model learns what it will score."""
+    from annotator.config import AnnotatorConfig
+    from annotator.learn.candidates import load_models, simulated_candidates
+    from annotator.learn.policy import CANDIDATES, SEEDS
+    from annotator.policies.vision import clear_of_observed, observed_surface, sample_grasps
+    from annotator.rng import keyed_rng
+
+    objects = tiny_run.parent / "objects"
+    labels_only = load_training_set(tiny_run)
+    data = load_training_set(tiny_run, objects, draws=1)
+    assert not labels_only.vision.any() and data.vision.any()
+    # the labels' rows are unchanged and come first in each scene; the candidates name no object
+    np.testing.assert_array_equal(data.X[~data.vision], labels_only.X)
+    np.testing.assert_array_equal(data.y[~data.vision], labels_only.y)
+    assert set(data.object_id[data.vision]) == {""} and np.isfinite(data.X).all()
+
+    record = scenes_from_table(load_scenes(tiny_run))[0]
+    config = AnnotatorConfig()
+    observation = scene_observation(record, scene_views(tiny_run, 0), gripper_boxes().max_width)
+    surface = observed_surface(observation)
+    tried = simulated_candidates(record, observation, surface, load_models(objects, config), config, draws=1)
+    # the candidates are the policy's own: the same sampler, seeds and limit, each clearing the cloud
+    expected = sample_grasps(
+        observation,
+        keyed_rng("learn-candidates", 0, record.scene_id, 0),
+        seeds=SEEDS,
+        limit=CANDIDATES,
+        surface=surface,
+    )
+    np.testing.assert_array_equal(tried.T_table_tcp, expected.T_table_tcp)
+    assert clear_of_observed(surface, tried.T_table_tcp, tried.width, config.protocol).all()
+    # every one was tried on an object (a candidate's TCP lies between two observed contacts)
+    assert set(tried.outcome) <= {"success", "collision", "no_contact", "slipped_lift", "slipped_shake"}
+    np.testing.assert_array_equal(tried.held, tried.outcome == "success")
+
+    out = tiny_run.parent / "with_candidates.npz"
+    result = CliRunner().invoke(
+        main,
+        ["learn", "train", str(tiny_run), "--objects", str(objects), "--out", str(out), "--holdout", "0"],
+    )
+    assert result.exit_code == 0, result.output
+    assert f"{len(data.y)} grasps of 2 scenes ({int(data.vision.sum())} vision candidates)" in result.output

@@ -36,9 +36,11 @@ VERBOSE_OPTION = click.option("--verbose", "-v", is_flag=True, help="Debug loggi
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 
-def folder_option(*decls: str, help: str, **kwargs: Any) -> Decorator:
-    """An option naming a folder (a :class:`Path`; a file there is a usage error)."""
-    return click.option(*decls, type=click.Path(path_type=Path, file_okay=False), help=help, **kwargs)
+def folder_option(*decls: str, help: str, exists: bool = False, **kwargs: Any) -> Decorator:
+    """An option naming a folder (a :class:`Path`; a file there is a usage error; ``exists``: it
+    must exist)."""
+    kind = click.Path(path_type=Path, file_okay=False, exists=exists)
+    return click.option(*decls, type=kind, help=help, **kwargs)
 
 
 def file_option(*decls: str, help: str, exists: bool = False, **kwargs: Any) -> Decorator:

@@ -5,7 +5,9 @@ Through :mod:`annotator.dataset` (:func:`~annotator.dataset.load_scenes`, the sc
 ``cameras.parquet`` artifact its labels came with, :func:`scene_views`). Each scene becomes the
 :class:`~annotator.policies.records.Observation` a policy would get of it, and each labelled grasp
 its commanded TCP in the table frame (the pose the arm would be sent to: the label's object frame
-pose ``cmd_*`` through the instance's settled pose), its chord ``cmd_width`` and its outcome.
+pose ``cmd_*`` through the instance's settled pose), its chord ``cmd_width`` and its outcome. Given
+the objects, each scene adds the policy's own candidates, tried in simulation
+(:mod:`annotator.learn.candidates`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import pandas as pd
 
 from annotator.dataset import load_scenes, scene_labels
 from annotator.geometry import quat_to_matrix
+from annotator.learn.candidates import DRAWS, load_models, simulated_candidates
 from annotator.learn.features import grasp_features
 from annotator.policies.records import CameraImage, Observation, _frozen
 from annotator.policies.vision import observed_surface
@@ -34,12 +37,14 @@ TSDF_RESOLUTION = 40  # VGN's grid, as the policies get it (annotator.policies.o
 @dataclass(frozen=True)
 class TrainingSet:
     """Features ``X`` (n, F), outcomes ``y`` (n,) bool (held), and per row its ``scene_id`` and
-    ``object_id`` (to split by scene or object)."""
+    ``object_id`` (to split by scene or object; a vision candidate's is ``""``) and whether it is a
+    simulated vision candidate (``vision``) rather than a label."""
 
     X: np.ndarray
     y: np.ndarray
     scene_id: np.ndarray
     object_id: np.ndarray
+    vision: np.ndarray
 
 
 def scene_views(labels_dir: str | Path, scene_id: int) -> list:
@@ -100,15 +105,34 @@ def commanded_grasps(record: SceneRecord, labels: pd.DataFrame) -> tuple[np.ndar
     return T_table_obj @ T_obj_tcp, labels["cmd_width"].to_numpy(dtype=np.float64)
 
 
-def load_training_set(labels_dirs: list[str | Path] | str | Path) -> TrainingSet:
+def load_training_set(
+    labels_dirs: list[str | Path] | str | Path,
+    objects: str | Path | None = None,
+    draws: int = DRAWS,
+) -> TrainingSet:
     """Every labelled grasp of every scene of the runs in ``labels_dirs`` with its features
-    (:func:`annotator.learn.features.grasp_features`). ValueError if a run has no views."""
+    (:func:`annotator.learn.features.grasp_features`); with ``objects`` (the runs' objects folder)
+    also ``draws`` draws of the policy's candidates per scene, tried in simulation
+    (:func:`annotator.learn.candidates.simulated_candidates`). ValueError if a run has no views."""
+    from annotator.config import AnnotatorConfig
     from annotator.policies.gripper_boxes import gripper_boxes
 
     if isinstance(labels_dirs, (str, Path)):
         labels_dirs = [labels_dirs]
+    config = AnnotatorConfig()
+    models = load_models(objects, config) if objects is not None else None
     max_width = gripper_boxes().max_width
-    X, y, scene_ids, object_ids = [], [], [], []
+    X, y, scene_ids, object_ids, vision = [], [], [], [], []
+
+    def add(
+        features: np.ndarray, held: np.ndarray, scene: int, objects_of: np.ndarray, simulated: bool
+    ) -> None:
+        X.append(features)
+        y.append(held)
+        scene_ids.append(np.full(len(held), scene, dtype=np.int64))
+        object_ids.append(objects_of)
+        vision.append(np.full(len(held), simulated))
+
     for n_run, labels_dir in enumerate(labels_dirs):
         records = scenes_from_table(load_scenes(labels_dir))
         for record in records:
@@ -119,15 +143,20 @@ def load_training_set(labels_dirs: list[str | Path] | str | Path) -> TrainingSet
             views = scene_views(labels_dir, record.scene_id)
             if not views:
                 raise ValueError(f"{labels_dir}: scene {record.scene_id} has no views (annotate --views K)")
-            surface = observed_surface(scene_observation(record, views, max_width))
+            observation = scene_observation(record, views, max_width)
+            surface = observed_surface(observation)
+            scene = 1_000_000 * n_run + record.scene_id
             T, width = commanded_grasps(record, labels)
-            X.append(grasp_features(surface, T, width))
-            y.append(labels["success"].to_numpy(dtype=bool))
-            scene_ids.append(np.full(len(labels), 1_000_000 * n_run + record.scene_id, dtype=np.int64))
-            object_ids.append(labels["object_id"].to_numpy(dtype=object))
+            held, object_id = (
+                labels["success"].to_numpy(dtype=bool),
+                labels["object_id"].to_numpy(dtype=object),
+            )
+            add(grasp_features(surface, T, width), held, scene, object_id, False)
+            if models is not None:
+                tried = simulated_candidates(record, observation, surface, models, config, draws=draws)
+                features = grasp_features(surface, tried.T_table_tcp, tried.width)
+                add(features, tried.held, scene, np.full(len(tried.held), "", dtype=object), True)
         log.info("%s: %d scenes read", labels_dir, len(records))
     if not X:
         raise ValueError(f"no labelled scene in {', '.join(map(str, labels_dirs))}")
-    return TrainingSet(
-        np.concatenate(X), np.concatenate(y), np.concatenate(scene_ids), np.concatenate(object_ids)
-    )
+    return TrainingSet(*(np.concatenate(a) for a in (X, y, scene_ids, object_ids, vision)))

@@ -280,17 +280,7 @@ class Round:
         """The object nearest the proposal's TCP (a file's grasp names none); -1 if none is within
         the gripper's reach of it."""
         point = (self.record.T_world_table * proposal.T_table_tcp).pos
-        best, who = self.cell.gripper.max_width, -1
-        probe = pb.createCollisionShape(pb.GEOM_SPHERE, radius=1e-4, physicsClientId=self.world.client)
-        body = pb.createMultiBody(0.0, probe, -1, point.tolist(), physicsClientId=self.world.client)
-        try:
-            for instance_id, uid in sorted(self.present.items()):
-                pts = pb.getClosestPoints(body, uid, best, physicsClientId=self.world.client)
-                if pts and min(p[8] for p in pts) < best:
-                    best, who = min(p[8] for p in pts), instance_id
-        finally:
-            pb.removeBody(body, physicsClientId=self.world.client)
-        return who
+        return nearest_instance(self.world.client, self.present, point, self.cell.gripper.max_width)
 
     def _use_physics_of(self, instance_id: int) -> None:
         model = self.models[self.record.instance(instance_id).object_id]
@@ -332,6 +322,22 @@ class Round:
             if math.sqrt(sum(v * v for v in (*linear, *angular))) >= speed:
                 return False
         return True
+
+
+def nearest_instance(client: int, bodies: Mapping[int, int], point_world, within: float) -> int:
+    """The instance (of ``bodies``: instance -> body) whose body is nearest ``point_world`` (3,) m,
+    world frame; -1 if none is within ``within`` m of it."""
+    best, who = within, -1
+    probe = pb.createCollisionShape(pb.GEOM_SPHERE, radius=1e-4, physicsClientId=client)
+    body = pb.createMultiBody(0.0, probe, -1, list(map(float, point_world)), physicsClientId=client)
+    try:
+        for instance_id, uid in sorted(bodies.items()):
+            pts = pb.getClosestPoints(body, uid, best, physicsClientId=client)
+            if pts and min(p[8] for p in pts) < best:
+                best, who = min(p[8] for p in pts), instance_id
+    finally:
+        pb.removeBody(body, physicsClientId=client)
+    return who
 
 
 # --- the benchmark -----------------------------------------------------------------------------------------
