@@ -57,7 +57,7 @@ def load_models(objects_dir: str | Path, config: AnnotatorConfig) -> dict[str, O
     cache = Path(default_cache_dir())
     return {
         s.object_id: load_object(s, config.objects, cache_dir=cache)
-        for s in discover_objects(objects_dir, config.objects)
+        for s in discover_objects(Path(objects_dir), config.objects)
     }
 
 
