@@ -25,7 +25,7 @@ import annotator.objects.decomposition
 import annotator.objects.decomposition_child
 import annotator.objects.model
 import annotator.objects.reading
-import annotator.pipeline.worker
+import annotator.pipeline.loaded
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectSource, discover_objects
 from annotator.pipeline.plan import PlannedObject
@@ -275,7 +275,7 @@ DECOMPOSING = (
     (annotator.objects.model, "collision_geometry"),
     (annotator.objects.decomposition, "collision_geometry"),
     (annotator.objects.decomposition_child, "run_limited"),
-    (annotator.pipeline.worker, "load_object"),
+    (annotator.pipeline.loaded, "load_object"),
 )
 READING = (
     (annotator.objects, "read_object_mesh"),
