@@ -24,14 +24,12 @@ from annotator.dataset import load_scenes, scene_labels
 from annotator.geometry import quat_to_matrix
 from annotator.learn.candidates import DRAWS, load_models, simulated_candidates
 from annotator.learn.features import grasp_features
-from annotator.policies.records import CameraImage, Observation, _frozen
+from annotator.policies.observe import fused_observation
+from annotator.policies.records import Observation
 from annotator.policies.vision import observed_surface
 from annotator.scenes.records import SceneRecord, scenes_from_table
-from annotator.scenes.tsdf import fuse
 
 log = logging.getLogger(__name__)
-
-TSDF_RESOLUTION = 40  # VGN's grid, as the policies get it (annotator.policies.observe)
 
 
 @dataclass(frozen=True)
@@ -72,24 +70,7 @@ def scene_observation(
 ) -> Observation:
     """What a policy would get of the scene from ``views`` (as :func:`annotator.policies.observe.
     observe` builds it: the cloud cropped to the workspace, VGN's grid)."""
-    workspace = record.workspace
-    images = tuple(CameraImage(_frozen(v.depth, np.float32), v.depth_K, v.T_table_camera) for v in views)
-    points = np.concatenate([v.points_in_table() for v in views]) if views else np.zeros((0, 3))
-    cloud = points[workspace.contains(points)] if len(points) else points
-    tsdf = fuse(views, workspace.size, TSDF_RESOLUTION, workspace.T_table_task)
-    return Observation(
-        round_id=int(record.scene_id),
-        attempt=0,
-        seed=int(record.seed),
-        images=images,
-        cloud=_frozen(cloud, np.float64),
-        tsdf=_frozen(tsdf.vgn_grid(), np.float32),
-        T_table_volume=workspace.T_table_task,
-        voxel_size=tsdf.voxel_size,
-        workspace=workspace,
-        max_width=float(max_width),
-        gripper=gripper,
-    )
+    return fused_observation(record, views, attempt=0, max_width=max_width, gripper=gripper)
 
 
 def commanded_grasps(record: SceneRecord, labels: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:

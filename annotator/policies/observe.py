@@ -12,11 +12,13 @@ segmentation is used. Only the depth images leave this module: no segmentation, 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from annotator.policies.records import CameraImage, Observation, _frozen
+from annotator.scenes.records import SceneRecord
 from annotator.scenes.tsdf import fuse
 from annotator.scenes.views import SEG_ROBOT, SceneView, render_views
 
@@ -39,11 +41,26 @@ def observe(round_: Round, attempt: int, views: int) -> Observation:
         color=False,
     )
     rendered = [_without_the_arm(v) for v in rendered]
+    return fused_observation(
+        record,
+        rendered,
+        attempt=attempt,
+        max_width=round_.cell.gripper.max_width,
+        gripper=round_.gripper.name,
+    )
+
+
+def fused_observation(
+    record: SceneRecord, views: Sequence[SceneView], *, attempt: int, max_width: float, gripper: str
+) -> Observation:
+    """What a policy gets of ``record``'s pile from ``views``: their depth images, the cloud in the
+    table frame cropped to the workspace, and VGN's TSDF grid (:data:`TSDF_RESOLUTION` voxels over
+    the workspace). ``max_width``: the gripper's opening (m)."""
     workspace = record.workspace
-    images = tuple(CameraImage(_frozen(v.depth, np.float32), v.depth_K, v.T_table_camera) for v in rendered)
-    points = np.concatenate([v.points_in_table() for v in rendered]) if rendered else np.zeros((0, 3))
+    images = tuple(CameraImage(_frozen(v.depth, np.float32), v.depth_K, v.T_table_camera) for v in views)
+    points = np.concatenate([v.points_in_table() for v in views]) if views else np.zeros((0, 3))
     cloud = points[workspace.contains(points)] if len(points) else points
-    tsdf = fuse(rendered, workspace.size, TSDF_RESOLUTION, workspace.T_table_task)
+    tsdf = fuse(list(views), workspace.size, TSDF_RESOLUTION, workspace.T_table_task)
     return Observation(
         round_id=int(record.scene_id),
         attempt=int(attempt),
@@ -54,8 +71,8 @@ def observe(round_: Round, attempt: int, views: int) -> Observation:
         T_table_volume=workspace.T_table_task,
         voxel_size=tsdf.voxel_size,
         workspace=workspace,
-        max_width=float(round_.cell.gripper.max_width),
-        gripper=round_.gripper.name,
+        max_width=float(max_width),
+        gripper=gripper,
     )
 
 
