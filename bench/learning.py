@@ -146,6 +146,12 @@ def clutter(args, model: Path, record: Run) -> list[dict]:
                 print(line)
             seconds = time.perf_counter() - t0
             print(f"  {seconds:.0f} s")
+            if args.keep is not None:  # rounds.csv and grasps.csv, as clutter-removal --out writes them
+                cell = args.keep / f"clutter_{arrangement}_{policy.replace('-', '_')}"
+                cell.mkdir(parents=True, exist_ok=True)
+                rounds_table, grasps = summary.tables()
+                rounds_table.to_csv(cell / "rounds.csv", index=False)
+                grasps.to_csv(cell / "grasps.csv", index=False)
             rows.append(
                 {
                     "arrangement": arrangement,
@@ -242,7 +248,12 @@ def main() -> None:
     parser.add_argument("--policies", nargs="+", default=list(POLICIES), choices=list(POLICIES))
     parser.add_argument("--seed", type=int, default=0, help="the clutter rounds' seed")
     parser.add_argument("--workers", type=int, default=None)
-    parser.add_argument("--keep", type=Path, default=None, help="keep the labels and the model here")
+    parser.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        help="keep the labels, the model and each policy's rounds.csv and grasps.csv here",
+    )
     parser.add_argument(
         "--model",
         type=Path,
