@@ -339,6 +339,26 @@ class RobustConfig(_Section):
     mass_delta: float = _field(0.3, ge=0.0, lt=1.0)
     # Grip force x uniform(1 - d, 1 + d); 0: no public tolerance of the RG2's or the Panda's force.
     grip_force_delta: float = _field(0.0, ge=0.0, lt=1.0)
+    # m, the centre of mass moved off the mesh's uniform-density one (Gaussian per axis, object
+    # frame); 0: no public measurement found (set it for a drill's battery, a half-full bottle).
+    com_offset_sigma: float = _field(0.0, ge=0.0, le=0.1)
+
+    def over(self, gripper: Mapping[str, float]) -> RobustConfig:
+        """These ranges over a gripper's own (its description's ``[robust]`` table): a field a
+        configuration file set (``--config``, a cell's TOML) wins, then the gripper's value, then
+        the project's default. A section built in code counts its fields that differ from the
+        default as set. ConfigError (one line) for a gripper value out of range."""
+        if not gripper:
+            return self
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(gripper) - known)
+        if unknown:
+            raise ConfigError(f"unknown field(s) {unknown} in a gripper's [robust]; known: {sorted(known)}")
+        explicit = getattr(self, "_explicit", None)
+        if explicit is None:
+            default = RobustConfig()
+            explicit = {name for name in known if getattr(self, name) != getattr(default, name)}
+        return dataclasses.replace(self, **{k: v for k, v in gripper.items() if k not in explicit})
 
 
 @dataclass(frozen=True)
@@ -630,6 +650,8 @@ class AnnotatorConfig:
             if unknown:
                 raise ConfigError(f"unknown field(s) {sorted(unknown)} in [{name}]; known: {sorted(known)}")
             kwargs[name] = dataclasses.replace(current, **values)
+            if name == "robust":  # what a file sets wins over a gripper's [robust] (RobustConfig.over)
+                object.__setattr__(kwargs[name], "_explicit", frozenset(values))
         return cls(**kwargs)
 
     @classmethod

@@ -46,7 +46,8 @@ class Perturbation:
     ``object_rotvec`` (3,) rad: where the object really is against where the grasp was planned,
     in the world frame, the rotation about the object's centre of mass (yaw about the vertical,
     tilt about horizontal axes). ``friction_delta``: added to the object's friction coefficient;
-    ``mass_scale``: its mass and inertia; ``force_scale``: the grip force.
+    ``mass_scale``: its mass and inertia; ``force_scale``: the grip force; ``com_offset`` (3,) m:
+    where the centre of mass really sits against the model's, in the object's inertial frame.
     """
 
     T_tcp_tcp: Transform
@@ -55,6 +56,7 @@ class Perturbation:
     object_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     object_rotvec: np.ndarray = field(default_factory=lambda: np.zeros(3))
     force_scale: float = 1.0
+    com_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @classmethod
     def none(cls) -> Perturbation:
@@ -73,6 +75,9 @@ class Perturbation:
         tilt = rng.normal(0.0, robust.object_tilt_sigma, 2)
         yaw = rng.normal(0.0, robust.object_yaw_sigma)
         force = rng.uniform(1.0 - robust.grip_force_delta, 1.0 + robust.grip_force_delta)
+        # drawn last and only when set: the other draws, and so the scores of runs made without
+        # it, stay what they were
+        com = rng.normal(0.0, robust.com_offset_sigma, 3) if robust.com_offset_sigma > 0 else np.zeros(3)
         return cls(
             Transform.from_rotation(_rotation(rotvec), pos),
             float(friction),
@@ -80,6 +85,7 @@ class Perturbation:
             shift,
             np.array([tilt[0], tilt[1], yaw]),
             float(force),
+            com,
         )
 
     def T_obj_tcp(self, T_obj_tcp: Transform, T_world_obj: Transform, com_world: np.ndarray) -> Transform:
@@ -166,6 +172,8 @@ class GraspTrial:
         info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
         self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
         self._T_com_obj = Transform(info[3], info[4]).inverse()  # mesh frame in the COM frame
+        # the perturbed trials' ranges: the run's [robust] over the gripper's own (RobustConfig.over)
+        self.robust = config.robust.over(dict(hand.gripper.description.robust))
         self.state = world.save_state()
 
     def close(self) -> None:
@@ -284,9 +292,12 @@ class GraspTrial:
         """
         if perturbation is None:
             return self._run(T_obj_tcp, width_expected, Perturbation.none())
+        if np.any(perturbation.com_offset):
+            self.world.before_step = _OffsetMass(self, perturbation)
         try:
             return self._run(T_obj_tcp, width_expected, perturbation)
         finally:
+            self.world.before_step = None
             self._apply(Perturbation.none())
 
     def _run(self, T_obj_tcp: Transform, width_expected: float, perturbation: Perturbation) -> TrialResult:
@@ -398,3 +409,36 @@ class _LossMonitor:
         if moved2 > self.lost_distance2 or not t.hand.gripper.touches(t.obj):
             self.lost = True
         return self.lost
+
+
+class _OffsetMass:
+    """Before every step of a trial whose object's centre of mass sits ``r`` off the model's: the
+    torque that mass puts about the model's centre of mass, ``r_world x m (g - a)``.
+
+    PyBullet cannot move a body's inertial frame once the body is made, so the offset mass is its
+    load instead: gravity ``g`` and the inertial force of the body's acceleration ``a`` (from the
+    last step's change of velocity) act at the true centre, ``r`` from the simulated one; exact
+    for a held or translating object, first order in ``r`` (the terms of angular acceleration
+    and rate, and the parallel-axis change of inertia, are left out).
+    """
+
+    def __init__(self, trial: GraspTrial, perturbation: Perturbation) -> None:
+        self.trial = trial
+        self.r_com = tuple(float(v) for v in perturbation.com_offset)
+        self.mass = trial._mass * perturbation.mass_scale
+        self.velocity: tuple[float, float, float] | None = None
+
+    def __call__(self) -> None:
+        t = self.trial
+        client, world = t.client, t.world
+        v = pb.getBaseVelocity(t.obj, physicsClientId=client)[0]
+        if self.velocity is None:
+            a = (0.0, 0.0, 0.0)
+        else:
+            a = tuple((v[i] - self.velocity[i]) / world.dt for i in range(3))
+        self.velocity = v
+        g = world.physics.gravity if world.gravity_on else 0.0
+        orn = pb.getBasePositionAndOrientation(t.obj, physicsClientId=client)[1]
+        r = np.asarray(pb.multiplyTransforms((0, 0, 0), orn, self.r_com, (0, 0, 0, 1))[0])
+        f = self.mass * np.array([-a[0], -a[1], g - a[2]])
+        pb.applyExternalTorque(t.obj, -1, np.cross(r, f).tolist(), pb.WORLD_FRAME, physicsClientId=client)

@@ -3,12 +3,13 @@ traceback from deep inside the simulation: each broken variant of the shipped RG
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import pytest
 from gripper_helpers import description_error, edit
 
-from annotator.config import ConfigError, GripperConfig
+from annotator.config import AnnotatorConfig, ConfigError, GripperConfig, RobustConfig
 from annotator.grippers import DescriptionError, load_gripper
 from annotator.sim.gripper import GripperSettings
 
@@ -142,3 +143,44 @@ def test_grip_force_override_is_checked_against_the_gripper():
         GripperSettings.resolve(rg2, GripperConfig(grip_force=120.0))
     resolved = GripperSettings.resolve(rg2, GripperConfig(pad_lateral_friction=0.5, coupling="position"))
     assert (resolved.pad_lateral_friction, resolved.coupling, resolved.close_speed) == (0.5, "position", 1.0)
+
+
+def _with_robust(folder, table: str) -> None:
+    toml = folder / "gripper.toml"
+    toml.write_text(toml.read_text() + "\n[robust]\n" + table + "\n")
+
+
+def test_a_gripper_s_robust_table_sits_between_the_defaults_and_the_run_s_config(my_rg2, tmp_path):
+    _with_robust(my_rg2, 'object_position_sigma = 0.005\ngrip_force_delta = 0.1\nsource = "measured"')
+    description = load_gripper(my_rg2)
+    assert dict(description.robust) == {"object_position_sigma": 0.005, "grip_force_delta": 0.1}
+    assert description.sources["robust"] == "measured"
+    # over the project's defaults
+    robust = AnnotatorConfig().robust.over(dict(description.robust))
+    assert (robust.object_position_sigma, robust.grip_force_delta) == (0.005, 0.1)
+    assert robust.mass_delta == RobustConfig().mass_delta
+    # a cell's --config wins where it sets a field, even to the project's default value
+    cell = tmp_path / "cell.toml"
+    cell.write_text(f"[robust]\nobject_position_sigma = {RobustConfig().object_position_sigma}\n")
+    robust = AnnotatorConfig.from_toml(cell).robust.over(dict(description.robust))
+    default = RobustConfig().object_position_sigma
+    assert (robust.object_position_sigma, robust.grip_force_delta) == (default, 0.1)
+    # a section made in code: its fields off the default count as set
+    mine = dataclasses.replace(RobustConfig(), grip_force_delta=0.2)
+    assert mine.over(dict(description.robust)).grip_force_delta == 0.2
+    # the shipped grippers have none: the run's section as it is
+    assert load_gripper("rg2").robust == ()
+
+
+@pytest.mark.parametrize(
+    "table, fragment",
+    [
+        ("mass_delta = 1.5", "[robust] mass_delta: must be >= 0 and < 1, got 1.5"),
+        ("object_yaw_sigma = -0.1", "[robust] object_yaw_sigma: must be >= 0, got -0.1"),
+        ("wobble = 0.1", "unknown key [robust] wobble"),
+        ('friction_delta = "a lot"', "[robust] friction_delta: expected a finite number"),
+    ],
+)
+def test_a_broken_robust_table_is_one_line_naming_the_field(my_rg2, table, fragment):
+    _with_robust(my_rg2, table)
+    assert fragment in description_error(my_rg2)

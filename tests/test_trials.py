@@ -15,7 +15,7 @@ import pybullet as pb
 import pytest
 import trimesh
 
-from annotator.config import AnnotatorConfig
+from annotator.config import AnnotatorConfig, RobustConfig
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource, create_body, load_object
 from annotator.outcome import Outcome
@@ -24,7 +24,7 @@ from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
-from annotator.trial import GraspTrial, Perturbation
+from annotator.trial import GraspTrial, Perturbation, _OffsetMass
 
 CONFIG = AnnotatorConfig()
 OBJECTS = Path(__file__).resolve().parent.parent / "objects"
@@ -284,3 +284,109 @@ def test_leaving_a_trial_once_the_object_is_lost_gives_the_full_trial_s_verdict(
         elif a.outcome != Outcome.SLIPPED_LIFT:
             assert a.outcome == b.outcome and a.steps == b.steps
     assert left_early >= 2
+
+
+# --- where the mass sits ------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def bar(tmp_path_factory):
+    """A 240 x 30 x 30 mm bar's model (108 g at the default density)."""
+    path = tmp_path_factory.mktemp("bar") / "bar.obj"
+    trimesh.creation.box((0.24, 0.03, 0.03)).export(path)
+    return load_object(ObjectSource("bar", path), CONFIG.objects)
+
+
+def test_a_moved_centre_of_mass_pulls_with_its_weight_about_the_model_s(bar):
+    """Pinned at the model's centre of mass, a bar whose mass sits 5 cm along +x swings as a
+    pendulum: +x goes down (rotation about +y) at m g r / I, and with no offset it stays still."""
+    with World(CONFIG.physics) as world:
+        hand = FloatingGripper(world, CONFIG.gripper)
+        hand.teleport(Transform([0, 0, 2.0], [0, 0, 0, 1]), hand.gripper.max_width)
+        uid = create_body(world.client, bar)
+        trial = GraspTrial(world, hand, uid, CONFIG)
+        info = pb.getDynamicsInfo(uid, -1, physicsClientId=world.client)
+        mass, inertia_y = info[0], info[2][1]
+        spins = {}
+        for offset in (0.05, 0.0):
+            world.restore_state(trial.state)
+            pb.resetBasePositionAndOrientation(uid, [0, 0, 1], [0, 0, 0, 1], physicsClientId=world.client)
+            pin = pb.createConstraint(
+                uid,
+                -1,
+                -1,
+                -1,
+                pb.JOINT_POINT2POINT,
+                [0, 0, 0],
+                [0, 0, 0],
+                [0, 0, 1],
+                physicsClientId=world.client,
+            )
+            p = Perturbation(Transform.identity(), 0.0, 1.0, com_offset=np.array([offset, 0.0, 0.0]))
+            world.before_step = _OffsetMass(trial, p) if offset else None
+            world.set_gravity(True)
+            world.step(24)  # 0.1 s: the bar turns a few degrees
+            world.before_step = None
+            spins[offset] = np.asarray(pb.getBaseVelocity(uid, physicsClientId=world.client)[1])
+            pb.removeConstraint(pin, physicsClientId=world.client)
+        expected = mass * 9.81 * 0.05 / inertia_y * 0.1  # rad/s after 0.1 s, small angles
+        assert spins[0.05][1] == pytest.approx(expected, rel=0.1)
+        assert abs(spins[0.05][0]) < 1e-6 and abs(spins[0.05][2]) < 1e-6
+        assert np.abs(spins[0.0]).max() < 1e-9
+
+
+def test_a_moved_centre_of_mass_turns_the_lifted_object_in_the_grip_its_way(bar):
+    """Grasped at its middle from above and lifted (no shake), a heavy slippery bar stays level
+    with its mass where the model has it, and dips the end its mass is moved to otherwise."""
+    R_obj_tcp = np.column_stack([[0, 1, 0], [1, 0, 0], [0, 0, -1]])  # close across y, approach down
+    T = Transform.from_rotation(R_obj_tcp, [0, 0, 0])
+    with World(CONFIG.physics) as world:
+        hand = FloatingGripper(world, CONFIG.gripper)
+        hand.teleport(Transform([0, 0, 2.0], [0, 0, 0, 1]), hand.gripper.max_width)
+        uid = create_body(world.client, bar)
+        trial = GraspTrial(world, hand, uid, CONFIG, shake=False)
+        dips = {}
+        for offset in (0.0, 0.1, -0.1):
+            p = Perturbation(Transform.identity(), -0.7, 3.0, com_offset=np.array([offset, 0.0, 0.0]))
+            assert trial.run(T, 0.03, p).outcome == Outcome.SUCCESS  # turned in the grip, still held
+            orn = pb.getBasePositionAndOrientation(uid, physicsClientId=world.client)[1]
+            dips[offset] = np.array(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)[2, 0]  # bar x, world z
+        assert abs(dips[0.0]) < 0.05
+        assert dips[0.1] < -0.5 and dips[-0.1] > 0.5, dips
+        assert world.before_step is None  # the load ends with its trial
+
+
+def test_the_centre_of_mass_is_drawn_last_and_only_when_set():
+    """Runs made without it draw exactly what they drew before it existed; with it, the other
+    draws are the same."""
+    without = Perturbation.sample(np.random.default_rng(7), RobustConfig())
+    within = Perturbation.sample(np.random.default_rng(7), RobustConfig(com_offset_sigma=0.005))
+    assert not np.any(without.com_offset) and np.all(within.com_offset != 0)
+    assert np.abs(within.com_offset).max() < 0.05
+    for name in ("friction_delta", "mass_scale", "force_scale"):
+        assert getattr(without, name) == getattr(within, name)
+    assert np.array_equal(without.object_shift, within.object_shift)
+    assert np.array_equal(without.T_tcp_tcp.as_matrix(), within.T_tcp_tcp.as_matrix())
+    rng = np.random.default_rng(7)
+    Perturbation.sample(rng, RobustConfig())
+    after = rng.bit_generator.state
+    reference = np.random.default_rng(7)  # the nine draws of a perturbation without a centre of mass
+    for draw in ("normal3", "normal3", "uniform", "uniform", "normal2", "normal2", "normal", "uniform"):
+        if draw == "uniform":
+            reference.uniform(0.0, 1.0)
+        else:
+            reference.normal(0.0, 1.0, int(draw[-1]) if draw[-1].isdigit() else None)
+    assert after == reference.bit_generator.state
+
+
+def test_a_trial_takes_its_gripper_s_robust_table(my_rg2):
+    toml = my_rg2 / "gripper.toml"
+    toml.write_text(toml.read_text() + "\n[robust]\ncom_offset_sigma = 0.004\nobject_yaw_sigma = 0.1\n")
+    from annotator.grippers import load_gripper
+
+    with World(CONFIG.physics) as world:
+        hand = FloatingGripper(world, CONFIG.gripper, load_gripper(my_rg2))
+        uid = create_body(world.client, load_object(ObjectSource("box", OBJECTS / "box.obj"), CONFIG.objects))
+        trial = GraspTrial(world, hand, uid, CONFIG)
+        assert (trial.robust.com_offset_sigma, trial.robust.object_yaw_sigma) == (0.004, 0.1)
+        assert trial.robust.friction_delta == CONFIG.robust.friction_delta

@@ -32,10 +32,11 @@ import hashlib
 import math
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from annotator.config import ConfigError, RobustConfig
 from annotator.geometry import Transform, matrix_to_quat
 from annotator.grippers.meshes import MAX_MESH_BYTES, MAX_MESH_FACES, MeshError, mesh_facts
 from annotator.grippers.urdf import MAX_URDF_BYTES, Mimic, UrdfModel, read_urdf_bytes, rpy_matrix
@@ -68,6 +69,8 @@ SCHEMA: dict[str | None, dict[str, str]] = {
         "rolling_friction": "float",
     },
     "collision": {"kinematic_links": "strs"},
+    # the gripper's own execution uncertainty over the project's (RobustConfig.over)
+    "robust": {f.name: "float" for f in fields(RobustConfig)},
 }
 OPTIONAL = {
     (None, "export_type"),
@@ -76,7 +79,7 @@ OPTIONAL = {
     ("pads", "size"),
     ("collision", "kinematic_links"),
 }
-OPTIONAL_TABLES = {"collision", "mount"}
+OPTIONAL_TABLES = {"collision", "mount", "robust"}
 
 # Ranges no parallel gripper leaves (checked so a typo or an `inf` is refused, never simulated):
 # the largest strokes of industrial parallel grippers are a few hundred mm, their forces a few kN,
@@ -144,6 +147,9 @@ class GripperDescription:
     # the bytes the digest covers, read once: ((path relative to the folder, bytes), ...) sorted;
     # a run ships them to its workers, which never read the folder (GripperFiles)
     files: tuple[tuple[str, bytes], ...] = field(default=(), repr=False)
+    # ((field, value), ...) of the optional [robust] table: this gripper's execution uncertainty
+    # (RobustConfig's fields and units) over the project's defaults
+    robust: tuple[tuple[str, float], ...] = ()
 
     @property
     def key(self) -> tuple[str, str]:
@@ -366,7 +372,18 @@ def _build(
         fingers=_fingers(model, pads),
         sources=sources,
         files=tuple(sorted(files.items())),
+        robust=_robust(path, v),
     )
+
+
+def _robust(path: Path, v: dict[tuple[str | None, str], Any]) -> tuple[tuple[str, float], ...]:
+    """The [robust] table's values, each checked in its RobustConfig range."""
+    robust = {key: value for (table, key), value in v.items() if table == "robust"}
+    try:
+        RobustConfig(**robust)
+    except ConfigError as exc:
+        raise _bad(path, str(exc)) from None
+    return tuple(sorted(robust.items()))
 
 
 def _check_ranges(path: Path, v: dict[tuple[str | None, str], Any]) -> None:

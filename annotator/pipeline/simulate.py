@@ -140,7 +140,7 @@ def _run_trials(
         if r.outcome != Outcome.COLLISION and trials > 1:
             rng = trial_rng(seed, object_id, grasp_id)
             for _ in range(trials - 1):
-                p = trial.run(T, width_expected, Perturbation.sample(rng, config.robust))
+                p = trial.run(T, width_expected, Perturbation.sample(rng, trial.robust))
                 held += int(p.outcome == Outcome.SUCCESS)
                 steps += p.steps
         return TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held, r.check)

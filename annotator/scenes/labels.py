@@ -356,15 +356,15 @@ def _try(
 ) -> _Labelled:
     """Trial 0 unperturbed, then ``k - 1`` perturbed from the grasp's own Generator; an exception
     is this grasp's ``error``, never the scene's."""
-    config = trials.config
     try:
         first = trials.run(instance_id, T, width)
         r = first.result
         held, steps = int(r.outcome == Outcome.SUCCESS), r.steps
         if r.outcome != Outcome.COLLISION and k > 1:
             rng = trial_rng(seed, unit, grasp_id)
+            robust = trials.trials[instance_id].robust
             for _ in range(k - 1):
-                p = trials.run(instance_id, T, width, Perturbation.sample(rng, config.robust)).result
+                p = trials.run(instance_id, T, width, Perturbation.sample(rng, robust)).result
                 held += int(p.outcome == Outcome.SUCCESS)
                 steps += p.steps
         return _Labelled(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 
 import pybullet as pb
 
@@ -26,6 +27,10 @@ class World:
             raise RuntimeError("could not connect to PyBullet" + (" (GUI needs a display)" if gui else ""))
         self.steps = 0  # simulated steps since creation, for statistics
         self.step_seconds = 0.0  # wall time spent inside stepSimulation, for statistics
+        self.gravity_on = True
+        # called before every stepSimulation (external forces last one step): a trial's load
+        # that is not in the bodies' models (GraspTrial: a moved centre of mass); None: nothing
+        self.before_step: Callable[[], None] | None = None
         self.configure()
 
     def configure(self) -> None:
@@ -52,11 +57,15 @@ class World:
     def set_gravity(self, on: bool) -> None:
         """Gravity along world -z (``physics.gravity``, m/s^2) when ``on``, none otherwise."""
         pb.setGravity(0, 0, self.physics.gravity if on else 0.0, physicsClientId=self.client)
+        self.gravity_on = on
 
     def step(self, n: int = 1) -> None:
         """Advance the simulation ``n`` steps of ``dt`` seconds; the wall time inside is counted."""
         t0 = time.perf_counter()
+        before = self.before_step
         for _ in range(n):
+            if before is not None:
+                before()
             pb.stepSimulation(physicsClientId=self.client)
         self.step_seconds += time.perf_counter() - t0
         self.steps += n
