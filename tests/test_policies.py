@@ -15,7 +15,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import discover_objects
 from annotator.policies import Grasp, Grasps, Observation, PolicyError
-from annotator.policies.clutter import ClutterJob, clutter_removal
+from annotator.policies.clutter import FAILURES, ClutterJob, clutter_removal
 
 SEEN: list[Observation] = []
 TOP_DOWN = (1.0, 0.0, 0.0, 0.0)  # xyzw: the TCP's +z (approach) along the table's -z
@@ -60,6 +60,33 @@ def test_a_callable_sees_the_kinect_only_and_the_arm_executes_its_best_grasp(con
     # a second look sees the pile as it is: a held object is gone from the cloud
     if attempt.success and len(SEEN) > 1:
         assert len(SEEN[1].cloud) != len(first.cloud)
+
+
+def thin_air(observation: Observation) -> list[Grasp]:
+    """Straight down at points of the workspace 13 cm or more from everything observed: nothing
+    within the gripper's opening (the arm executes the first it reaches)."""
+    lo, hi = np.asarray(observation.workspace.lower), np.asarray(observation.workspace.upper)
+    grid = np.stack(np.meshgrid(*[np.linspace(lo[i] + 0.02, hi[i] - 0.02, 7) for i in range(3)]), -1)
+    points = grid.reshape(-1, 3)
+    gaps = np.linalg.norm(points[:, None] - observation.cloud[None, ::20], axis=2).min(axis=1)
+    return [Grasp(Transform(p, TOP_DOWN), 0.08, 1.0) for p in points[gaps > 0.13]]
+
+
+def test_every_attempt_says_what_it_went_for_and_why_it_failed(convex_objects):
+    config = AnnotatorConfig()
+    sources = tuple(discover_objects(convex_objects))
+    for policy in ("above_the_highest_point", "thin_air"):
+        job = ClutterJob(sources, 2, 0, f"{__name__}:{policy}", config, views=1)
+        _, grasps = clutter_removal(job, 1).tables()
+        assert {"target_instance", "target_object", "failure"} <= set(grasps.columns)
+        held, failed = grasps[grasps["label"] == 1], grasps[grasps["label"] == 0]
+        assert (held["failure"] == "").all() and (held["target_object"] == held["object_id"]).all()
+        assert failed["failure"].isin(list(FAILURES)).all() and (failed["held_instance"] == -1).all()
+        if policy == "thin_air":  # two misses in a row end the round
+            assert len(failed) == 2 and (failed["failure"] == "nothing_there").all()
+            assert (failed["target_instance"] == -1).all() and (failed["target_object"] == "").all()
+        else:
+            assert (grasps["target_instance"] >= 0).all() and (grasps["target_object"] != "").all()
 
 
 def nonsense(observation: Observation) -> Grasps:

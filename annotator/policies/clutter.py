@@ -66,8 +66,31 @@ def wilson(successes: int, trials: int, z: float = Z95) -> tuple[float, float]:
 
 
 @dataclass(frozen=True)
+class Executed:
+    """What executing one proposal did: ``held``; ``target``, the instance the arm went for (the
+    proposal's, or the one nearest its TCP; -1: none within the gripper's reach); ``why`` a failure
+    failed (:data:`FAILURES`), empty for a held object."""
+
+    held: bool
+    target: int
+    why: str = ""
+
+
+# Why an attempt failed, in the order the execution meets them (grasps.csv's ``failure``).
+FAILURES = {
+    "nothing_there": "no object within the gripper's opening of the TCP",
+    "arm_touched_table": "the arm or the gripper touched the table on the way in",
+    "gripper_pushed_object": "a link other than a pad touched the object on the way in",
+    "no_contact": "fewer than two pads on the object after the close",
+    "not_lifted": "the object did not come up with the hand",
+    "slipped": "it came up but lost a pad or moved in the hand",
+}
+
+
+@dataclass(frozen=True)
 class Attempt:
-    """One executed grasp: its proposal, whether it held, the object it held (-1: none)."""
+    """One executed grasp: its proposal, whether it held, the object it held (-1: none), the
+    instance the arm went for and why it failed (:class:`Executed`)."""
 
     round_id: int
     attempt: int
@@ -75,6 +98,9 @@ class Attempt:
     success: bool
     held_instance: int
     object_id: str
+    target: int = -1
+    target_object: str = ""
+    failure: str = ""
 
 
 @dataclass
@@ -159,6 +185,9 @@ class ClutterSummary:
                         "width": a.proposal.width,
                         "score": a.proposal.score,
                         "label": int(a.success),
+                        "target_instance": a.target,
+                        "target_object": a.target_object,
+                        "failure": a.failure,
                     }
                 )
         return rounds, pd.DataFrame(grasps)
@@ -242,14 +271,14 @@ class Round:
             q_seed=READY,
         )
 
-    def execute(self, proposal: Proposal) -> tuple[bool, int]:
-        """Execute ``proposal`` on the arm from a snapshot of the scene as it is; (held, instance held)."""
+    def execute(self, proposal: Proposal) -> Executed:
+        """Execute ``proposal`` on the arm from a snapshot of the scene as it is."""
         from annotator.cell.execute import Plan
         from annotator.cell.execute import execute_plan as replay
 
         target = proposal.instance_id if proposal.instance_id in self.present else self._nearest(proposal)
         if target < 0:
-            return False, -1
+            return Executed(False, -1, "nothing_there")
         self._use_physics_of(target)
         state = self.world.save_state()
         self.world.restore_state(state)  # no contact memory: the attempt depends on the scene only
@@ -274,7 +303,8 @@ class Round:
             del self.present[target]
         self._home()
         self.settle()
-        return held, target if held else -1
+        pads = self.cell.gripper.description.pad_links
+        return Executed(held, target, "" if held else _failure(result, lift.lift_height, pads))
 
     def _nearest(self, proposal: Proposal) -> int:
         """The object nearest the proposal's TCP (a file's grasp names none); -1 if none is within
@@ -340,6 +370,22 @@ def nearest_instance(client: int, bodies: Mapping[int, int], point_world, within
     return who
 
 
+def _failure(result, lift_height: float, pads: tuple[str, ...]) -> str:
+    """The :data:`FAILURES` key of an execution that did not hold (``result``: an Execution;
+    ``pads``: the gripper's pad links, which may touch the object on the way in)."""
+    touched = result.approach_contacts
+    if any(text.endswith("touched the table") for text in touched):
+        return "arm_touched_table"
+    pad_texts = {f"{pad} touched the object" for pad in pads}
+    if any(text.endswith("touched the object") and text not in pad_texts for text in touched):
+        return "gripper_pushed_object"
+    if result.pads_touching < 2:
+        return "no_contact"
+    if not result.lifted(lift_height):
+        return "not_lifted"
+    return "slipped"
+
+
 # --- the benchmark -----------------------------------------------------------------------------------------
 
 
@@ -374,9 +420,13 @@ def play_round(
             if proposal is None:
                 result.ended = "no grasp proposed"
                 break
-            held, instance = round_.execute(proposal)
+            done = round_.execute(proposal)
+            held, instance = done.held, done.target if done.held else -1
             oid = record.instance(instance).object_id if instance >= 0 else ""
-            result.attempts.append(Attempt(round_id, len(result.attempts), proposal, held, instance, oid))
+            aimed = record.instance(done.target).object_id if done.target >= 0 else ""
+            attempt = Attempt(round_id, len(result.attempts), proposal, held, instance, oid)
+            attempt = dataclasses.replace(attempt, target=done.target, target_object=aimed, failure=done.why)
+            result.attempts.append(attempt)
             failures = 0 if held else failures + 1
             log.info(
                 "round %d attempt %d: %s", round_id, len(result.attempts) - 1, "held" if held else "failed"
