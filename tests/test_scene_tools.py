@@ -125,6 +125,45 @@ def test_show_scene_draws_the_scene_and_its_grasps(convex_scene_run, tmp_path):
     assert "one of them" in both.output
 
 
+def test_show_scene_draws_a_clutter_round_s_attempts_on_it(convex_objects, convex_scene_run, tmp_path):
+    """Round 0 of clutter-removal (same objects, seed and objects per pile) is the run's scene 0:
+    its attempts are drawn there, numbered, each TCP on or beside the object it went for."""
+    from annotator.tools.show_scene import attempt_rows, render_scene
+
+    config = AnnotatorConfig()
+    job = ClutterJob(tuple(discover_objects(convex_objects)), 3, 0, "labels", config)
+    _, grasps = clutter_removal(job, 1).tables()
+    csv = tmp_path / "grasps.csv"
+    grasps.to_csv(csv, index=False)
+    png = tmp_path / "round0.png"
+    result = run_annotator("show", convex_scene_run, "--scene", 0, "--attempts", csv, "--png", png)
+    assert png.stat().st_size > 10_000 and f"{len(grasps)} attempts" in result.output
+    rows = attempt_rows(csv, 0)
+    assert rows["grasp_id"].tolist() == list(range(len(grasps)))
+    assert rows["text"].iloc[0].startswith(f"0: {grasps['target_object'].iloc[0]} ")
+    scenes = open_scene_labels(convex_scene_run, "test")
+    record = scenes.records[0]
+    meshes = {oid: scenes_mesh(scenes, oid) for oid in {i.object_id for i in record.kept}}
+    picture = render_scene(record, meshes, rows, {"success": len(rows)}, "test", numbered=True)
+    top, uv = picture.instance_masks[1], picture.overview.tcp_pixels[1]
+    order = {g: k for k, g in enumerate(picture.overview.grasp_ids)}
+    first = int(grasps["target_instance"].iloc[0])  # the scene as first settled: attempt 0's target
+    u, v = np.round(uv[order[0]]).astype(int)
+    assert top[first][max(0, v - 12) : v + 13, max(0, u - 12) : u + 13].any()
+    other = run_annotator("show", convex_scene_run, "--scene", 1, "--attempts", csv, "--png", png, check=2)
+    assert "no attempt of round 1" in other.output
+    not_attempts = tmp_path / "not_attempts.csv"
+    pd.DataFrame({"x": [0.0]}).to_csv(not_attempts, index=False)
+    wrong = run_annotator(
+        "show", convex_scene_run, "--scene", 0, "--attempts", not_attempts, "--png", png, check=2
+    )
+    assert "not a clutter-removal grasps.csv" in wrong.output
+    alone = run_annotator(
+        "show", convex_scene_run, "--object", "box", "--attempts", csv, "--png", png, check=2
+    )
+    assert "give --scene ROUND" in alone.output
+
+
 def test_wilson_interval():
     lo, hi = wilson(9, 10)
     assert lo == pytest.approx(0.596, abs=1e-3) and hi == pytest.approx(0.982, abs=1e-3)  # Wilson 1927

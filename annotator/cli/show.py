@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import click
 
@@ -55,6 +56,15 @@ from annotator.cli.common import (
     help="Grasps on the sheet.",
 )
 @seed_option("Seed of the random choice of grasps.")
+@click.option(
+    "--attempts",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="With --scene R: instead of the labels, round R's attempts from a clutter-removal --out "
+    "grasps.csv, numbered and coloured by how each ended, on the scene as it first settled (the "
+    "labels' scene R is round R when both ran with the same objects, seed, --arrangement and "
+    "--per-scene).",
+)
 @file_option(
     "--overview",
     "overview_png",
@@ -74,6 +84,7 @@ def show_command(
     grasp_ids,
     n,
     seed,
+    attempts,
     overview_png,
     objects_dir,
     overwrite,
@@ -86,17 +97,21 @@ def show_command(
     width) and an overview of every grasp of the object as a small gripper glyph coloured by
     outcome (parts behind the object faint). With --scene ID (labels of annotate --scenes): the
     scene on the table from two views, each object named instance:object, N of its grasps
-    (default 40 there) as glyphs coloured by outcome.
+    (default 40 there) as glyphs coloured by outcome; with --attempts, a clutter-removal round's
+    attempts on that scene instead, numbered, titled with what each went for and how it ended.
 
     \b
     Example:
       annotator show labels/ --object mug --objects objects/ --png mug.png
       annotator show labels/ --object mug --objects objects/ --outcome success --n 4 --png ok.png
       annotator show scene_labels/ --scene 3 --png scene3.png
+      annotator show scene_labels/ --scene 3 --attempts cr_learned/grasps.csv --png round3.png
     """
     setup_logging(False, verbose, default=logging.WARNING)
     if (object_id is None) == (scene_id is None):
         raise click.UsageError("give --object ID or --scene ID (one of them)")
+    if attempts is not None and scene_id is None:
+        raise click.UsageError("--attempts draws a clutter-removal round: give --scene ROUND")
     if scene_id is not None:
         if grasp_ids or overview_png:
             raise click.UsageError(
@@ -105,8 +120,11 @@ def show_command(
         from annotator.tools.show_scene import show_scene
 
         count = n if _given(n_option="n") else 40
-        done = show_scene(labels, scene_id, png, count, seed, tuple(outcomes), objects_dir, overwrite)
-        click.echo(f"wrote {done.png} (scene {scene_id}: {done.kept} objects, {done.n_grasps} grasps)")
+        done = show_scene(
+            labels, scene_id, png, count, seed, tuple(outcomes), objects_dir, overwrite, attempts=attempts
+        )
+        drawn = f"{done.n_grasps} attempts of {attempts}" if attempts else f"{done.n_grasps} grasps"
+        click.echo(f"wrote {done.png} (scene {scene_id}: {done.kept} objects, {drawn})")
         return
     from annotator.tools.common import labelling_config, labelling_gripper, read_labels
     from annotator.tools.show import show

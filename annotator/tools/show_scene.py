@@ -87,10 +87,65 @@ class ScenePicture:
     instance_masks: list[dict[int, np.ndarray]]
 
 
+# A clutter-removal attempt's ``failure`` drawn in the colour of the label outcome it resembles.
+ATTEMPT_OUTCOMES = {
+    "": "success",
+    "nothing_there": "no_contact",
+    "no_contact": "no_contact",
+    "arm_touched_table": "collision",
+    "gripper_pushed_object": "collision",
+    "not_lifted": "slipped_lift",
+    "slipped": "slipped_shake",
+}
+ATTEMPT_COLUMNS = ("round_id", "attempt", "x", "y", "z", "qx", "qy", "qz", "qw", "width", "label", "failure")
+
+
+def attempt_rows(path: Path, round_id: int) -> pd.DataFrame:
+    """Round ``round_id``'s attempts in a ``clutter-removal --out`` ``grasps.csv`` as rows
+    :func:`render_scene` draws: the TCP in the table frame (``table_tcp_*``), width, ``outcome``
+    (:data:`ATTEMPT_OUTCOMES` of its ``failure``), ``grasp_id`` the attempt's number, ``text`` what
+    it went for and how it ended. ToolError (one line) for a file that is not such a table."""
+    from annotator.tools.common import ToolError
+
+    try:
+        table = pd.read_csv(path, keep_default_na=False)
+    except (OSError, ValueError) as exc:
+        raise ToolError(f"--attempts {path}: cannot read it as a CSV ({exc})") from None
+    missing = [c for c in ATTEMPT_COLUMNS if c not in table.columns]
+    if missing:
+        no = ", ".join(missing)
+        raise ToolError(f"--attempts {path}: not a clutter-removal grasps.csv (no column {no})")
+    rows = table[table["round_id"] == round_id].sort_values("attempt").reset_index(drop=True)
+    if rows.empty:
+        rounds = sorted(set(table["round_id"].tolist()))
+        raise ToolError(f"--attempts {path}: no attempt of round {round_id} (rounds {rounds[:10]})")
+    unknown = sorted(set(rows["failure"]) - set(ATTEMPT_OUTCOMES))
+    if unknown:
+        raise ToolError(f"--attempts {path}: unknown failure(s) {unknown}")
+    out = pd.DataFrame({c: rows[c[len("table_tcp_") :]].astype(float) for c in TABLE_TCP_COLUMNS})
+    out["width"] = rows["width"].astype(float)
+    out["outcome"] = [ATTEMPT_OUTCOMES[f] for f in rows["failure"]]
+    out["grasp_id"] = rows["attempt"].astype(int)
+    target = rows["target_object"] if "target_object" in rows else pd.Series([""] * len(rows))
+    held = rows["label"].astype(bool)
+    out["text"] = [
+        f"{a}: {t or '?'} {'held' if ok else f}"
+        for a, t, ok, f in zip(rows["attempt"], target, held, rows["failure"], strict=True)
+    ]
+    return out
+
+
 def render_scene(
-    record: SceneRecord, meshes: dict[str, object], chosen: pd.DataFrame, counts: dict[str, int], title: str
+    record: SceneRecord,
+    meshes: dict[str, object],
+    chosen: pd.DataFrame,
+    counts: dict[str, int],
+    title: str,
+    *,
+    numbered: bool = False,
 ) -> ScenePicture:
-    """Render ``record`` (meshes: object id -> trimesh in its mesh frame) with ``chosen``'s glyphs."""
+    """Render ``record`` (meshes: object id -> trimesh in its mesh frame) with ``chosen``'s glyphs;
+    ``numbered``: each glyph's ``grasp_id`` written beside its TCP (a round's attempts)."""
     from annotator.cell.world import build_cell
     from annotator.config import CellConfig
 
@@ -110,7 +165,10 @@ def render_scene(
         for camera in scene_cameras(record):
             frame = render_frame(world.client, camera)
             image = draw_glyphs(frame, T_world_tcp, chosen["width"].to_numpy(), chosen["outcome"], PAD_TIP)
-            out.images.append(_named(image, camera, record))
+            image = _named(image, camera, record)
+            if numbered:
+                image = _numbered(image, camera, T_world_tcp[:, :3, 3], chosen["grasp_id"].to_numpy())
+            out.images.append(image)
             out.frames.append(frame)
             masks.append({i: np.isin(frame.segmentation, uids) for i, uids in bodies.items()})
             out.object_masks.append(np.any(list(masks[-1].values()), axis=0))
@@ -133,6 +191,19 @@ def _named(image: np.ndarray, camera: Camera, record: SceneRecord) -> np.ndarray
     return np.asarray(img)
 
 
+def _numbered(image: np.ndarray, camera: Camera, points: np.ndarray, numbers: np.ndarray) -> np.ndarray:
+    """``image`` with ``numbers`` (n,) written at ``points`` (n, 3) world m (grasps' TCPs)."""
+    from PIL import Image, ImageDraw
+
+    img = Image.fromarray(image)
+    draw = ImageDraw.Draw(img)
+    font = _font(14)
+    uv, _ = project(camera, points)
+    for (u, v), number in zip(uv, numbers, strict=True):
+        draw.text((float(u) + 6, float(v) + 2), str(int(number)), fill=(0, 0, 0), font=font)
+    return np.asarray(img)
+
+
 @dataclass(frozen=True)
 class ShowSceneResult:
     """What ``show --scene`` wrote, the grasps drawn, the scene's kept instances."""
@@ -151,9 +222,13 @@ def show_scene(
     outcomes: tuple[str, ...] = (),
     objects_dir: Path | None = None,
     overwrite: bool = False,
+    attempts: Path | None = None,
 ) -> ShowSceneResult:
     """Write the picture of scene ``scene_id`` of the scene run in ``labels_dir`` to ``png`` (a
-    picture of that name this tool did not write only with ``overwrite``)."""
+    picture of that name this tool did not write only with ``overwrite``). ``attempts``: a
+    ``clutter-removal --out`` ``grasps.csv`` whose round ``scene_id`` (the same scene when both ran
+    with the same objects, seed, arrangement and objects per pile) is drawn instead of the labels,
+    each attempt numbered, on the scene as it first settled."""
     from annotator.tools.common import (
         ToolError,
         check_output_file,
@@ -172,7 +247,10 @@ def show_scene(
     scenes = open_scene_labels(labels_dir, "show --scene")
     rows = scenes.rows(scene_id)
     record = scenes.records[scene_id]
-    chosen = choose_scene_grasps(rows, n, seed, outcomes)
+    if attempts is None:
+        chosen = choose_scene_grasps(rows, n, seed, outcomes)
+    else:
+        chosen = attempt_rows(attempts, scene_id)
     if chosen.empty:
         have = ", ".join(f"{k} {v}" for k, v in rows["outcome"].value_counts().items())
         raise ToolError(f"scene {scene_id} has no {'/'.join(outcomes)} grasps ({have})")
@@ -185,6 +263,8 @@ def show_scene(
         f"scene {scene_id} ({record.arrangement}, {len(record.kept)} of {len(record.instances)} objects "
         f"kept): {len(chosen)} of {len(rows)} grasps"
     )
-    picture = render_scene(record, meshes, chosen, counts, title)
+    if attempts is not None:
+        title = f"round {scene_id} ({record.arrangement}, as first settled): " + ", ".join(chosen["text"])
+    picture = render_scene(record, meshes, chosen, counts, title, numbered=attempts is not None)
     save_png(picture.image, png)
     return ShowSceneResult(png, len(chosen), len(record.kept))
