@@ -77,13 +77,16 @@ def test_every_attempt_says_what_it_went_for_and_why_it_failed(convex_objects):
     sources = tuple(discover_objects(convex_objects))
     for policy in ("above_the_highest_point", "thin_air"):
         job = ClutterJob(sources, 2, 0, f"{__name__}:{policy}", config, views=1)
-        _, grasps = clutter_removal(job, 1).tables()
+        summary = clutter_removal(job, 1)
+        _, grasps = summary.tables()
         assert {"target_instance", "target_object", "failure"} <= set(grasps.columns)
         held, failed = grasps[grasps["label"] == 1], grasps[grasps["label"] == 0]
         assert (held["failure"] == "").all() and (held["target_object"] == held["object_id"]).all()
         assert failed["failure"].isin(list(FAILURES)).all() and (failed["held_instance"] == -1).all()
         if policy == "thin_air":  # two misses in a row end the round
             assert len(failed) == 2 and (failed["failure"] == "nothing_there").all()
+            assert "failed attempts     nothing_there 2" in summary.lines("thin air")
+            assert "rounds ended        2 failures in a row 1" in summary.lines("thin air")
             assert (failed["target_instance"] == -1).all() and (failed["target_object"] == "").all()
         else:
             assert (grasps["target_instance"] >= 0).all() and (grasps["target_object"] != "").all()

@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -144,15 +145,19 @@ class ClutterSummary:
         return self.successes / self.objects if self.objects else float("nan")
 
     def lines(self, policy: str) -> list[str]:
-        """The figures as printed: rate, counts and 95 % intervals."""
+        """The figures as printed: rate, counts and 95 % intervals; how the rounds ended and why
+        the failed attempts failed (:data:`FAILURES`), each with its count."""
         lo, hi = wilson(self.successes, self.attempts)
         clo, chi = wilson(self.successes, self.objects)
+        failures = (a.failure for r in self.rounds for a in r.attempts if not a.success)
         return [
             f"clutter removal, policy {policy}: {len(self.rounds)} rounds, {self.objects} objects",
             f"grasp success rate  {100 * self.success_rate:5.1f} %  ({self.successes} of {self.attempts} "
             f"attempts; 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)",
             f"percent cleared     {100 * self.percent_cleared:5.1f} %  ({self.successes} of {self.objects} "
             f"objects; 95 % interval {100 * clo:.1f}-{100 * chi:.1f} %)",
+            f"rounds ended        {_counted(r.ended for r in self.rounds)}",
+            f"failed attempts     {_counted(failures)}",
         ]
 
     def tables(self) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -368,6 +373,12 @@ def nearest_instance(client: int, bodies: Mapping[int, int], point_world, within
     finally:
         pb.removeBody(body, physicsClientId=client)
     return who
+
+
+def _counted(items) -> str:
+    """``"a 3, b 1"``: each distinct item with its count, most frequent first (``"none"``)."""
+    counts = Counter(items)
+    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))) or "none"
 
 
 def _failure(result, lift_height: float, pads: tuple[str, ...]) -> str:
