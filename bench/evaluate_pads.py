@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from annotator.dataset import load_labels
 from bench.harness import ROOT, Run
 
 STEP = 0.0005  # m, the shift's search step along the TCP's y
@@ -86,12 +87,6 @@ def off_centre(labels: pd.DataFrame, folder: Path, objects: Path, miss: float) -
     return pd.DataFrame(rows)
 
 
-def outcomes(folder: Path) -> pd.DataFrame:
-    from annotator.dataset import load_labels
-
-    return load_labels(folder)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--objects", type=Path, default=ROOT / "objects")
@@ -107,8 +102,6 @@ def main() -> None:
                 "annotate", "--objects", args.objects, "--n", args.n, "--out", labels,
                 "--workers", args.workers, "--quiet",
             )  # fmt: skip
-            from annotator.dataset import load_labels
-
             grasps = off_centre(load_labels(labels), labels, args.objects, args.miss)
             print(f"{len(grasps)} off-centre grasps from the successes of annotate --n {args.n}")
             given = work / "given.csv"
@@ -122,7 +115,7 @@ def main() -> None:
                     "evaluate", path, "--objects", args.objects, "--out", out, "--workers", args.workers,
                     "--quiet",
                 )  # fmt: skip
-                result = outcomes(out)
+                result = load_labels(out)
                 counts = result["outcome"].value_counts().to_dict()
                 collisions = result[result["outcome"] == "collision"]
                 stages = collisions.groupby(["collision_stage", "collided_with"]).size().to_dict()

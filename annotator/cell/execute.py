@@ -62,6 +62,8 @@ class Execution:
 
     plan: Plan
     approach_contacts: list[str] = field(default_factory=list)
+    table_touched: bool = False  # a link touched the table on the way in
+    links_on_object: set[str] = field(default_factory=set)  # links that touched the object on the way in
     closed_width: float = float("nan")  # m
     pads_touching: int = 0  # pads touching the object after the close
     pads_at_end: int = 0  # pads touching the object after the lift and hold
@@ -149,6 +151,10 @@ def execute_plan(
     def watch_contacts() -> None:
         for body, what in ((obj, "the object"), (cell.table.uid, "the table")):
             for c in pb.getContactPoints(robot.uid, body, physicsClientId=cell.client):
+                if body == obj:
+                    result.links_on_object.add(names[c[3]])
+                else:
+                    result.table_touched = True
                 text = f"{names[c[3]]} touched {what}"
                 if text not in result.approach_contacts:
                     result.approach_contacts.append(text)

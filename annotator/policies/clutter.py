@@ -384,11 +384,9 @@ def _counted(items) -> str:
 def _failure(result, lift_height: float, pads: tuple[str, ...]) -> str:
     """The :data:`FAILURES` key of an execution that did not hold (``result``: an Execution;
     ``pads``: the gripper's pad links, which may touch the object on the way in)."""
-    touched = result.approach_contacts
-    if any(text.endswith("touched the table") for text in touched):
+    if result.table_touched:
         return "arm_touched_table"
-    pad_texts = {f"{pad} touched the object" for pad in pads}
-    if any(text.endswith("touched the object") and text not in pad_texts for text in touched):
+    if result.links_on_object - set(pads):
         return "gripper_pushed_object"
     if result.pads_touching < 2:
         return "no_contact"
@@ -435,9 +433,12 @@ def play_round(
             held, instance = done.held, done.target if done.held else -1
             oid = record.instance(instance).object_id if instance >= 0 else ""
             aimed = record.instance(done.target).object_id if done.target >= 0 else ""
-            attempt = Attempt(round_id, len(result.attempts), proposal, held, instance, oid)
-            attempt = dataclasses.replace(attempt, target=done.target, target_object=aimed, failure=done.why)
-            result.attempts.append(attempt)
+            result.attempts.append(
+                Attempt(
+                    round_id, len(result.attempts), proposal, held, instance, oid,
+                    target=done.target, target_object=aimed, failure=done.why,
+                )  # fmt: skip
+            )
             failures = 0 if held else failures + 1
             log.info(
                 "round %d attempt %d: %s", round_id, len(result.attempts) - 1, "held" if held else "failed"
