@@ -217,3 +217,28 @@ def test_memory_and_face_count_helpers_read_only_headers_of_large_binary_files(t
         fh.truncate(84 + 50 * n)  # sparse: no data written
     assert memory.count_faces(path) == n
     assert memory.estimate_mb(n) > memory.estimate_mb(200_000) > memory.estimate_mb(20_000)
+
+
+def test_seam_copies_a_rounding_step_apart_are_welded_and_a_real_gap_is_not() -> None:
+    """A box whose top face was written with its own copies of the four top corners, 0.2 nm from
+    the others but on the other side of trimesh's 1e-8 m rounding step (as robosuite's can.stl
+    writes its lid): cleaning joins them, and the box is closed. Copies 0.1 mm apart are a gap,
+    not a seam, and stay apart."""
+    h = 0.0200000049  # x 1e8 rounds down; h + 2e-10 rounds up
+    box = trimesh.creation.box(extents=[2 * h, 2 * h, 2 * h])
+    box.vertices = np.sign(box.vertices) * h
+    for shift, welded in ((2e-10, True), (1e-4, False)):
+        top = np.flatnonzero(np.all(box.vertices[box.faces][:, :, 2] > 0, axis=1))
+        upper = np.flatnonzero(box.vertices[:, 2] > 0)
+        vertices = np.vstack([box.vertices, box.vertices[upper] + shift])
+        copy_of = {int(v): len(box.vertices) + k for k, v in enumerate(upper)}
+        faces = box.faces.copy()
+        faces[top] = np.vectorize(copy_of.get)(faces[top])
+        split = trimesh.Trimesh(vertices, faces, process=False)
+        assert not split.is_watertight
+        report = reading.Cleaning()
+        cleaned = reading.clean(split, "box", report)
+        assert cleaned.is_watertight == welded
+        assert report.vertices_merged == (4 if welded else 0)
+        if welded:
+            assert np.isclose(cleaned.volume, (2 * h) ** 3)

@@ -29,6 +29,11 @@ _TEXT_SUFFIXES = (".obj", ".off")
 # m^3: a closed piece enclosing less is flat (a double-sided sheet; 121.obj's is exactly 0)
 FLAT_VOLUME = 1e-15
 
+# m: open-edge vertices closer than this are one. trimesh merges by rounding positions to 1e-8 m,
+# so two copies of a seam vertex that straddle a rounding step stay apart (robosuite's can.stl:
+# 31 seam vertices 7-11 nm apart left its lid unjoined); a tenth of a micrometre joins no feature.
+WELD_TOLERANCE = 1e-7
+
 
 @dataclass
 class Cleaning:
@@ -165,7 +170,8 @@ def read_triangles(path: Path, node: int | None = None) -> trimesh.Trimesh:
 def clean(mesh: trimesh.Trimesh, name: str, report: Cleaning) -> trimesh.Trimesh:
     """Merge vertices by position, drop degenerate and duplicate faces, drop unused vertices.
 
-    ``mesh``: scaled, in metres. Vertices closer than trimesh's merge tolerance (1e-8 m) are one.
+    ``mesh``: scaled, in metres. Vertices closer than trimesh's merge tolerance (1e-8 m) are one,
+    and so are those of open edges within :data:`WELD_TOLERANCE` (:func:`weld_open_edges`).
     """
     if not np.all(np.isfinite(mesh.vertices)):
         raise ObjectError(f"{name}: vertices contain NaN or inf")
@@ -176,13 +182,41 @@ def clean(mesh: trimesh.Trimesh, name: str, report: Cleaning) -> trimesh.Trimesh
     n_vertices = len(np.unique(faces))
     out = trimesh.Trimesh(np.asarray(mesh.vertices, dtype=np.float64), faces, process=False)
     out.merge_vertices(merge_tex=True, merge_norm=True)
-    report.vertices_merged = n_vertices - len(out.vertices)
+    out = weld_open_edges(out, WELD_TOLERANCE)
+    report.vertices_merged = n_vertices - len(np.unique(out.faces))
     keep = out.nondegenerate_faces(height=1e-12)
     report.degenerate_faces = int((~keep).sum())
     out.update_faces(keep)
     out.update_faces(_drop_coincident(out, report))
     out.remove_unreferenced_vertices()
     return out
+
+
+def weld_open_edges(mesh: trimesh.Trimesh, tolerance: float) -> trimesh.Trimesh:
+    """``mesh`` with the vertices of its open edges (edges of one face) that lie within
+    ``tolerance`` (m) of each other made one (the lowest index of each cluster); the input itself
+    when there are none. Faces are kept, vertices left unreferenced; a face the weld collapses is
+    dropped afterwards with the degenerate ones."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    edges = mesh.edges_sorted
+    open_edges = trimesh.grouping.group_rows(edges, require_count=1)
+    if len(open_edges) == 0:
+        return mesh
+    ends = np.unique(edges[open_edges])
+    pairs = cKDTree(mesh.vertices[ends]).query_pairs(tolerance, output_type="ndarray")
+    if len(pairs) == 0:
+        return mesh
+    n = len(ends)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, cluster = connected_components(graph, directed=False)
+    first = np.full(cluster.max() + 1, len(mesh.vertices), dtype=np.int64)
+    np.minimum.at(first, cluster, ends)
+    remap = np.arange(len(mesh.vertices), dtype=np.int64)
+    remap[ends] = first[cluster]
+    return trimesh.Trimesh(mesh.vertices, remap[np.asarray(mesh.faces)], process=False)
 
 
 def _drop_coincident(mesh: trimesh.Trimesh, report: Cleaning) -> np.ndarray:
