@@ -22,6 +22,7 @@ import pytest
 from helpers import synthetic_labels
 
 import annotator.dataset as ds
+import annotator.store.store as store_module
 from annotator.config import AnnotatorConfig
 from annotator.store import (
     LOCK_NAME,
@@ -166,6 +167,45 @@ def test_chunks_are_readable_at_once_merged_and_resumed(tmp_path: Path) -> None:
     assert data["run"]["seed"] == 0 and data["run"]["n"] == N and data["run"]["chunk_size"] == 5
     assert data["run"]["config"]["sampler"]["n_rotations"] == AnnotatorConfig().sampler.n_rotations
     assert {"annotator", "pybullet", "numpy", "trimesh", "coacd"} <= set(data["run"]["versions"])
+
+
+@pytest.mark.parametrize("links", [True, False], ids=["hard-link", "no-hard-links"])
+def test_an_object_of_one_chunk_becomes_its_file_without_a_rewrite(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, links: bool
+) -> None:
+    """One span of every row: its chunk file is the object's file (linked, or copied where the file
+    system has no hard links), recorded with its own digest, and resumed as done."""
+    if not links:
+
+        def no_link(*args, **kwargs):
+            raise OSError(errno.EPERM, "hard links not supported")
+
+        monkeypatch.setattr(os, "link", no_link)
+    spec = _spec(chunk_size=N)
+    store = Store(tmp_path, spec)
+    store.open()
+    whole = synthetic_labels("ycb/mug")
+    store.write_chunk("ycb/mug", whole, 0, SRC)
+    chunk = tmp_path / names.chunk_filename("ycb/mug", 0, N)
+    chunk_bytes = chunk.read_bytes()
+    rewrites = []
+    monkeypatch.setattr(store_module, "write_labels", lambda *a, **k: rewrites.append(a))
+    stats = store.finish_object("ycb/mug", SRC)
+    assert rewrites == []  # not read back and written again
+    store.close()
+    final = tmp_path / names.object_filename("ycb/mug")
+    assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [final.name]
+    assert final.read_bytes() == chunk_bytes and final.stat().st_nlink == 1
+    mark = files.read_mark(final)
+    assert mark is not None and (mark["object_id"], mark["start"], mark["stop"]) == ("ycb/mug", 0, N)
+    entry = json.loads((tmp_path / MANIFEST_NAME).read_text())["objects_done"]["ycb/mug"]
+    assert entry["sha256"] == files.file_sha256(final) and entry["n"] == N
+    assert stats["n"] == N and stats["successes"] == int(whole["success"].sum())
+    pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.load_labels(final))
+    store = Store(tmp_path, spec)
+    store.open()
+    assert store.reconcile({"ycb/mug": SRC}).done == {"ycb/mug"}
+    store.close()
 
 
 @pytest.mark.parametrize(

@@ -146,6 +146,10 @@ class WorkerState:
         self.obj: LoadedObject | None = None
         # objects this world had: key -> (model, its candidates by (seed, n)), most recent last
         self.recent: OrderedDict[tuple, tuple[ObjectModel, dict]] = OrderedDict()
+        # the footprint of each object in ``recent`` when it was kept, and their sum: a kept
+        # object is not measured again each time another is kept (thousands of small objects fit)
+        self.recent_bytes: dict[tuple, int] = {}
+        self.recent_total = 0
         self.failed: dict[tuple, str] = {}  # object key -> its error (other spans fail at once)
 
     # --- the checks and the mode ------------------------------------------------------------------
@@ -182,7 +186,7 @@ class WorkerState:
             self.config, self.gripper = config, gripper
             if kept != self.memory_key:  # the keys do not hold the configuration
                 self.failed = {}
-                self.recent.clear()
+                self._forget_recent()
             self.memory_key = kept
         return self.mode
 
@@ -230,6 +234,7 @@ class WorkerState:
     def _kept(self, key: tuple) -> tuple[ObjectModel | None, dict]:
         """The model and candidates this worker kept of ``key`` (taken out of ``recent``), if any."""
         model, candidates = self.recent.pop(key, (None, {}))
+        self.recent_total -= self.recent_bytes.pop(key, 0)
         if model is not None and model.collision_file is not None and not model.collision_file.exists():
             model, candidates = None, {}  # its collision file left the cache: load it again
         return model, candidates
@@ -248,10 +253,18 @@ class WorkerState:
         """Remember an object this worker leaves or prepared (its model and candidates) within the
         memory budget, most recent last."""
         self.recent.pop(key, None)
+        self.recent_total -= self.recent_bytes.pop(key, 0)
         self.recent[key] = (model, candidates)
-        total = sum(_footprint(*kept) for kept in self.recent.values())
-        while self.recent and total > RECENT_OBJECT_BYTES:
-            total -= _footprint(*self.recent.popitem(last=False)[1])
+        self.recent_bytes[key] = _footprint(model, candidates)
+        self.recent_total += self.recent_bytes[key]
+        while self.recent and self.recent_total > RECENT_OBJECT_BYTES:
+            oldest, _ = self.recent.popitem(last=False)
+            self.recent_total -= self.recent_bytes.pop(oldest)
+
+    def _forget_recent(self) -> None:
+        self.recent.clear()
+        self.recent_bytes.clear()
+        self.recent_total = 0
 
     def prepare(self, task: SpanTask) -> SpanResult:
         """A decomposition task (``task.span`` a :class:`Prepare`): load the object (its collision

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import functools
 import hashlib
 import importlib.metadata
 import json
@@ -152,9 +153,10 @@ class RunSpec:
         """Candidates of one object: N, or its own count when the run's grasps are given."""
         return int(self.inputs.get("counts", {}).get(object_id, self.n))
 
-    @property
+    @functools.cached_property
     def key(self) -> str:
-        """SHA-256 of the canonical JSON: files written by this run carry it."""
+        """SHA-256 of the canonical JSON: files written by this run carry it (computed once: every
+        label file written asks for it; the spec's dicts are never changed after it is made)."""
         return hashlib.sha256(json.dumps(self.to_json(), sort_keys=True).encode()).hexdigest()
 
     def differences(self, recorded: dict[str, Any]) -> list[str]:

@@ -31,6 +31,7 @@ from annotator.store.files import (
     FileRecord,
     OutputError,
     Owner,
+    atomic_write,
     is_regular_file,
     output_error,
     owner_of,
@@ -293,17 +294,22 @@ class Store:
         stats = object_stats(df)
         final = object_filename(oid)
         with sigint_deferred():
-            rec: FileRecord = write_labels(
-                self.out_dir,
-                df,
-                0,
-                len(df),
-                merging_name(final),
-                self.spec.key,
-                source_sha256,
-                artifacts,
-                run_id=self.manifest.run_id,
-            )
+            if len(chunks) == 1 and chunks[0][1].get("n") == len(df) and _start(chunks[0]) == 0:
+                # one chunk of all the rows: it is the merged file already (the same rows, sorted,
+                # and the same mark, rows 0..n-1), so it is linked under the merged file's name
+                rec: FileRecord = _same_file(self.out_dir, chunks[0][1], merging_name(final))
+            else:
+                rec = write_labels(
+                    self.out_dir,
+                    df,
+                    0,
+                    len(df),
+                    merging_name(final),
+                    self.spec.key,
+                    source_sha256,
+                    artifacts,
+                    run_id=self.manifest.run_id,
+                )
             done = {
                 **rec.to_json(),
                 "file": final,
@@ -419,3 +425,16 @@ def _move_keeping(source: Path, target: Path, run_id: str | None) -> None:
         target = target.with_name(f"{source.stem}.{k}{source.suffix}")
         k += 1
     os.replace(source, target)
+
+
+def _same_file(out_dir: Path, chunk: dict[str, Any], name: str) -> FileRecord:
+    """The chunk file of ``chunk`` (its record: file, sha256, n) also under ``name``: a hard link,
+    or a copy written atomically where the file system has none; the new name's record."""
+    source, target = out_dir / chunk["file"], out_dir / name
+    target.unlink(missing_ok=True)
+    try:
+        os.link(source, target)
+    except OSError:  # no hard links here (some network and FAT file systems)
+        data = source.read_bytes()
+        atomic_write(target, lambda fh: fh.write(data))
+    return FileRecord(name, chunk["sha256"], int(chunk["n"]))
