@@ -5,6 +5,7 @@ annotator/objects/fidelity.py).
     python -m bench.collision_error                          # the sample objects, before and after
     python -m bench.collision_error --objects DIR --no-before
     python -m bench.collision_error --objects DIR --only 'ycb/*' --cache /tmp/cache
+    python -m bench.collision_error --objects DIR --no-before --first-cut-share 0.5
 
 Columns: faces as loaded (after cleaning and the face budget), what cleaning changed, the mass
 model and mass, the collision method, parts and final CoACD threshold, the error mean and max
@@ -20,6 +21,7 @@ record (bench/harness.py).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import fnmatch
 import sys
 import tempfile
@@ -58,9 +60,17 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=None, help="decomposition cache (default: a fresh one)")
     ap.add_argument("--before", action=argparse.BooleanOptionalAction, default=None)
     ap.add_argument("--scale", type=float, default=None)
+    ap.add_argument(
+        "--first-cut-share",
+        type=float,
+        default=None,
+        help="coacd_first_cut_share of the budget for CoACD on the mesh as it is (default: the config's)",
+    )
     args = ap.parse_args()
     with_before = args.before if args.before is not None else args.objects.resolve() == ROOT / "objects"
     config = ObjectConfig()
+    if args.first_cut_share is not None:
+        config = dataclasses.replace(config, coacd_first_cut_share=args.first_cut_share)
     cache = args.cache or Path(tempfile.mkdtemp(prefix="rg2-bench-cache-"))
     print(
         f"limits: mean <= {config.collision_mean_limit * 1e3:g} mm, "
@@ -125,6 +135,7 @@ def measure(
             "max_mm": err.max * 1e3,
             "within": not model.approximate,
             "load_s": seconds,
+            "ladder": model.collision_ladder,
         }
         if with_before:
             old_parts = before(model)
