@@ -12,7 +12,11 @@ first run), then ``annotate`` on the first ``--few`` of them with ``--n`` x obje
 each (the same number of candidates, the per-object cost spread over far fewer objects). Each
 command's CPU is user + system of it and its worker processes (``os.wait4``). Recorded: CPU per
 candidate of each, their ratios (many objects over few: 1 when objects cost nothing), and the
-per-object overhead, (CPU of the many-object run - CPU of the few-object run) / objects.
+per-object overhead, (CPU of the many-object run - CPU of the few-object run) / objects. The few
+objects are not the many's mix (a 20 mm cube is simulated at a finer step than a 60 mm one), so
+their candidates' physics costs differ by more than some objects' overhead: the overhead is also
+given with the few-object run's CPU scaled by the physics steps of the two (the labels'
+``sim_steps``), (CPU many - CPU few x steps many / steps few) / objects.
 ``--before REV`` runs the cold and warm pair again on commit REV (its package from ``git archive``,
 imported ahead of the installed one) in the same run, for same-run before/after ratios.
 
@@ -22,6 +26,7 @@ A record (bench/harness.py): ``object_cost``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import shutil
 import subprocess
@@ -32,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import trimesh
 
 from bench.harness import Run
@@ -69,13 +75,15 @@ def write_convex_primitives(dest: Path, count: int, seed: int = 0) -> list[Path]
 
 @dataclass(frozen=True)
 class Measured:
-    """One command: its exit code, wall seconds, user and system CPU seconds (with its workers)."""
+    """One command: its exit code, wall seconds, user and system CPU seconds (with its workers);
+    ``steps``: the physics steps of its labels (``sim_steps``, filled in by :func:`annotate`)."""
 
     code: int
     seconds: float
     user: float
     system: float
     output: str
+    steps: int = 0
 
     @property
     def cpu(self) -> float:
@@ -106,7 +114,8 @@ def annotate(objects: Path, n: int, out: Path, cache: Path, workers: int, code: 
     got = measured(cmd + ["--workers", str(workers), "--quiet"], env, cwd=out.parent)
     if got.code != 0:
         raise RuntimeError(f"annotate failed ({got.code}):\n{got.output[-3000:]}")
-    return got
+    steps = int(pd.read_parquet(out, columns=["sim_steps"])["sim_steps"].sum())
+    return dataclasses.replace(got, steps=steps)
 
 
 def main() -> None:
@@ -165,6 +174,7 @@ def measure(args: argparse.Namespace, tmp: Path, run: Run) -> None:
                 "system_s": round(got.system, 2),
                 "wall_s": round(got.seconds, 1),
                 "cpu_ms_per_candidate": round(got.cpu / candidates * 1e3, 3),
+                "sim_steps": got.steps,
             }
         )
         if name == "few":
@@ -175,6 +185,13 @@ def measure(args: argparse.Namespace, tmp: Path, run: Run) -> None:
             "s",
             note=f"{name}: (CPU of {args.objects} objects at --n {args.n} - CPU of the same candidates on "
             f"{args.few} objects) / {args.objects}",
+        )
+        run.figure(
+            f"{name}_overhead_cpu_s_per_object_step_normalised",
+            (got.cpu - few.cpu * got.steps / few.steps) / args.objects,
+            "s",
+            note=f"{name}: (CPU of {args.objects} objects - CPU of {args.few} objects x their physics "
+            f"steps' ratio, {got.steps} / {few.steps}) / {args.objects}",
         )
         run.ratio(
             f"{name}_vs_few_cpu_per_candidate",

@@ -33,7 +33,7 @@ from annotator.pipeline.progress import Progress
 from annotator.pipeline.run import RunOptions, Workers, execute, run
 from annotator.pipeline.schedule import Schedule
 from annotator.pipeline.summary import Summary, format_summary
-from annotator.pipeline.worker import Prepare, PreparedObject, Span, SpanResult, SpanTask, label_span
+from annotator.pipeline.worker import Prepare, PreparedObject, SpanResult, SpanTask, label_span
 from annotator.store import MANIFEST_NAME
 
 
@@ -61,79 +61,106 @@ def _key(unit) -> tuple[str, str, int]:
 # ------------------------------------------------------------------------------------------ the plan
 
 
+def _first(unit) -> tuple[str, str, int] | None:
+    """The first span a decomposition task labels, as :func:`_key` names it."""
+    return None if unit.first is None else _key(unit.first)
+
+
 def test_each_object_is_decomposed_before_its_spans_and_one_worker_keeps_decomposing():
-    """Two workers: both decompose first (the first objects in plan order); an object's spans start
-    when its decomposition has finished, first ready object in plan order first; while objects
-    wait, one decomposition runs alongside the labelling; a failed decomposition hands out none
-    of its spans; a resumed object only its missing ones."""
+    """Two workers: both decompose first (the first objects in plan order), each task labelling its
+    object's first span; an object's other spans start when its decomposition has finished, first
+    ready object in plan order first; while objects wait, one decomposition runs alongside the
+    labelling; a failed decomposition hands out none of its spans; a resumed object only its
+    missing ones."""
     schedule = Schedule(_planned(4, {3: frozenset({(0, 10)})}), 30, 10, None, workers=2)
-    assert [_key(schedule.next()) for _ in range(2)] == [("prepare", "o0", -1), ("prepare", "o1", -1)]
+    first = [schedule.next() for _ in range(2)]
+    assert [_key(u) for u in first] == [("prepare", "o0", -1), ("prepare", "o1", -1)]
+    assert [_first(u) for u in first] == [("span", "o0", 0), ("span", "o1", 0)]
+    assert [u.size for u in first] == [10, 10]
     assert schedule.next() is None  # no span before its object is ready, no third decomposition
     schedule.record(_ok(Prepare("o1", None, None)))  # o1 ready first: its spans, o0 still decomposing
-    assert _key(schedule.next()) == ("span", "o1", 0)
+    assert _key(schedule.next()) == ("span", "o1", 10)
     schedule.record(_ok(Prepare("o0", None, None)))
     # no decomposition out any more: the next one first, then o0's spans (before o1's, plan order)
-    got = [_key(schedule.next()) for _ in range(6)]
-    assert got == [
+    got = [schedule.next() for _ in range(4)]
+    assert [_key(u) for u in got] == [
         ("prepare", "o2", -1),
-        ("span", "o0", 0),
         ("span", "o0", 10),
         ("span", "o0", 20),
-        ("span", "o1", 10),
         ("span", "o1", 20),
     ]
-    # nothing ready to label: the last decomposition, then nothing until a result comes back
-    assert _key(schedule.next()) == ("prepare", "o3", -1)
+    assert _first(got[0]) == ("span", "o2", 0)
+    # nothing ready to label: the last decomposition (with o3's first missing span), then nothing
+    # until a result comes back
+    last = schedule.next()
+    assert _key(last) == ("prepare", "o3", -1) and _first(last) == ("span", "o3", 10)
     assert schedule.next() is None and not schedule.exhausted
     schedule.record(SpanResult(Prepare("o2", None, None), None, "o2: degenerate mesh", None))  # type: ignore[arg-type]
     assert schedule.next() is None
     schedule.record(_ok(Prepare("o3", None, None)))
-    assert [_key(schedule.next()) for _ in range(2)] == [("span", "o3", 10), ("span", "o3", 20)]
+    assert [_key(schedule.next()) for _ in range(1)] == [("span", "o3", 20)]
     assert schedule.next() is None and schedule.exhausted
 
 
 def test_one_worker_labels_an_object_before_decomposing_the_next():
-    """With one worker nothing runs alongside: decompose, label, decompose the next (the first
-    labels come after one decomposition, not after all of them)."""
-    schedule = Schedule(_planned(2), 20, 10, None, workers=1)
+    """With one worker nothing runs alongside: decompose (and label the first span), label the
+    rest, decompose the next (the first labels come with the first decomposition)."""
+    schedule = Schedule(_planned(2), 30, 10, None, workers=1)
     order = []
     while not schedule.exhausted:
         unit = schedule.next()
         assert unit is not None
         order.append(_key(unit))
         if isinstance(unit, Prepare):
+            order.append(_first(unit))
             schedule.record(_ok(unit))
     assert order == [
         ("prepare", "o0", -1),
         ("span", "o0", 0),
         ("span", "o0", 10),
+        ("span", "o0", 20),
         ("prepare", "o1", -1),
         ("span", "o1", 0),
         ("span", "o1", 10),
+        ("span", "o1", 20),
     ]
 
 
+def test_an_object_of_one_span_is_one_task():
+    """n no larger than a span: the decomposition task labels it all; nothing follows it."""
+    schedule = Schedule(_planned(2), 5, 10, None, workers=2)
+    units = [schedule.next(), schedule.next()]
+    assert [(_key(u), _first(u)) for u in units] == [
+        (("prepare", "o0", -1), ("span", "o0", 0)),
+        (("prepare", "o1", -1), ("span", "o1", 0)),
+    ]
+    assert units[0].first.stop == 5
+    for unit in units:
+        schedule.record(_ok(unit))
+    assert schedule.next() is None and schedule.exhausted
+
+
 def test_a_warm_cache_keeps_the_decompositions_no_further_ahead_than_one_object_per_worker():
-    """Decomposition tasks that come back at once (a warm cache: each only reads its object) do not
-    run through every object ahead of the labelling (a worker keeps only so many objects, so the
-    labelling would load them again): with two objects ready and none of their spans handed out,
-    a free worker labels; one more decomposition goes out as soon as the labelling starts one of
-    them."""
-    schedule = Schedule(_planned(5), 20, 10, None, workers=2)
+    """Decomposition tasks that come back at once (a warm cache: each only reads its object and
+    labels its first span) do not run through every object ahead of the labelling (a worker keeps
+    only so many objects, so the labelling would load them again): with two objects ready and none
+    of their other spans handed out, a free worker labels; one more decomposition goes out as soon
+    as the labelling starts one of them."""
+    schedule = Schedule(_planned(5), 30, 10, None, workers=2)
     for unit in [schedule.next(), schedule.next()]:  # both workers decompose first
-        schedule.record(_ok(unit))  # o0 and o1 ready, no span of either handed out
-    assert _key(schedule.next()) == ("span", "o0", 0)  # not the decomposition of o2
+        schedule.record(_ok(unit))  # o0 and o1 ready, no other span of either handed out
+    assert _key(schedule.next()) == ("span", "o0", 10)  # not the decomposition of o2
     assert _key(schedule.next()) == ("prepare", "o2", -1)  # o0 started: one object waits unstarted
     schedule.record(_ok(Prepare("o2", None, None)))
     got = [_key(schedule.next()) for _ in range(3)]  # o1 and o2 ready and unstarted: labelling
-    assert got == [("span", "o0", 10), ("span", "o1", 0), ("prepare", "o3", -1)]
+    assert got == [("span", "o0", 20), ("span", "o1", 10), ("prepare", "o3", -1)]
     # nothing left to label: a second decomposition alongside the first, as without a warm cache
     order = [_key(u) for u in iter(schedule.next, None)]
-    assert order == [("span", "o1", 10), ("span", "o2", 0), ("span", "o2", 10), ("prepare", "o4", -1)]
+    assert order == [("span", "o1", 20), ("span", "o2", 10), ("span", "o2", 20), ("prepare", "o4", -1)]
     schedule.record(_ok(Prepare("o3", None, None)))
     schedule.record(_ok(Prepare("o4", None, None)))
     order = [_key(u) for u in iter(schedule.next, None)]
-    assert order == [("span", "o3", 0), ("span", "o3", 10), ("span", "o4", 0), ("span", "o4", 10)]
+    assert order == [("span", "o3", 10), ("span", "o3", 20), ("span", "o4", 10), ("span", "o4", 20)]
     assert schedule.exhausted
 
 
@@ -143,6 +170,13 @@ def test_a_span_that_fails_stops_its_objects_other_spans():
     schedule.record(_ok(prepare))
     span = schedule.next()
     schedule.record(SpanResult(span, None, "worker on x has other versions", None))  # type: ignore[arg-type]
+    assert schedule.next() is None and schedule.exhausted
+
+
+def test_a_decomposition_whose_first_span_fails_hands_out_no_other_span():
+    schedule = Schedule(_planned(1), 40, 10, None, workers=1)
+    prepare = schedule.next()
+    schedule.record(SpanResult(prepare, None, "o0: no stable placement", None))  # type: ignore[arg-type]
     assert schedule.next() is None and schedule.exhausted
 
 
@@ -245,11 +279,12 @@ def test_each_object_is_decomposed_once_by_a_worker_before_any_of_its_spans(tmp_
     finally:
         workers.close(kill=True)
     ran = [json.loads(line) for line in (notes / "tasks.jsonl").read_text().splitlines()]
-    assert all(r["error"] is None for r in ran) and len(ran) == 3 * 3  # a task and 2 spans each
+    # a decomposition task (that labels the first span) and the other span, each
+    assert all(r["error"] is None for r in ran) and len(ran) == 3 * 2
     for oid in ("box", "corner", "large_corner"):
         (prepare,) = [r for r in ran if r["unit"][:2] == ["prepare", oid]]
         spans = [r for r in ran if r["unit"][:2] == ["span", oid]]
-        assert sorted(r["unit"][2] for r in spans) == [0, 10]
+        assert sorted(r["unit"][2] for r in spans) == [10]
         assert all(r["begin"] >= prepare["end"] for r in spans), oid  # no span before it was ready
         assert prepare["pid"] != os.getpid() and prepare["made"] is True
         assert all(abs(r["child_cpu"]) < 1e-6 for r in spans), oid  # no span ran a decomposition
@@ -259,7 +294,8 @@ def test_each_object_is_decomposed_once_by_a_worker_before_any_of_its_spans(tmp_
     prepared = {r.span.object_id: r.prepared for r in results if isinstance(r.span, Prepare)}
     assert prepared["corner"].decomposed and prepared["corner"].method == "coacd"
     assert not prepared["box"].decomposed and prepared["box"].method == "hull"
-    assert sum(len(r.rows) for r in results if isinstance(r.span, Span)) == 3 * 20
+    assert all(len(r.rows) == 10 and r.labelled.start == 0 for r in results if isinstance(r.span, Prepare))
+    assert sum(len(r.rows) for r in results if r.rows is not None) == 3 * 20
 
 
 def _forbid(monkeypatch, module, name: str) -> None:

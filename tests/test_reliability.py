@@ -317,8 +317,8 @@ def test_a_span_that_kills_its_worker_twice_fails_its_object_only(tmp_path):
     by_object: dict[str, list[SpanResult]] = {}
     for r in results:
         by_object.setdefault(r.span.object_id, []).append(r)
-    box = [r for r in by_object["box"] if isinstance(r.span, Span)]
-    assert sorted(r.span.start for r in box) == [0, 10]
+    box = [r for r in by_object["box"] if r.labelled is not None]  # its first span with its decomposition
+    assert sorted(r.labelled.start for r in box) == [0, 10]
     assert all(r.error is None and len(r.rows) == 10 for r in box)
     # the poison's decomposition task killed its worker twice: the object failed, none of its
     # spans was handed out
@@ -351,10 +351,10 @@ def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_
     objs = _objects(tmp_path / "objs", ("box", "slab"))
     results = _execute_spans(objs, _RefusesOnce(RunOptions(objs, 20, workers=1), refuse_at=2))
     keys = sorted(r.span.key for r in results)
-    # each decomposition task (key -1) and each span once
-    assert keys == [("box", -1), ("box", 0), ("box", 10), ("slab", -1), ("slab", 0), ("slab", 10)]
-    spans = [r for r in results if isinstance(r.span, Span)]
-    assert all(r.error is None and len(r.rows) == 10 for r in spans)
+    # each decomposition task (key -1, with the first span) and each other span once
+    assert keys == [("box", -1), ("box", 10), ("slab", -1), ("slab", 10)]
+    assert sorted(r.labelled.key for r in results) == [("box", 0), ("box", 10), ("slab", 0), ("slab", 10)]
+    assert all(r.error is None and len(r.rows) == 10 for r in results)
     assert all(r.error is None and r.prepared is not None for r in results if isinstance(r.span, Prepare))
 
 
@@ -530,7 +530,8 @@ def test_planning_is_lazy(objs):
         ("Prepare", "box"),
         ("Prepare", "cylinder"),
     ]
-    assert [(s.object_id, s.start) for s in spans] == [("box", 0), ("box", 500), ("box", 1000)]
+    assert (first[0].first.object_id, first[0].first.start) == ("box", 0)  # with its decomposition
+    assert [(s.object_id, s.start) for s in spans] == [("box", 500), ("box", 1000), ("box", 1500)]
     assert peak < 1_000_000, peak  # bytes: nothing of size N
     assert isinstance(spans[0], Span)
 

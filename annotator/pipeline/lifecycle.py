@@ -143,7 +143,7 @@ class Collector:
         """A span's artifacts, then its labels (which vouch for them); the unit merged when it was
         its last span."""
         summary, store, df = self.summary, self.store, result.rows
-        span: Any = result.span  # a unit with labels: a Span or a scene's SceneSpan
+        span: Any = result.labelled  # a Span (a decomposition task's first) or a scene's SceneSpan
         assert df is not None
         unit = span.object_id
         self.seconds[unit] = self.seconds.get(unit, 0.0) + result.stats.seconds

@@ -192,17 +192,20 @@ class ObjectUnitsJob:
             if isinstance(result.span, Prepare):
                 progress.prepared(oid, None)
             progress.object_done(oid, "failed")
-        elif isinstance(result.span, Prepare):
-            self._prepared(oid, result, collector)
         else:
-            progress.advance(result.span.size)
-            collector.left[oid] = collector.left.get(oid, 0) - result.span.size
-            collector.write(result)
+            if isinstance(result.span, Prepare):
+                self._prepared(oid, result, collector)
+            span = result.labelled
+            if span is not None and result.rows is not None:  # a span's labels (a decomposition's first)
+                progress.advance(span.size)
+                collector.left[oid] = collector.left.get(oid, 0) - span.size
+                collector.write(result)
 
     def _prepared(self, oid: str, result: SpanResult, collector: Collector) -> None:
         summary, prepared = collector.summary, result.prepared
         summary.prepare_seconds += result.stats.seconds
-        collector.seconds[oid] = collector.seconds.get(oid, 0.0) + result.stats.seconds
+        if result.rows is None:  # else the object's time comes with its labels (Collector.write)
+            collector.seconds[oid] = collector.seconds.get(oid, 0.0) + result.stats.seconds
         if prepared is not None:
             summary.prepared[oid] = prepared
             if prepared.warnings:

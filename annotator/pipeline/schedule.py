@@ -2,9 +2,10 @@
 
 Every object of a run gets one decomposition task (:class:`~annotator.pipeline.worker.Prepare`):
 a worker loads it, making its collision shape (a concave object's convex decomposition, up to a
-minute of CPU) and writing it to the cache unless the cache holds it already. None of an object's
-label spans is handed out before that task has finished, so no worker decomposes an object that
-another is decomposing, and no worker waits for one. The main process never loads an object.
+minute of CPU) and writing it to the cache unless the cache holds it already, then labels the
+object's first span (an object of one span costs one task and one load). None of an object's
+other label spans is handed out before that task has finished, so no worker decomposes an object
+that another is decomposing, and no worker waits for one. The main process never loads an object.
 
 What a free worker gets, in this order of preference:
 
@@ -12,7 +13,8 @@ What a free worker gets, in this order of preference:
    worker and fewer ready objects than workers have no span started yet: the next decomposition
    (one worker keeps decomposing alongside the labelling, so the decompositions do not all wait
    for the end, but no further ahead of it than one object per worker);
-2. a label span of the first object in plan order whose decomposition has finished;
+2. a label span (after the first) of the first object in plan order whose decomposition has
+   finished;
 3. the next decomposition, when no span can start (at most one per worker at a time).
 
 So at the start every worker decomposes a different object (the objects the first spans need
@@ -64,6 +66,8 @@ class Schedule:
     preparing: set[str] = field(default_factory=set)  # decompositions out
     ready: list[_Ready] = field(default_factory=list)  # in plan order
     failed: set[str] = field(default_factory=set)
+    # the spans after the first of each decomposition out (the task labels its first)
+    pending: dict[str, Iterator[Span]] = field(default_factory=dict)
     _index: dict[str, int] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -91,12 +95,11 @@ class Schedule:
         oid = unit.object_id
         if isinstance(unit, Prepare):
             self.preparing.discard(oid)
+            spans = self.pending.pop(oid, iter(()))
             if result.error is None and oid not in self.failed:
-                index = self._index[oid]
-                spans = object_spans(self.objects[index], self.n, self.chunk, self.scale)
                 head = next(spans, None)
                 if head is not None:
-                    bisect.insort(self.ready, _Ready(index, head, spans))
+                    bisect.insort(self.ready, _Ready(self._index[oid], head, spans))
         if result.error is not None:
             self.failed.add(oid)
             self.ready = [r for r in self.ready if r.index != self._index.get(oid)]
@@ -107,8 +110,11 @@ class Schedule:
 
     def _prepare(self) -> Prepare:
         obj = self.objects[self.waiting.popleft()]
-        self.preparing.add(obj.source.object_id)
-        return Prepare(obj.source.object_id, obj.source, self.scale)
+        oid = obj.source.object_id
+        spans = object_spans(obj, self.n, self.chunk, self.scale)
+        self.preparing.add(oid)
+        self.pending[oid] = spans
+        return Prepare(oid, obj.source, self.scale, next(spans, None))
 
     def _span(self) -> Span | None:
         if not self.ready:

@@ -85,22 +85,29 @@ class Prepare:
     shape is made (and written to the cache) once, by one worker, while other workers label.
 
     A worker that runs it keeps the model for its own spans of the object; every other worker
-    reads the shape from the cache. It simulates nothing (``size`` 0); its result carries a
-    :class:`PreparedObject`, or the object's one-line error (an unusable mesh).
+    reads the shape from the cache. ``first``: the object's first span still to do, labelled by the
+    same task once the object is loaded (an object of one span is then loaded once, in one task;
+    None: the task labels nothing). Its result carries a :class:`PreparedObject` and the first
+    span's rows, or the object's one-line error (an unusable mesh).
     """
 
     object_id: str
     source: ObjectSource
     scale: float | None
+    first: Span | None = None
 
-    size = 0
+    @property
+    def size(self) -> int:
+        """Candidates it simulates: its first span's."""
+        return 0 if self.first is None else self.first.size
 
     @property
     def key(self) -> tuple[str, int]:
         return (self.object_id, -1)  # before the object's spans
 
     def describe(self) -> str:
-        return "loading (decomposing) the object"
+        text = "loading (decomposing) the object"
+        return text if self.first is None else f"{text}, then {self.first.describe()}"
 
 
 @dataclass(frozen=True)
@@ -336,3 +343,9 @@ class SpanResult:
     info: dict[str, Any] | None = None
     artifacts: dict[str, bytes] | None = None
     prepared: PreparedObject | None = None
+
+    @property
+    def labelled(self) -> Span | SceneSpan | None:
+        """The span whose labels ``rows`` are: the span itself, a decomposition task's first
+        span, or None (a decomposition task without one)."""
+        return self.span.first if isinstance(self.span, Prepare) else self.span

@@ -26,6 +26,7 @@ builds or takes its scene and labels its grasps.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -268,8 +269,9 @@ class WorkerState:
 
     def prepare(self, task: SpanTask) -> SpanResult:
         """A decomposition task (``task.span`` a :class:`Prepare`): load the object (its collision
-        shape made and cached unless the cache holds it) and keep it for this worker's spans of it.
-        Returns what was found (:class:`PreparedObject`), or the object's one-line error."""
+        shape made and cached unless the cache holds it), keep it for this worker's spans of it and
+        label the task's first span. Returns what was found (:class:`PreparedObject`) with the first
+        span's rows, or the object's one-line error."""
         t0, cpu0 = time.perf_counter(), cpu_seconds()
         watch_parent(task.parent_pid, task.status_dir)
         unit = task.span
@@ -294,7 +296,12 @@ class WorkerState:
         finally:
             status.write(task.status_dir, None)
         prepared = PreparedObject.of(model, made, cpu_seconds() - cpu0)
-        return SpanResult(unit, None, None, task_stats(t0, 0.0), prepared=prepared)
+        if unit.first is None:
+            return SpanResult(unit, None, None, task_stats(t0, 0.0), prepared=prepared)
+        # the object's first span, here, where the object is loaded
+        first = self.label(dataclasses.replace(task, span=unit.first))
+        stats = task_stats(t0, first.stats.step_seconds)
+        return SpanResult(unit, first.rows, first.error, stats, first.info, first.artifacts, prepared)
 
     def _create(self, model: ObjectModel, key: tuple, candidates: dict, mode: ObjectMode) -> LoadedObject:
         """The object's body in ``mode``'s world, placed in the mode (its trial, or its placements
