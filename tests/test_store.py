@@ -646,11 +646,21 @@ def _no_duplicates(folder: Path) -> None:
     assert not df.duplicated(["object_id", "grasp_id"]).any(), df.groupby("object_id").size()
 
 
-def test_a_merge_that_cannot_record_leaves_the_chunks_and_no_duplicates(tmp_path: Path, monkeypatch) -> None:
-    store = _open(tmp_path)
-    whole = synthetic_labels("a")
-    store.write_chunk("a", whole.iloc[:5], 0, SRC)
-    store.write_chunk("a", whole.iloc[5:], 5, SRC)
+def _chunked(folder: Path, chunks: int) -> tuple[Store, RunSpec, pd.DataFrame]:
+    """A store with object "a" written as ``chunks`` chunks (1: one chunk linked at its merge) and
+    not merged yet; its spec and the rows."""
+    spec = _spec(chunk_size=N // chunks)
+    store, whole = _open(folder, spec), synthetic_labels("a")
+    for start in range(0, N, N // chunks):
+        store.write_chunk("a", whole.iloc[start : start + N // chunks], start, SRC)
+    return store, spec, whole
+
+
+@pytest.mark.parametrize("chunks", [2, 1])
+def test_a_merge_that_cannot_record_leaves_the_chunks_and_no_duplicates(
+    tmp_path: Path, monkeypatch, chunks: int
+) -> None:
+    store, spec, whole = _chunked(tmp_path, chunks)
     real_write = os.write
 
     def disk_full(fd, data):  # the journal's append (and any manifest write) finds the disk full
@@ -665,19 +675,20 @@ def test_a_merge_that_cannot_record_leaves_the_chunks_and_no_duplicates(tmp_path
     monkeypatch.setattr(os, "write", real_write)
     monkeypatch.undo()
     store.close()
-    store = _open(tmp_path)
-    assert store.reconcile({"a": SRC}).chunks == {"a": {(0, 5), (5, 10)}}
+    store = _open(tmp_path, spec)
+    expected = {(0, 5), (5, 10)} if chunks == 2 else {(0, 10)}
+    assert store.reconcile({"a": SRC}).chunks == {"a": expected}
     store.finish_object("a", SRC)
     store.close()
     _no_duplicates(tmp_path)
     pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.validate_labels(whole))
 
 
-def test_a_merge_stopped_before_its_rename_is_completed_on_resume(tmp_path: Path, monkeypatch) -> None:
-    store = _open(tmp_path)
-    whole = synthetic_labels("a")
-    store.write_chunk("a", whole.iloc[:5], 0, SRC)
-    store.write_chunk("a", whole.iloc[5:], 5, SRC)
+@pytest.mark.parametrize("chunks", [2, 1])
+def test_a_merge_stopped_before_its_rename_is_completed_on_resume(
+    tmp_path: Path, monkeypatch, chunks: int
+) -> None:
+    store, spec, whole = _chunked(tmp_path, chunks)
     real_replace = os.replace
 
     def killed_before_the_rename(source, target):
@@ -691,7 +702,7 @@ def test_a_merge_stopped_before_its_rename_is_completed_on_resume(tmp_path: Path
     monkeypatch.undo()
     store.lock.release()
     assert not list(tmp_path.glob("*.parquet"))  # neither chunks nor merged rows are visible
-    store = _open(tmp_path)
+    store = _open(tmp_path, spec)
     assert store.reconcile({"a": SRC}).done == {"a"}
     store.close()
     pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.validate_labels(whole))
