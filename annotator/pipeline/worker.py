@@ -275,6 +275,7 @@ class WorkerState:
         t0, cpu0 = time.perf_counter(), cpu_seconds()
         watch_parent(task.parent_pid, task.status_dir)
         unit = task.span
+        assert isinstance(unit, Prepare)  # label() sends it only these
         try:
             self.begin(task)
             key = self._key(task)
