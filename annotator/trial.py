@@ -288,20 +288,30 @@ class GraspTrial:
         ones when it ends, however it ends. Whatever runs next in this world (the next
         candidate's unperturbed trial 0, an object settling on the table in a new orientation,
         another :class:`GraspTrial` of the same body reading its nominal dynamics) then finds the
-        object as ``--trials 1`` leaves it, so trial 0 is the same whatever K.
+        object as ``--trials 1`` leaves it, so trial 0 is the same whatever K. A perturbed trial
+        shakes only when its ranges say so (``RobustConfig.shake``); otherwise it ends after the
+        lift, judged there as after a shake.
         """
         if perturbation is None:
-            return self._run(T_obj_tcp, width_expected, Perturbation.none())
+            return self._run(T_obj_tcp, width_expected, Perturbation.none(), self.shake)
         if np.any(perturbation.com_offset):
             self.world.before_step = _OffsetMass(self, perturbation)
         try:
-            return self._run(T_obj_tcp, width_expected, perturbation)
+            return self._run(T_obj_tcp, width_expected, perturbation, self.shake and self.robust.shake)
         finally:
             self.world.before_step = None
             self._apply(Perturbation.none())
 
-    def _run(self, T_obj_tcp: Transform, width_expected: float, perturbation: Perturbation) -> TrialResult:
-        """:meth:`run` with the perturbation applied (its dynamics left as they were set)."""
+    def _run(
+        self,
+        T_obj_tcp: Transform,
+        width_expected: float,
+        perturbation: Perturbation,
+        shake: bool | None = None,
+    ) -> TrialResult:
+        """:meth:`run` with the perturbation applied (its dynamics left as they were set);
+        ``shake``: False ends the trial after the lift (None: this trial's ``shake``)."""
+        shake = self.shake if shake is None else shake
         self.world.restore_state(self.state)
         self._apply(perturbation)
         com_world = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)[0]
@@ -353,7 +363,7 @@ class GraspTrial:
 
         # 5. shake
         lost = self._loss_monitor(grasped_at)
-        if self.shake:
+        if shake:
             self.hand.shake(ShakeMotion.of(cfg), force=force, on_step=lost)
         if lost.lost:  # the object left the pads: no settling can bring it back
             return result(Outcome.SLIPPED_SHAKE, self._slip(grasped_at))
@@ -363,7 +373,7 @@ class GraspTrial:
             self.world.step()
         slip = self._slip(grasped_at)
         if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
-            return result(Outcome.SLIPPED_SHAKE if self.shake else Outcome.SLIPPED_LIFT, slip)
+            return result(Outcome.SLIPPED_SHAKE if shake else Outcome.SLIPPED_LIFT, slip)
         return result(Outcome.SUCCESS, slip)
 
     def _hand_obj_position(self) -> np.ndarray:

@@ -298,6 +298,11 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     ap.add_argument(
         "--trials", type=int, default=5, help="--trials of the Panda's evaluate: its score and p_success"
     )
+    ap.add_argument(
+        "--perturbed-shake",
+        action="store_true",
+        help="shake the perturbed trials as trial 0 ([robust] shake = true) [default: they end at the lift]",
+    )
     ap.add_argument("--no-grid", action="store_true", help="skip calibrate's grid (the longest part)")
     ap.add_argument("--no-rg2", action="store_true", help="skip the RG2 at the same TCP poses")
     ap.add_argument(
@@ -325,7 +330,7 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     )
     arguments = {k: (v if k not in ("data", "work") else None) for k, v in vars(args).items()}
     arguments["data"] = data.name
-    config = execution_config(args.work, args.pad_spinning_friction)
+    config = execution_config(args.work, args.pad_spinning_friction, args.perturbed_shake)
     annotator_config = AnnotatorConfig.from_toml(config)
     with Run(
         "real_trials", config=arguments, annotator=annotator_config, command="python -m bench.real_trials"
@@ -350,9 +355,12 @@ def chord_check(prepared: Prepared) -> dict[str, float]:
     return out
 
 
-def execution_config(work: Path, pad_spinning_friction: float | None = None) -> Path:
+def execution_config(
+    work: Path, pad_spinning_friction: float | None = None, perturbed_shake: bool = False
+) -> Path:
     """The trial as GRASPA's robot executed it, written for ``--config`` (docs/real_trials.md);
-    ``pad_spinning_friction`` (m) overrides the gripper description's when given."""
+    ``pad_spinning_friction`` (m) overrides the gripper description's when given;
+    ``perturbed_shake``: the perturbed trials shake too ([robust] shake)."""
     path = work / "execution.toml"
     text = (
         "# GRASPA's execution (hsp-panda/panda_grasp_server@0b0d184): the arm moves to the grasp in a\n"
@@ -364,6 +372,8 @@ def execution_config(work: Path, pad_spinning_friction: float | None = None) -> 
     )
     if pad_spinning_friction is not None:
         text += f"[gripper]\npad_spinning_friction = {pad_spinning_friction!r}\n"
+    if perturbed_shake:
+        text += "[robust]\nshake = true\n"
     path.write_text(text)
     return path
 

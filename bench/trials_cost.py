@@ -10,13 +10,16 @@ worker) gives candidates per CPU-second, and their ratio is the cost of the extr
 same run. The rows of trial 0 are checked equal between the two (trial 0 is the ``--trials 1``
 label). Where the extra time goes: the physics steps of all K trials (``sim_steps``) against trial
 0's, overall and by trial 0's outcome (a ``collision`` runs no perturbed trial; a candidate that
-holds runs every perturbed trial through close, lift and shake unless it slips). Prints figures and
-writes a record (bench/harness.py); asserts nothing.
+holds runs every perturbed trial through close and lift, and through the shake with ``[robust]
+shake = true``). The same K is also run with the perturbed trials shaken (``--no-shaken`` skips
+it): its cost, and how its scores differ from the default's on the same candidates. Prints
+figures and writes a record (bench/harness.py); asserts nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -54,26 +57,34 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=30, help="candidates per object")
     ap.add_argument("--trials", type=int, default=5, help="the K compared with --trials 1")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument(
+        "--no-shaken", action="store_true", help="skip the K trials with the perturbed ones shaken too"
+    )
     args = ap.parse_args()
     config = AnnotatorConfig()
     sources = discover_objects(args.objects)
     label(sources, 1, 1, config)  # load (and decompose, cold) every object first
-    rates: dict[int, list[float]] = {1: [], args.trials: []}
-    rows = {}
+    shaken = dataclasses.replace(config, robust=dataclasses.replace(config.robust, shake=True))
+    variants = [(1, config, "1"), (args.trials, config, str(args.trials))]
+    if not args.no_shaken:
+        variants.append((args.trials, shaken, f"{args.trials}_shaken"))
+    rates: dict[str, list[float]] = {name: [] for _, _, name in variants}
+    rows: dict[str | int, pd.DataFrame] = {}
     with Run("trials_cost", config=vars(args) | {"objects": args.objects.name}) as run:
         for r in range(args.repeat):
-            for k in (1, args.trials):
-                table, cpu = label(sources, args.n, k, config)
-                rates[k].append(len(table) / cpu)
-                rows[k] = table
+            for k, cfg, name in variants:
+                table, cpu = label(sources, args.n, k, cfg)
+                rates[name].append(len(table) / cpu)
+                rows[name] = table
                 print(
-                    f"run {r + 1}: --trials {k}: {len(table)} candidates in {cpu:.1f} CPU-s, "
-                    f"{len(table) / cpu:.2f} per CPU-s",
+                    f"run {r + 1}: --trials {k}{' (perturbed shaken)' if cfg is shaken else ''}: "
+                    f"{len(table)} candidates in {cpu:.1f} CPU-s, {len(table) / cpu:.2f} per CPU-s",
                     flush=True,
                 )
+        rows[1], rows[args.trials] = rows["1"], rows[str(args.trials)]
         same = bool(rows[1][TRIAL0].equals(rows[args.trials][TRIAL0]))
         held = rows[args.trials]["success"].mean()
-        ratio = np.median(rates[args.trials]) / np.median(rates[1])
+        ratio = np.median(rates[str(args.trials)]) / np.median(rates["1"])
         print(
             f"--trials {args.trials} / --trials 1, candidates per CPU-second: {ratio:.3f} "
             f"(trial 0 identical: {same}; {held:.1%} held at trial 0)"
@@ -95,6 +106,27 @@ def main() -> None:
         )
         print(f"physics steps, --trials {args.trials} / --trials 1: {stepsk / steps1:.3f}")
         run.table("steps_by_outcome", steps_by_outcome(rows[1], rows[args.trials], args.trials))
+        if not args.no_shaken:
+            shaken_rows = rows[f"{args.trials}_shaken"]
+            ratio_shaken = np.median(rates[f"{args.trials}_shaken"]) / np.median(rates["1"])
+            run.ratio(
+                f"k{args.trials}_shaken_over_k1",
+                ratio_shaken,
+                note="candidates per CPU-second, --trials K with the perturbed trials shaken / --trials 1",
+            )
+            tried = rows[args.trials]["outcome"].ne("collision").to_numpy()
+            diff = (rows[args.trials]["score"] - shaken_rows["score"]).to_numpy()[tried]
+            run.figure(
+                "score_same_as_shaken",
+                float(np.mean(diff == 0)),
+                note="candidates past the kinematic check whose score equals the shaken protocol's",
+            )
+            run.figure("score_minus_shaken_mean", float(np.mean(diff)), note="the same candidates")
+            print(
+                f"perturbed trials shaken: --trials {args.trials} / --trials 1 {ratio_shaken:.3f}; "
+                f"scores equal to the default's on {np.mean(diff == 0):.1%} of the {tried.sum()} "
+                f"candidates past the kinematic check, mean difference {np.mean(diff):+.3f}"
+            )
 
 
 def steps_by_outcome(one: pd.DataFrame, many: pd.DataFrame, k: int) -> list[dict]:
