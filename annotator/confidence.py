@@ -303,8 +303,18 @@ def cross_validated_decisions(
 
 def trials_mismatch(config, trials: int) -> str | None:
     """Why a run with ``--trials trials`` cannot use ``config``'s ``[confidence]`` (fitted at
-    another K), or None."""
-    fitted = config.confidence.trials if config.confidence.method != "none" else None
-    if fitted is None or fitted == trials:
+    another K, or on perturbed trials shaken when this run's end at the lift, or the reverse), or
+    None."""
+    if config.confidence.method == "none":
         return None
-    return f"its [confidence] maps the score of --trials {fitted}: run with --trials {fitted}"
+    fitted = config.confidence.trials
+    if fitted != trials:
+        return f"its [confidence] maps the score of --trials {fitted}: run with --trials {fitted}"
+    shaken = config.confidence.perturbed_shake
+    if shaken != config.robust.shake:
+        how = "shook" if shaken else "ended at the lift"
+        return (
+            f"its [confidence] maps scores whose perturbed trials {how}: "
+            f"set [robust] shake = {'true' if shaken else 'false'}, or calibrate again"
+        )
+    return None

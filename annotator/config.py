@@ -385,6 +385,9 @@ class ConfidenceConfig(_Section):
     reliability_p: tuple[float, ...] = ()
     reliability_rate: tuple[float, ...] = ()
     reliability_n: tuple[float, ...] = ()
+    # The perturbed trials of the scores it was fitted on shook ([robust] shake); a file written
+    # before the perturbed trials could end at the lift was fitted on shaken ones.
+    perturbed_shake: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -625,15 +628,31 @@ class AnnotatorConfig:
             ),
         )
 
-    def to_dict(self, *, scenes: bool = False) -> dict[str, dict[str, Any]]:
+    def to_dict(self, *, scenes: bool = False, trials: int | None = None) -> dict[str, dict[str, Any]]:
         """Every section as ``{section: {field: value}}``; ``[scenes]`` only with ``scenes`` (a
-        scene run binds it, an object run does not: its labels do not depend on it)."""
+        scene run binds it, an object run does not: its labels do not depend on it).
+
+        ``trials``: the dict a run of ``--trials trials`` binds in its manifest. ``[robust] shake``
+        is left out where folders made before it existed still describe the run: at ``--trials
+        1`` (no perturbed trial) and when true (their perturbed trials shook), so such a folder
+        resumes, and one whose perturbed trials shook never resumes as one whose end at the lift.
+        """
         data = dataclasses.asdict(self)
         if not scenes:
             data.pop("scenes")
         if self.confidence.method == "none":
             data.pop("confidence")
+        if trials is not None and (trials == 1 or self.robust.shake):
+            data["robust"].pop("shake")
         return data
+
+    @classmethod
+    def from_run(cls, data: Any, trials: int) -> AnnotatorConfig:
+        """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``):
+        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook."""
+        if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
+            data = {**data, "robust": {"shake": True, **data["robust"]}}
+        return cls.from_dict(data)
 
     @classmethod
     def from_dict(cls, data: Any) -> AnnotatorConfig:

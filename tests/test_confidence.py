@@ -99,9 +99,8 @@ def test_labels_made_with_a_calibration_carry_p_success(tmp_path):
     trimesh.creation.box((0.05, 0.04, 0.10)).export(path)
     source = ObjectSource("brick", path)
     plain = AnnotatorConfig()
-    calibrated = AnnotatorConfig.from_dict(
-        {"confidence": {"method": "isotonic", "trials": 2, "scores": [0.0, 1.0], "p_success": [0.2, 0.9]}}
-    )
+    fit = {"method": "isotonic", "trials": 2, "scores": [0.0, 1.0], "p_success": [0.2, 0.9]}
+    calibrated = AnnotatorConfig.from_dict({"confidence": fit | {"perturbed_shake": False}})
     rows = label_span(
         SpanTask(span=Span("brick", source, None, 0, 6), config=calibrated, seed=0, n=6, trials=2)
     ).rows
@@ -116,6 +115,14 @@ def test_labels_made_with_a_calibration_carry_p_success(tmp_path):
         label_span(SpanTask(span=Span("brick", source, None, 0, 6), config=calibrated, seed=0, n=6, trials=1))
     with pytest.raises(ConfigError):
         dataclasses.replace(calibrated.confidence, p_success=(0.9, 0.2))
+    # fitted on scores whose perturbed trials shook (a file written before they ended at the lift)
+    shaken = AnnotatorConfig.from_dict({"confidence": fit})
+    with pytest.raises(ValueError, match="shake = true"):
+        label_span(SpanTask(span=Span("brick", source, None, 0, 6), config=shaken, seed=0, n=6, trials=2))
+    both = AnnotatorConfig.from_dict({"confidence": fit, "robust": {"shake": True}})
+    assert "p_success" in label_span(
+        SpanTask(span=Span("brick", source, None, 0, 6), config=both, seed=0, n=6, trials=2)
+    ).rows
 
 
 def test_the_report_shows_the_calibration_s_reliability_and_brier():
@@ -157,4 +164,8 @@ def test_annotate_refuses_a_calibration_fitted_at_another_number_of_trials(tmp_p
     args = ["--objects", str(tmp_path), "--n", "2", "--out", str(tmp_path / "out"), "--config", str(config)]
     result = CliRunner().invoke(annotate_command, args)
     assert result.exit_code == 2 and "run with --trials 5" in result.output, result.output
+    assert "Traceback" not in result.output
+    # at its K, but fitted on perturbed trials that shook while this run's end at the lift
+    result = CliRunner().invoke(annotate_command, [*args, "--trials", "5"])
+    assert result.exit_code == 2 and "set [robust] shake = true, or calibrate again" in result.output
     assert "Traceback" not in result.output

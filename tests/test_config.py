@@ -77,6 +77,33 @@ def test_defaults_and_the_thorough_reference_round_trip_through_a_manifest():
     assert thorough.gripper.passive_links == "simulated" != default.gripper.passive_links
 
 
+def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_its_scores():
+    """``[robust] shake`` is in a run's manifest only at ``--trials`` > 1 with perturbed trials
+    that end at the lift: a folder made before the field existed (its perturbed trials shook) then
+    never resumes as such a run, and resumes as the runs it does describe."""
+    from annotator.store.manifest import RunSpec
+
+    lift = AnnotatorConfig()
+    shaken = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, shake=True))
+    old = lift.to_dict()
+    old["robust"].pop("shake")  # the configuration a folder of an earlier version bound
+
+    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
+        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
+
+    def recorded(trials: int) -> dict:
+        return RunSpec(0, 5, trials, None, 5, old).to_json()
+
+    assert spec(lift, 1).differences(recorded(1)) == []
+    assert spec(shaken, 5).differences(recorded(5)) == []
+    assert spec(lift, 5).differences(recorded(5)) == ["[robust] shake None in the folder, False now"]
+    # read back from a manifest: what the run simulated
+    for config in (lift, shaken):
+        assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
+    assert AnnotatorConfig.from_run(lift.to_dict(trials=1), 1) == lift
+    assert AnnotatorConfig.from_run(old, 5) == shaken
+
+
 @pytest.mark.parametrize(
     "toml, fragment",
     [

@@ -179,6 +179,8 @@ def test_a_gripper_s_robust_table_sits_between_the_defaults_and_the_run_s_config
         ("object_yaw_sigma = -0.1", "[robust] object_yaw_sigma: must be >= 0, got -0.1"),
         ("wobble = 0.1", "unknown key [robust] wobble"),
         ('friction_delta = "a lot"', "[robust] friction_delta: expected a finite number"),
+        # the perturbed trials' protocol is the run's, not a gripper's range
+        ("shake = true", "unknown key [robust] shake"),
     ],
 )
 def test_a_broken_robust_table_is_one_line_naming_the_field(my_rg2, table, fragment):

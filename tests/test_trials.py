@@ -254,6 +254,39 @@ def test_a_perturbed_trial_in_the_shared_world_equals_it_in_a_fresh_world(brick)
         assert _same(shared, fresh), (shared, fresh)
 
 
+def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
+    """``[robust] shake`` false (the default): a perturbed trial is trial 0's protocol up to the
+    lift and judged there, to the bit the trial of a gripper that never shakes; true: it shakes
+    as trial 0 does. Trial 0 shakes either way."""
+    _, model, cands = brick
+    assert CONFIG.robust.shake is False
+    shaking = dataclasses.replace(CONFIG, robust=dataclasses.replace(CONFIG.robust, shake=True))
+    nothing = Perturbation(Transform.identity(), 0.0, 1.0)  # a perturbed trial that changes nothing
+    heavy = Perturbation(Transform.identity(), 0.0, 200.0)  # too heavy: it slides out on the lift
+    with World(CONFIG.physics) as world:
+        trial = _brick_trial(world, model, CONFIG)
+        uid = trial.obj
+        never = GraspTrial(world, trial.hand, uid, CONFIG, shake=False)
+        both = GraspTrial(world, trial.hand, uid, shaking)
+        k = next(
+            i
+            for i in range(len(cands))
+            if trial.run(Transform.from_matrix(cands.T_obj_tcp[i]), cands.width_expected[i]).outcome
+            == Outcome.SUCCESS
+        )
+        T, w = Transform.from_matrix(cands.T_obj_tcp[k]), cands.width_expected[k]
+        first, lifted, unshaken = trial.run(T, w), trial.run(T, w, nothing), never.run(T, w)
+        shaken = both.run(T, w, nothing)
+        slid = trial.run(T, w, heavy)
+        for t in (trial, never, both):
+            t.close()
+    assert first.outcome == lifted.outcome == shaken.outcome == Outcome.SUCCESS
+    assert _same(lifted, unshaken) and _same(shaken, first), (lifted, unshaken, shaken, first)
+    shake_steps = round(CONFIG.protocol.shake_duration / CONFIG.physics.time_step)
+    assert first.steps - lifted.steps >= shake_steps - CONFIG.protocol.check_every, (first, lifted)
+    assert slid.outcome == Outcome.SLIPPED_LIFT
+
+
 @pytest.mark.slow
 def test_leaving_a_trial_once_the_object_is_lost_gives_the_full_trial_s_verdict(brick):
     """The loss monitor ends a lift or shake once the object has left the pads, and a trial lost in

@@ -246,7 +246,7 @@ def calibrate_command(
     title = f"{source.gripper.name}, --trials {trials_k}, by object; Brier {fit.brier.value:.3f}"
     reliability_out.write_bytes(conf.reliability_png([("p_success", fit.bins)], title))
     click.echo(f"wrote {reliability_out}")
-    written = dataclasses.replace(result.config, confidence=fit.section())
+    written = dataclasses.replace(result.config, confidence=fit.section(result.config.robust.shake))
     header = (
         f"annotator calibrate {labels} {real_csv}: best of {len(settings)} settings over {a.n} real trials "
         f"({source.gripper.name}, {objective})\n"

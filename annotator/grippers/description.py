@@ -70,7 +70,8 @@ SCHEMA: dict[str | None, dict[str, str]] = {
     },
     "collision": {"kinematic_links": "strs"},
     # the gripper's own execution uncertainty over the project's (RobustConfig.over)
-    "robust": {f.name: "bool" if f.type == "bool" else "float" for f in fields(RobustConfig)},
+    # (its ranges; not the run's protocol for the perturbed trials, `shake`)
+    "robust": {f.name: "float" for f in fields(RobustConfig) if f.type == "float"},
 }
 OPTIONAL = {
     (None, "export_type"),
@@ -290,7 +291,6 @@ def _as_names(value: Any, count: int | None = None) -> tuple[str, ...] | None:
 KINDS = {
     "int": (_as_int, "an integer"),
     "float": (_as_float, "a finite number"),
-    "bool": (lambda v: v if isinstance(v, bool) else None, "true or false"),
     "str": (_as_str, "a string"),
     "vec3": (_as_vec3, "three finite numbers"),
     "str2": (lambda v: _as_names(v, 2), "two link names"),

@@ -99,7 +99,7 @@ class ObjectUnitsJob:
             options.trials,
             options.scale,
             chunk_size_for(options.n),
-            self.config.to_dict(),
+            self.config.to_dict(trials=options.trials),
             inputs=self.inputs(),
             gripper=gripper_record(self.gripper),
         )

@@ -181,7 +181,7 @@ class SceneJob:
             options.trials,
             options.scale,
             scene_chunk_size(options.n),
-            self.config.to_dict(scenes=True),
+            self.config.to_dict(scenes=True, trials=options.trials),
             inputs={"scenes": job.to_json()},
         )
         self.units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from annotator.confidence import mapping_of
+from annotator.confidence import mapping_of, trials_mismatch
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
@@ -73,8 +73,9 @@ def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) ->
     quats, placements, rest_quats = grasps.quat, grasps.placements, grasps.rest_quat
     model = loaded.model
     mapping = mapping_of(config.confidence)  # a calibration: rows carry p_success
-    if mapping is not None and mapping.trials != trials:
-        raise ValueError(f"[confidence] fitted on --trials {mapping.trials} scores; this run has {trials}")
+    mismatch = trials_mismatch(config, trials)  # the commands refuse it first; a worker never maps
+    if mismatch is not None:
+        raise ValueError(f"[confidence]: {mismatch}")
     rows = []
     # the rotations of all poses in one batch: row for row the floats of Transform.from_matrix
     sampled_quats = (

@@ -416,8 +416,9 @@ class ConfidenceFit:
     bins: list
     fitted_brier: float = float("nan")  # on the trials it was fitted on (no cross-validation)
 
-    def section(self):
-        """The ``[confidence]`` section that carries the mapping into ``annotate --config``."""
+    def section(self, perturbed_shake: bool):
+        """The ``[confidence]`` section that carries the mapping into ``annotate --config``;
+        ``perturbed_shake``: the scores' perturbed trials shook (``[robust] shake``)."""
         from annotator.config import ConfidenceConfig
 
         m = self.mapping
@@ -433,6 +434,7 @@ class ConfidenceFit:
             reliability_p=tuple(b.mean_p for b in used),
             reliability_rate=tuple(b.real_rate for b in used),
             reliability_n=tuple(float(b.n) for b in used),
+            perturbed_shake=perturbed_shake,
         )
 
 

@@ -355,12 +355,14 @@ def labelling_config(labels: str | Path | None, config_file: Path | None = None)
         except (ValueError, OSError) as exc:
             raise ToolError(f"--config {config_file}: {exc}") from None
     manifest = read_manifest(labels) if labels is not None and Path(labels).exists() else None
-    config = run_settings(manifest).get("config")
+    settings = run_settings(manifest)
+    config = settings.get("config")
     if not config or labels is None:  # no labels, no manifest: nothing but the defaults
         return LabellingConfig(AnnotatorConfig(), "the defaults (no manifest beside the labels)")
     try:
         return LabellingConfig(
-            AnnotatorConfig.from_dict(config), f"the labels' own ({_manifest_path(Path(labels))})"
+            AnnotatorConfig.from_run(config, settings.get("trials", 1)),
+            f"the labels' own ({_manifest_path(Path(labels))})",
         )
     except (ValueError, TypeError) as exc:
         raise ToolError(f"{labels}: the manifest's configuration is not this version's ({exc})") from None
