@@ -188,10 +188,12 @@ def test_an_object_of_one_chunk_becomes_its_file_without_a_rewrite(
     store.write_chunk("ycb/mug", whole, 0, SRC)
     chunk = tmp_path / names.chunk_filename("ycb/mug", 0, N)
     chunk_bytes = chunk.read_bytes()
-    rewrites = []
+    rewrites, reads = [], []
     monkeypatch.setattr(store_module, "write_labels", lambda *a, **k: rewrites.append(a))
+    read = store_module.read_labels
+    monkeypatch.setattr(store_module, "read_labels", lambda *a: reads.append(a) or read(*a))
     stats = store.finish_object("ycb/mug", SRC)
-    assert rewrites == []  # not read back and written again
+    assert rewrites == [] and reads == []  # not read back (its stats are the written rows') nor rewritten
     store.close()
     final = tmp_path / names.object_filename("ycb/mug")
     assert sorted(p.name for p in tmp_path.glob("*.parquet")) == [final.name]
@@ -201,11 +203,34 @@ def test_an_object_of_one_chunk_becomes_its_file_without_a_rewrite(
     entry = json.loads((tmp_path / MANIFEST_NAME).read_text())["objects_done"]["ycb/mug"]
     assert entry["sha256"] == files.file_sha256(final) and entry["n"] == N
     assert stats["n"] == N and stats["successes"] == int(whole["success"].sum())
+    assert stats == store_module.object_stats(ds.load_labels(final))
     pd.testing.assert_frame_equal(ds.load_labels(tmp_path), ds.load_labels(final))
     store = Store(tmp_path, spec)
     store.open()
     assert store.reconcile({"ycb/mug": SRC}).done == {"ycb/mug"}
     store.close()
+
+
+def test_an_object_whose_one_chunk_an_earlier_run_wrote_is_finished_from_its_file(tmp_path: Path) -> None:
+    """The stats of a chunk written before a resume come from its file, equal to the ones the
+    writing process would have given (rows out of order in the chunk, as workers may send them)."""
+    spec = _spec(chunk_size=N)
+    whole = synthetic_labels("ycb/mug")
+    shuffled = whole.iloc[::-1].reset_index(drop=True)
+    at_once = Store(tmp_path / "at_once", spec)
+    at_once.open()
+    at_once.write_chunk("ycb/mug", shuffled, 0, SRC)
+    stats = at_once.finish_object("ycb/mug", SRC)
+    at_once.close()
+    first = Store(tmp_path / "resumed", spec)
+    first.open()
+    first.write_chunk("ycb/mug", shuffled, 0, SRC)
+    first.close()  # stopped before the object was finished
+    again = Store(tmp_path / "resumed", spec)
+    again.open()
+    again.reconcile({"ycb/mug": SRC})
+    assert again.finish_object("ycb/mug", SRC) == stats
+    again.close()
 
 
 @pytest.mark.parametrize(

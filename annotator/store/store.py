@@ -89,6 +89,9 @@ class Store:
         self._saved_at = 0.0
         self._journal: JournalWriter | None = None  # None: the next save compacts
         self._header: tuple[Any, Any] = (None, None)  # (objects_planned, gripper_folder) recorded
+        # (object id, chunk key) -> the stats of a chunk this process wrote: an object of one
+        # chunk is finished without reading its rows back (finish_object)
+        self._written_stats: dict[tuple[str, str], dict[str, Any]] = {}
 
     # --- opening -------------------------------------------------------------------------------
 
@@ -275,6 +278,8 @@ class Store:
             record["artifacts"] = dict(artifacts)
         key = f"{start}-{stop}"
         self.record({"op": "chunk", "oid": oid, "key": key, "source_sha256": source_sha256, "record": record})
+        if start == 0:  # in the file's order, as finish_object would read them back
+            self._written_stats[(oid, key)] = object_stats(df.sort_values("grasp_id", kind="stable"))
         self.save()
 
     def finish_object(self, oid: str, source_sha256: str) -> dict[str, Any]:
@@ -290,15 +295,17 @@ class Store:
         chunks = sorted(self.manifest.chunks_done[oid]["files"].items(), key=_start)
         files = [rec["file"] for _, rec in chunks]
         artifacts = {name: a for _, rec in chunks for name, a in rec.get("artifacts", {}).items()}
-        df = read_labels(self.out_dir, files)
-        stats = object_stats(df)
+        written = self._written_stats.pop((oid, chunks[0][0]), None) if len(chunks) == 1 else None
+        df = None if written is not None else read_labels(self.out_dir, files)
+        stats = written if df is None else object_stats(df)
         final = object_filename(oid)
         with sigint_deferred():
-            if len(chunks) == 1 and chunks[0][1].get("n") == len(df) and _start(chunks[0]) == 0:
+            if len(chunks) == 1 and chunks[0][1].get("n") == stats["n"] and _start(chunks[0]) == 0:
                 # one chunk of all the rows: it is the merged file already (the same rows, sorted,
                 # and the same mark, rows 0..n-1), so it is linked under the merged file's name
                 rec: FileRecord = _same_file(self.out_dir, chunks[0][1], merging_name(final))
             else:
+                assert df is not None  # read above: more than one chunk
                 rec = write_labels(
                     self.out_dir,
                     df,
@@ -336,6 +343,7 @@ class Store:
 
     def fail_object(self, oid: str, error: str) -> None:
         """Record the failure (one line) and remove the object's chunk files: no partial labels stay."""
+        self._written_stats = {k: v for k, v in self._written_stats.items() if k[0] != oid}
         for rec in self.manifest.chunks_done.get(oid, {"files": {}})["files"].values():
             delete_record(self.out_dir, rec)
         self.record({"op": "failed", "oid": oid, "error": " ".join(str(error).split())[:500]})
