@@ -11,6 +11,9 @@ The protocol (docs/protocol.md), with an early exit at each stage:
 4. ``slipped_lift``: gravity on, lift; the object lost a pad or moved in the hand.
 5. ``slipped_shake``: translations and rotations; the object lost a pad or moved in the hand.
 6. ``success``.
+
+The perturbed trials of ``--trials K`` stop after stage 4 and are judged there as after a shake,
+unless their ranges say ``shake`` (``RobustConfig.shake``; docs/decisions/0021).
 """
 
 from __future__ import annotations
