@@ -56,7 +56,10 @@ SCENE_GRASPS = 120
 )
 @workers_option("Worker processes [default: all cores]. Labels do not depend on it.")
 @seed_option("Seed of every random draw.")
-@trials_option("Perturbed trials per candidate; score = fraction that held.")
+@trials_option(
+    "Trials per candidate: trial 0 (the label), then K-1 perturbed by [robust]'s execution "
+    "uncertainty, which end at the lift unless [robust] shake = true; score = fraction that held."
+)
 @click.option(
     "--scheduler",
     default=None,

@@ -57,7 +57,10 @@ FRAME_OPTION = click.option(
 )
 @workers_option()
 @seed_option("Seed of the perturbed trials.")
-@trials_option("Perturbed trials per grasp.")
+@trials_option(
+    "Trials per grasp: trial 0, then K-1 perturbed by [robust] (ending at the lift unless "
+    "[robust] shake = true); score = fraction that held."
+)
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler (tcp://host:8786).")
 @scale_option("Scale every mesh by this factor (as annotate --scale).")
 @overwrite_option("Discard existing labels in --out and start over.")
