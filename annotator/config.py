@@ -342,10 +342,8 @@ class RobustConfig(_Section):
     # m, the centre of mass moved off the mesh's uniform-density one (Gaussian per axis, object
     # frame); 0: no public measurement found (set it for a drill's battery, a half-full bottle).
     com_offset_sigma: float = _field(0.0, ge=0.0, le=0.1)
-    # The perturbed trials' protocol: false ends each after the lift, judged there as after a shake
-    # (VGN's trial; GRASPA's "grasped" is the lift), one that holds in 0.37 of trial 0's steps;
-    # true shakes them as trial 0 (docs/decisions/0021-perturbed-trials-end-at-the-lift.md: what
-    # each costs and how each ranks real outcomes, bench.trials_cost and bench.real_trials).
+    # false: a perturbed trial ends after the lift, judged there as after a shake; true: shaken as trial 0
+    # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md
     shake: bool = False
 
     def over(self, gripper: Mapping[str, float]) -> RobustConfig:
