@@ -107,7 +107,8 @@ OBJECT_GROUPS: tuple[ColumnGroup, ...] = (
         FLOAT64,
         "0 … 1",
         "",
-        "fraction of the `--trials K` trials that held (0 or 1 with K = 1)",
+        "fraction of the `--trials K` trials that held: trial 0 through the shake, the K − 1 "
+        "perturbed ones through the lift unless `[robust] shake` (0 or 1 with K = 1)",
         True,
     ),
     ColumnGroup(
