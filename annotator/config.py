@@ -361,7 +361,8 @@ class RobustConfig(_Section):
         if explicit is None:
             default = RobustConfig()
             explicit = {name for name in known if getattr(self, name) != getattr(default, name)}
-        return dataclasses.replace(self, **{k: v for k, v in gripper.items() if k not in explicit})
+        ranges: dict[str, Any] = {k: v for k, v in gripper.items() if k not in explicit}
+        return dataclasses.replace(self, **ranges)
 
 
 @dataclass(frozen=True)

@@ -93,7 +93,7 @@ def _scores(source, cands, config: AnnotatorConfig, trials: int):
 @pytest.mark.slow
 def test_perturbed_trials_are_counted(brick):
     source, _, cands = brick
-    zero = {f.name: 0.0 for f in dataclasses.fields(CONFIG.robust)}
+    zero = {f.name: 0.0 for f in dataclasses.fields(CONFIG.robust) if f.type == "float"}
     still = dataclasses.replace(CONFIG, robust=dataclasses.replace(CONFIG.robust, **zero))
     wild = dataclasses.replace(CONFIG, robust=dataclasses.replace(CONFIG.robust, position_sigma=0.08))
     one = _scores(source, cands, CONFIG, 1)
@@ -295,8 +295,9 @@ def test_leaving_a_trial_once_the_object_is_lost_gives_the_full_trial_s_verdict(
     ``slipped_shake`` either way, in fewer steps when they leave early."""
     _, model, cands = brick
     settle = dataclasses.replace(CONFIG.protocol, settle_time=0.05)
-    early = dataclasses.replace(CONFIG, protocol=settle)
-    full = dataclasses.replace(CONFIG, protocol=dataclasses.replace(settle, check_every=1_000_000))
+    shaken = dataclasses.replace(CONFIG.robust, shake=True)  # the perturbed trials below shake
+    early = dataclasses.replace(CONFIG, protocol=settle, robust=shaken)
+    full = dataclasses.replace(early, protocol=dataclasses.replace(settle, check_every=1_000_000))
     slippery = Perturbation(Transform.identity(), friction_delta=-0.85, mass_scale=4.0)
     results = []
     for config in (early, full):

@@ -296,8 +296,12 @@ class Store:
         files = [rec["file"] for _, rec in chunks]
         artifacts = {name: a for _, rec in chunks for name, a in rec.get("artifacts", {}).items()}
         written = self._written_stats.pop((oid, chunks[0][0]), None) if len(chunks) == 1 else None
-        df = None if written is not None else read_labels(self.out_dir, files)
-        stats = written if df is None else object_stats(df)
+        df: pd.DataFrame | None = None
+        if written is not None:
+            stats = written
+        else:
+            df = read_labels(self.out_dir, files)
+            stats = object_stats(df)
         final = object_filename(oid)
         with sigint_deferred():
             if len(chunks) == 1 and chunks[0][1].get("n") == stats["n"] and _start(chunks[0]) == 0:

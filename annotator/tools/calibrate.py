@@ -23,7 +23,7 @@ import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -421,9 +421,10 @@ class ConfidenceFit:
         ``perturbed_shake``: the scores' perturbed trials shook (``[robust] shake``)."""
         from annotator.config import ConfidenceConfig
 
-        m = self.mapping
+        m: Any = self.mapping  # annotator.confidence.Mapping
         used = [b for b in self.bins if b.n > 0]
-        brier = self.brier.value if np.isfinite(self.brier.value) else self.fitted_brier
+        measured: Any = self.brier  # annotator.confidence.Measure
+        brier = measured.value if np.isfinite(measured.value) else self.fitted_brier
         return ConfidenceConfig(
             method="isotonic",
             trials=m.trials,
