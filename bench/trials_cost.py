@@ -69,7 +69,7 @@ def main() -> None:
     if not args.no_shaken:
         variants.append((args.trials, shaken, f"{args.trials}_shaken"))
     rates: dict[str, list[float]] = {name: [] for _, _, name in variants}
-    rows: dict[str | int, pd.DataFrame] = {}
+    rows: dict[str, pd.DataFrame] = {}
     with Run("trials_cost", config=vars(args) | {"objects": args.objects.name}) as run:
         for r in range(args.repeat):
             for k, cfg, name in variants:
@@ -81,9 +81,9 @@ def main() -> None:
                     f"{len(table)} candidates in {cpu:.1f} CPU-s, {len(table) / cpu:.2f} per CPU-s",
                     flush=True,
                 )
-        rows[1], rows[args.trials] = rows["1"], rows[str(args.trials)]
-        same = bool(rows[1][TRIAL0].equals(rows[args.trials][TRIAL0]))
-        held = rows[args.trials]["success"].mean()
+        one, many = rows["1"], rows[str(args.trials)]
+        same = bool(one[TRIAL0].equals(many[TRIAL0]))
+        held = many["success"].mean()
         ratio = np.median(rates[str(args.trials)]) / np.median(rates["1"])
         print(
             f"--trials {args.trials} / --trials 1, candidates per CPU-second: {ratio:.3f} "
@@ -98,14 +98,14 @@ def main() -> None:
             )
         run.ratio(f"k{args.trials}_over_k1", ratio, note="candidates per CPU-second, --trials K / --trials 1")
         run.figure("trial0_identical", int(same), note="trial 0's outcome, width and pose equal at K and 1")
-        steps1, stepsk = int(rows[1]["sim_steps"].sum()), int(rows[args.trials]["sim_steps"].sum())
+        steps1, stepsk = int(one["sim_steps"].sum()), int(many["sim_steps"].sum())
         run.ratio(
             f"steps_k{args.trials}_over_k1",
             stepsk / steps1,
             note="physics steps of all K trials / of trial 0, the same candidates",
         )
         print(f"physics steps, --trials {args.trials} / --trials 1: {stepsk / steps1:.3f}")
-        run.table("steps_by_outcome", steps_by_outcome(rows[1], rows[args.trials], args.trials))
+        run.table("steps_by_outcome", steps_by_outcome(one, many, args.trials))
         if not args.no_shaken:
             shaken_rows = rows[f"{args.trials}_shaken"]
             ratio_shaken = np.median(rates[f"{args.trials}_shaken"]) / np.median(rates["1"])
@@ -114,8 +114,8 @@ def main() -> None:
                 ratio_shaken,
                 note="candidates per CPU-second, --trials K with the perturbed trials shaken / --trials 1",
             )
-            tried = rows[args.trials]["outcome"].ne("collision").to_numpy()
-            diff = (rows[args.trials]["score"] - shaken_rows["score"]).to_numpy()[tried]
+            tried = many["outcome"].ne("collision").to_numpy()
+            diff = (many["score"] - shaken_rows["score"]).to_numpy()[tried]
             run.figure(
                 "score_same_as_shaken",
                 float(np.mean(diff == 0)),

@@ -89,9 +89,9 @@ class Store:
         self._saved_at = 0.0
         self._journal: JournalWriter | None = None  # None: the next save compacts
         self._header: tuple[Any, Any] = (None, None)  # (objects_planned, gripper_folder) recorded
-        # (object id, chunk key) -> the stats of a chunk this process wrote: an object of one
-        # chunk is finished without reading its rows back (finish_object)
-        self._written_stats: dict[tuple[str, str], dict[str, Any]] = {}
+        # object id -> the stats of the one chunk of all its rows this process wrote: such an
+        # object is finished without reading its rows back (finish_object)
+        self._written_stats: dict[str, dict[str, Any]] = {}
 
     # --- opening -------------------------------------------------------------------------------
 
@@ -278,8 +278,8 @@ class Store:
             record["artifacts"] = dict(artifacts)
         key = f"{start}-{stop}"
         self.record({"op": "chunk", "oid": oid, "key": key, "source_sha256": source_sha256, "record": record})
-        if start == 0:  # in the file's order, as finish_object would read them back
-            self._written_stats[(oid, key)] = object_stats(df.sort_values("grasp_id", kind="stable"))
+        if start == 0 and stop == self.spec.count(oid):  # in the file's order, as read back
+            self._written_stats[oid] = object_stats(df.sort_values("grasp_id", kind="stable"))
         self.save()
 
     def finish_object(self, oid: str, source_sha256: str) -> dict[str, Any]:
@@ -295,7 +295,7 @@ class Store:
         chunks = sorted(self.manifest.chunks_done[oid]["files"].items(), key=_start)
         files = [rec["file"] for _, rec in chunks]
         artifacts = {name: a for _, rec in chunks for name, a in rec.get("artifacts", {}).items()}
-        written = self._written_stats.pop((oid, chunks[0][0]), None) if len(chunks) == 1 else None
+        written = self._written_stats.pop(oid, None) if len(chunks) == 1 else None
         df: pd.DataFrame | None = None
         if written is not None:
             stats = written
@@ -347,7 +347,7 @@ class Store:
 
     def fail_object(self, oid: str, error: str) -> None:
         """Record the failure (one line) and remove the object's chunk files: no partial labels stay."""
-        self._written_stats = {k: v for k, v in self._written_stats.items() if k[0] != oid}
+        self._written_stats.pop(oid, None)
         for rec in self.manifest.chunks_done.get(oid, {"files": {}})["files"].values():
             delete_record(self.out_dir, rec)
         self.record({"op": "failed", "oid": oid, "error": " ".join(str(error).split())[:500]})
