@@ -47,8 +47,10 @@ _TYPES: dict[str, tuple[str, Any, Any]] = {
     "str": ("a string", lambda v: isinstance(v, str), str),
     "tuple[float, ...]": (
         "a list of numbers",
-        lambda v: isinstance(v, list | tuple)
-        and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v),
+        lambda v: (
+            isinstance(v, list | tuple)
+            and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        ),
         lambda v: tuple(float(x) for x in v),
     ),
 }
@@ -345,6 +347,9 @@ class RobustConfig(_Section):
     # false: a perturbed trial ends after the lift, judged there as after a shake; true: shaken as trial 0
     # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md
     shake: bool = False
+    # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
+    # see docs/decisions/0022-perturbed-approach-from-contact.md
+    approach_from_contact: bool = True
 
     def over(self, gripper: Mapping[str, float]) -> RobustConfig:
         """These ranges over a gripper's own (its description's ``[robust]`` table): a field a
@@ -635,6 +640,8 @@ class AnnotatorConfig:
         is left out where folders made before it existed still describe the run: at ``--trials
         1`` (no perturbed trial) and when true (their perturbed trials shook), so such a folder
         resumes, and one whose perturbed trials shook never resumes as one whose end at the lift.
+        ``[robust] approach_from_contact`` likewise, wherever it changes nothing: at ``--trials 1``,
+        with shaken perturbed trials, or without a simulated approach.
         """
         data = dataclasses.asdict(self)
         if not scenes:
@@ -643,14 +650,22 @@ class AnnotatorConfig:
             data.pop("confidence")
         if trials is not None and (trials == 1 or self.robust.shake):
             data["robust"].pop("shake")
+        if trials is not None and (trials == 1 or self.robust.shake or self.protocol.approach != "simulated"):
+            data["robust"].pop("approach_from_contact")
         return data
 
     @classmethod
     def from_run(cls, data: Any, trials: int) -> AnnotatorConfig:
         """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``):
-        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook."""
+        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook, and
+        one without ``approach_from_contact`` one whose simulated approaches ran in full."""
         if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
-            data = {**data, "robust": {"shake": True, **data["robust"]}}
+            robust = {"shake": True, **data["robust"]}
+            protocol = data.get("protocol")
+            simulated = isinstance(protocol, dict) and protocol.get("approach") == "simulated"
+            if simulated and robust["shake"] is False:
+                robust.setdefault("approach_from_contact", False)
+            data = {**data, "robust": robust}
         return cls.from_dict(data)
 
     @classmethod

@@ -39,6 +39,12 @@ log = logging.getLogger(__name__)
 # s the carrier keeps pulling at the end of a simulated approach, so that an unhindered gripper
 # reaches the grasp pose (its lag behind the moving target closes) before it is held there.
 APPROACH_HOLD = 0.1
+# m of a lift-only perturbed trial's simulated approach kept before the first place the open
+# gripper would touch anything (RobustConfig.approach_from_contact): the travel through free space
+# before it changes nothing but time; the carrier reaches its speed within 1 mm (0.1 m/s, 300 N),
+# and the lead is at least one sweep increment, so a contact between increments is never skipped.
+# docs/decisions/0022-perturbed-approach-from-contact.md measures it.
+APPROACH_LEAD = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,14 +242,30 @@ class GraspTrial:
             return CollisionCheck(True, open_width, "closed", hit)
         return CollisionCheck(False, open_width)
 
-    def _approach(self, T_obj_tcp: Transform, width: float) -> CollisionCheck:
+    def _free_travel(self, start: Transform, direction: np.ndarray) -> float:
+        """How far (m) the open gripper posed at ``start`` (world) moves along ``direction`` (unit,
+        world) in ``approach_step`` increments before it touches anything: the last increment
+        that touches nothing; the whole ``approach_distance`` if none touches. Leaves the gripper
+        posed wherever the sweep stopped."""
+        p = self.config.protocol
+        n = max(1, int(np.ceil(p.approach_distance / p.approach_step)))
+        for k in range(1, n + 1):
+            d = min(k * p.approach_step, p.approach_distance)
+            self.hand.body.reset_base_pose(Transform(start.pos + direction * d, start.quat))
+            if self._what_is_hit(skip_pads=False) is not None:
+                return (k - 1) * p.approach_step
+        return p.approach_distance
+
+    def _approach(self, T_obj_tcp: Transform, width: float, from_contact: bool = False) -> CollisionCheck:
         """The approach as a robot executes it (``ProtocolConfig.approach = "simulated"``): the
         gripper, open to ``width + 2 x pregrasp_clearance``, starts ``approach_distance`` back along
         the approach (a collision if it touches anything there) and its carrier moves it to the
         grasp pose at ``approach_speed``, pushing with at most ``approach_force``, gravity on as
         the object rests (off for a floating one): what it meets is pushed or stops it, as a real
         arm stops against a board or nudges a misplaced object. The close then starts where the
-        gripper came to rest; the carrier holds it there."""
+        gripper came to rest; the carrier holds it there. ``from_contact``: the approach starts
+        ``APPROACH_LEAD`` before the first increment of the kinematic sweep that touches anything
+        (:meth:`_free_travel`), not ``approach_distance`` back."""
         p = self.config.protocol
         hand = self.hand
         open_width = min(hand.gripper.max_width, width + 2 * p.pregrasp_clearance)
@@ -256,8 +278,14 @@ class GraspTrial:
         hit = self._what_is_hit(skip_pads=False)
         if hit is not None:
             return CollisionCheck(True, open_width, "pregrasp", hit)
+        travel = p.approach_distance
+        if from_contact:
+            skip = max(0.0, self._free_travel(start, T_world_tcp.rotation[:, 2]) - APPROACH_LEAD)
+            start = Transform(start.pos + T_world_tcp.rotation[:, 2] * skip, start.quat)
+            hand.teleport(start, open_width)
+            travel -= skip
         self.world.set_gravity(self.resting)
-        steps = max(1, round(p.approach_distance / p.approach_speed / self.world.dt))
+        steps = max(1, round(travel / p.approach_speed / self.world.dt))
         hold = round(APPROACH_HOLD / self.world.dt)
         hand.approach(T_world_base, steps, p.approach_force, hand.gripper.table.angle_of(open_width), hold)
         return CollisionCheck(False, open_width)
@@ -293,14 +321,18 @@ class GraspTrial:
         another :class:`GraspTrial` of the same body reading its nominal dynamics) then finds the
         object as ``--trials 1`` leaves it, so trial 0 is the same whatever K. A perturbed trial
         shakes only when its ranges say so (``RobustConfig.shake``); otherwise it ends after the
-        lift, judged there as after a shake.
+        lift, judged there as after a shake, and its simulated approach (if any) starts near the
+        first contact (``RobustConfig.approach_from_contact``).
         """
         if perturbation is None:
             return self._run(T_obj_tcp, width_expected, Perturbation.none(), self.shake)
         if np.any(perturbation.com_offset):
             self.world.before_step = _OffsetMass(self, perturbation)
         try:
-            return self._run(T_obj_tcp, width_expected, perturbation, self.shake and self.robust.shake)
+            robust = self.robust
+            from_contact = not robust.shake and robust.approach_from_contact
+            shake = self.shake and robust.shake
+            return self._run(T_obj_tcp, width_expected, perturbation, shake, from_contact)
         finally:
             self.world.before_step = None
             self._apply(Perturbation.none())
@@ -311,9 +343,11 @@ class GraspTrial:
         width_expected: float,
         perturbation: Perturbation,
         shake: bool | None = None,
+        from_contact: bool = False,
     ) -> TrialResult:
         """:meth:`run` with the perturbation applied (its dynamics left as they were set);
-        ``shake``: False ends the trial after the lift (None: this trial's ``shake``)."""
+        ``shake``: False ends the trial after the lift (None: this trial's ``shake``);
+        ``from_contact``: a simulated approach starts near the first contact (:meth:`_approach`)."""
         shake = self.shake if shake is None else shake
         self.world.restore_state(self.state)
         self._apply(perturbation)
@@ -322,7 +356,7 @@ class GraspTrial:
         steps0 = self.world.steps
         cfg, force = self.config.protocol, self.hand.grip_force * perturbation.force_scale
         if cfg.approach == "simulated":
-            check = self._approach(T_obj_tcp, width_expected)
+            check = self._approach(T_obj_tcp, width_expected, from_contact)
         else:
             check = self.collides(T_obj_tcp, width_expected)
         open_width = check.open_width

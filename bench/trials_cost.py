@@ -2,6 +2,7 @@
 
     python -m bench.trials_cost                    # the sample objects, 30 candidates each, K = 5
     python -m bench.trials_cost --n 50 --trials 3 --repeat 2
+    python -m bench.trials_cost --config execution.toml   # e.g. a simulated approach
 
 In one process (one worker's world, as a worker labels spans), every sample object's first N
 candidates are labelled with ``--trials 1`` and with ``--trials K``, alternately, ``--repeat``
@@ -12,8 +13,11 @@ label). Where the extra time goes: the physics steps of all K trials (``sim_step
 0's, overall and by trial 0's outcome (a ``collision`` runs no perturbed trial; a candidate that
 holds runs every perturbed trial through close and lift, and through the shake with ``[robust]
 shake = true``). The same K is also run with the perturbed trials shaken (``--no-shaken`` skips
-it): its cost, and how its scores differ from the default's on the same candidates. Prints
-figures and writes a record (bench/harness.py); asserts nothing.
+it): its cost, and how its scores differ from the default's on the same candidates. With a
+simulated approach (``--config`` setting ``[protocol] approach = "simulated"``), the same K is also
+run with the perturbed trials' approaches in full (``[robust] approach_from_contact = false``; its
+cost, and the scores against it). Prints figures and writes a record (bench/harness.py); asserts
+nothing.
 """
 
 from __future__ import annotations
@@ -60,24 +64,33 @@ def main() -> None:
     ap.add_argument(
         "--no-shaken", action="store_true", help="skip the K trials with the perturbed ones shaken too"
     )
+    ap.add_argument("--config", type=Path, default=None, help="a TOML of overrides (annotate --config)")
     args = ap.parse_args()
-    config = AnnotatorConfig()
+    config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     sources = discover_objects(args.objects)
     label(sources, 1, 1, config)  # load (and decompose, cold) every object first
     shaken = dataclasses.replace(config, robust=dataclasses.replace(config.robust, shake=True))
     variants = [(1, config, "1"), (args.trials, config, str(args.trials))]
     if not args.no_shaken:
         variants.append((args.trials, shaken, f"{args.trials}_shaken"))
+    in_full = dataclasses.replace(
+        config, robust=dataclasses.replace(config.robust, approach_from_contact=False)
+    )
+    simulated = config.protocol.approach == "simulated"
+    if simulated:
+        variants.append((args.trials, in_full, f"{args.trials}_in_full"))
     rates: dict[str, list[float]] = {name: [] for _, _, name in variants}
     rows: dict[str, pd.DataFrame] = {}
-    with Run("trials_cost", config=vars(args) | {"objects": args.objects.name}) as run:
+    settings = vars(args) | {"objects": args.objects.name, "config": config.to_dict(trials=args.trials)}
+    with Run("trials_cost", config=settings) as run:
         for r in range(args.repeat):
             for k, cfg, name in variants:
                 table, cpu = label(sources, args.n, k, cfg)
                 rates[name].append(len(table) / cpu)
                 rows[name] = table
+                what = {"shaken": " (perturbed shaken)", "in_full": " (perturbed approach in full)"}
                 print(
-                    f"run {r + 1}: --trials {k}{' (perturbed shaken)' if cfg is shaken else ''}: "
+                    f"run {r + 1}: --trials {k}{what.get(name.partition('_')[2], '')}: "
                     f"{len(table)} candidates in {cpu:.1f} CPU-s, {len(table) / cpu:.2f} per CPU-s",
                     flush=True,
                 )
@@ -107,26 +120,36 @@ def main() -> None:
         print(f"physics steps, --trials {args.trials} / --trials 1: {stepsk / steps1:.3f}")
         run.table("steps_by_outcome", steps_by_outcome(one, many, args.trials))
         if not args.no_shaken:
-            shaken_rows = rows[f"{args.trials}_shaken"]
-            ratio_shaken = np.median(rates[f"{args.trials}_shaken"]) / np.median(rates["1"])
-            run.ratio(
-                f"k{args.trials}_shaken_over_k1",
-                ratio_shaken,
-                note="candidates per CPU-second, --trials K with the perturbed trials shaken / --trials 1",
-            )
-            tried = many["outcome"].ne("collision").to_numpy()
-            diff = (many["score"] - shaken_rows["score"]).to_numpy()[tried]
-            run.figure(
-                "score_same_as_shaken",
-                float(np.mean(diff == 0)),
-                note="candidates past the kinematic check whose score equals the shaken protocol's",
-            )
-            run.figure("score_minus_shaken_mean", float(np.mean(diff)), note="the same candidates")
-            print(
-                f"perturbed trials shaken: --trials {args.trials} / --trials 1 {ratio_shaken:.3f}; "
-                f"scores equal to the default's on {np.mean(diff == 0):.1%} of the {tried.sum()} "
-                f"candidates past the kinematic check, mean difference {np.mean(diff):+.3f}"
-            )
+            compare(run, rows, rates, args.trials, "shaken", "with the perturbed trials shaken")
+        if simulated:
+            compare(run, rows, rates, args.trials, "in_full", "with the perturbed trials' approaches in full")
+
+
+def compare(
+    run: Run, rows: dict[str, pd.DataFrame], rates: dict[str, list[float]], k: int, name: str, what: str
+) -> None:
+    """Record the cost of variant ``name`` of the K trials (``what`` says what it changes) against
+    ``--trials 1``, and how the default's scores differ from its scores on the candidates past
+    the kinematic check."""
+    many, other = rows[str(k)], rows[f"{k}_{name}"]
+    ratio = np.median(rates[f"{k}_{name}"]) / np.median(rates["1"])
+    note = f"candidates per CPU-second, --trials K {what} / --trials 1"
+    run.ratio(f"k{k}_{name}_over_k1", ratio, note=note)
+    tried = many["outcome"].ne("collision").to_numpy()
+    diff = (many["score"] - other["score"]).to_numpy()[tried]
+    run.figure(
+        f"score_same_as_{name}",
+        float(np.mean(diff == 0)),
+        note=f"candidates past the kinematic check whose score equals the one {what}",
+    )
+    run.figure(f"score_minus_{name}_mean", float(np.mean(diff)), note="the same candidates")
+    steps = int(other["sim_steps"].sum()) / int(rows["1"]["sim_steps"].sum())
+    run.ratio(f"steps_k{k}_{name}_over_k1", steps, note=f"physics steps of all K trials {what} / of trial 0")
+    print(
+        f"{what}: --trials {k} / --trials 1 {ratio:.3f} (steps {steps:.3f}); scores equal to the "
+        f"default's on {np.mean(diff == 0):.1%} of the {tried.sum()} candidates past the kinematic "
+        f"check, mean difference {np.mean(diff):+.3f}"
+    )
 
 
 def steps_by_outcome(one: pd.DataFrame, many: pd.DataFrame, k: int) -> list[dict]:

@@ -86,7 +86,8 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     lift = AnnotatorConfig()
     shaken = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, shake=True))
     old = lift.to_dict()
-    old["robust"].pop("shake")  # the configuration a folder of an earlier version bound
+    for name in ("shake", "approach_from_contact"):  # what a folder of an earlier version bound
+        old["robust"].pop(name)
 
     def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
         return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
@@ -102,6 +103,41 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
         assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
     assert AnnotatorConfig.from_run(lift.to_dict(trials=1), 1) == lift
     assert AnnotatorConfig.from_run(old, 5) == shaken
+
+
+def test_a_run_binds_approach_from_contact_only_where_it_changes_the_scores():
+    """``[robust] approach_from_contact`` is in a run's manifest only where it changes a perturbed
+    trial: past one trial, lift-only perturbed trials, a simulated approach. A folder made before
+    the field (its perturbed approaches ran in full) never resumes as a run whose start near the
+    contact, and reads back as what it simulated; every other folder resumes as before."""
+    from annotator.store.manifest import RunSpec
+
+    teleported = AnnotatorConfig()
+    simulated = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated"}})
+    in_full = dataclasses.replace(
+        simulated, robust=dataclasses.replace(simulated.robust, approach_from_contact=False)
+    )
+    shaken = dataclasses.replace(simulated, robust=dataclasses.replace(simulated.robust, shake=True))
+
+    def before(config: AnnotatorConfig, trials: int) -> dict:
+        """What a folder made before the field bound for ``config``."""
+        data = config.to_dict(trials=trials)
+        data["robust"].pop("approach_from_contact", None)
+        return RunSpec(0, 5, trials, None, 5, data).to_json()
+
+    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
+        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
+
+    for config, trials in ((teleported, 5), (simulated, 1), (shaken, 5)):
+        assert "approach_from_contact" not in config.to_dict(trials=trials)["robust"]
+        assert spec(config, trials).differences(before(config, trials)) == []
+    assert spec(simulated, 5).differences(before(simulated, 5)) == [
+        "[robust] approach_from_contact None in the folder, True now"
+    ]
+    # read back from a manifest: what the run simulated
+    for config in (teleported, simulated, in_full, shaken):
+        assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
+    assert AnnotatorConfig.from_run(before(simulated, 5)["config"], 5) == in_full
 
 
 @pytest.mark.parametrize(
