@@ -236,8 +236,11 @@ def test_trials_add_a_score_and_keep_the_nominal_labels(two_objects, reference_r
     objs.mkdir()
     shutil.copy(two_objects / "box.obj", objs)
     out = tmp_path / "out"
-    run_annotate("--objects", objs, "--n", N_SMALL, "--workers", 1, "--trials", 2, "--out", out, "--quiet")
+    result = run_annotate("--objects", objs, "--n", N_SMALL, "--workers", 1, "--trials", 2, "--out", out)
     robust = _labels(out)
+    # the summary counts the candidates that ran physics and says each ran both trials
+    tried = int((robust["outcome"] != "collision").sum())
+    assert f"candidates/s, {tried} past the kinematic check, 2 trials each)" in result.output
     nominal = _labels(reference_run[0])
     nominal = nominal[nominal["object_id"] == "box"].reset_index(drop=True)
     assert set(robust["score"]) <= {0.0, 0.5, 1.0}

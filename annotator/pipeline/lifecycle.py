@@ -181,7 +181,7 @@ def run_job(options: RunOptions, job: Job) -> Summary:
     options = check_cache(options)
     job.check(options)
     check_workers(options)
-    summary = Summary(unit=job.unit)
+    summary = Summary(unit=job.unit, trials=options.trials)
     spec, units = job.bind(options, summary)
     store, resume = open_store(options, spec, units)
     with running(store, summary) as status_dir:

@@ -17,13 +17,14 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
 from annotator.grippers import DEFAULT_GRIPPER
+from annotator.k_trials import run_k_trials
 from annotator.label_row import TrialsResult, label_row
 from annotator.objects import ObjectModel
 from annotator.pipeline.tasks import SpanGrasps
-from annotator.rng import object_rng, trial_rng
+from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
 from annotator.schema import REASON_COLUMNS  # noqa: F401  (named in the docstring; the workers' import)
-from annotator.trial import CollisionCheck, GraspTrial, Perturbation
+from annotator.trial import CollisionCheck, GraspTrial
 
 if TYPE_CHECKING:
     from annotator.pipeline.loaded import LoadedObject
@@ -135,16 +136,17 @@ def _run_trials(
     """Trial 0 unperturbed, then the perturbed ones (none after a collision); a physics failure is
     an ``error`` row, never the loss of the other candidates."""
     try:
-        r = trial.run(T, width_expected)
-        held = int(r.outcome == Outcome.SUCCESS)
-        steps = r.steps
-        if r.outcome != Outcome.COLLISION and trials > 1:
-            rng = trial_rng(seed, object_id, grasp_id)
-            for _ in range(trials - 1):
-                p = trial.run(T, width_expected, Perturbation.sample(rng, trial.robust))
-                held += int(p.outcome == Outcome.SUCCESS)
-                steps += p.steps
-        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held, r.check)
+        k = run_k_trials(
+            lambda p: trial.run(T, width_expected, p),
+            lambda r: r,
+            trials,
+            trial.robust,
+            seed,
+            object_id,
+            grasp_id,
+        )
+        r = k.first
+        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, k.steps, r.slip, k.held, r.check)
     except Exception as exc:  # a physics failure on one candidate must not lose the others
         log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
         return TrialsResult(Outcome.ERROR, T, width_expected, 0, np.nan, 0)

@@ -50,7 +50,8 @@ class Summary:
     stopped: str | None = None  # why the run stopped early (disk full, lost scheduler, ...)
     seconds: float = 0.0
     candidates: int = 0  # simulated by this run
-    physics_trials: int = 0
+    physics_trials: int = 0  # candidates past the kinematic check (trial 0 ran physics)
+    trials: int = 1  # K of --trials K: every such candidate ran K trials
     sim_steps: int = 0
     worker_seconds: float = 0.0  # summed over workers
     step_seconds: float = 0.0  # of which inside stepSimulation
@@ -105,10 +106,15 @@ def _tail(summary: Summary, name_w: int) -> list[str]:
     if summary.stopped:
         lines.append(f"STOPPED: {summary.stopped}")
     rate = summary.candidates / summary.seconds if summary.seconds else 0.0
+    physics = (
+        f"{summary.physics_trials} physics trials"
+        if summary.trials == 1
+        else f"{summary.physics_trials} past the kinematic check, {summary.trials} trials each"
+    )
     lines.append(
         f"{len(summary.done)} {summary.unit}s labelled, {len(summary.resumed)} done earlier, "
         f"{len(summary.failed)} failed; {summary.candidates} candidates simulated in "
-        f"{summary.seconds:.1f} s ({rate:.1f} candidates/s, {summary.physics_trials} physics trials)"
+        f"{summary.seconds:.1f} s ({rate:.1f} candidates/s, {physics})"
     )
     return lines
 

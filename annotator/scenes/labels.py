@@ -45,9 +45,10 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
 from annotator.geometry import Transform, matrix_to_quat
 from annotator.grippers import GripperDescription
+from annotator.k_trials import run_k_trials
 from annotator.label_row import TrialsResult, canonical, label_row
 from annotator.objects import ObjectModel, get_object_pose, physics_for
-from annotator.rng import keyed_rng, trial_rng
+from annotator.rng import keyed_rng
 from annotator.scenes.records import SceneRecord
 from annotator.scenes.world import LoadedScene, load_scene, load_scene_with_arm
 from annotator.schema import MODES, OBJECT_COLUMNS
@@ -357,18 +358,15 @@ def _try(
     """Trial 0 unperturbed, then ``k - 1`` perturbed from the grasp's own Generator; an exception
     is this grasp's ``error``, never the scene's."""
     try:
-        first = trials.run(instance_id, T, width)
-        r = first.result
-        held, steps = int(r.outcome == Outcome.SUCCESS), r.steps
-        if r.outcome != Outcome.COLLISION and k > 1:
-            rng = trial_rng(seed, unit, grasp_id)
-            robust = trials.trials[instance_id].robust
-            for _ in range(k - 1):
-                p = trials.run(instance_id, T, width, Perturbation.sample(rng, robust)).result
-                held += int(p.outcome == Outcome.SUCCESS)
-                steps += p.steps
+        robust = trials.trials[instance_id].robust
+
+        def run(p: Perturbation | None) -> NeighbourTrial:
+            return trials.run(instance_id, T, width, p)
+
+        ran = run_k_trials(run, lambda t: t.result, k, robust, seed, unit, grasp_id)
+        first, r = ran.first, ran.first.result
         return _Labelled(
-            TrialsResult(r.outcome, r.T_obj_tcp, r.width, steps, r.slip, held),
+            TrialsResult(r.outcome, r.T_obj_tcp, r.width, ran.steps, r.slip, ran.held),
             trials.hit_of(first.check, instance_id),
             first.check.stage or "",
             first.disturbance,
