@@ -36,6 +36,10 @@ pooled), the setting fitted on all trials (optimistic: chosen and scored on the 
 baselines (always "success"; an analytic check on the mesh: the contacts of the pads' centre
 line both inside a friction cone) and the RG2; per object; the folds; and the rows where the
 calibrated simulation and reality disagree.
+
+``--cost`` also times the Panda's evaluate at ``--trials 1`` and (with lift-only perturbed trials)
+at ``--trials K`` with the perturbed approaches in full, one after another: CPU seconds of the
+command and its workers, and their ratios to ``--trials 1`` (run it on a quiet machine).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ import argparse
 import gzip
 import math
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -200,6 +205,12 @@ def _pose_table(trials: pd.DataFrame, T: np.ndarray, rest: np.ndarray) -> pd.Dat
 # --- running the commands -------------------------------------------------------------------------
 
 
+def children_cpu() -> float:
+    """CPU seconds (user + system) of this process's finished children and what they waited for."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def annotator(*args: object) -> str:
     """Run ``annotator ARGS`` in a child process (this interpreter); its output, echoed."""
     cmd = [sys.executable, "-c", "from annotator.cli import main; main()", *map(str, args)]
@@ -306,6 +317,12 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     ap.add_argument("--no-grid", action="store_true", help="skip calibrate's grid (the longest part)")
     ap.add_argument("--no-rg2", action="store_true", help="skip the RG2 at the same TCP poses")
     ap.add_argument(
+        "--cost",
+        action="store_true",
+        help="also time the Panda's evaluate at --trials 1 and (lift-only perturbed trials) at --trials K "
+        "with the perturbed approaches in full: CPU seconds and ratios, one after another",
+    )
+    ap.add_argument(
         "--pad-spinning-friction",
         type=float,
         default=None,
@@ -382,6 +399,30 @@ def execution_config(
 EXECUTION = {"approach_speed": 0.1, "lift_duration": 0.5}
 
 
+def evaluate_cost(run: Run, prepared: Prepared, args, config: Path, cpu_k: float) -> None:
+    """The Panda's evaluate at ``--trials 1`` and, with lift-only perturbed trials, at ``--trials
+    K`` with their approaches in full (``[robust] approach_from_contact = false``), after the run
+    at K that took ``cpu_k`` CPU-s: each one's CPU seconds (the command and its workers) and their
+    ratios to ``--trials 1``, recorded."""
+    k, work = args.trials, args.work
+    cpu = {f"k{k}": cpu_k}
+    before = children_cpu()
+    evaluate(prepared, work / "ev_cost_k1", "panda", "base", args.workers, config, 1)
+    cpu["k1"] = children_cpu() - before
+    if not args.perturbed_shake:
+        in_full = work / "execution_in_full.toml"
+        in_full.write_text(config.read_text() + "[robust]\napproach_from_contact = false\n")
+        before = children_cpu()
+        evaluate(prepared, work / "ev_cost_in_full", "panda", "base", args.workers, in_full, k)
+        cpu[f"k{k}_in_full"] = children_cpu() - before
+    for name, seconds in cpu.items():
+        note = "the Panda's evaluate, the command and its workers"
+        run.figure(f"evaluate_cpu_s_{name}", seconds, "CPU-s", note=note)
+        if name != "k1":
+            run.ratio(f"evaluate_{name}_over_k1", seconds / cpu["k1"], note=f"CPU seconds of {note}")
+        print(f"evaluate, {name}: {seconds:.1f} CPU-s ({seconds / cpu['k1']:.2f} x --trials 1)", flush=True)
+
+
 def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -> None:  # noqa: C901
     from annotator.tools import calibrate as cal
 
@@ -400,7 +441,10 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
     run.figure("chord_share_closing_x", chords["x"], note="the same along GRASPA's TCP x")
 
     rows: list[dict] = []
+    cpu0 = children_cpu()
     panda = evaluate(prepared, work / "ev_panda", "panda", "base", args.workers, config, args.trials)
+    if args.cost:
+        evaluate_cost(run, prepared, args, config, children_cpu() - cpu0)
     sim_panda = panda["success"].to_numpy(dtype=bool)
     rows.append(stat_row("panda (as shipped)", stats(real, sim_panda, boot)))
     always = np.ones(len(real), dtype=bool)
