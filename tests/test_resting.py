@@ -6,6 +6,7 @@ The sample box is 60 x 40 x 120 mm, its mesh frame on its bottom face (z = 0 .. 
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -221,3 +222,48 @@ def test_grasps_stay_in_the_table_frame_when_told(box) -> None:
     # the row records the grasp as given; replaying it in the same mode gives the same row
     again = _with(AnnotatorConfig(), box, [_pose(FROM_TOP, 0.10)], [tilted], resting="table").iloc[0]
     assert again.to_dict() == pytest.approx(staying.to_dict(), nan_ok=True) or again.equals(staying)
+
+
+@pytest.mark.slow
+def test_perturbed_approaches_from_the_contact_push_and_stop_as_in_full(box, tmp_path) -> None:
+    """``--trials 5`` of grasps whose simulated approach meets something: a finger that rolls a ball
+    between the fingers on the way down, a hand that the table stops above where it was sent, and
+    a clean grasp from the top. The perturbed trials starting 1 cm before the first contact
+    (``[robust] approach_from_contact``, the default) give the scores of the approaches in full,
+    in fewer steps, under ranges wide enough that some fail; trial 0 is the same either way."""
+    import trimesh
+
+    folder = tmp_path / "ball"
+    folder.mkdir()
+    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
+        folder / "ball.obj"
+    )
+    (ball,) = discover_objects(folder)
+    rolled = _pose(FROM_TOP, 0.030)
+    rolled[1, 3] = 0.012  # a finger overlaps the ball by 2 mm on the way down
+    # wider ranges than the default's, so that some perturbed trials fail
+    wide = dataclasses.replace(SIMULATED.robust, object_position_sigma=0.012, friction_delta=0.6)
+    near_contact = dataclasses.replace(SIMULATED, robust=wide)
+    in_full = dataclasses.replace(SIMULATED, robust=dataclasses.replace(wide, approach_from_contact=False))
+
+    def run(config, source, poses, width):
+        T = np.array(poses)
+        span = GivenSpan(
+            source.object_id, source, None, T, np.full(len(T), width), np.arange(len(T)), None,
+            np.tile(UPRIGHT, (len(T), 1)),
+        )  # fmt: skip
+        rows, error = simulate_given(span, config, trials=5, gripper="panda", resting=True)
+        assert error is None, error
+        return rows
+
+    cases = [(ball, [rolled], 0.080), (box, [_pose(FROM_TOP, 0.005), _pose(FROM_TOP, 0.030)], 0.040)]
+    scores = []
+    for source, poses, width in cases:
+        near, full = run(near_contact, source, poses, width), run(in_full, source, poses, width)
+        assert near["outcome"].tolist() == full["outcome"].tolist() and (near["outcome"] == "success").all()
+        trial0 = ["width", "x", "y", "z", "qx", "qy", "qz", "qw"]
+        pd.testing.assert_frame_equal(near[trial0], full[trial0], check_exact=True)
+        assert near["score"].tolist() == full["score"].tolist(), (near["score"], full["score"])
+        assert (near["sim_steps"] < full["sim_steps"]).all(), (near["sim_steps"], full["sim_steps"])
+        scores += near["score"].tolist()
+    assert min(scores) < 1.0  # some perturbed trials failed: the scores compared say something

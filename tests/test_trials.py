@@ -17,7 +17,7 @@ import trimesh
 
 from annotator.config import AnnotatorConfig, RobustConfig
 from annotator.geometry import Transform
-from annotator.objects import ObjectSource, create_body, load_object
+from annotator.objects import ObjectSource, create_body, load_object, physics_for
 from annotator.outcome import Outcome
 from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
 from annotator.rng import object_rng
@@ -285,6 +285,37 @@ def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
     shake_steps = round(CONFIG.protocol.shake_duration / CONFIG.physics.time_step)
     assert first.steps - lifted.steps >= shake_steps - CONFIG.protocol.check_every, (first, lifted)
     assert slid.outcome == Outcome.SLIPPED_LIFT
+
+
+@pytest.mark.slow
+def test_a_light_object_s_perturbed_trial_ends_at_the_lift_at_its_own_step(tmp_path):
+    """A 20 g plate, simulated at its finer step (annotator.objects.physics_for): a perturbed trial
+    that changes nothing is, to the bit, the trial of a gripper that never shakes, and it is shorter
+    than trial 0 by the shake's steps at that step."""
+    path = tmp_path / "plate.obj"
+    trimesh.creation.box((0.06, 0.04, 0.016)).export(path)
+    model = load_object(ObjectSource("plate", path), CONFIG.objects)
+    physics = physics_for(model, CONFIG.physics)
+    assert model.mass < CONFIG.physics.light_object_mass and physics.time_step < CONFIG.physics.time_step
+    cands = sample_candidates(model.mesh, 24, object_rng(0, "plate"), CONFIG.sampler, 0.11)
+    nothing = Perturbation(Transform.identity(), 0.0, 1.0)
+    with World(physics) as world:
+        trial = _brick_trial(world, model, CONFIG)
+        never = GraspTrial(world, trial.hand, trial.obj, CONFIG, shake=False)
+        held = [
+            i
+            for i in range(len(cands))
+            if trial.run(Transform.from_matrix(cands.T_obj_tcp[i]), cands.width_expected[i]).outcome
+            == Outcome.SUCCESS
+        ]
+        assert held
+        T, w = Transform.from_matrix(cands.T_obj_tcp[held[0]]), cands.width_expected[held[0]]
+        first, lifted, unshaken = trial.run(T, w), trial.run(T, w, nothing), never.run(T, w)
+        trial.close()
+        never.close()
+    assert lifted.outcome == first.outcome == Outcome.SUCCESS and _same(lifted, unshaken), (lifted, unshaken)
+    shake_steps = round(CONFIG.protocol.shake_duration / physics.time_step)
+    assert first.steps - lifted.steps >= shake_steps - CONFIG.protocol.check_every, (first, lifted)
 
 
 @pytest.mark.slow
