@@ -399,11 +399,14 @@ def execution_config(
 EXECUTION = {"approach_speed": 0.1, "lift_duration": 0.5}
 
 
-def evaluate_cost(run: Run, prepared: Prepared, args, config: Path, cpu_k: float) -> None:
+def evaluate_cost(
+    run: Run, prepared: Prepared, args, config: Path, cpu_k: float, rows_k: pd.DataFrame
+) -> None:
     """The Panda's evaluate at ``--trials 1`` and, with lift-only perturbed trials, at ``--trials
     K`` with their approaches in full (``[robust] approach_from_contact = false``), after the run
-    at K that took ``cpu_k`` CPU-s: each one's CPU seconds (the command and its workers) and their
-    ratios to ``--trials 1``, recorded."""
+    at K that took ``cpu_k`` CPU-s and gave ``rows_k``: each one's CPU seconds (the command and its
+    workers) and their ratios to ``--trials 1``, and how many scores the approaches in full
+    change, recorded."""
     k, work = args.trials, args.work
     cpu = {f"k{k}": cpu_k}
     before = children_cpu()
@@ -413,8 +416,14 @@ def evaluate_cost(run: Run, prepared: Prepared, args, config: Path, cpu_k: float
         in_full = work / "execution_in_full.toml"
         in_full.write_text(config.read_text() + "[robust]\napproach_from_contact = false\n")
         before = children_cpu()
-        evaluate(prepared, work / "ev_cost_in_full", "panda", "base", args.workers, in_full, k)
+        full = evaluate(prepared, work / "ev_cost_in_full", "panda", "base", args.workers, in_full, k)
         cpu[f"k{k}_in_full"] = children_cpu() - before
+        diff = rows_k["score"].to_numpy() - full["score"].to_numpy()
+        changed = int(np.sum(diff != 0))
+        note = "grasps whose score the perturbed approaches in full change"
+        run.figure("scores_changed_by_approach_in_full", changed, note=note)
+        run.figure("score_minus_in_full_mean", float(np.mean(diff)), note="over all grasps")
+        print(f"approaches in full: {changed} of {len(diff)} scores change, mean {np.mean(diff):+.3f}")
     for name, seconds in cpu.items():
         note = "the Panda's evaluate, the command and its workers"
         run.figure(f"evaluate_cpu_s_{name}", seconds, "CPU-s", note=note)
@@ -444,7 +453,7 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
     cpu0 = children_cpu()
     panda = evaluate(prepared, work / "ev_panda", "panda", "base", args.workers, config, args.trials)
     if args.cost:
-        evaluate_cost(run, prepared, args, config, children_cpu() - cpu0)
+        evaluate_cost(run, prepared, args, config, children_cpu() - cpu0, panda)
     sim_panda = panda["success"].to_numpy(dtype=bool)
     rows.append(stat_row("panda (as shipped)", stats(real, sim_panda, boot)))
     always = np.ones(len(real), dtype=bool)
