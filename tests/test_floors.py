@@ -21,7 +21,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     1: ("confidence", "grippers", "label_table", "sampler"),
     2: ("sim",),
     3: ("objects", "render", "trial"),
-    4: ("store",),
+    4: ("k_trials", "store"),
     5: ("dataset", "label_row"),
     6: ("cell",),
     7: ("scenes",),
