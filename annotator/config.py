@@ -648,10 +648,12 @@ class AnnotatorConfig:
             data.pop("scenes")
         if self.confidence.method == "none":
             data.pop("confidence")
-        if trials is not None and (trials == 1 or self.robust.shake):
-            data["robust"].pop("shake")
-        if trials is not None and (trials == 1 or self.robust.shake or self.protocol.approach != "simulated"):
-            data["robust"].pop("approach_from_contact")
+        if trials is not None:
+            lift_only = trials != 1 and not self.robust.shake  # perturbed trials that end at the lift
+            if not lift_only:
+                data["robust"].pop("shake")
+            if not (lift_only and self.protocol.approach == "simulated"):
+                data["robust"].pop("approach_from_contact")
         return data
 
     @classmethod

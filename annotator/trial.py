@@ -19,7 +19,7 @@ unless their ranges say ``shake`` (``RobustConfig.shake``; docs/decisions/0021).
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -227,12 +227,13 @@ class GraspTrial:
         approach = T_world_tcp.rotation[:, 2]
         self.hand.gripper.reset_width(open_width)
         n_checks = max(1, int(np.ceil(p.approach_distance / p.approach_step)))
-        for k in range(n_checks + 1):  # from the grasp pose backwards
-            back = Transform(T_world_base.pos - approach * k * p.approach_step, T_world_base.quat)
-            self.hand.body.reset_base_pose(back)
-            hit = self._what_is_hit(skip_pads=False)
-            if hit is not None:
-                return CollisionCheck(True, open_width, "approach", hit)
+        backwards = (  # from the grasp pose
+            Transform(T_world_base.pos - approach * k * p.approach_step, T_world_base.quat)
+            for k in range(n_checks + 1)
+        )
+        touch = self._first_touch(backwards)
+        if touch is not None:
+            return CollisionCheck(True, open_width, "approach", touch[1])
         # closed on the expected chord, only the pads may touch: a finger link that reaches the
         # object first (e.g. a can's rim under a tilted grasp) would stop the close on it
         self.hand.body.reset_base_pose(T_world_base)
@@ -249,12 +250,23 @@ class GraspTrial:
         posed wherever the sweep stopped."""
         p = self.config.protocol
         n = max(1, int(np.ceil(p.approach_distance / p.approach_step)))
-        for k in range(1, n + 1):
-            d = min(k * p.approach_step, p.approach_distance)
-            self.hand.body.reset_base_pose(Transform(start.pos + direction * d, start.quat))
-            if self._what_is_hit(skip_pads=False) is not None:
-                return (k - 1) * p.approach_step
-        return p.approach_distance
+        forwards = (
+            Transform(start.pos + direction * min(k * p.approach_step, p.approach_distance), start.quat)
+            for k in range(1, n + 1)
+        )
+        touch = self._first_touch(forwards)
+        return p.approach_distance if touch is None else touch[0] * p.approach_step
+
+    def _first_touch(self, poses: Iterable[Transform]) -> tuple[int, int] | None:
+        """``(index, body)`` of the first of ``poses`` (the gripper base in the world, the linkage
+        as posed) at which the gripper, pads included, touches anything; None when none does.
+        Leaves the gripper at the last pose tried."""
+        for i, pose in enumerate(poses):
+            self.hand.body.reset_base_pose(pose)
+            hit = self._what_is_hit(skip_pads=False)
+            if hit is not None:
+                return i, hit
+        return None
 
     def _approach(self, T_obj_tcp: Transform, width: float, from_contact: bool = False) -> CollisionCheck:
         """The approach as a robot executes it (``ProtocolConfig.approach = "simulated"``): the

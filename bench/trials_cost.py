@@ -69,28 +69,29 @@ def main() -> None:
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     sources = discover_objects(args.objects)
     label(sources, 1, 1, config)  # load (and decompose, cold) every object first
-    shaken = dataclasses.replace(config, robust=dataclasses.replace(config.robust, shake=True))
-    variants = [(1, config, "1"), (args.trials, config, str(args.trials))]
+    k = args.trials
+    # (trials, configuration, name, what the name says in the output)
+    variants = [(1, config, "1", ""), (k, config, str(k), "")]
     if not args.no_shaken:
-        variants.append((args.trials, shaken, f"{args.trials}_shaken"))
-    in_full = dataclasses.replace(
-        config, robust=dataclasses.replace(config.robust, approach_from_contact=False)
-    )
+        shaken = dataclasses.replace(config, robust=dataclasses.replace(config.robust, shake=True))
+        variants.append((k, shaken, f"{k}_shaken", " (perturbed shaken)"))
     simulated = config.protocol.approach == "simulated"
     if simulated:
-        variants.append((args.trials, in_full, f"{args.trials}_in_full"))
-    rates: dict[str, list[float]] = {name: [] for _, _, name in variants}
+        in_full = dataclasses.replace(
+            config, robust=dataclasses.replace(config.robust, approach_from_contact=False)
+        )
+        variants.append((k, in_full, f"{k}_in_full", " (perturbed approach in full)"))
+    rates: dict[str, list[float]] = {name: [] for _, _, name, _ in variants}
     rows: dict[str, pd.DataFrame] = {}
     settings = vars(args) | {"objects": args.objects.name, "config": config.to_dict(trials=args.trials)}
     with Run("trials_cost", config=settings) as run:
         for r in range(args.repeat):
-            for k, cfg, name in variants:
-                table, cpu = label(sources, args.n, k, cfg)
+            for trials, cfg, name, what in variants:
+                table, cpu = label(sources, args.n, trials, cfg)
                 rates[name].append(len(table) / cpu)
                 rows[name] = table
-                what = {"shaken": " (perturbed shaken)", "in_full": " (perturbed approach in full)"}
                 print(
-                    f"run {r + 1}: --trials {k}{what.get(name.partition('_')[2], '')}: "
+                    f"run {r + 1}: --trials {trials}{what}: "
                     f"{len(table)} candidates in {cpu:.1f} CPU-s, {len(table) / cpu:.2f} per CPU-s",
                     flush=True,
                 )
@@ -102,9 +103,9 @@ def main() -> None:
             f"--trials {args.trials} / --trials 1, candidates per CPU-second: {ratio:.3f} "
             f"(trial 0 identical: {same}; {held:.1%} held at trial 0)"
         )
-        for k, values in rates.items():
+        for name, values in rates.items():
             run.figure(
-                f"candidates_per_cpu_s_k{k}",
+                f"candidates_per_cpu_s_k{name}",
                 float(np.median(values)),
                 "1/CPU-s",
                 spread=(min(values), max(values)),

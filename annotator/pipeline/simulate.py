@@ -94,7 +94,7 @@ def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) ->
         rest = None if rest_quats is None else rest_quats[k]
         trial, placement = placed.trial_for(T, None if placements is None else int(placements[k]), rest)
         run_T = placed.grasp(rest, T)
-        result = _run_trials(trial, run_T, width_expected, config, seed, trials, object_id, grasp_id)
+        result = _run_trials(trial, run_T, width_expected, seed, trials, object_id, grasp_id)
         rows.append(
             label_row(
                 placed.mode,
@@ -127,7 +127,6 @@ def _run_trials(
     trial: GraspTrial,
     T: Transform,
     width_expected: float,
-    config: AnnotatorConfig,
     seed: int,
     trials: int,
     object_id: str,

@@ -23,7 +23,7 @@ import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +31,8 @@ from annotator.config import AnnotatorConfig
 
 if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` stays fast
     import pandas as pd
+
+    from annotator.confidence import Mapping, Measure
 
 log = logging.getLogger(__name__)
 
@@ -406,12 +408,12 @@ class ConfidenceFit:
     always predicting the real success rate; ``bins``: the held-out reliability table.
     """
 
-    mapping: object  # annotator.confidence.Mapping
+    mapping: Mapping
     score: np.ndarray
     p_cv: np.ndarray
-    brier: object
-    auc_score: object
-    auc_p: object
+    brier: Measure
+    auc_score: Measure
+    auc_p: Measure
     base_brier: float
     bins: list
     fitted_brier: float = float("nan")  # on the trials it was fitted on (no cross-validation)
@@ -421,10 +423,9 @@ class ConfidenceFit:
         ``perturbed_shake``: the scores' perturbed trials shook (``[robust] shake``)."""
         from annotator.config import ConfidenceConfig
 
-        m: Any = self.mapping  # annotator.confidence.Mapping
+        m = self.mapping
         used = [b for b in self.bins if b.n > 0]
-        measured: Any = self.brier  # annotator.confidence.Measure
-        brier = measured.value if np.isfinite(measured.value) else self.fitted_brier
+        brier = self.brier.value if np.isfinite(self.brier.value) else self.fitted_brier
         return ConfidenceConfig(
             method="isotonic",
             trials=m.trials,
