@@ -350,6 +350,9 @@ class RobustConfig(_Section):
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
     approach_from_contact: bool = True
+    # true: a lift-only perturbed trial's close ends once the drive moved <= the stall speed's travel
+    # over stall_steps steps (docs/decisions/0023-perturbed-close-stalls-by-travel.md)
+    stall_by_travel: bool = True
 
     def over(self, gripper: Mapping[str, float]) -> RobustConfig:
         """These ranges over a gripper's own (its description's ``[robust]`` table): a field a
@@ -641,7 +644,8 @@ class AnnotatorConfig:
         1`` (no perturbed trial) and when true (their perturbed trials shook), so such a folder
         resumes, and one whose perturbed trials shook never resumes as one whose end at the lift.
         ``[robust] approach_from_contact`` likewise, wherever it changes nothing: at ``--trials 1``,
-        with shaken perturbed trials, or without a simulated approach.
+        with shaken perturbed trials, or without a simulated approach; ``[robust] stall_by_travel``
+        at ``--trials 1`` and with shaken perturbed trials.
         """
         data = dataclasses.asdict(self)
         if not scenes:
@@ -652,6 +656,7 @@ class AnnotatorConfig:
             lift_only = trials != 1 and not self.robust.shake  # perturbed trials that end at the lift
             if not lift_only:
                 data["robust"].pop("shake")
+                data["robust"].pop("stall_by_travel")
             if not (lift_only and self.protocol.approach == "simulated"):
                 data["robust"].pop("approach_from_contact")
         return data
@@ -659,14 +664,17 @@ class AnnotatorConfig:
     @classmethod
     def from_run(cls, data: Any, trials: int) -> AnnotatorConfig:
         """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``):
-        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook, and
-        one without ``approach_from_contact`` one whose simulated approaches ran in full."""
+        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook, one
+        without ``approach_from_contact`` one whose simulated approaches ran in full, and one
+        without ``stall_by_travel`` one whose closes stalled by the drive's speed alone."""
         if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
             robust = {"shake": True, **data["robust"]}
             protocol = data.get("protocol")
             simulated = isinstance(protocol, dict) and protocol.get("approach") == "simulated"
-            if simulated and robust["shake"] is False:
-                robust.setdefault("approach_from_contact", False)
+            if robust["shake"] is False:
+                robust.setdefault("stall_by_travel", False)
+                if simulated:
+                    robust.setdefault("approach_from_contact", False)
             data = {**data, "robust": robust}
         return cls.from_dict(data)
 

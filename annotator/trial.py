@@ -333,8 +333,9 @@ class GraspTrial:
         another :class:`GraspTrial` of the same body reading its nominal dynamics) then finds the
         object as ``--trials 1`` leaves it, so trial 0 is the same whatever K. A perturbed trial
         shakes only when its ranges say so (``RobustConfig.shake``); otherwise it ends after the
-        lift, judged there as after a shake, and its simulated approach (if any) starts near the
-        first contact (``RobustConfig.approach_from_contact``).
+        lift, judged there as after a shake, its simulated approach (if any) starts near the
+        first contact (``RobustConfig.approach_from_contact``) and its close ends when the drive
+        stalls by travel as well as by speed (``RobustConfig.stall_by_travel``).
         """
         if perturbation is None:
             return self._run(T_obj_tcp, width_expected, Perturbation.none(), self.shake)
@@ -342,9 +343,11 @@ class GraspTrial:
             self.world.before_step = _OffsetMass(self, perturbation)
         try:
             robust = self.robust
-            from_contact = not robust.shake and robust.approach_from_contact
+            lift_only = not robust.shake
+            from_contact = lift_only and robust.approach_from_contact
             shake = self.shake and robust.shake
-            return self._run(T_obj_tcp, width_expected, perturbation, shake, from_contact)
+            by_travel = lift_only and robust.stall_by_travel
+            return self._run(T_obj_tcp, width_expected, perturbation, shake, from_contact, by_travel)
         finally:
             self.world.before_step = None
             self._apply(Perturbation.none())
@@ -356,10 +359,12 @@ class GraspTrial:
         perturbation: Perturbation,
         shake: bool | None = None,
         from_contact: bool = False,
+        stall_by_travel: bool = False,
     ) -> TrialResult:
         """:meth:`run` with the perturbation applied (its dynamics left as they were set);
         ``shake``: False ends the trial after the lift (None: this trial's ``shake``);
-        ``from_contact``: a simulated approach starts near the first contact (:meth:`_approach`)."""
+        ``from_contact``: a simulated approach starts near the first contact (:meth:`_approach`);
+        ``stall_by_travel``: the close may end by the drive's travel (:meth:`FloatingGripper.close`)."""
         shake = self.shake if shake is None else shake
         self.world.restore_state(self.state)
         self._apply(perturbation)
@@ -387,7 +392,9 @@ class GraspTrial:
             if start_width < open_width and self._intersects():
                 self.hand.teleport(T_world_base, open_width)
         self.world.set_gravity(self.resting)
-        self.hand.close(force=force, max_steps=round(cfg.close_timeout / self.world.dt))
+        self.hand.close(
+            force=force, max_steps=round(cfg.close_timeout / self.world.dt), stall_by_travel=stall_by_travel
+        )
         width = self.hand.gripper.measured_width()
         T_obj_tcp_closed = (
             self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.gripper.T_base_tcp(width)

@@ -38,8 +38,10 @@ line both inside a friction cone) and the RG2; per object; the folds; and the ro
 calibrated simulation and reality disagree.
 
 ``--cost`` also times the Panda's evaluate at ``--trials 1`` and (with lift-only perturbed trials)
-at ``--trials K`` with the perturbed approaches in full, one after another: CPU seconds of the
-command and its workers, and their ratios to ``--trials 1`` (run it on a quiet machine).
+at ``--trials K`` with the perturbed closes stalled by speed alone, and with the perturbed trials
+run as trial 0 up to the lift (approaches in full, closes stalled by speed), one after another:
+CPU seconds of the command and its workers, and their ratios to ``--trials 1`` (run it on a quiet
+machine).
 """
 
 from __future__ import annotations
@@ -320,7 +322,8 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         "--cost",
         action="store_true",
         help="also time the Panda's evaluate at --trials 1 and (lift-only perturbed trials) at --trials K "
-        "with the perturbed approaches in full: CPU seconds and ratios, one after another",
+        "with the perturbed closes stalled by speed alone and with the perturbed trials as trial 0 up to the "
+        "lift: CPU seconds and ratios, one after another",
     )
     ap.add_argument(
         "--pad-spinning-friction",
@@ -399,31 +402,40 @@ def execution_config(
 EXECUTION = {"approach_speed": 0.1, "lift_duration": 0.5}
 
 
+# --cost's runs at --trials K with the perturbed trials' shortcuts off: (name, [robust] lines, note)
+COST_VARIANTS = (
+    ("by_speed", "stall_by_travel = false", "the perturbed closes stalled by the drive's speed alone"),
+    (
+        "in_full",
+        "approach_from_contact = false\nstall_by_travel = false",
+        "the perturbed approaches in full and their closes stalled by speed alone (trial 0's protocol)",
+    ),
+)
+
+
 def evaluate_cost(
     run: Run, prepared: Prepared, args, config: Path, cpu_k: float, rows_k: pd.DataFrame
 ) -> None:
     """The Panda's evaluate at ``--trials 1`` and, with lift-only perturbed trials, at ``--trials
-    K`` with their approaches in full (``[robust] approach_from_contact = false``), after the run
-    at K that took ``cpu_k`` CPU-s and gave ``rows_k``: each one's CPU seconds (the command and its
-    workers) and their ratios to ``--trials 1``, and how many scores the approaches in full
-    change, recorded."""
+    K`` with their shortcuts off (:data:`COST_VARIANTS`), after the run at K that took ``cpu_k``
+    CPU-s and gave ``rows_k``: each one's CPU seconds (the command and its workers) and their
+    ratios to ``--trials 1``, and how many scores each variant changes, recorded."""
     k, work = args.trials, args.work
     cpu = {f"k{k}": cpu_k}
     before = children_cpu()
     evaluate(prepared, work / "ev_cost_k1", "panda", "base", args.workers, config, 1)
     cpu["k1"] = children_cpu() - before
-    if not args.perturbed_shake:
-        in_full = work / "execution_in_full.toml"
-        in_full.write_text(config.read_text() + "[robust]\napproach_from_contact = false\n")
+    for variant, lines, what in COST_VARIANTS if not args.perturbed_shake else ():
+        toml = work / f"execution_{variant}.toml"
+        toml.write_text(config.read_text() + f"[robust]\n{lines}\n")
         before = children_cpu()
-        full = evaluate(prepared, work / "ev_cost_in_full", "panda", "base", args.workers, in_full, k)
-        cpu[f"k{k}_in_full"] = children_cpu() - before
-        diff = rows_k["score"].to_numpy() - full["score"].to_numpy()
+        rows = evaluate(prepared, work / f"ev_cost_{variant}", "panda", "base", args.workers, toml, k)
+        cpu[f"k{k}_{variant}"] = children_cpu() - before
+        diff = rows_k["score"].to_numpy() - rows["score"].to_numpy()
         changed = int(np.sum(diff != 0))
-        note = "grasps whose score the perturbed approaches in full change"
-        run.figure("scores_changed_by_approach_in_full", changed, note=note)
-        run.figure("score_minus_in_full_mean", float(np.mean(diff)), note="over all grasps")
-        print(f"approaches in full: {changed} of {len(diff)} scores change, mean {np.mean(diff):+.3f}")
+        run.figure(f"scores_changed_vs_{variant}", changed, note=f"grasps whose score differs with {what}")
+        run.figure(f"score_minus_{variant}_mean", float(np.mean(diff)), note="over all grasps")
+        print(f"{what}: {changed} of {len(diff)} scores change, mean {np.mean(diff):+.3f}")
     for name, seconds in cpu.items():
         note = "the Panda's evaluate, the command and its workers"
         run.figure(f"evaluate_cpu_s_{name}", seconds, "CPU-s", note=note)

@@ -13,10 +13,11 @@ label). Where the extra time goes: the physics steps of all K trials (``sim_step
 0's, overall and by trial 0's outcome (a ``collision`` runs no perturbed trial; a candidate that
 holds runs every perturbed trial through close and lift, and through the shake with ``[robust]
 shake = true``). The same K is also run with the perturbed trials shaken (``--no-shaken`` skips
-it): its cost, and how its scores differ from the default's on the same candidates. With a
+it): its cost, and how its scores differ from the default's on the same candidates; and with the
+perturbed closes stalled by the drive's speed alone (``[robust] stall_by_travel = false``). With a
 simulated approach (``--config`` setting ``[protocol] approach = "simulated"``), the same K is also
-run with the perturbed trials' approaches in full (``[robust] approach_from_contact = false``; its
-cost, and the scores against it). Prints figures and writes a record (bench/harness.py); asserts
+run with the perturbed trials' approaches in full as well (``[robust] approach_from_contact =
+false``; its cost, and the scores against it). Prints figures and writes a record (bench/harness.py); asserts
 nothing.
 """
 
@@ -75,12 +76,14 @@ def main() -> None:
     if not args.no_shaken:
         shaken = dataclasses.replace(config, robust=dataclasses.replace(config.robust, shake=True))
         variants.append((k, shaken, f"{k}_shaken", " (perturbed shaken)"))
+    by_speed = dataclasses.replace(config, robust=dataclasses.replace(config.robust, stall_by_travel=False))
+    variants.append((k, by_speed, f"{k}_by_speed", " (perturbed closes stalled by speed alone)"))
     simulated = config.protocol.approach == "simulated"
     if simulated:
         in_full = dataclasses.replace(
-            config, robust=dataclasses.replace(config.robust, approach_from_contact=False)
+            by_speed, robust=dataclasses.replace(by_speed.robust, approach_from_contact=False)
         )
-        variants.append((k, in_full, f"{k}_in_full", " (perturbed approach in full)"))
+        variants.append((k, in_full, f"{k}_in_full", " (perturbed approach in full, stalled by speed)"))
     rates: dict[str, list[float]] = {name: [] for _, _, name, _ in variants}
     rows: dict[str, pd.DataFrame] = {}
     settings = vars(args) | {"objects": args.objects.name, "config": config.to_dict(trials=args.trials)}
@@ -122,8 +125,10 @@ def main() -> None:
         run.table("steps_by_outcome", steps_by_outcome(one, many, args.trials))
         if not args.no_shaken:
             compare(run, rows, rates, args.trials, "shaken", "with the perturbed trials shaken")
+        compare(run, rows, rates, args.trials, "by_speed", "with the perturbed closes stalled by speed alone")
         if simulated:
-            compare(run, rows, rates, args.trials, "in_full", "with the perturbed trials' approaches in full")
+            what = "with the perturbed trials' approaches in full and closes stalled by speed"
+            compare(run, rows, rates, args.trials, "in_full", what)
 
 
 def compare(

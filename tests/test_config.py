@@ -86,7 +86,7 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     lift = AnnotatorConfig()
     shaken = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, shake=True))
     old = lift.to_dict()
-    for name in ("shake", "approach_from_contact"):  # what a folder of an earlier version bound
+    for name in ("shake", "approach_from_contact", "stall_by_travel"):  # an earlier version's folder
         old["robust"].pop(name)
 
     def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
@@ -97,7 +97,10 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
 
     assert spec(lift, 1).differences(recorded(1)) == []
     assert spec(shaken, 5).differences(recorded(5)) == []
-    assert spec(lift, 5).differences(recorded(5)) == ["[robust] shake None in the folder, False now"]
+    assert spec(lift, 5).differences(recorded(5)) == [
+        "[robust] shake None in the folder, False now",
+        "[robust] stall_by_travel None in the folder, True now",
+    ]
     # read back from a manifest: what the run simulated
     for config in (lift, shaken):
         assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
@@ -172,3 +175,37 @@ def test_scale_must_be_finite_and_positive(tmp_path, scale):
     )
     assert result.exit_code == 2, result.output
     assert "--scale" in result.output and "finite number > 0" in result.output
+
+
+def test_a_run_binds_stall_by_travel_only_where_it_changes_the_scores():
+    """``[robust] stall_by_travel`` is in a run's manifest only past one trial with lift-only
+    perturbed trials, whatever the approach. A folder made before the field (its perturbed closes
+    stalled by speed alone) never resumes as a run whose closes stall by travel, and reads back as
+    what it simulated; a folder of ``--trials 1`` or of shaken perturbed trials resumes as before."""
+    from annotator.store.manifest import RunSpec
+
+    lift = AnnotatorConfig()
+    simulated = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated"}})
+    by_speed = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, stall_by_travel=False))
+    shaken = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, shake=True))
+
+    def before(config: AnnotatorConfig, trials: int) -> dict:
+        """What a folder made before the field bound for ``config``."""
+        data = config.to_dict(trials=trials)
+        data["robust"].pop("stall_by_travel", None)
+        return RunSpec(0, 5, trials, None, 5, data).to_json()
+
+    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
+        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
+
+    for config, trials in ((lift, 1), (shaken, 5)):
+        assert "stall_by_travel" not in config.to_dict(trials=trials)["robust"]
+        assert spec(config, trials).differences(before(config, trials)) == []
+    for config in (lift, simulated):
+        assert spec(config, 5).differences(before(config, 5)) == [
+            "[robust] stall_by_travel None in the folder, True now"
+        ]
+    # read back from a manifest: what the run simulated
+    for config in (lift, simulated, by_speed, shaken):
+        assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
+    assert AnnotatorConfig.from_run(before(lift, 5)["config"], 5) == by_speed

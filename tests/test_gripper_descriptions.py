@@ -182,6 +182,7 @@ def test_a_gripper_s_robust_table_sits_between_the_defaults_and_the_run_s_config
         # the perturbed trials' protocol is the run's, not a gripper's range
         ("shake = true", "unknown key [robust] shake"),
         ("approach_from_contact = false", "unknown key [robust] approach_from_contact"),
+        ("stall_by_travel = false", "unknown key [robust] stall_by_travel"),
     ],
 )
 def test_a_broken_robust_table_is_one_line_naming_the_field(my_rg2, table, fragment):

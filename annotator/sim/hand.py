@@ -130,18 +130,30 @@ class FloatingGripper:
     # --- motion --------------------------------------------------------------------------------
 
     def close(
-        self, *, force: float | None = None, max_steps: int, on_step: Callable[[], None] | None = None
+        self,
+        *,
+        force: float | None = None,
+        max_steps: int,
+        on_step: Callable[[], None] | None = None,
+        stall_by_travel: bool = False,
     ) -> int:
         """Close with squeeze ``force`` (N per pad; None: the run's grip force) until the fingers
-        stall or ``max_steps``; ``on_step()`` runs after every step. Returns steps used."""
+        stall or ``max_steps``; ``on_step()`` runs after every step. Returns steps used.
+
+        Stalled: the drive slower than ``stall_fraction x close_speed`` for ``stall_steps`` steps
+        in a row, or with ``stall_by_travel`` also (whichever comes first) its travel over the last
+        ``stall_steps`` steps no more than that speed covers in that time: fingers that chatter
+        about where they squeeze stall too (docs/decisions/0023)."""
         force = self.grip_force if force is None else force
         stalled = 0
         gripper = self.gripper
         velocity = gripper.close_velocity
         stall_speed = self.config.stall_fraction * gripper.settings.close_speed
         stall_steps = self.config.stall_steps
+        stall_travel = stall_speed * stall_steps * self.world.dt if stall_by_travel else -1.0
         uid, index, client = self.uid, self.body.joints[gripper.driven].index, self.client
         angle = pb.getJointState(uid, index, physicsClientId=client)[0]
+        angles = [angle] * stall_steps  # ring: the drive's angle stall_steps steps ago at step % n
         for step in range(1, max_steps + 1):
             gripper.command(velocity, force, angle)
             self.world.step()
@@ -151,6 +163,10 @@ class FloatingGripper:
             stalled = stalled + 1 if abs(speed) < stall_speed else 0
             if stalled >= stall_steps:
                 return step
+            slot = step % stall_steps
+            if step >= stall_steps and abs(angle - angles[slot]) <= stall_travel:
+                return step
+            angles[slot] = angle
         return max_steps
 
     def _follow(
