@@ -267,3 +267,44 @@ def test_perturbed_approaches_from_the_contact_push_and_stop_as_in_full(box, tmp
         assert (near["sim_steps"] < full["sim_steps"]).all(), (near["sim_steps"], full["sim_steps"])
         scores += near["score"].tolist()
     assert min(scores) < 1.0  # some perturbed trials failed: the scores compared say something
+
+
+@pytest.mark.slow
+def test_perturbed_closes_that_stall_by_travel_keep_the_scores_in_fewer_steps(box, tmp_path) -> None:
+    """``--trials 5`` with the Panda on resting objects, where its fingers chatter in place as they
+    squeeze: a ball taken from the top with the default (teleported) approach and the box with a
+    simulated one. The perturbed closes that also stall by the drive's travel (``[robust]
+    stall_by_travel``, the default) end sooner than those stalled by speed alone, every candidate
+    in fewer steps, with the same outcomes and scores; trial 0 is the same to the bit."""
+    import trimesh
+
+    folder = tmp_path / "ball"
+    folder.mkdir()
+    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
+        folder / "ball.obj"
+    )
+    (ball,) = discover_objects(folder)
+    off_centre = _pose(FROM_TOP, 0.030)
+    off_centre[1, 3] = 0.008
+    cases = [
+        (AnnotatorConfig(), ball, [_pose(FROM_TOP, 0.030), off_centre], 0.080),
+        (SIMULATED, box, [_pose(FROM_TOP, 0.005), _pose(FROM_TOP, 0.030)], 0.060),
+    ]
+    for config, source, poses, width in cases:
+        assert config.robust.stall_by_travel
+        speed_only = dataclasses.replace(config.robust, stall_by_travel=False)
+        by_speed = dataclasses.replace(config, robust=speed_only)
+        T = np.array(poses)
+        span = GivenSpan(
+            source.object_id, source, None, T, np.full(len(T), width), np.arange(len(T)), None,
+            np.tile(UPRIGHT, (len(T), 1)),
+        )  # fmt: skip
+        travel, error = simulate_given(span, config, trials=5, gripper="panda", resting=True)
+        assert error is None, error
+        speed, error = simulate_given(span, by_speed, trials=5, gripper="panda", resting=True)
+        assert error is None, error
+        assert (travel["outcome"] == "success").all(), travel["outcome"]
+        trial0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
+        pd.testing.assert_frame_equal(travel[trial0], speed[trial0], check_exact=True)
+        assert travel["score"].tolist() == speed["score"].tolist()
+        assert (travel["sim_steps"] < speed["sim_steps"]).all(), (travel["sim_steps"], speed["sim_steps"])
