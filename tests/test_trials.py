@@ -256,11 +256,14 @@ def test_a_perturbed_trial_in_the_shared_world_equals_it_in_a_fresh_world(brick)
 
 def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
     """``[robust] shake`` false (the default): a perturbed trial is trial 0's protocol up to the
-    lift and judged there, to the bit the trial of a gripper that never shakes; true: it shakes
-    as trial 0 does. Trial 0 shakes either way."""
+    lift and judged there, to the bit the trial of a gripper that never shakes where its close
+    stalls by speed as trial 0's (``[robust] stall_by_travel = false``), and the same outcome
+    no later when it also stalls by travel (the default); true: it shakes as trial 0 does. Trial 0
+    shakes either way."""
     _, model, cands = brick
     assert CONFIG.robust.shake is False
     shaking = dataclasses.replace(CONFIG, robust=dataclasses.replace(CONFIG.robust, shake=True))
+    by_speed = dataclasses.replace(CONFIG, robust=dataclasses.replace(CONFIG.robust, stall_by_travel=False))
     nothing = Perturbation(Transform.identity(), 0.0, 1.0)  # a perturbed trial that changes nothing
     heavy = Perturbation(Transform.identity(), 0.0, 200.0)  # too heavy: it slides out on the lift
     with World(CONFIG.physics) as world:
@@ -268,6 +271,7 @@ def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
         uid = trial.obj
         never = GraspTrial(world, trial.hand, uid, CONFIG, shake=False)
         both = GraspTrial(world, trial.hand, uid, shaking)
+        speed = GraspTrial(world, trial.hand, uid, by_speed)
         k = next(
             i
             for i in range(len(cands))
@@ -275,13 +279,15 @@ def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
             == Outcome.SUCCESS
         )
         T, w = Transform.from_matrix(cands.T_obj_tcp[k]), cands.width_expected[k]
-        first, lifted, unshaken = trial.run(T, w), trial.run(T, w, nothing), never.run(T, w)
+        first, lifted, unshaken = trial.run(T, w), speed.run(T, w, nothing), never.run(T, w)
         shaken = both.run(T, w, nothing)
+        by_travel = trial.run(T, w, nothing)
         slid = trial.run(T, w, heavy)
-        for t in (trial, never, both):
+        for t in (trial, never, both, speed):
             t.close()
-    assert first.outcome == lifted.outcome == shaken.outcome == Outcome.SUCCESS
+    assert first.outcome == lifted.outcome == shaken.outcome == by_travel.outcome == Outcome.SUCCESS
     assert _same(lifted, unshaken) and _same(shaken, first), (lifted, unshaken, shaken, first)
+    assert by_travel.steps <= lifted.steps and abs(by_travel.width - lifted.width) < 2e-4, (by_travel, lifted)
     shake_steps = round(CONFIG.protocol.shake_duration / CONFIG.physics.time_step)
     assert first.steps - lifted.steps >= shake_steps - CONFIG.protocol.check_every, (first, lifted)
     assert slid.outcome == Outcome.SLIPPED_LIFT
@@ -290,8 +296,8 @@ def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
 @pytest.mark.slow
 def test_a_light_object_s_perturbed_trial_ends_at_the_lift_at_its_own_step(tmp_path):
     """A 20 g plate, simulated at its finer step (annotator.objects.physics_for): a perturbed trial
-    that changes nothing is, to the bit, the trial of a gripper that never shakes, and it is shorter
-    than trial 0 by the shake's steps at that step."""
+    that changes nothing, its close stalled by speed as trial 0's, is, to the bit, the trial of a
+    gripper that never shakes, and it is shorter than trial 0 by the shake's steps at that step."""
     path = tmp_path / "plate.obj"
     trimesh.creation.box((0.06, 0.04, 0.016)).export(path)
     model = load_object(ObjectSource("plate", path), CONFIG.objects)
@@ -302,6 +308,8 @@ def test_a_light_object_s_perturbed_trial_ends_at_the_lift_at_its_own_step(tmp_p
     with World(physics) as world:
         trial = _brick_trial(world, model, CONFIG)
         never = GraspTrial(world, trial.hand, trial.obj, CONFIG, shake=False)
+        by_speed = dataclasses.replace(CONFIG.robust, stall_by_travel=False)
+        speed = GraspTrial(world, trial.hand, trial.obj, dataclasses.replace(CONFIG, robust=by_speed))
         held = [
             i
             for i in range(len(cands))
@@ -310,9 +318,9 @@ def test_a_light_object_s_perturbed_trial_ends_at_the_lift_at_its_own_step(tmp_p
         ]
         assert held
         T, w = Transform.from_matrix(cands.T_obj_tcp[held[0]]), cands.width_expected[held[0]]
-        first, lifted, unshaken = trial.run(T, w), trial.run(T, w, nothing), never.run(T, w)
-        trial.close()
-        never.close()
+        first, lifted, unshaken = trial.run(T, w), speed.run(T, w, nothing), never.run(T, w)
+        for t in (trial, never, speed):
+            t.close()
     assert lifted.outcome == first.outcome == Outcome.SUCCESS and _same(lifted, unshaken), (lifted, unshaken)
     shake_steps = round(CONFIG.protocol.shake_duration / physics.time_step)
     assert first.steps - lifted.steps >= shake_steps - CONFIG.protocol.check_every, (first, lifted)
