@@ -353,6 +353,9 @@ class RobustConfig(_Section):
     # true: a lift-only perturbed trial's close ends once the drive moved <= the stall speed's travel
     # over stall_steps steps (docs/decisions/0023-perturbed-close-stalls-by-travel.md)
     stall_by_travel: bool = True
+    # true: after such an approach from the contact, the fingers start near what they touch if the object
+    # is at rest (docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md)
+    fingers_from_contact: bool = True
 
     def over(self, gripper: Mapping[str, float]) -> RobustConfig:
         """These ranges over a gripper's own (its description's ``[robust]`` table): a field a
@@ -644,8 +647,9 @@ class AnnotatorConfig:
         1`` (no perturbed trial) and when true (their perturbed trials shook), so such a folder
         resumes, and one whose perturbed trials shook never resumes as one whose end at the lift.
         ``[robust] approach_from_contact`` likewise, wherever it changes nothing: at ``--trials 1``,
-        with shaken perturbed trials, or without a simulated approach; ``[robust] stall_by_travel``
-        at ``--trials 1`` and with shaken perturbed trials.
+        with shaken perturbed trials, or without a simulated approach, and ``[robust]
+        fingers_from_contact`` with it; ``[robust] stall_by_travel`` at ``--trials 1`` and with
+        shaken perturbed trials.
         """
         data = dataclasses.asdict(self)
         if not scenes:
@@ -659,6 +663,7 @@ class AnnotatorConfig:
                 data["robust"].pop("stall_by_travel")
             if not (lift_only and self.protocol.approach == "simulated"):
                 data["robust"].pop("approach_from_contact")
+                data["robust"].pop("fingers_from_contact")
         return data
 
     @classmethod
@@ -666,7 +671,8 @@ class AnnotatorConfig:
         """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``):
         past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook, one
         without ``approach_from_contact`` one whose simulated approaches ran in full, and one
-        without ``stall_by_travel`` one whose closes stalled by the drive's speed alone."""
+        without ``stall_by_travel`` one whose closes stalled by the drive's speed alone, and one
+        without ``fingers_from_contact`` one whose fingers closed from where the approach left them."""
         if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
             robust = {"shake": True, **data["robust"]}
             protocol = data.get("protocol")
@@ -675,6 +681,7 @@ class AnnotatorConfig:
                 robust.setdefault("stall_by_travel", False)
                 if simulated:
                     robust.setdefault("approach_from_contact", False)
+                    robust.setdefault("fingers_from_contact", False)
             data = {**data, "robust": robust}
         return cls.from_dict(data)
 

@@ -45,6 +45,12 @@ APPROACH_HOLD = 0.1
 # and the lead is at least one sweep increment, so a contact between increments is never skipped.
 # docs/decisions/0022-perturbed-approach-from-contact.md measures it.
 APPROACH_LEAD = 0.01
+# m/s and rad/s under which the object counts as at rest after a perturbed trial's approach from
+# the contact: an object at rest stays so while the fingers travel through free space, so they may
+# start near it (GraspTrial._preclose); one the approach set moving is closed on from where it is.
+# docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md measures it.
+REST_SPEED = 1e-3
+REST_SPIN = 1e-2
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,6 +148,30 @@ class TrialResult:
     steps: int  # simulated steps used
     slip: float  # m, object displacement in the hand from grasp to end (nan if not held)
     check: CollisionCheck | None = None  # the kinematic check the trial began with
+
+
+@dataclass(frozen=True)
+class TrialPlan:
+    """Which stages one trial runs and how: trial 0's protocol, or a perturbed trial's
+    (:meth:`perturbed`, from ``RobustConfig``; docs/protocol.md, "Robust labels")."""
+
+    shake: bool  # shaken after the lift (False: judged after the lift)
+    approach_from_contact: bool = False  # a simulated approach starts near the first contact
+    stall_by_travel: bool = False  # the close also ends by the drive's travel (FloatingGripper.close)
+    fingers_from_contact: bool = False  # after such an approach, fingers start near an object at rest
+
+    @classmethod
+    def perturbed(cls, robust: RobustConfig, shake: bool) -> TrialPlan:
+        """A perturbed trial's plan in a trial whose own ``shake`` is ``shake``: lift-only unless
+        ``robust.shake``, with the shortcuts ``robust`` allows a lift-only trial."""
+        lift_only = not robust.shake
+        from_contact = lift_only and robust.approach_from_contact
+        return cls(
+            shake=shake and robust.shake,
+            approach_from_contact=from_contact,
+            stall_by_travel=lift_only and robust.stall_by_travel,
+            fingers_from_contact=from_contact and robust.fingers_from_contact,
+        )
 
 
 class GraspTrial:
@@ -302,6 +332,35 @@ class GraspTrial:
         hand.approach(T_world_base, steps, p.approach_force, hand.gripper.table.angle_of(open_width), hold)
         return CollisionCheck(False, open_width)
 
+    def _at_rest(self) -> bool:
+        """Is the object still (below ``REST_SPEED`` and ``REST_SPIN``)?"""
+        v, w = pb.getBaseVelocity(self.obj, physicsClientId=self.client)
+        return bool(np.linalg.norm(v) < REST_SPEED and np.linalg.norm(w) < REST_SPIN)
+
+    def _preclose(self) -> None:
+        """After a perturbed trial's simulated approach from the contact, the object at rest: the
+        fingers, where the approach left them, are moved in (at rest) by ``2 x preclose_gap`` of
+        width at a time while they touch nothing, and kept at the last width that touches nothing,
+        as the teleported approach starts them ``preclose_gap`` outside the chord. Fingers that
+        already touch something at the first such width are left exactly as they were."""
+        g, uid, client = self.hand.gripper, self.hand.uid, self.client
+        step = 2 * self.config.protocol.preclose_gap
+        joints = range(pb.getNumJoints(uid, physicsClientId=client))
+        before = [s[:2] for s in pb.getJointStates(uid, joints, physicsClientId=client)]
+        width = g.measured_width()
+        free = None
+        while step > 0 and width - step > 0:
+            g.reset_width(width - step)
+            if self._what_is_hit(skip_pads=False) is not None:
+                break
+            width -= step
+            free = width
+        if free is None:
+            for j, (position, velocity) in zip(joints, before, strict=True):
+                pb.resetJointState(uid, j, position, velocity, physicsClientId=client)
+        else:
+            g.reset_width(free)
+
     def _what_is_hit(self, skip_pads: bool) -> int | None:
         """The body the gripper as posed touches: the object first, then any obstacle; None."""
         if self._intersects(skip_pads=skip_pads):
@@ -334,20 +393,17 @@ class GraspTrial:
         object as ``--trials 1`` leaves it, so trial 0 is the same whatever K. A perturbed trial
         shakes only when its ranges say so (``RobustConfig.shake``); otherwise it ends after the
         lift, judged there as after a shake, its simulated approach (if any) starts near the
-        first contact (``RobustConfig.approach_from_contact``) and its close ends when the drive
+        first contact (``RobustConfig.approach_from_contact``), its fingers then start near an
+        object at rest (``RobustConfig.fingers_from_contact``), and its close ends when the drive
         stalls by travel as well as by speed (``RobustConfig.stall_by_travel``).
         """
         if perturbation is None:
-            return self._run(T_obj_tcp, width_expected, Perturbation.none(), self.shake)
+            return self._run(T_obj_tcp, width_expected, Perturbation.none(), TrialPlan(self.shake))
         if np.any(perturbation.com_offset):
             self.world.before_step = _OffsetMass(self, perturbation)
         try:
-            robust = self.robust
-            lift_only = not robust.shake
-            from_contact = lift_only and robust.approach_from_contact
-            shake = self.shake and robust.shake
-            by_travel = lift_only and robust.stall_by_travel
-            return self._run(T_obj_tcp, width_expected, perturbation, shake, from_contact, by_travel)
+            plan = TrialPlan.perturbed(self.robust, self.shake)
+            return self._run(T_obj_tcp, width_expected, perturbation, plan)
         finally:
             self.world.before_step = None
             self._apply(Perturbation.none())
@@ -357,15 +413,11 @@ class GraspTrial:
         T_obj_tcp: Transform,
         width_expected: float,
         perturbation: Perturbation,
-        shake: bool | None = None,
-        from_contact: bool = False,
-        stall_by_travel: bool = False,
+        plan: TrialPlan | None = None,
     ) -> TrialResult:
-        """:meth:`run` with the perturbation applied (its dynamics left as they were set);
-        ``shake``: False ends the trial after the lift (None: this trial's ``shake``);
-        ``from_contact``: a simulated approach starts near the first contact (:meth:`_approach`);
-        ``stall_by_travel``: the close may end by the drive's travel (:meth:`FloatingGripper.close`)."""
-        shake = self.shake if shake is None else shake
+        """:meth:`run` with the perturbation applied (its dynamics left as they were set), the
+        stages ``plan`` says (None: trial 0's)."""
+        plan = TrialPlan(self.shake) if plan is None else plan
         self.world.restore_state(self.state)
         self._apply(perturbation)
         com_world = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)[0]
@@ -373,7 +425,7 @@ class GraspTrial:
         steps0 = self.world.steps
         cfg, force = self.config.protocol, self.hand.grip_force * perturbation.force_scale
         if cfg.approach == "simulated":
-            check = self._approach(T_obj_tcp, width_expected, from_contact)
+            check = self._approach(T_obj_tcp, width_expected, plan.approach_from_contact)
         else:
             check = self.collides(T_obj_tcp, width_expected)
         open_width = check.open_width
@@ -383,8 +435,11 @@ class GraspTrial:
         # 2. close (gravity off on a free object, on for a resting one). The fingers' travel
         # through free space has no effect but time, so they start preclose_gap outside the
         # expected chord, unless the gripper intersects the object there (a feature inside the
-        # chord): then fully open. After a simulated approach they close from where they are.
-        if cfg.approach != "simulated":
+        # chord): then fully open. After a simulated approach they close from where they are,
+        # unless the plan moves them in first over an object at rest (_preclose).
+        if cfg.approach == "simulated" and plan.fingers_from_contact and self._at_rest():
+            self._preclose()
+        elif cfg.approach != "simulated":
             T_world_tcp = self._T_world_obj() * T_obj_tcp
             T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
             start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
@@ -392,9 +447,8 @@ class GraspTrial:
             if start_width < open_width and self._intersects():
                 self.hand.teleport(T_world_base, open_width)
         self.world.set_gravity(self.resting)
-        self.hand.close(
-            force=force, max_steps=round(cfg.close_timeout / self.world.dt), stall_by_travel=stall_by_travel
-        )
+        max_steps = round(cfg.close_timeout / self.world.dt)
+        self.hand.close(force=force, max_steps=max_steps, stall_by_travel=plan.stall_by_travel)
         width = self.hand.gripper.measured_width()
         T_obj_tcp_closed = (
             self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.gripper.T_base_tcp(width)
@@ -419,7 +473,7 @@ class GraspTrial:
 
         # 5. shake
         lost = self._loss_monitor(grasped_at)
-        if shake:
+        if plan.shake:
             self.hand.shake(ShakeMotion.of(cfg), force=force, on_step=lost)
         if lost.lost:  # the object left the pads: no settling can bring it back
             return result(Outcome.SLIPPED_SHAKE, self._slip(grasped_at))
@@ -429,7 +483,7 @@ class GraspTrial:
             self.world.step()
         slip = self._slip(grasped_at)
         if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
-            return result(Outcome.SLIPPED_SHAKE if shake else Outcome.SLIPPED_LIFT, slip)
+            return result(Outcome.SLIPPED_SHAKE if plan.shake else Outcome.SLIPPED_LIFT, slip)
         return result(Outcome.SUCCESS, slip)
 
     def _hand_obj_position(self) -> np.ndarray:

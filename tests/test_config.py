@@ -86,7 +86,8 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     lift = AnnotatorConfig()
     shaken = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, shake=True))
     old = lift.to_dict()
-    for name in ("shake", "approach_from_contact", "stall_by_travel"):  # an earlier version's folder
+    # what a folder of an earlier version bound
+    for name in ("shake", "approach_from_contact", "stall_by_travel", "fingers_from_contact"):
         old["robust"].pop(name)
 
     def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
@@ -209,3 +210,38 @@ def test_a_run_binds_stall_by_travel_only_where_it_changes_the_scores():
     for config in (lift, simulated, by_speed, shaken):
         assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
     assert AnnotatorConfig.from_run(before(lift, 5)["config"], 5) == by_speed
+
+
+def test_a_run_binds_fingers_from_contact_where_the_approach_starts_near_the_contact():
+    """``[robust] fingers_from_contact`` is in a run's manifest exactly where
+    ``approach_from_contact`` is (past one trial, lift-only perturbed trials, a simulated
+    approach). A folder made before the field (its fingers closed from where the approach left
+    them) is refused by a run whose fingers start near a resting object, and reads back as what it
+    simulated; every other folder resumes as before."""
+    from annotator.store.manifest import RunSpec
+
+    teleported = AnnotatorConfig()
+    simulated = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated"}})
+    closed_from_where = dataclasses.replace(
+        simulated, robust=dataclasses.replace(simulated.robust, fingers_from_contact=False)
+    )
+    shaken = dataclasses.replace(simulated, robust=dataclasses.replace(simulated.robust, shake=True))
+
+    def before(config: AnnotatorConfig, trials: int) -> dict:
+        data = config.to_dict(trials=trials)
+        data["robust"].pop("fingers_from_contact", None)
+        return RunSpec(0, 5, trials, None, 5, data).to_json()
+
+    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
+        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
+
+    for config, trials in ((teleported, 5), (simulated, 1), (shaken, 5)):
+        robust = config.to_dict(trials=trials)["robust"]
+        assert "fingers_from_contact" not in robust and "approach_from_contact" not in robust
+        assert spec(config, trials).differences(before(config, trials)) == []
+    assert spec(simulated, 5).differences(before(simulated, 5)) == [
+        "[robust] fingers_from_contact None in the folder, True now"
+    ]
+    for config in (teleported, simulated, closed_from_where, shaken):
+        assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
+    assert AnnotatorConfig.from_run(before(simulated, 5)["config"], 5) == closed_from_where

@@ -183,6 +183,7 @@ def test_a_gripper_s_robust_table_sits_between_the_defaults_and_the_run_s_config
         ("shake = true", "unknown key [robust] shake"),
         ("approach_from_contact = false", "unknown key [robust] approach_from_contact"),
         ("stall_by_travel = false", "unknown key [robust] stall_by_travel"),
+        ("fingers_from_contact = false", "unknown key [robust] fingers_from_contact"),
     ],
 )
 def test_a_broken_robust_table_is_one_line_naming_the_field(my_rg2, table, fragment):

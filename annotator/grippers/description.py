@@ -71,7 +71,7 @@ SCHEMA: dict[str | None, dict[str, str]] = {
     "collision": {"kinematic_links": "strs"},
     # the gripper's own execution uncertainty over the project's (RobustConfig.over)
     # (its ranges; not the run's protocol for the perturbed trials: `shake`, `approach_from_contact`,
-    # `stall_by_travel`)
+    # `stall_by_travel`, `fingers_from_contact`)
     "robust": {f.name: "float" for f in fields(RobustConfig) if f.type == "float"},
 }
 OPTIONAL = {
