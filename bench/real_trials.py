@@ -38,8 +38,9 @@ line both inside a friction cone) and the RG2; per object; the folds; and the ro
 calibrated simulation and reality disagree.
 
 ``--cost`` also times the Panda's evaluate at ``--trials 1`` and (with lift-only perturbed trials)
-at ``--trials K`` with the perturbed closes stalled by speed alone, and with the perturbed trials
-run as trial 0 up to the lift (approaches in full, closes stalled by speed), one after another:
+at ``--trials K`` with the perturbed fingers closing from where the approach left them, with the
+perturbed closes stalled by speed alone, and with the perturbed trials run as trial 0 up to the
+lift (approaches in full, closes stalled by speed), one after another:
 CPU seconds of the command and its workers, and their ratios to ``--trials 1`` (run it on a quiet
 machine).
 """
@@ -322,7 +323,7 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         "--cost",
         action="store_true",
         help="also time the Panda's evaluate at --trials 1 and (lift-only perturbed trials) at --trials K "
-        "with the perturbed closes stalled by speed alone and with the perturbed trials as trial 0 up to the "
+        "with each shortcut of the perturbed trials off, and with the perturbed trials as trial 0 up to the "
         "lift: CPU seconds and ratios, one after another",
     )
     ap.add_argument(
@@ -404,10 +405,15 @@ EXECUTION = {"approach_speed": 0.1, "lift_duration": 0.5}
 
 # --cost's runs at --trials K with the perturbed trials' shortcuts off: (name, [robust] lines, note)
 COST_VARIANTS = (
+    (
+        "fingers_from_where",
+        "fingers_from_contact = false",
+        "the perturbed fingers closing from where the approach left them",
+    ),
     ("by_speed", "stall_by_travel = false", "the perturbed closes stalled by the drive's speed alone"),
     (
         "in_full",
-        "approach_from_contact = false\nstall_by_travel = false",
+        "approach_from_contact = false\nstall_by_travel = false\nfingers_from_contact = false",
         "the perturbed approaches in full and their closes stalled by speed alone (trial 0's protocol)",
     ),
 )
