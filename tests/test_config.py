@@ -77,6 +77,22 @@ def test_defaults_and_the_thorough_reference_round_trip_through_a_manifest():
     assert thorough.gripper.passive_links == "simulated" != default.gripper.passive_links
 
 
+def _spec(config: AnnotatorConfig, trials: int):
+    """The run a run of ``config`` at ``--trials trials`` binds (its manifest's RunSpec)."""
+    from annotator.store.manifest import RunSpec
+
+    return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
+
+
+def _made_before(config: AnnotatorConfig, trials: int, field: str) -> dict:
+    """The manifest record a folder of ``config`` made before ``[robust] field`` existed holds."""
+    from annotator.store.manifest import RunSpec
+
+    data = config.to_dict(trials=trials)
+    data["robust"].pop(field, None)
+    return RunSpec(0, 5, trials, None, 5, data).to_json()
+
+
 def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_its_scores():
     """``[robust] shake`` is in a run's manifest only at ``--trials`` > 1 with perturbed trials
     that end at the lift: a folder made before the field existed (its perturbed trials shook) then
@@ -90,15 +106,12 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     for name in ("shake", "approach_from_contact", "stall_by_travel", "fingers_from_contact"):
         old["robust"].pop(name)
 
-    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
-        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
-
     def recorded(trials: int) -> dict:
         return RunSpec(0, 5, trials, None, 5, old).to_json()
 
-    assert spec(lift, 1).differences(recorded(1)) == []
-    assert spec(shaken, 5).differences(recorded(5)) == []
-    assert spec(lift, 5).differences(recorded(5)) == [
+    assert _spec(lift, 1).differences(recorded(1)) == []
+    assert _spec(shaken, 5).differences(recorded(5)) == []
+    assert _spec(lift, 5).differences(recorded(5)) == [
         "[robust] shake None in the folder, False now",
         "[robust] stall_by_travel None in the folder, True now",
     ]
@@ -109,39 +122,27 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     assert AnnotatorConfig.from_run(old, 5) == shaken
 
 
-def test_a_run_binds_approach_from_contact_only_where_it_changes_the_scores():
-    """``[robust] approach_from_contact`` is in a run's manifest only where it changes a perturbed
-    trial: past one trial, lift-only perturbed trials, a simulated approach. A folder made before
-    the field (its perturbed approaches ran in full) never resumes as a run whose start near the
-    contact, and reads back as what it simulated; every other folder resumes as before."""
-    from annotator.store.manifest import RunSpec
-
+@pytest.mark.parametrize("field", ["approach_from_contact", "fingers_from_contact"])
+def test_a_run_binds_the_simulated_approach_s_shortcuts_only_where_they_change_the_scores(field):
+    """``[robust] approach_from_contact`` and ``fingers_from_contact`` are in a run's manifest only
+    where they change a perturbed trial: past one trial, lift-only perturbed trials, a simulated
+    approach. A folder made before the field (its perturbed approaches ran in full, its fingers
+    closed from where the approach left them) never resumes as a run that takes the shortcut, and
+    reads back as what it simulated; every other folder resumes as before."""
     teleported = AnnotatorConfig()
     simulated = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated"}})
-    in_full = dataclasses.replace(
-        simulated, robust=dataclasses.replace(simulated.robust, approach_from_contact=False)
-    )
+    without = dataclasses.replace(simulated, robust=dataclasses.replace(simulated.robust, **{field: False}))
     shaken = dataclasses.replace(simulated, robust=dataclasses.replace(simulated.robust, shake=True))
-
-    def before(config: AnnotatorConfig, trials: int) -> dict:
-        """What a folder made before the field bound for ``config``."""
-        data = config.to_dict(trials=trials)
-        data["robust"].pop("approach_from_contact", None)
-        return RunSpec(0, 5, trials, None, 5, data).to_json()
-
-    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
-        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
-
     for config, trials in ((teleported, 5), (simulated, 1), (shaken, 5)):
-        assert "approach_from_contact" not in config.to_dict(trials=trials)["robust"]
-        assert spec(config, trials).differences(before(config, trials)) == []
-    assert spec(simulated, 5).differences(before(simulated, 5)) == [
-        "[robust] approach_from_contact None in the folder, True now"
+        assert field not in config.to_dict(trials=trials)["robust"]
+        assert _spec(config, trials).differences(_made_before(config, trials, field)) == []
+    assert _spec(simulated, 5).differences(_made_before(simulated, 5, field)) == [
+        f"[robust] {field} None in the folder, True now"
     ]
     # read back from a manifest: what the run simulated
-    for config in (teleported, simulated, in_full, shaken):
+    for config in (teleported, simulated, without, shaken):
         assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
-    assert AnnotatorConfig.from_run(before(simulated, 5)["config"], 5) == in_full
+    assert AnnotatorConfig.from_run(_made_before(simulated, 5, field)["config"], 5) == without
 
 
 @pytest.mark.parametrize(
@@ -183,7 +184,6 @@ def test_a_run_binds_stall_by_travel_only_where_it_changes_the_scores():
     perturbed trials, whatever the approach. A folder made before the field (its perturbed closes
     stalled by speed alone) never resumes as a run whose closes stall by travel, and reads back as
     what it simulated; a folder of ``--trials 1`` or of shaken perturbed trials resumes as before."""
-    from annotator.store.manifest import RunSpec
 
     lift = AnnotatorConfig()
     simulated = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated"}})
@@ -191,57 +191,16 @@ def test_a_run_binds_stall_by_travel_only_where_it_changes_the_scores():
     shaken = dataclasses.replace(lift, robust=dataclasses.replace(lift.robust, shake=True))
 
     def before(config: AnnotatorConfig, trials: int) -> dict:
-        """What a folder made before the field bound for ``config``."""
-        data = config.to_dict(trials=trials)
-        data["robust"].pop("stall_by_travel", None)
-        return RunSpec(0, 5, trials, None, 5, data).to_json()
-
-    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
-        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
+        return _made_before(config, trials, "stall_by_travel")
 
     for config, trials in ((lift, 1), (shaken, 5)):
         assert "stall_by_travel" not in config.to_dict(trials=trials)["robust"]
-        assert spec(config, trials).differences(before(config, trials)) == []
+        assert _spec(config, trials).differences(before(config, trials)) == []
     for config in (lift, simulated):
-        assert spec(config, 5).differences(before(config, 5)) == [
+        assert _spec(config, 5).differences(before(config, 5)) == [
             "[robust] stall_by_travel None in the folder, True now"
         ]
     # read back from a manifest: what the run simulated
     for config in (lift, simulated, by_speed, shaken):
         assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
     assert AnnotatorConfig.from_run(before(lift, 5)["config"], 5) == by_speed
-
-
-def test_a_run_binds_fingers_from_contact_where_the_approach_starts_near_the_contact():
-    """``[robust] fingers_from_contact`` is in a run's manifest exactly where
-    ``approach_from_contact`` is (past one trial, lift-only perturbed trials, a simulated
-    approach). A folder made before the field (its fingers closed from where the approach left
-    them) is refused by a run whose fingers start near a resting object, and reads back as what it
-    simulated; every other folder resumes as before."""
-    from annotator.store.manifest import RunSpec
-
-    teleported = AnnotatorConfig()
-    simulated = AnnotatorConfig.from_dict({"protocol": {"approach": "simulated"}})
-    closed_from_where = dataclasses.replace(
-        simulated, robust=dataclasses.replace(simulated.robust, fingers_from_contact=False)
-    )
-    shaken = dataclasses.replace(simulated, robust=dataclasses.replace(simulated.robust, shake=True))
-
-    def before(config: AnnotatorConfig, trials: int) -> dict:
-        data = config.to_dict(trials=trials)
-        data["robust"].pop("fingers_from_contact", None)
-        return RunSpec(0, 5, trials, None, 5, data).to_json()
-
-    def spec(config: AnnotatorConfig, trials: int) -> RunSpec:
-        return RunSpec(0, 5, trials, None, 5, config.to_dict(trials=trials))
-
-    for config, trials in ((teleported, 5), (simulated, 1), (shaken, 5)):
-        robust = config.to_dict(trials=trials)["robust"]
-        assert "fingers_from_contact" not in robust and "approach_from_contact" not in robust
-        assert spec(config, trials).differences(before(config, trials)) == []
-    assert spec(simulated, 5).differences(before(simulated, 5)) == [
-        "[robust] fingers_from_contact None in the folder, True now"
-    ]
-    for config in (teleported, simulated, closed_from_where, shaken):
-        assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
-    assert AnnotatorConfig.from_run(before(simulated, 5)["config"], 5) == closed_from_where

@@ -156,20 +156,41 @@ def _with(config: AnnotatorConfig, box, poses, rests, width=0.040, resting="obje
     return rows
 
 
+# a trial 0's columns: the --trials 1 label, whatever the perturbed trials do
+TRIAL0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
+
+
+def _ball(folder: Path):
+    """A 60 mm ball (an icosphere) resting on its bottom point: its source, written in ``folder``."""
+    import trimesh
+
+    (folder / "ball").mkdir()
+    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
+        folder / "ball" / "ball.obj"
+    )
+    (ball,) = discover_objects(folder / "ball")
+    return ball
+
+
+def _five_trials(config: AnnotatorConfig, source, poses, width: float) -> pd.DataFrame:
+    """``--trials 5`` of the Panda at ``poses`` on ``source`` resting upright on the table."""
+    T = np.array(poses)
+    span = GivenSpan(
+        source.object_id, source, None, T, np.full(len(T), width), np.arange(len(T)), None,
+        np.tile(UPRIGHT, (len(T), 1)),
+    )  # fmt: skip
+    rows, error = simulate_given(span, config, trials=5, gripper="panda", resting=True)
+    assert error is None, error
+    return rows
+
+
 @pytest.mark.slow
 def test_a_simulated_approach_pushes_what_a_kinematic_check_calls_a_collision(tmp_path) -> None:
     # a 60 mm ball, the fully open Panda (80 mm) centred 12 mm off it: a finger overlaps the ball by
     # 2 mm. The kinematic check calls it a collision; a robot's finger meets the ball's flank on
     # the way down and rolls it between the fingers, which close on it. (A finger 10 mm over lands
     # on the ball and stops the hand above it, as a real arm's would: no grasp then.)
-    import trimesh
-
-    folder = tmp_path / "ball"
-    folder.mkdir()
-    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
-        folder / "ball.obj"
-    )
-    (ball,) = discover_objects(folder)
+    ball = _ball(tmp_path)
     pose = _pose(FROM_TOP, 0.030)  # at its equator
     pose[1, 3] = 0.012  # along the closing axis (the TCP's x is the mesh's y)
 
@@ -231,14 +252,7 @@ def test_perturbed_approaches_from_the_contact_push_and_stop_as_in_full(box, tmp
     a clean grasp from the top. The perturbed trials starting 1 cm before the first contact
     (``[robust] approach_from_contact``, the default) give the scores of the approaches in full,
     in fewer steps, under ranges wide enough that some fail; trial 0 is the same either way."""
-    import trimesh
-
-    folder = tmp_path / "ball"
-    folder.mkdir()
-    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
-        folder / "ball.obj"
-    )
-    (ball,) = discover_objects(folder)
+    ball = _ball(tmp_path)
     rolled = _pose(FROM_TOP, 0.030)
     rolled[1, 3] = 0.012  # a finger overlaps the ball by 2 mm on the way down
     # wider ranges than the default's, so that some perturbed trials fail
@@ -246,23 +260,13 @@ def test_perturbed_approaches_from_the_contact_push_and_stop_as_in_full(box, tmp
     near_contact = dataclasses.replace(SIMULATED, robust=wide)
     in_full = dataclasses.replace(SIMULATED, robust=dataclasses.replace(wide, approach_from_contact=False))
 
-    def run(config, source, poses, width):
-        T = np.array(poses)
-        span = GivenSpan(
-            source.object_id, source, None, T, np.full(len(T), width), np.arange(len(T)), None,
-            np.tile(UPRIGHT, (len(T), 1)),
-        )  # fmt: skip
-        rows, error = simulate_given(span, config, trials=5, gripper="panda", resting=True)
-        assert error is None, error
-        return rows
-
     cases = [(ball, [rolled], 0.080), (box, [_pose(FROM_TOP, 0.005), _pose(FROM_TOP, 0.030)], 0.040)]
     scores = []
     for source, poses, width in cases:
-        near, full = run(near_contact, source, poses, width), run(in_full, source, poses, width)
+        near = _five_trials(near_contact, source, poses, width)
+        full = _five_trials(in_full, source, poses, width)
         assert near["outcome"].tolist() == full["outcome"].tolist() and (near["outcome"] == "success").all()
-        trial0 = ["width", "x", "y", "z", "qx", "qy", "qz", "qw"]
-        pd.testing.assert_frame_equal(near[trial0], full[trial0], check_exact=True)
+        pd.testing.assert_frame_equal(near[TRIAL0], full[TRIAL0], check_exact=True)
         assert near["score"].tolist() == full["score"].tolist(), (near["score"], full["score"])
         assert (near["sim_steps"] < full["sim_steps"]).all(), (near["sim_steps"], full["sim_steps"])
         scores += near["score"].tolist()
@@ -276,14 +280,7 @@ def test_perturbed_closes_that_stall_by_travel_keep_the_scores_in_fewer_steps(bo
     simulated one. The perturbed closes that also stall by the drive's travel (``[robust]
     stall_by_travel``, the default) end sooner than those stalled by speed alone, every candidate
     in fewer steps, with the same outcomes and scores; trial 0 is the same to the bit."""
-    import trimesh
-
-    folder = tmp_path / "ball"
-    folder.mkdir()
-    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
-        folder / "ball.obj"
-    )
-    (ball,) = discover_objects(folder)
+    ball = _ball(tmp_path)
     off_centre = _pose(FROM_TOP, 0.030)
     off_centre[1, 3] = 0.008
     cases = [
@@ -294,18 +291,10 @@ def test_perturbed_closes_that_stall_by_travel_keep_the_scores_in_fewer_steps(bo
         assert config.robust.stall_by_travel
         speed_only = dataclasses.replace(config.robust, stall_by_travel=False)
         by_speed = dataclasses.replace(config, robust=speed_only)
-        T = np.array(poses)
-        span = GivenSpan(
-            source.object_id, source, None, T, np.full(len(T), width), np.arange(len(T)), None,
-            np.tile(UPRIGHT, (len(T), 1)),
-        )  # fmt: skip
-        travel, error = simulate_given(span, config, trials=5, gripper="panda", resting=True)
-        assert error is None, error
-        speed, error = simulate_given(span, by_speed, trials=5, gripper="panda", resting=True)
-        assert error is None, error
+        travel = _five_trials(config, source, poses, width)
+        speed = _five_trials(by_speed, source, poses, width)
         assert (travel["outcome"] == "success").all(), travel["outcome"]
-        trial0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
-        pd.testing.assert_frame_equal(travel[trial0], speed[trial0], check_exact=True)
+        pd.testing.assert_frame_equal(travel[TRIAL0], speed[TRIAL0], check_exact=True)
         assert travel["score"].tolist() == speed["score"].tolist()
         assert (travel["sim_steps"] < speed["sim_steps"]).all(), (travel["sim_steps"], speed["sim_steps"])
 
@@ -318,33 +307,17 @@ def test_perturbed_fingers_start_near_a_resting_object_with_the_same_scores(box,
     taken from the top keep their outcomes and scores in fewer steps. A ball that a finger rolls
     on the way down is still moving when the approach ends: its fingers close from where they are,
     step for step as without the field. Trial 0 is the same to the bit."""
-    import trimesh
-
-    folder = tmp_path / "ball"
-    folder.mkdir()
-    trimesh.creation.icosphere(subdivisions=3, radius=0.03).apply_translation([0, 0, 0.03]).export(
-        folder / "ball.obj"
-    )
-    (ball,) = discover_objects(folder)
+    ball = _ball(tmp_path)
     rolled = _pose(FROM_TOP, 0.030)
     rolled[1, 3] = 0.012  # a finger overlaps the ball by 2 mm on the way down
     cases = [(ball, [_pose(FROM_TOP, 0.030), rolled], [True, False]), (box, [_pose(FROM_TOP, 0.080)], [True])]
     assert SIMULATED.robust.fingers_from_contact
     from_where = dataclasses.replace(SIMULATED.robust, fingers_from_contact=False)
     for source, poses, at_rest in cases:
-        T = np.array(poses)
-        span = GivenSpan(
-            source.object_id, source, None, T, np.full(len(T), 0.080), np.arange(len(T)), None,
-            np.tile(UPRIGHT, (len(T), 1)),
-        )  # fmt: skip
-        near, error = simulate_given(span, SIMULATED, trials=5, gripper="panda", resting=True)
-        assert error is None, error
-        config = dataclasses.replace(SIMULATED, robust=from_where)
-        where, error = simulate_given(span, config, trials=5, gripper="panda", resting=True)
-        assert error is None, error
+        near = _five_trials(SIMULATED, source, poses, 0.080)
+        where = _five_trials(dataclasses.replace(SIMULATED, robust=from_where), source, poses, 0.080)
         assert (near["outcome"] == "success").all(), near["outcome"]
-        trial0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
-        pd.testing.assert_frame_equal(near[trial0], where[trial0], check_exact=True)
+        pd.testing.assert_frame_equal(near[TRIAL0], where[TRIAL0], check_exact=True)
         assert near["score"].tolist() == where["score"].tolist()
         fewer = (near["sim_steps"] < where["sim_steps"]).tolist()
         same = (near["sim_steps"] == where["sim_steps"]).tolist()
