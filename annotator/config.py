@@ -353,7 +353,7 @@ class RobustConfig(_Section):
     # true: a lift-only perturbed trial's close ends once the drive moved <= the stall speed's travel
     # over stall_steps steps (docs/decisions/0023-perturbed-close-stalls-by-travel.md)
     stall_by_travel: bool = True
-    # true: after such an approach from the contact, the fingers start near what they touch if the object
+    # true: after that approach from the contact, the fingers start near what they touch if the object
     # is at rest (docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md)
     fingers_from_contact: bool = True
 
@@ -669,10 +669,10 @@ class AnnotatorConfig:
     @classmethod
     def from_run(cls, data: Any, trials: int) -> AnnotatorConfig:
         """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``):
-        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook, one
-        without ``approach_from_contact`` one whose simulated approaches ran in full, and one
-        without ``stall_by_travel`` one whose closes stalled by the drive's speed alone, and one
-        without ``fingers_from_contact`` one whose fingers closed from where the approach left them."""
+        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook; one
+        without ``approach_from_contact``, one whose simulated approaches ran in full; without
+        ``stall_by_travel``, one whose closes stalled by the drive's speed alone; and without
+        ``fingers_from_contact``, one whose fingers closed from where the approach left them."""
         if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
             robust = {"shake": True, **data["robust"]}
             protocol = data.get("protocol")

@@ -158,7 +158,7 @@ class TrialPlan:
     shake: bool  # shaken after the lift (False: judged after the lift)
     approach_from_contact: bool = False  # a simulated approach starts near the first contact
     stall_by_travel: bool = False  # the close also ends by the drive's travel (FloatingGripper.close)
-    fingers_from_contact: bool = False  # after such an approach, fingers start near an object at rest
+    fingers_from_contact: bool = False  # then the fingers start near an object at rest (_preclose)
 
     @classmethod
     def perturbed(cls, robust: RobustConfig, shake: bool) -> TrialPlan:
