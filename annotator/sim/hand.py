@@ -150,7 +150,7 @@ class FloatingGripper:
         velocity = gripper.close_velocity
         stall_speed = self.config.stall_fraction * gripper.settings.close_speed
         stall_steps = self.config.stall_steps
-        stall_travel = stall_speed * stall_steps * self.world.dt if stall_by_travel else -1.0
+        stall_travel = stall_speed * stall_steps * self.world.dt
         uid, index, client = self.uid, self.body.joints[gripper.driven].index, self.client
         angle = pb.getJointState(uid, index, physicsClientId=client)[0]
         angles = [angle] * stall_steps  # ring: the drive's angle stall_steps steps ago at step % n
@@ -163,10 +163,11 @@ class FloatingGripper:
             stalled = stalled + 1 if abs(speed) < stall_speed else 0
             if stalled >= stall_steps:
                 return step
-            slot = step % stall_steps
-            if step >= stall_steps and abs(angle - angles[slot]) <= stall_travel:
-                return step
-            angles[slot] = angle
+            if stall_by_travel:
+                slot = step % stall_steps
+                if step >= stall_steps and abs(angle - angles[slot]) <= stall_travel:
+                    return step
+                angles[slot] = angle
         return max_steps
 
     def _follow(
