@@ -236,6 +236,9 @@ class ObjectConfig(_Section):
     # V-HACD until it has parts.
     decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
     vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s
+    # "reference": budget and reserve in CPU-s of the machine they were set on, scaled by a reference
+    # cut timed here, so a slower day keeps the shapes; "cpu": this machine's (0101-collision-ladder).
+    budget_basis: str = _field("reference", choices=("reference", "cpu"))
     vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)
     # Seconds a decomposition process may use no CPU at all (a hang, not work) before it is stopped
     # like one over budget; a loaded machine slows a decomposition down, it does not stop it.

@@ -6,6 +6,7 @@ annotator/objects/fidelity.py).
     python -m bench.collision_error --objects DIR --no-before
     python -m bench.collision_error --objects DIR --only 'ycb/*' --cache /tmp/cache
     python -m bench.collision_error --objects DIR --no-before --first-cut-share 0.5
+    python -m bench.collision_error --objects DIR --no-before --budget-basis cpu
 
 Columns: faces as loaded (after cleaning and the face budget), what cleaning changed, the mass
 model and mass, the collision method, parts and final CoACD threshold, the error mean and max
@@ -33,6 +34,7 @@ import trimesh
 
 from annotator.config import ObjectConfig
 from annotator.objects import ObjectError, discover_objects, load_object
+from annotator.objects.collision_ladder import budget_factor
 from annotator.objects.fidelity import collision_error
 from bench.harness import Run
 
@@ -66,11 +68,19 @@ def main() -> None:
         default=None,
         help="coacd_first_cut_share of the budget for CoACD on the mesh as it is (default: the config's)",
     )
+    ap.add_argument(
+        "--budget-basis",
+        choices=("reference", "cpu"),
+        default=None,
+        help="budget_basis of the decomposition budget (default: the config's)",
+    )
     args = ap.parse_args()
     with_before = args.before if args.before is not None else args.objects.resolve() == ROOT / "objects"
     config = ObjectConfig()
     if args.first_cut_share is not None:
         config = dataclasses.replace(config, coacd_first_cut_share=args.first_cut_share)
+    if args.budget_basis is not None:
+        config = dataclasses.replace(config, budget_basis=args.budget_basis)
     cache = args.cache or Path(tempfile.mkdtemp(prefix="rg2-bench-cache-"))
     print(
         f"limits: mean <= {config.collision_mean_limit * 1e3:g} mm, "
@@ -84,6 +94,11 @@ def main() -> None:
     print(head + "\n" + "-" * len(head))
     with Run("collision_error", config=vars(args)) as run:
         rows, within = measure(args, config, cache, with_before)
+        run.figure(
+            "budget_factor",
+            budget_factor(config),
+            note=f"CPU-s per budget second (budget_basis {config.budget_basis!r}, objects.machine_speed)",
+        )
         run.figure(
             "within_limits",
             within,

@@ -4,6 +4,7 @@ processes, real CoACD / V-HACD and real files (the seams replace a child's comma
 from __future__ import annotations
 
 import dataclasses
+import math
 import multiprocessing
 import os
 import re
@@ -27,10 +28,13 @@ from annotator.objects import (
     decomposition_child,
     discover_objects,
     load_object,
+    machine_speed,
 )
 from annotator.objects.fidelity import collision_error
 
-CONFIG = ObjectConfig()
+# Plain CPU seconds: these tests give the rungs budgets of a few CPU-s and check the children kept
+# to them (the reference basis, which scales the budget by the machine's speed, is tested below).
+CONFIG = ObjectConfig(budget_basis="cpu")
 SPIN = [sys.executable, "-c", "while True: pass"]  # a decomposition that never ends, using CPU
 SLEEP = [sys.executable, "-c", "import time; time.sleep(60)"]  # one that hangs without using CPU
 ABORT = [sys.executable, "-c", "import os; os.abort()"]
@@ -480,6 +484,7 @@ def test_the_key_holds_the_mesh_every_setting_that_shapes_it_and_the_library_ver
     assert key(l_mesh, "coacd", CONFIG) == base
     assert key(l_mesh, "hull", CONFIG) != base
     assert key(l_mesh, "coacd", dataclasses.replace(CONFIG, decomposition_budget=30.0)) != base
+    assert key(l_mesh, "coacd", dataclasses.replace(CONFIG, budget_basis="reference")) != base
     assert key(l_mesh, "hull", dataclasses.replace(CONFIG, decomposition_budget=30.0)) == key(
         l_mesh, "hull", CONFIG
     )  # a hull does not depend on the ladder's settings
@@ -602,3 +607,89 @@ def test_vhacd_gives_the_same_parts_every_time(tmp_path):
             parts = decomposers.run_vhacd(mesh.vertices, mesh.faces, CONFIG, job)
         runs.append([(p.vertices.tobytes(), p.faces.tobytes()) for p in parts])
     assert len(runs[0]) >= 2 and runs[0] == runs[1]
+
+
+def _ladder_limits(monkeypatch, config: ObjectConfig, factor: float) -> list[tuple[str, float, float | None]]:
+    """(rung, CPU limit, first-parts point) of each child the ladder starts for an L when this machine
+    runs at ``factor`` CPU-s per reference CPU-second; every child gives nothing, so all rungs run."""
+    from annotator.objects.collision_entry import Rung
+    from annotator.objects.decomposition_child import RungParts
+
+    started: list[tuple[str, float, float | None]] = []
+
+    def child(mesh, cfg, method, limit, first_parts=None):
+        started.append((method, limit, first_parts))
+        return RungParts(Rung(method, "over budget", 0.0, detail="not run"))
+
+    monkeypatch.setattr(collision_ladder, "speed_factor", lambda: factor)
+    monkeypatch.setattr(collision_ladder, "child_rung", child)
+    mesh = trimesh.load(write_l(Path(os.environ.get("TMPDIR", "/tmp")) / "rg2-basis-l.obj"), force="mesh")
+    found, rungs = collision_ladder.run_ladder(mesh, config, "l", None)
+    assert found.rung.method == "hull" and [r.method for r in rungs][-1] == "hull"
+    return started
+
+
+def test_a_budget_in_reference_seconds_is_scaled_by_the_machine_s_speed(monkeypatch):
+    """budget_basis "reference": on a machine 2.5 x slower than the budget's, every rung's CPU limit,
+    CoACD's share and V-HACD's reserve are 2.5 x those of plain CPU seconds; "cpu" ignores the speed."""
+    reference = dataclasses.replace(CONFIG, budget_basis="reference")
+    plain = _ladder_limits(monkeypatch, CONFIG, 2.5)
+    scaled = _ladder_limits(monkeypatch, reference, 2.5)
+    assert [m for m, _, _ in plain] == [m for m, _, _ in scaled] == ["coacd", "coacd-remeshed", "vhacd"]
+    budget, share, reserve = CONFIG.decomposition_budget, CONFIG.coacd_first_cut_share, CONFIG.vhacd_reserve
+    # the first rung's limit is the whole budget less what follows the ladder (whole seconds)
+    assert plain[0][1] == math.floor(budget - collision_ladder.AFTER_LADDER_SECONDS)
+    assert scaled[0][1] == math.floor(2.5 * budget - collision_ladder.AFTER_LADDER_SECONDS)
+    assert plain[0][2] == pytest.approx(share * budget)
+    assert scaled[0][2] == pytest.approx(2.5 * share * budget)
+    # CoACD remeshed must have parts V-HACD's reserve before its limit
+    assert plain[1][1] - plain[1][2] == pytest.approx(reserve)
+    assert scaled[1][1] - scaled[1][2] == pytest.approx(2.5 * reserve)
+    assert _ladder_limits(monkeypatch, CONFIG, 0.5) == plain
+
+
+def test_the_machine_s_speed_is_the_fastest_reference_cut_over_the_budget_machine_s(monkeypatch, caplog):
+    """speed_factor(): the measuring child's fastest cut / REFERENCE_CUT_SECONDS, once per process; a
+    child that fails gives 1 (plain CPU seconds) and an absurd time is clamped, each said once."""
+    reference = machine_speed.REFERENCE_CUT_SECONDS
+
+    def factor_of(code: str) -> float:
+        monkeypatch.setattr(machine_speed, "measure_command", lambda: [sys.executable, "-c", code])
+        machine_speed.speed_factor.cache_clear()
+        try:
+            return machine_speed.speed_factor()
+        finally:
+            machine_speed.speed_factor.cache_clear()
+
+    assert factor_of(f"print([{3 * reference!r}, {2 * reference!r}])") == pytest.approx(2.0)
+    with caplog.at_level("WARNING", logger="annotator.objects.machine_speed"):
+        assert factor_of("import sys; sys.exit(3)") == 1.0
+        assert "could not measure" in caplog.text
+        caplog.clear()
+        assert factor_of(f"print([{100 * reference!r}])") == machine_speed.FACTOR_RANGE[1]
+        assert "clamped" in caplog.text
+    monkeypatch.setattr(machine_speed, "measure_command", lambda: ["/nonexistent/python"])
+    machine_speed.speed_factor.cache_clear()
+    first = machine_speed.speed_factor()
+    monkeypatch.setattr(machine_speed, "measure_command", lambda: [sys.executable, "-c", "print([99.0])"])
+    assert machine_speed.speed_factor() == first == 1.0  # measured once per process
+    machine_speed.speed_factor.cache_clear()
+
+
+def test_the_reference_cut_is_a_real_concave_cut_of_a_generated_ring():
+    """The reference mesh is closed and concave (CoACD cuts it into several parts) and the cut's CPU
+    time is measured in the calling process, one number per cut."""
+    import coacd
+
+    ring = machine_speed.reference_mesh()
+    assert ring.is_watertight and ring.volume < 0.9 * ring.convex_hull.volume
+    parts = coacd.run_coacd(
+        coacd.Mesh(np.asarray(ring.vertices), np.asarray(ring.faces)),
+        threshold=machine_speed.REFERENCE_THRESHOLD,
+        mcts_iterations=machine_speed.REFERENCE_ITERATIONS,
+        preprocess_mode="off",
+        seed=0,
+    )
+    assert len(parts) > 2
+    seconds = machine_speed.reference_cut_seconds(1)
+    assert len(seconds) == 1 and seconds[0] > 0.0

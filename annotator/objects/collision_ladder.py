@@ -23,7 +23,9 @@ budget, crashed, no parts) with its CPU seconds and error. Running over the budg
 normal result, the next rung's turn: the object still gets its shape, cached like any other, and is
 never decomposed again; only an unusable mesh (found before, by reading and cleaning it) fails an
 object. The budget is CPU time (RLIMIT_CPU of the child), so a loaded machine does not push an
-object down the ladder; a slower one can, and the cache keeps whichever shape was made first.
+object down the ladder; with ``budget_basis = "reference"`` (the default) it is counted in reference
+CPU-seconds (:mod:`annotator.objects.machine_speed`), so a slower machine does not either. Near an
+edge the measurement's noise still can, and the cache keeps whichever shape was made first.
 
 The decomposers are :mod:`annotator.objects.decomposers`, their isolated child process
 :mod:`annotator.objects.decomposition_child`. CoACD is the first rung because it was faster and
@@ -45,6 +47,7 @@ from annotator.objects.collision_entry import Rung
 from annotator.objects.decomposers import METHOD, REMESHED, VHACD
 from annotator.objects.decomposition_child import RungParts, child_rung
 from annotator.objects.fidelity import collision_error
+from annotator.objects.machine_speed import speed_factor
 
 log = logging.getLogger(__name__)
 
@@ -56,15 +59,22 @@ Progress = Callable[[str, str], None]
 AFTER_LADDER_SECONDS = 0.5
 
 
-def first_parts_by(method: str, limit: float, config: ObjectConfig) -> float | None:
+def budget_factor(config: ObjectConfig) -> float:
+    """This machine's CPU seconds per budget second: :func:`~annotator.objects.machine_speed.speed_factor`
+    with ``budget_basis = "reference"``, 1 with ``"cpu"``."""
+    return speed_factor() if config.budget_basis == "reference" else 1.0
+
+
+def first_parts_by(method: str, limit: float, config: ObjectConfig, factor: float = 1.0) -> float | None:
     """CPU-s of its own by which a rung given ``limit`` CPU-s must have parts or be stopped (None:
     no such point). CoACD as the mesh is: ``coacd_first_cut_share`` of the budget, and at the
-    latest ``vhacd_reserve`` before its limit; CoACD remeshed: ``vhacd_reserve`` before its limit."""
+    latest ``vhacd_reserve`` before its limit; CoACD remeshed: ``vhacd_reserve`` before its limit.
+    ``factor``: CPU seconds per budget second (:func:`budget_factor`)."""
     if method not in (METHOD, REMESHED):
         return None
-    stop = limit - config.vhacd_reserve
+    stop = limit - config.vhacd_reserve * factor
     if method == METHOD:
-        stop = min(stop, config.coacd_first_cut_share * config.decomposition_budget)
+        stop = min(stop, config.coacd_first_cut_share * config.decomposition_budget * factor)
     return stop if stop < limit else None
 
 
@@ -74,8 +84,11 @@ def run_ladder(
     """The ladder within what is left of the budget (``spent``: CPU seconds the load used before
     it; the ladder's own work in this process counts too): CoACD, CoACD remeshed, V-HACD, the hull;
     the first rung with parts. CoACD remeshed starts only with more than a CPU-s beyond V-HACD's
-    reserve left."""
-    budget = config.decomposition_budget - spent - AFTER_LADDER_SECONDS
+    reserve left. The budget and the reserve are in this machine's CPU seconds (:func:`budget_factor`:
+    measured only here, when a decomposition is about to run)."""
+    factor = budget_factor(config)
+    reserve = config.vhacd_reserve * factor
+    budget = config.decomposition_budget * factor - spent - AFTER_LADDER_SECONDS
     start = time.process_time()
     rungs: list[Rung] = []
     children = 0.0
@@ -90,13 +103,13 @@ def run_ladder(
         elif budget - used < 1.0:  # the load spent the budget before this rung: no child at all
             left = f"{max(0.0, budget - used):.1f} CPU-s left"
             found = RungParts(Rung(method, "over budget", 0.0, detail=left))
-        elif method == REMESHED and budget - used - config.vhacd_reserve < 1.0:
-            left = f"{max(0.0, budget - used):.1f} CPU-s left, V-HACD's reserve {config.vhacd_reserve:g}"
+        elif method == REMESHED and budget - used - reserve < 1.0:
+            left = f"{max(0.0, budget - used):.1f} CPU-s left, V-HACD's reserve {reserve:.1f}"
             found = RungParts(Rung(method, "over budget", 0.0, detail=left))
         else:
             # CoACD may use the whole budget once it has parts; until then it leaves the next rungs theirs
             limit = math.floor(budget - used)  # whole seconds, within the budget
-            found = child_rung(mesh, config, method, limit, first_parts_by(method, limit, config))
+            found = child_rung(mesh, config, method, limit, first_parts_by(method, limit, config, factor))
         rungs.append(found.rung)
         if method != "hull":
             children += found.rung.cpu_seconds

@@ -43,6 +43,7 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple[
         config.collision_mean_limit,
         config.collision_max_limit,
         config.decomposition_budget,
+        config.budget_basis,
         config.vhacd_reserve,
         config.vhacd_resolution,
     )
