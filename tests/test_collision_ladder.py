@@ -650,8 +650,10 @@ def test_a_budget_in_reference_seconds_is_scaled_by_the_machine_s_speed(monkeypa
 
 def test_the_machine_s_speed_is_the_fastest_reference_cut_over_the_budget_machine_s(monkeypatch, caplog):
     """speed_factor(): the measuring child's fastest cut / REFERENCE_CUT_SECONDS, once per process; a
-    child that fails gives 1 (plain CPU seconds) and an absurd time is clamped, each said once."""
+    child that fails gives 1 (plain CPU seconds) and an absurd time is clamped, each said; a positive
+    RG2_SPEED_FACTOR is used instead, anything else in it is said and measured over."""
     reference = machine_speed.REFERENCE_CUT_SECONDS
+    monkeypatch.delenv(machine_speed.FACTOR_ENV, raising=False)
 
     def factor_of(code: str) -> float:
         monkeypatch.setattr(machine_speed, "measure_command", lambda: [sys.executable, "-c", code])
@@ -674,6 +676,12 @@ def test_the_machine_s_speed_is_the_fastest_reference_cut_over_the_budget_machin
     monkeypatch.setattr(machine_speed, "measure_command", lambda: [sys.executable, "-c", "print([99.0])"])
     assert machine_speed.speed_factor() == first == 1.0  # measured once per process
     machine_speed.speed_factor.cache_clear()
+    monkeypatch.setenv(machine_speed.FACTOR_ENV, "1.7")  # given by a parent or pinned by the user
+    assert factor_of("import sys; sys.exit(3)") == 1.7
+    monkeypatch.setenv(machine_speed.FACTOR_ENV, "fast")
+    with caplog.at_level("WARNING", logger="annotator.objects.machine_speed"):
+        assert factor_of(f"print([{2 * reference!r}])") == pytest.approx(2.0)  # measured instead
+    assert "not a positive number" in caplog.text
 
 
 def test_the_reference_cut_is_a_real_concave_cut_of_a_generated_ring():

@@ -9,13 +9,13 @@ default) the ladder's budget and V-HACD's reserve are reference CPU-seconds: the
 machine the ladder's limits were measured on. The ladder multiplies them by :func:`speed_factor`,
 the CPU time of a fixed reference cut (:func:`reference_mesh`, CoACD at :data:`REFERENCE_THRESHOLD`)
 here over its CPU time there (:data:`REFERENCE_CUT_SECONDS`), so a slower machine spends more CPU
-seconds on the same work and keeps the same shapes (docs/decisions/0104-decomposition-cache.md and
-0101-collision-ladder.md, "A budget in reference CPU-seconds").
+seconds on the same work and keeps the same shapes (docs/decisions/0101-collision-ladder.md,
+"Revision: a budget in reference CPU-seconds").
 
 The factor is measured once per process, only when a decomposition is about to run (a warm cache
-or a convex object never pays for it), in a child process with one OpenMP thread as the
-decompositions run, as the fastest of :data:`REFERENCE_REPEATS` cuts (a cut slowed by another
-process only ever takes longer).
+or a convex object never pays for it), unless ``RG2_SPEED_FACTOR`` gives it: in a child process
+with one OpenMP thread, as the decompositions run, the fastest of :data:`REFERENCE_REPEATS` cuts
+(a cut slowed by another process only ever takes longer).
 """
 
 from __future__ import annotations
@@ -44,6 +44,9 @@ REFERENCE_REPEATS = 2  # cuts in the measuring child; the fastest is the machine
 # A factor outside this range is a broken measurement (a stalled child, a throttled timer), not a
 # machine: it is clamped and said.
 FACTOR_RANGE = (0.25, 8.0)
+# A factor given here (a positive number) is used instead of a measurement: a parent process that
+# measured it passes it to its children, and a user can pin it (every node of a cluster alike).
+FACTOR_ENV = "RG2_SPEED_FACTOR"
 MEASURE_TIMEOUT = 300.0  # wall seconds the measuring child may take before the factor falls back to 1
 
 
@@ -89,7 +92,18 @@ def measure_command() -> list[str]:
 def speed_factor() -> float:
     """CPU seconds here per reference CPU-second (> 1: a slower machine), measured once per process.
 
-    A child that fails or prints nothing usable gives 1.0 (plain CPU seconds), said as a warning."""
+    ``RG2_SPEED_FACTOR`` (:data:`FACTOR_ENV`), when set to a positive number, is the factor. A child
+    that fails or prints nothing usable gives 1.0 (plain CPU seconds), said as a warning."""
+    given = os.environ.get(FACTOR_ENV, "").strip()
+    if given:
+        try:
+            pinned = float(given)
+        except ValueError:
+            pinned = 0.0
+        if pinned > 0.0 and pinned != float("inf"):
+            log.info("the decomposition budget x %.2f (%s)", pinned, FACTOR_ENV)
+            return pinned
+        log.warning("%s=%r is not a positive number; measuring this machine instead", FACTOR_ENV, given)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     try:
         out = subprocess.run(
