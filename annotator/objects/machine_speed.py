@@ -45,7 +45,7 @@ REFERENCE_REPEATS = 2  # cuts in the measuring child; the fastest is the machine
 # machine: it is clamped and said.
 FACTOR_RANGE = (0.25, 8.0)
 # A factor given here (a positive number) is used instead of a measurement: a parent process that
-# measured it passes it to its children, and a user can pin it (every node of a cluster alike).
+# measured it passes it to its children, and a user can pin it on identical machines (no noise).
 FACTOR_ENV = "RG2_SPEED_FACTOR"
 MEASURE_TIMEOUT = 300.0  # wall seconds the measuring child may take before the factor falls back to 1
 
