@@ -417,7 +417,7 @@ def _load_unlocked(path: str, cache_dir: str, barrier) -> tuple[bool, list[bytes
 
     cache.advisory_lock = no_lock
     barrier.wait()
-    model = load_object(Path(path), ObjectConfig(), cache_dir=Path(cache_dir))
+    model = load_object(Path(path), CONFIG, cache_dir=Path(cache_dir))
     return model.from_cache, [p.vertices.tobytes() for p in model.parts], model.collision_file.read_text()
 
 
