@@ -231,11 +231,11 @@ class ObjectConfig(_Section):
     decomposition_max_faces: int = _field(5_000, ge=4)
     decomposition_copy_max_faces: int = _field(20_000, ge=4)
     decomposition_copy_tolerance: float = _field(0.001, gt=0.0)  # m
-    # CPU seconds per object for its whole load: reading, repair and the decomposition ladder
-    # (CoACD, V-HACD, hull), 1-3600 (0101-collision-ladder); CoACD leaves vhacd_reserve of it for
-    # V-HACD until it has parts.
-    decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s
-    vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s
+    # CPU seconds (see budget_basis) per object for its whole load: reading, repair and the ladder
+    # (CoACD, V-HACD, hull), 1-3600; CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
+    # see docs/decisions/0101-collision-ladder.md
+    decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s (reference, by default)
+    vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s (reference, by default)
     # "reference": budget and reserve in CPU-s of the machine they were set on, scaled by a reference
     # cut timed here, so a slower day keeps the shapes; "cpu": this machine's (0101-collision-ladder).
     budget_basis: str = _field("reference", choices=("reference", "cpu"))

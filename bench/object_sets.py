@@ -38,9 +38,11 @@ Parts, each on copies of the sets in one scratch folder:
    candidate; the ratio of this code's throughput to the baseline's in the same bench.
 
 Printed at the end, the targets: no object fails; every collision shape within 2 mm (max) of its
-mesh, or the reason it is not; no object above 60 CPU-s to become simulable; the YCB set cold in
-at most 16 CPU-minutes; warm throughput on the mix no lower than the baseline's. CPU seconds are
-this machine's; compare builds by the ratios measured in one run. Writes a record
+mesh, or the reason it is not; no object above 60 reference CPU-s to become simulable; the YCB
+set cold in at most 16 reference CPU-minutes (CPU-s here over this machine's speed factor,
+annotator.objects.machine_speed, measured once and given to every load); warm throughput on the mix
+no lower than the baseline's. Other CPU seconds are this machine's; compare builds by the ratios
+measured in one run. Writes a record
 (bench/harness.py); asserts nothing.
 """
 

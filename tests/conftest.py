@@ -3,6 +3,7 @@ folder; the convex sample objects and one small scene run of them, labelled once
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -13,8 +14,14 @@ from gripper_helpers import users_rg2
 from helpers import QUICK_VIEWS, SCENE_RUN_N, run_annotate
 
 from annotator.config import GripperConfig, PhysicsConfig
+from annotator.objects.machine_speed import FACTOR_ENV
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
+
+# The decomposition budget in plain CPU seconds for the suite and every process it starts, unless
+# the caller set a factor: each process would otherwise time a reference cut (about 4 s) before its
+# first decomposition. tests/test_collision_ladder.py measures it and scales by it on purpose.
+os.environ.setdefault(FACTOR_ENV, "1")
 
 
 @pytest.fixture

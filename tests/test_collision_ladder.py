@@ -203,14 +203,15 @@ def test_a_can_coacd_cannot_finish_within_its_budget_gets_vhacd(tmp_path):
 def test_each_coacd_rung_must_have_parts_by_its_point_of_the_budget():
     """CoACD as the mesh is: 0.3 of the 60 CPU-s budget (at the latest V-HACD's reserve before its
     limit); CoACD remeshed: V-HACD's reserve before its limit; V-HACD: its whole limit."""
-    assert collision_ladder.first_parts_by("coacd", 59, CONFIG) == pytest.approx(18.0)
-    assert collision_ladder.first_parts_by("coacd-remeshed", 39, CONFIG) == 31
-    assert collision_ladder.first_parts_by("vhacd", 39, CONFIG) is None
+    assert collision_ladder.first_parts_by("coacd", 59, CONFIG, 1.0) == pytest.approx(18.0)
+    assert collision_ladder.first_parts_by("coacd-remeshed", 39, CONFIG, 1.0) == 31
+    assert collision_ladder.first_parts_by("vhacd", 39, CONFIG, 1.0) is None
     whole = dataclasses.replace(CONFIG, coacd_first_cut_share=1.0)
-    assert collision_ladder.first_parts_by("coacd", 59, whole) == 51
-    assert collision_ladder.first_parts_by("coacd", 5, CONFIG) == -3  # started with less: stopped at 1 CPU-s
+    assert collision_ladder.first_parts_by("coacd", 59, whole, 1.0) == 51
+    # started with less: stopped at 1 CPU-s
+    assert collision_ladder.first_parts_by("coacd", 5, CONFIG, 1.0) == -3
     no_reserve = dataclasses.replace(CONFIG, vhacd_reserve=0.0, coacd_first_cut_share=1.0)
-    assert collision_ladder.first_parts_by("coacd-remeshed", 39, no_reserve) is None
+    assert collision_ladder.first_parts_by("coacd-remeshed", 39, no_reserve, 1.0) is None
 
 
 @pytest.mark.slow
@@ -609,9 +610,12 @@ def test_vhacd_gives_the_same_parts_every_time(tmp_path):
     assert len(runs[0]) >= 2 and runs[0] == runs[1]
 
 
-def _ladder_limits(monkeypatch, config: ObjectConfig, factor: float) -> list[tuple[str, float, float | None]]:
+def _ladder_limits(
+    monkeypatch, tmp_path, config: ObjectConfig, factor: float, spent: float = 0.0
+) -> list[tuple[str, float, float | None]]:
     """(rung, CPU limit, first-parts point) of each child the ladder starts for an L when this machine
-    runs at ``factor`` CPU-s per reference CPU-second; every child gives nothing, so all rungs run."""
+    runs at ``factor`` CPU-s per reference CPU-second and the load spent ``spent`` CPU-s before the
+    ladder; every child gives nothing, so all rungs run."""
     from annotator.objects.collision_entry import Rung
     from annotator.objects.decomposition_child import RungParts
 
@@ -623,65 +627,123 @@ def _ladder_limits(monkeypatch, config: ObjectConfig, factor: float) -> list[tup
 
     monkeypatch.setattr(collision_ladder, "speed_factor", lambda: factor)
     monkeypatch.setattr(collision_ladder, "child_rung", child)
-    mesh = trimesh.load(write_l(Path(os.environ.get("TMPDIR", "/tmp")) / "rg2-basis-l.obj"), force="mesh")
-    found, rungs = collision_ladder.run_ladder(mesh, config, "l", None)
+    mesh = trimesh.load(write_l(tmp_path / "l.obj"), force="mesh")
+    found, rungs = collision_ladder.run_ladder(mesh, config, "l", None, spent)
     assert found.rung.method == "hull" and [r.method for r in rungs][-1] == "hull"
     return started
 
 
-def test_a_budget_in_reference_seconds_is_scaled_by_the_machine_s_speed(monkeypatch):
+def test_a_budget_in_reference_seconds_is_scaled_by_the_machine_s_speed(monkeypatch, tmp_path):
     """budget_basis "reference": on a machine 2.5 x slower than the budget's, every rung's CPU limit,
-    CoACD's share and V-HACD's reserve are 2.5 x those of plain CPU seconds; "cpu" ignores the speed."""
+    CoACD's share and V-HACD's reserve are 2.5 x those of plain CPU seconds; what the load spent
+    before the ladder (CPU-s here) comes off unscaled; "cpu" ignores the speed."""
     reference = dataclasses.replace(CONFIG, budget_basis="reference")
-    plain = _ladder_limits(monkeypatch, CONFIG, 2.5)
-    scaled = _ladder_limits(monkeypatch, reference, 2.5)
-    assert [m for m, _, _ in plain] == [m for m, _, _ in scaled] == ["coacd", "coacd-remeshed", "vhacd"]
     budget, share, reserve = CONFIG.decomposition_budget, CONFIG.coacd_first_cut_share, CONFIG.vhacd_reserve
-    # the first rung's limit is the whole budget less what follows the ladder (whole seconds)
-    assert plain[0][1] == math.floor(budget - collision_ladder.AFTER_LADDER_SECONDS)
-    assert scaled[0][1] == math.floor(2.5 * budget - collision_ladder.AFTER_LADDER_SECONDS)
-    assert plain[0][2] == pytest.approx(share * budget)
-    assert scaled[0][2] == pytest.approx(2.5 * share * budget)
-    # CoACD remeshed must have parts V-HACD's reserve before its limit
-    assert plain[1][1] - plain[1][2] == pytest.approx(reserve)
-    assert scaled[1][1] - scaled[1][2] == pytest.approx(2.5 * reserve)
-    assert _ladder_limits(monkeypatch, CONFIG, 0.5) == plain
+    after = collision_ladder.AFTER_LADDER_SECONDS
+    for spent in (0.0, 10.0):
+        plain = _ladder_limits(monkeypatch, tmp_path, CONFIG, 2.5, spent)
+        scaled = _ladder_limits(monkeypatch, tmp_path, reference, 2.5, spent)
+        assert [m for m, _, _ in plain] == [m for m, _, _ in scaled] == ["coacd", "coacd-remeshed", "vhacd"]
+        # each rung's limit is what is left of the budget (whole seconds; these children use none)
+        for (_, limit_plain, _), (_, limit_scaled, _) in zip(plain, scaled, strict=True):
+            assert limit_plain == math.floor(budget - after - spent)
+            assert limit_scaled == math.floor(2.5 * (budget - after) - spent)
+        assert plain[0][2] == pytest.approx(share * budget)
+        assert scaled[0][2] == pytest.approx(2.5 * share * budget)
+        # CoACD remeshed must have parts V-HACD's reserve before its limit; V-HACD has no such point
+        assert plain[1][1] - plain[1][2] == pytest.approx(reserve)
+        assert scaled[1][1] - scaled[1][2] == pytest.approx(2.5 * reserve)
+        assert plain[2][2] is None and scaled[2][2] is None
+        assert _ladder_limits(monkeypatch, tmp_path, CONFIG, 0.5, spent) == plain
+    # 12 budget CPU-s: CoACD remeshed (more than a CPU-s beyond the reserve needed) runs at 2.5 x
+    # the speed, where plain CPU seconds have spent too much of them on the first rung to start it
+    small = dataclasses.replace(CONFIG, decomposition_budget=12.0, vhacd_reserve=4.0)
+    plain = _ladder_limits(monkeypatch, tmp_path, small, 2.5, spent=7.0)
+    small_reference = dataclasses.replace(small, budget_basis="reference")
+    scaled = _ladder_limits(monkeypatch, tmp_path, small_reference, 2.5, 7.0)
+    assert [m for m, _, _ in plain] == ["coacd", "vhacd"]
+    assert [m for m, _, _ in scaled] == ["coacd", "coacd-remeshed", "vhacd"]
 
 
 def test_the_machine_s_speed_is_the_fastest_reference_cut_over_the_budget_machine_s(monkeypatch, caplog):
-    """speed_factor(): the measuring child's fastest cut / REFERENCE_CUT_SECONDS, once per process; a
-    child that fails gives 1 (plain CPU seconds) and an absurd time is clamped, each said; a positive
-    RG2_SPEED_FACTOR is used instead, anything else in it is said and measured over."""
+    """speed_factor(): the measuring child's fastest cut / REFERENCE_CUT_SECONDS, kept for the
+    process; a child that fails gives 1 (plain CPU seconds) with its error said, and is measured
+    again next time; an absurd time is clamped and said; a positive RG2_SPEED_FACTOR is used
+    (clamped alike), anything else in it is said and measured over."""
     reference = machine_speed.REFERENCE_CUT_SECONDS
     monkeypatch.delenv(machine_speed.FACTOR_ENV, raising=False)
 
     def factor_of(code: str) -> float:
         monkeypatch.setattr(machine_speed, "measure_command", lambda: [sys.executable, "-c", code])
-        machine_speed.speed_factor.cache_clear()
+        machine_speed.forget()
         try:
             return machine_speed.speed_factor()
         finally:
-            machine_speed.speed_factor.cache_clear()
+            machine_speed.forget()
 
     assert factor_of(f"print([{3 * reference!r}, {2 * reference!r}])") == pytest.approx(2.0)
     with caplog.at_level("WARNING", logger="annotator.objects.machine_speed"):
-        assert factor_of("import sys; sys.exit(3)") == 1.0
-        assert "could not measure" in caplog.text
+        assert factor_of("import sys; sys.stderr.write('ImportError: no coacd'); sys.exit(3)") == 1.0
+        assert "could not measure" in caplog.text and "ImportError: no coacd" in caplog.text
         caplog.clear()
         assert factor_of(f"print([{100 * reference!r}])") == machine_speed.FACTOR_RANGE[1]
         assert "clamped" in caplog.text
+        caplog.clear()
+        assert factor_of("print([float('nan')])") == 1.0
+        assert "could not measure" in caplog.text
+    machine_speed.forget()
     monkeypatch.setattr(machine_speed, "measure_command", lambda: ["/nonexistent/python"])
-    machine_speed.speed_factor.cache_clear()
-    first = machine_speed.speed_factor()
+    assert machine_speed.speed_factor() == 1.0  # a failure is not kept: the next call measures again
+    one = [sys.executable, "-c", f"print([{reference!r}])"]
+    monkeypatch.setattr(machine_speed, "measure_command", lambda: one)
+    assert machine_speed.speed_factor() == pytest.approx(1.0)
     monkeypatch.setattr(machine_speed, "measure_command", lambda: [sys.executable, "-c", "print([99.0])"])
-    assert machine_speed.speed_factor() == first == 1.0  # measured once per process
-    machine_speed.speed_factor.cache_clear()
+    assert machine_speed.speed_factor() == pytest.approx(1.0)  # a measurement is kept for the process
+    machine_speed.forget()
     monkeypatch.setenv(machine_speed.FACTOR_ENV, "1.7")  # given by a parent or pinned by the user
     assert factor_of("import sys; sys.exit(3)") == 1.7
+    monkeypatch.setenv(machine_speed.FACTOR_ENV, "1e308")
+    assert factor_of("import sys; sys.exit(3)") == machine_speed.FACTOR_RANGE[1]
     monkeypatch.setenv(machine_speed.FACTOR_ENV, "fast")
     with caplog.at_level("WARNING", logger="annotator.objects.machine_speed"):
         assert factor_of(f"print([{2 * reference!r}])") == pytest.approx(2.0)  # measured instead
     assert "not a positive number" in caplog.text
+
+
+def test_this_machine_s_speed_is_measured_by_the_real_reference_cut(monkeypatch, caplog):
+    """The product's own measuring child runs the reference cut and its time gives the factor, with
+    nothing said as wrong (no failure, no clamp)."""
+    monkeypatch.delenv(machine_speed.FACTOR_ENV, raising=False)
+    machine_speed.forget()
+    try:
+        with caplog.at_level("INFO", logger="annotator.objects.machine_speed"):
+            factor = machine_speed.speed_factor()
+    finally:
+        machine_speed.forget()
+    low, high = machine_speed.FACTOR_RANGE
+    assert low < factor < high
+    assert "reference cut" in caplog.text and "could not" not in caplog.text and "clamped" not in caplog.text
+
+
+def test_a_convex_object_and_a_warm_cache_never_measure_the_machine(monkeypatch, tmp_path):
+    """Only a decomposition about to run measures: a convex object (its hull) and a concave one whose
+    shape the cache holds load without it."""
+    reference = dataclasses.replace(CONFIG, budget_basis="reference")
+    monkeypatch.setattr(collision_ladder, "speed_factor", lambda: 1.0)
+    l_path = write_l(tmp_path / "l.obj")
+    load_object(l_path, reference, cache_dir=tmp_path / "c")  # cold: measures (here: 1.0)
+
+    def never() -> float:
+        raise AssertionError("measured the machine without a decomposition to run")
+
+    monkeypatch.setattr(collision_ladder, "speed_factor", never)
+    warm = load_object(l_path, reference, cache_dir=tmp_path / "c")
+    assert warm.from_cache and len(warm.parts) > 1
+    box = load_object(write_two_boxes(tmp_path / "boxes.obj"), reference, cache_dir=tmp_path / "c2")
+    assert box.parts
+    cube = tmp_path / "cube.obj"
+    trimesh.creation.box((0.04, 0.05, 0.06)).export(cube)
+    assert len(load_object(cube, reference, cache_dir=tmp_path / "c3").parts) == 1
 
 
 def test_the_reference_cut_is_a_real_concave_cut_of_a_generated_ring():

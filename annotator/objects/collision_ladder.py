@@ -54,8 +54,8 @@ log = logging.getLogger(__name__)
 LADDER = (METHOD, REMESHED, VHACD, "hull")
 # Called as progress(object_id, message) when a decomposition starts, moves down the ladder and ends.
 Progress = Callable[[str, str], None]
-# CPU seconds the ladder leaves for what follows it in a load: writing the cache entry, reading it
-# back and writing the parts' .obj (a 100-part entry of the YCB meshes: about 0.1 CPU-s).
+# Budget seconds the ladder leaves for what follows it in a load: writing the cache entry, reading
+# it back and writing the parts' .obj (a 100-part entry of the YCB meshes: about 0.1 CPU-s).
 AFTER_LADDER_SECONDS = 0.5
 
 
@@ -65,7 +65,7 @@ def budget_factor(config: ObjectConfig) -> float:
     return speed_factor() if config.budget_basis == "reference" else 1.0
 
 
-def first_parts_by(method: str, limit: float, config: ObjectConfig, factor: float = 1.0) -> float | None:
+def first_parts_by(method: str, limit: float, config: ObjectConfig, factor: float) -> float | None:
     """CPU-s of its own by which a rung given ``limit`` CPU-s must have parts or be stopped (None:
     no such point). CoACD as the mesh is: ``coacd_first_cut_share`` of the budget, and at the
     latest ``vhacd_reserve`` before its limit; CoACD remeshed: ``vhacd_reserve`` before its limit.
@@ -88,7 +88,7 @@ def run_ladder(
     measured only here, when a decomposition is about to run)."""
     factor = budget_factor(config)
     reserve = config.vhacd_reserve * factor
-    budget = config.decomposition_budget * factor - spent - AFTER_LADDER_SECONDS
+    budget = (config.decomposition_budget - AFTER_LADDER_SECONDS) * factor - spent
     start = time.process_time()
     rungs: list[Rung] = []
     children = 0.0

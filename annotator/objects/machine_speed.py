@@ -20,9 +20,9 @@ with one OpenMP thread, as the decompositions run, the fastest of :data:`REFEREN
 
 from __future__ import annotations
 
-import functools
 import json
 import logging
+import math
 import os
 import subprocess
 import sys
@@ -33,10 +33,10 @@ import trimesh
 log = logging.getLogger(__name__)
 
 # CPU seconds of one reference cut (reference_mesh, REFERENCE_THRESHOLD, REFERENCE_ITERATIONS, seed
-# 0) on the machine the ladder's limits were measured on: 1.31 CPU-s on a day when the code of
-# those measurements (commit 18ba63c) loaded the sample objects 2.31 times slower than its record
-# object_sets/2026-11-24-18ba63c (the four cut by CoACD alike: 17.9 -> 41.4 CPU-s; record
-# object_sets/2026-11-27-18ba63c): 1.31 / 2.31. python -m bench.machine_speed measures it again.
+# 0) on the machine the ladder's limits were measured on: 1.31 to 1.34 CPU-s (record
+# machine_speed/2026-11-27-a73f4de) on a day when the code of those measurements (commit 18ba63c)
+# loaded the sample objects 2.31 times slower than its record object_sets/2026-11-24-18ba63c (the
+# four cut by CoACD alike: 17.9 -> 41.4 CPU-s; record object_sets/2026-11-27-18ba63c), over 2.31.
 REFERENCE_CUT_SECONDS = 0.57
 REFERENCE_THRESHOLD = 0.05  # CoACD's concavity threshold of the reference cut
 REFERENCE_ITERATIONS = 20  # CoACD tree-search iterations per cut
@@ -88,22 +88,43 @@ def measure_command() -> list[str]:
     return [sys.executable, "-c", code]
 
 
-@functools.cache
+_measured: float | None = None  # this process's factor, once measured (a failed measurement is not kept)
+
+
+def forget() -> None:
+    """Drop this process's measured factor: the next :func:`speed_factor` measures again (tests)."""
+    global _measured
+    _measured = None
+
+
+def _clamped(factor: float, what: str) -> float:
+    """``factor`` within :data:`FACTOR_RANGE`, said when it was not (``what``: where it came from)."""
+    low, high = FACTOR_RANGE
+    if low <= factor <= high:
+        return factor
+    log.warning("%s gives the factor %.3g: clamped to %g-%g", what, factor, low, high)
+    return min(max(factor, low), high)
+
+
 def speed_factor() -> float:
     """CPU seconds here per reference CPU-second (> 1: a slower machine), measured once per process.
 
-    ``RG2_SPEED_FACTOR`` (:data:`FACTOR_ENV`), when set to a positive number, is the factor. A child
-    that fails or prints nothing usable gives 1.0 (plain CPU seconds), said as a warning."""
+    ``RG2_SPEED_FACTOR`` (:data:`FACTOR_ENV`), when set to a positive number, is the factor
+    (clamped to :data:`FACTOR_RANGE` like a measurement). A child that fails or prints nothing
+    usable gives 1.0 (plain CPU seconds) for this decomposition, said as a warning with the child's
+    last line of error; it is not kept, so the next decomposition measures again."""
+    global _measured
     given = os.environ.get(FACTOR_ENV, "").strip()
     if given:
         try:
             pinned = float(given)
         except ValueError:
-            pinned = 0.0
-        if pinned > 0.0 and pinned != float("inf"):
-            log.info("the decomposition budget x %.2f (%s)", pinned, FACTOR_ENV)
-            return pinned
+            pinned = float("nan")
+        if math.isfinite(pinned) and pinned > 0.0:
+            return _clamped(pinned, FACTOR_ENV)
         log.warning("%s=%r is not a positive number; measuring this machine instead", FACTOR_ENV, given)
+    if _measured is not None:
+        return _measured
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     try:
         out = subprocess.run(
@@ -117,20 +138,23 @@ def speed_factor() -> float:
         )
         seconds = [float(s) for s in json.loads(out.stdout.strip().splitlines()[-1])]
         measured = min(seconds)
+        if not (math.isfinite(measured) and measured > 0.0):
+            raise ValueError(f"the reference cut took {measured} CPU-s")
     except (OSError, subprocess.SubprocessError, ValueError, IndexError, TypeError) as exc:
-        log.warning("could not measure this machine's speed (%s); the budget is in CPU seconds", exc)
-        return 1.0
-    factor = measured / REFERENCE_CUT_SECONDS
-    low, high = FACTOR_RANGE
-    if not low <= factor <= high:
+        stderr = getattr(exc, "stderr", None) or ""
+        last = stderr.strip().splitlines()[-1] if stderr.strip() else ""
         log.warning(
-            "the reference cut took %.2f CPU-s (factor %.2f), clamped to %g-%g", measured, factor, low, high
+            "could not measure this machine's speed (%s%s); this decomposition's budget is in CPU seconds",
+            exc,
+            f": {last}" if last else "",
         )
-        factor = min(max(factor, low), high)
+        return 1.0
+    factor = _clamped(measured / REFERENCE_CUT_SECONDS, f"a reference cut of {measured:.2f} CPU-s")
     log.info(
         "reference cut %.2f CPU-s here, %.2f on the budget's machine: the decomposition budget x %.2f",
         measured,
         REFERENCE_CUT_SECONDS,
         factor,
     )
+    _measured = factor
     return factor

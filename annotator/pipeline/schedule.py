@@ -2,10 +2,11 @@
 
 Every object of a run gets one decomposition task (:class:`~annotator.pipeline.worker.Prepare`):
 a worker loads it, making its collision shape (a concave object's convex decomposition, up to a
-minute of CPU) and writing it to the cache unless the cache holds it already, then labels the
-object's first span (an object of one span costs one task and one load). None of an object's
-other label spans is handed out before that task has finished, so no worker decomposes an object
-that another is decomposing, and no worker waits for one. The main process never loads an object.
+minute of a reference machine's CPU) and writing it to the cache unless the cache holds it
+already, then labels the object's first span (an object of one span costs one task and one load).
+None of an object's other label spans is handed out before that task has finished, so no worker
+decomposes an object that another is decomposing, and no worker waits for one. The main process
+never loads an object.
 
 What a free worker gets, in this order of preference:
 
