@@ -398,7 +398,7 @@ class GraspTrial:
         stalls by travel as well as by speed (``RobustConfig.stall_by_travel``).
         """
         if perturbation is None:
-            return self._run(T_obj_tcp, width_expected, Perturbation.none(), TrialPlan(self.shake))
+            return self._run(T_obj_tcp, width_expected, Perturbation.none())  # trial 0's plan
         if np.any(perturbation.com_offset):
             self.world.before_step = _OffsetMass(self, perturbation)
         try:

@@ -67,7 +67,8 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from annotator.config import AnnotatorConfig, ObjectConfig
-from annotator.objects.machine_speed import FACTOR_ENV, speed_factor
+from annotator.objects.collision_ladder import budget_factor
+from annotator.objects.machine_speed import FACTOR_ENV
 from bench.harness import Run
 from bench.reference import free_step
 
@@ -298,7 +299,7 @@ def folder_digest(folder: Path) -> dict:
 # 1. loads
 
 
-def _row(r: Load, factor: float = 1.0) -> str:
+def _row(r: Load, factor: float) -> str:
     if not r.ok:
         return f"  {r.object_id:<26} {r.phase:<4} FAILED {r.reason[:90]}  ({r.cpu_s:.1f} CPU-s)"
     flag = " >2mm" if r.beyond else ""
@@ -310,7 +311,7 @@ def _row(r: Load, factor: float = 1.0) -> str:
     )
 
 
-def loads(args, sets: dict[str, Path], cache: Path, factor: float = 1.0) -> list[Load]:
+def loads(args, sets: dict[str, Path], cache: Path, factor: float) -> list[Load]:
     rows: list[Load] = []
     for phase in args.phases:
         for name, folder in sets.items():
@@ -603,7 +604,7 @@ def extract_baseline(commit: str, dst: Path) -> Path:
 # the targets, and a table of two runs
 
 
-def targets(rows: list[Load], factor: float = 1.0) -> list[str]:
+def targets(rows: list[Load], factor: float) -> list[str]:
     """The targets as lines: met or not, and for each collision shape beyond 2 mm, why. ``factor``:
     this machine's CPU-s per reference CPU-second (the times are compared in reference CPU-s)."""
     config = ObjectConfig()
@@ -749,10 +750,10 @@ def main() -> None:
 def measure(args, sets: dict[str, Path], work: Path, run: Run) -> None:
     cache = work / "cache"
     print(f"load average {os.getloadavg()[0]:.2f}; {os.cpu_count()} cores")
-    factor = speed_factor()
+    factor = budget_factor(ObjectConfig())  # the ladder's own factor for the loads' configuration
     os.environ[FACTOR_ENV] = repr(factor)  # each load's process uses it instead of measuring again
     print(f"this machine: {factor:.2f} CPU-s per reference CPU-second (annotator.objects.machine_speed)")
-    run.figure("budget_factor", factor, note="CPU-s per reference CPU-second: speed_factor(), the ladder's")
+    run.figure("budget_factor", factor, note="CPU-s per reference CPU-second: the ladder's budget_factor()")
     rows = loads(args, sets, cache, factor)
     if rows:
         record_loads(rows, run)
