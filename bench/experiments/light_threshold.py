@@ -47,7 +47,7 @@ from bench._variants import parse_variant
 from bench.experiments.light_objects import simulated_trials
 from bench.harness import Run
 
-OBJECTS = Path(__file__).resolve().parents[1] / "objects"
+OBJECTS = Path(__file__).resolve().parents[2] / "objects"
 box, cylinder = trimesh.creation.box, trimesh.creation.cylinder
 SHAPES = {
     "domino": lambda: box((0.048, 0.024, 0.00635)),
