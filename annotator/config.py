@@ -126,6 +126,30 @@ class PhysicsConfig(_Section):
     # kg; lighter objects take ceil(sqrt(light_object_mass / m)) steps per time_step (contact_substeps).
     # see docs/decisions/0003-light-objects.md
     light_object_mass: float = _field(0.04, gt=0.0)  # kg
+    # kg; a light object this heavy is closed on at its finer step, then lifted and shaken at time_step
+    # (lighter: its finer step throughout). see docs/decisions/0025-light-objects-held-at-the-time-step.md
+    light_hold_mass: float = _field(0.02, gt=0.0)  # >= light_object_mass: never
+    # Contact ERP of that lift and shake: 0.8 squeezed light objects out of the pads at time_step.
+    # see docs/decisions/0025-light-objects-held-at-the-time-step.md
+    light_hold_contact_erp: float = _field(0.5, gt=0.0, le=1.0)
+
+    def substeps(self, mass: float) -> int:
+        """Steps per ``time_step`` that resolve the contacts of an object of ``mass`` (kg):
+        ceil(sqrt(light_object_mass / mass)), at least 1 (docs/decisions/0003-light-objects.md)."""
+        if not mass > 0 or mass >= self.light_object_mass:
+            return 1
+        return int(math.ceil(math.sqrt(self.light_object_mass / mass) - 1e-9))
+
+    def held(self, base: PhysicsConfig, mass: float) -> PhysicsConfig | None:
+        """The settings an object of ``mass`` (kg) is lifted and shaken with once the fingers have
+        closed on it, when these are its own finer step in a run of ``base`` (``physics_for``) and
+        it weighs at least ``base.light_hold_mass``: ``base``'s time step with
+        ``light_hold_contact_erp``. None: these settings throughout (a heavy object; a world that
+        steps for a lighter neighbour, ``[scenes] substeps = "lightest"``)."""
+        n = base.substeps(mass)
+        if n == 1 or not mass >= base.light_hold_mass or self.time_step != base.time_step / n:
+            return None
+        return dataclasses.replace(self, time_step=base.time_step, contact_erp=base.light_hold_contact_erp)
 
     def whole_linkage(self) -> PhysicsConfig:
         """These settings for a world that simulates the RG2's whole linkage (the arm, the GUI)."""
@@ -615,7 +639,8 @@ class AnnotatorConfig:
         default moved from 96.6 % agreement to 96.4 %), and a long shake: six sequential
         motions (translations along x, y, z, then rotations about them), each three 0.35 s sine
         periods at 4.5 cm and 30 deg (1.5 g): 6.3 s, over ten times the default's 0.6 s, at 1.5x its
-        amplitudes, judged after a 0.05 s settle. Fixed values, so that tuning the default cannot
+        amplitudes, judged after a 0.05 s settle. A light object is simulated at its finer step
+        throughout (``light_hold_mass = light_object_mass``). Fixed values, so that tuning the default cannot
         move the reference.
         """
         base = base or cls()
@@ -627,6 +652,7 @@ class AnnotatorConfig:
                 solver_iterations=300,
                 non_contact_iterations=1,
                 contact_breaking_threshold=0.02,
+                light_hold_mass=base.physics.light_object_mass,
             ),
             gripper=dataclasses.replace(base.gripper, passive_links="simulated", pad_rolling_friction=1e-4),
             objects=dataclasses.replace(base.objects, rolling_friction=1e-4),
@@ -675,7 +701,13 @@ class AnnotatorConfig:
         past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook; one
         without ``approach_from_contact``, one whose simulated approaches ran in full; without
         ``stall_by_travel``, one whose closes stalled by the drive's speed alone; and without
-        ``fingers_from_contact``, one whose fingers closed from where the approach left them."""
+        ``fingers_from_contact``, one whose fingers closed from where the approach left them. A
+        ``[physics]`` without ``light_hold_mass`` is one whose light objects were simulated at their
+        finer step throughout (``light_hold_mass = light_object_mass``)."""
+        physics = data.get("physics") if isinstance(data, dict) else None
+        if isinstance(physics, dict) and "light_hold_mass" not in physics:
+            before = physics.get("light_object_mass", PhysicsConfig.light_object_mass)
+            data = {**data, "physics": {**physics, "light_hold_mass": before}}
         if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
             robust = {"shake": True, **data["robust"]}
             protocol = data.get("protocol")

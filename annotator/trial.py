@@ -397,14 +397,19 @@ class GraspTrial:
         object at rest (``RobustConfig.fingers_from_contact``), and its close ends when the drive
         stalls by travel as well as by speed (``RobustConfig.stall_by_travel``).
         """
+        physics = self.world.physics  # a light object's lift and shake may change it (_hold)
         if perturbation is None:
-            return self._run(T_obj_tcp, width_expected, Perturbation.none())  # trial 0's plan
+            try:
+                return self._run(T_obj_tcp, width_expected, Perturbation.none())  # trial 0's plan
+            finally:
+                self.world.use(physics)
         if np.any(perturbation.com_offset):
             self.world.before_step = _OffsetMass(self, perturbation)
         try:
             plan = TrialPlan.perturbed(self.robust, self.shake)
             return self._run(T_obj_tcp, width_expected, perturbation, plan)
         finally:
+            self.world.use(physics)
             self.world.before_step = None
             self._apply(Perturbation.none())
 
@@ -461,7 +466,11 @@ class GraspTrial:
         if not self._both_pads_touch():
             return result(Outcome.NO_CONTACT)
 
-        # 4. lift with gravity on
+        # 4. lift with gravity on; a light object, closed on at its finer step, is held at the run's
+        # time step from here (PhysicsConfig.held; docs/decisions/0003-light-objects.md)
+        held = self.world.physics.held(self.config.physics, self._mass)
+        if held is not None:
+            self.world.use(held)
         grasped_at = self._hand_obj_position()
         self.world.set_gravity(True)
         start = self.hand.target

@@ -122,6 +122,28 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     assert AnnotatorConfig.from_run(old, 5) == shaken
 
 
+def test_a_folder_made_before_light_objects_were_held_at_the_time_step_reads_back_as_it_simulated():
+    """A folder made before ``[physics] light_hold_mass`` simulated its light objects at their finer
+    step throughout: it reads back so (a tool that simulates its labels again does what the run
+    did), and a run that lifts and shakes them at the time step never resumes in it, naming the
+    fields."""
+    from annotator.store.manifest import RunSpec
+
+    config = AnnotatorConfig()
+    old = config.to_dict(trials=1)
+    for name in ("light_hold_mass", "light_hold_contact_erp"):
+        old["physics"].pop(name)
+    assert _spec(config, 1).differences(RunSpec(0, 5, 1, None, 5, old).to_json()) == [
+        "[physics] light_hold_contact_erp None in the folder, 0.5 now",
+        "[physics] light_hold_mass None in the folder, 0.02 now",
+    ]
+    never = dataclasses.replace(config.physics, light_hold_mass=config.physics.light_object_mass)
+    throughout = dataclasses.replace(config, physics=never)
+    assert AnnotatorConfig.from_run(old, 1) == throughout
+    for made in (config, throughout):
+        assert AnnotatorConfig.from_run(made.to_dict(trials=1), 1) == made
+
+
 @pytest.mark.parametrize("field", ["approach_from_contact", "fingers_from_contact"])
 def test_a_run_binds_the_simulated_approach_s_shortcuts_only_where_they_change_the_scores(field):
     """``[robust] approach_from_contact`` and ``fingers_from_contact`` are in a run's manifest only

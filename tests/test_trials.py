@@ -295,9 +295,10 @@ def test_a_perturbed_trial_ends_at_the_lift_unless_its_ranges_shake(brick):
 
 @pytest.mark.slow
 def test_a_light_object_s_perturbed_trial_ends_at_the_lift_at_its_own_step(tmp_path):
-    """A 20 g plate, simulated at its finer step (annotator.objects.physics_for): a perturbed trial
-    that changes nothing, its close stalled by speed as trial 0's, is, to the bit, the trial of a
-    gripper that never shakes, and it is shorter than trial 0 by the shake's steps at that step."""
+    """A 19 g plate, simulated at its finer step (annotator.objects.physics_for), lifted and shaken
+    there too (under light_hold_mass): a perturbed trial that changes nothing, its close stalled by
+    speed as trial 0's, is, to the bit, the trial of a gripper that never shakes, and it is shorter
+    than trial 0 by the shake's steps at that step."""
     path = tmp_path / "plate.obj"
     trimesh.creation.box((0.06, 0.04, 0.016)).export(path)
     model = load_object(ObjectSource("plate", path), CONFIG.objects)
@@ -322,8 +323,79 @@ def test_a_light_object_s_perturbed_trial_ends_at_the_lift_at_its_own_step(tmp_p
         for t in (trial, never, speed):
             t.close()
     assert lifted.outcome == first.outcome == Outcome.SUCCESS and _same(lifted, unshaken), (lifted, unshaken)
+    assert model.mass < CONFIG.physics.light_hold_mass
     shake_steps = round(CONFIG.protocol.shake_duration / physics.time_step)
     assert first.steps - lifted.steps >= shake_steps - CONFIG.protocol.check_every, (first, lifted)
+
+
+def test_only_a_light_object_at_its_own_finer_step_is_held_at_the_run_s_time_step():
+    """PhysicsConfig.held: an object of at least light_hold_mass simulated at its own finer step is
+    lifted and shaken at the run's time step with the hold's contact ERP, everything else kept.
+    The same settings throughout (None) for: a heavy object, one lighter than light_hold_mass, one
+    in a world that steps finer for a lighter neighbour, and light_hold_mass >= light_object_mass."""
+    base = CONFIG.physics
+    assert base.light_hold_mass < base.light_object_mass
+    for grams, n in ((39.9, 2), (20.0, 2), (10.0, 2), (9.9, 3), (4.0, 4), (40.0, 1)):
+        assert base.substeps(grams / 1000) == n, grams
+    finer = dataclasses.replace(base, time_step=base.time_step / 2)  # physics_for of 10-40 g
+    held = finer.held(base, 0.032)
+    hold_erp = base.light_hold_contact_erp
+    assert held == dataclasses.replace(finer, time_step=base.time_step, contact_erp=hold_erp)
+    assert held.contact_erp != base.contact_erp and held.solver_iterations == base.solver_iterations
+    assert finer.held(base, base.light_hold_mass) is not None
+    assert base.held(base, 0.2) is None  # heavy
+    assert finer.held(base, 0.019) is None  # under light_hold_mass
+    assert dataclasses.replace(base, time_step=base.time_step / 3).held(base, 0.008) is None  # 8 g
+    assert dataclasses.replace(base, time_step=base.time_step / 4).held(base, 0.032) is None  # a neighbour's
+    never = dataclasses.replace(base, light_hold_mass=base.light_object_mass)
+    assert finer.held(never, 0.032) is None
+
+
+@pytest.mark.slow
+def test_a_light_object_is_closed_on_at_its_finer_step_then_lifted_and_shaken_at_the_run_s(tmp_path):
+    """A 24 g plate (1/480 s): every step of the close is at its finer step and every step of the
+    lift and shake at the run's time step with the hold's contact ERP; the world steps finer again
+    for the next trial. With light_hold_mass = light_object_mass every step is at the finer step:
+    the same close, so the same width to the bit, and twice the steps for the lift and shake."""
+    path = tmp_path / "plate.obj"
+    trimesh.creation.box((0.06, 0.04, 0.02)).export(path)
+    model = load_object(ObjectSource("plate", path), CONFIG.objects)
+    physics = physics_for(model, CONFIG.physics)
+    assert physics.time_step == CONFIG.physics.time_step / 2 and model.mass >= CONFIG.physics.light_hold_mass
+    never = dataclasses.replace(CONFIG.physics, light_hold_mass=CONFIG.physics.light_object_mass)
+    finer = dataclasses.replace(CONFIG, physics=never)
+    cands = sample_candidates(model.mesh, 24, object_rng(0, "plate"), CONFIG.sampler, 0.11)
+    with World(physics) as world:
+        trial = _brick_trial(world, model, CONFIG)
+        throughout = GraspTrial(world, trial.hand, trial.obj, finer)
+        steps: list[tuple[float, float]] = []
+        world.before_step = lambda: steps.append((world.dt, world.physics.contact_erp))
+        results = []
+        for i in range(len(cands)):
+            T, w = Transform.from_matrix(cands.T_obj_tcp[i]), cands.width_expected[i]
+            steps.clear()
+            held = trial.run(T, w)
+            if held.outcome != Outcome.SUCCESS:
+                continue
+            held_steps = list(steps)
+            assert world.physics == physics  # the next trial starts at the finer step
+            steps.clear()
+            results.append((held, held_steps, throughout.run(T, w), list(steps)))
+            if len(results) == 2:
+                break
+        trial.close()
+        throughout.close()
+    assert len(results) == 2
+    lift_shake = round(CONFIG.protocol.lift_duration / CONFIG.physics.time_step) + round(
+        CONFIG.protocol.shake_duration / CONFIG.physics.time_step
+    )
+    fine_step = (physics.time_step, CONFIG.physics.contact_erp)
+    hold_step = (CONFIG.physics.time_step, CONFIG.physics.light_hold_contact_erp)
+    for held, held_steps, fine, fine_steps in results:
+        close = len(held_steps) - lift_shake
+        assert close > 0 and held_steps == [fine_step] * close + [hold_step] * lift_shake
+        assert fine_steps == [fine_step] * len(fine_steps) and len(fine_steps) == close + 2 * lift_shake
+        assert fine.width == held.width and fine.outcome == Outcome.SUCCESS
 
 
 @pytest.mark.slow

@@ -131,9 +131,7 @@ def contact_substeps(mass: float, physics: PhysicsConfig) -> int:
     dynamics need a time step ~ sqrt(m) (a 4 g plate at 1/240 s: 2 of 49 face grasps held,
     pads 3.9 mm deep; at 1/760 s 49 of 49, 0.15 mm). See PhysicsConfig.light_object_mass.
     """
-    if not mass > 0 or mass >= physics.light_object_mass:
-        return 1
-    return int(np.ceil(np.sqrt(physics.light_object_mass / mass) - 1e-9))
+    return physics.substeps(mass)
 
 
 def physics_for(model: ObjectModel, physics: PhysicsConfig) -> PhysicsConfig:

@@ -49,6 +49,15 @@ class World:
         )
         pb.setGravity(0, 0, self.physics.gravity, physicsClientId=self.client)
 
+    def use(self, physics: PhysicsConfig) -> None:
+        """Step with ``physics`` from now on (nothing to do if it is the current one); gravity stays
+        as it is."""
+        if physics == self.physics:
+            return
+        self.physics = physics
+        self.configure()
+        self.set_gravity(self.gravity_on)
+
     @property
     def dt(self) -> float:
         """The time step (s) of one ``step()``."""

@@ -7,7 +7,9 @@ mass and simulation time step (the measurement behind PhysicsConfig.light_object
 The plate is 48 x 24 x 6.35 mm (a domino); its candidates come from the sampler (seed 0) and only
 those closing across the 6.35 mm faces that pass the collision check are simulated. "as
 simulated" is the step the annotator uses for that mass (time_step / contact_substeps). Prints a
-line per mass and step and writes a record (bench/harness.py).
+line per mass and step and writes a record (bench/harness.py). Every step of a trial is at the
+given rate, the lift and shake included (the annotator lifts and shakes an object of
+``light_hold_mass`` or more at ``time_step``: ``bench.experiments.light_threshold --own-step``).
 """
 
 from __future__ import annotations
@@ -23,7 +25,14 @@ import trimesh
 
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
-from annotator.objects import ObjectProperties, ObjectSource, contact_substeps, create_body, load_object
+from annotator.objects import (
+    ObjectProperties,
+    ObjectSource,
+    contact_substeps,
+    create_body,
+    load_object,
+    physics_for,
+)
 from annotator.outcome import Outcome
 from annotator.pipeline.worker import PARKED
 from annotator.sampler import object_rng, sample_candidates
@@ -44,17 +53,20 @@ def simulated_trials(
     config: AnnotatorConfig,
     folder: Path,
     keep: Callable[[Transform], bool] | None = None,
+    own_step: bool = False,
 ) -> Iterator[TrialResult]:
     """Trials of the first ``n`` sampled candidates on ``mesh`` (metres) of ``grams``, floating
-    gripper, simulated at ``config.physics`` as given (no light-object substeps); those ``keep``
-    rejects (by pose) are not run, those the collision check rejects are not yielded."""
+    gripper, simulated at ``config.physics`` as given (no light-object substeps), or with
+    ``own_step`` at the annotator's own steps for that mass (``physics_for``: the close at its finer
+    step, the lift and shake as ``PhysicsConfig.held`` says); those ``keep`` rejects (by pose) are
+    not run, those the collision check rejects are not yielded."""
     path = folder / f"{name}.obj"
     if not path.exists():
         mesh.export(path)
     source = ObjectSource(name, path, properties=ObjectProperties(mass=grams / 1000.0))
     model = load_object(source, config.objects, cache_dir=folder / "cache")
     cands = sample_candidates(model.mesh, n, object_rng(seed, name), config.sampler, 0.110)
-    with World(config.physics) as world:
+    with World(physics_for(model, config.physics) if own_step else config.physics) as world:
         hand = FloatingGripper(world, config.gripper)
         hand.teleport(PARKED, hand.gripper.max_width)
         uid = create_body(world.client, model)

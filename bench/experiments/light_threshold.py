@@ -28,6 +28,12 @@ Shapes (the first four are the default set; ``--shapes all`` adds eleven more):
   mug, banana   the sample objects' meshes (objects/), at the masses of the grid
 
     python -m bench.experiments.light_threshold --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
+
+``--own-step`` labels at the annotator's own steps instead of 1/240 s: a light object's close at
+its finer step (``annotator.objects.physics_for``), its lift and shake as ``PhysicsConfig.held``
+says (at 1/240 s with ``light_hold_contact_erp`` from ``light_hold_mass`` up); the fine reference
+stays at its step throughout. With ``--set physics.light_hold_mass=0.04`` that is the finer step
+throughout, the model before decision 0025.
 """
 
 from __future__ import annotations
@@ -71,22 +77,32 @@ WIDTH_TOLERANCE = 0.0002  # m: a width beyond this from the fine step's counts a
 WIDTHS = (8, 5, 4, 4, 6, 7, 6, 7)  # printed column widths
 
 
-def run_at(shape: str, grams: float, seed: int, n: int, substeps: int, folder: Path, config: AnnotatorConfig):
-    """(successes (K,) bool, widths (K,) float m) of the simulated candidates at time_step / substeps."""
+def run_at(
+    shape: str,
+    grams: float,
+    seed: int,
+    n: int,
+    substeps: int,
+    folder: Path,
+    config: AnnotatorConfig,
+    own_step: bool = False,
+):
+    """(successes (K,) bool, widths (K,) float m) of the simulated candidates at time_step / substeps
+    throughout, or at the annotator's own steps (``own_step``, substeps 1)."""
     physics = dataclasses.replace(config.physics, time_step=config.physics.time_step / substeps)
     config = dataclasses.replace(config, physics=physics)  # as given: no light-object substeps
     success, widths = [], []
-    for r in simulated_trials(SHAPES[shape](), shape, grams, seed, n, config, folder):
+    for r in simulated_trials(SHAPES[shape](), shape, grams, seed, n, config, folder, own_step=own_step):
         success.append(r.outcome == Outcome.SUCCESS)
         widths.append(r.width)
     return np.array(success, bool), np.array(widths, float)
 
 
-def row(args: tuple[str, float, int, int, int, str]) -> tuple[str, float, int, int, int, int, int, int]:
-    shape, grams, seed, n, fine, changes = args
+def row(args: tuple[str, float, int, int, int, str, bool]) -> tuple[str, float, int, int, int, int, int, int]:
+    shape, grams, seed, n, fine, changes, own_step = args
     config = parse_variant(changes)[1]
     with tempfile.TemporaryDirectory() as tmp:
-        s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp), config)
+        s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp), config, own_step)
         sf, wf = run_at(shape, grams, seed, n, fine, Path(tmp), config)
     both = s1 & sf
     wide = int(np.sum(np.abs(w1[both] - wf[both]) > WIDTH_TOLERANCE))
@@ -106,18 +122,22 @@ def main() -> None:
     ap.add_argument("--fine", type=int, default=4, help="substeps of the fine reference step")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--set", default="", help="FIELD=VALUE[,FIELD=VALUE] for both runs")
+    ap.add_argument(
+        "--own-step", action="store_true", help="label at the annotator's own steps, not 1/240 s throughout"
+    )
     args = ap.parse_args()
     config = parse_variant(args.set)[1]  # an unknown field exits here, not in a worker
     if "all" in args.shapes:
         args.shapes = list(SHAPES)
     grid = [
-        (s, g, seed, args.candidates, args.fine, args.set)
+        (s, g, seed, args.candidates, args.fine, args.set, args.own_step)
         for s in args.shapes
         for g in args.grams
         for seed in args.seeds
     ]
     totals: dict[float, np.ndarray] = {}
-    print(f"1/240 s against 1/{240 * args.fine} s, default gripper and protocol {args.set}", flush=True)
+    steps = "the annotator's own steps" if args.own_step else "1/240 s"
+    print(f"{steps} against 1/{240 * args.fine} s, default gripper and protocol {args.set}", flush=True)
     header = ("shape", "g", "seed", "sim", "ok@240", "ok@fine", "agree", "w>0.2mm")
     print(
         " ".join(
@@ -152,7 +172,7 @@ def main() -> None:
             sim, ok1, okf, agree, wide = (int(v) for v in totals[grams])
             print(
                 f"{grams:5.1f} g: {agree} of {sim} agree ({100.0 * agree / max(sim, 1):.1f} %), "
-                f"successes {ok1} at 1/240 s vs {okf} fine, {wide} widths beyond 0.2 mm"
+                f"successes {ok1} at {steps} vs {okf} fine, {wide} widths beyond 0.2 mm"
             )
             per_mass.append(
                 {
@@ -165,7 +185,11 @@ def main() -> None:
                     "widths_over_0p2mm": wide,
                 }
             )
-        run.table("per_mass", per_mass, note=f"all shapes and seeds; 1/240 s against 1/{240 * args.fine} s")
+        run.table(
+            "per_mass",
+            per_mass,
+            note=f"all shapes and seeds; {steps} (success_240) against 1/{240 * args.fine} s",
+        )
         run.table("rows", rows, note="per shape, mass and seed")
 
 
