@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from annotator.config import AnnotatorConfig, RobustConfig
+from annotator.config import AnnotatorConfig, PhysicsConfig, RobustConfig
 from annotator.geometry import Transform, axis_angle_to_matrix
 from annotator.outcome import Outcome
 from annotator.rng import trial_rng  # noqa: F401  (re-exported)
@@ -466,9 +466,9 @@ class GraspTrial:
         if not self._both_pads_touch():
             return result(Outcome.NO_CONTACT)
 
-        # 4. lift with gravity on; a light object, closed on at its finer step, is held at the run's
-        # time step from here (PhysicsConfig.held; docs/decisions/0003-light-objects.md)
-        held = self.world.physics.held(self.config.physics, self._mass)
+        # 4. lift with gravity on; a light floating object, closed on at its finer step, is held at
+        # the run's time step from here (docs/decisions/0025-light-objects-held-at-the-time-step.md)
+        held = self._held_physics()
         if held is not None:
             self.world.use(held)
         grasped_at = self._hand_obj_position()
@@ -494,6 +494,13 @@ class GraspTrial:
         if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
             return result(Outcome.SLIPPED_SHAKE if plan.shake else Outcome.SLIPPED_LIFT, slip)
         return result(Outcome.SUCCESS, slip)
+
+    def _held_physics(self) -> PhysicsConfig | None:
+        """The settings this trial lifts and shakes with once closed (``PhysicsConfig.held``): a
+        floating object's only; one resting on a table (the cell, scenes) keeps the world's."""
+        if self.resting:
+            return None
+        return self.world.physics.held(self.config.physics, self._mass)
 
     def _hand_obj_position(self) -> np.ndarray:
         """The object's centre of mass in the gripper's COM frame, (3,) m (cheap, C-level math)."""

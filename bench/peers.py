@@ -64,7 +64,8 @@ written here from the numbers in their sources, as primitives):
   fingertips' end).
 * **ours** -- ``annotator.trial.GraspTrial`` as the annotator's worker runs it (collision check,
   close, lift, shake), the world built once and restored by snapshot, a light object's time step
-  divided as the worker divides it (``annotator.objects.physics_for``).
+  divided as the worker divides it (``annotator.objects.physics_for``) and, from
+  ``light_hold_mass`` up, lifted and shaken at the run's own (``PhysicsConfig.held``).
 """
 
 from __future__ import annotations
