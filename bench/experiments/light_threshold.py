@@ -29,11 +29,16 @@ Shapes (the first four are the default set; ``--shapes all`` adds eleven more):
 
     python -m bench.experiments.light_threshold --shapes all --grams 24 32 40 80   # 15 shapes, ~12 min
 
-``--own-step`` labels at the annotator's own steps instead of 1/240 s: a light object's close at
+``--variant NAME:FIELD=VALUE[,...]`` (repeatable) also labels with those changes, against the same
+fine reference, which is simulated once per shape, mass and seed. ``--own-step`` labels at the
+annotator's own steps instead of 1/240 s: a light object's close at
 its finer step (``annotator.objects.physics_for``), its lift and shake as ``PhysicsConfig.held``
 says (at 1/240 s with ``light_hold_contact_erp`` from ``light_hold_mass`` up); the fine reference
-stays at its step throughout. With ``--set physics.light_hold_mass=0.04`` that is the finer step
-throughout, the model before decision 0025.
+stays at its step throughout. ``--variant "before:physics.light_hold_mass=0.04"`` is the finer step
+throughout, the model before decision 0025:
+
+    python -m bench.experiments.light_threshold --own-step --grams 14 20 24 28 32 38 \\
+        --shapes domino cube40 rod disc card box642 can40 stick --variant "before:light_hold_mass=0.04"
 """
 
 from __future__ import annotations
@@ -98,15 +103,25 @@ def run_at(
     return np.array(success, bool), np.array(widths, float)
 
 
-def row(args: tuple[str, float, int, int, int, str, bool]) -> tuple[str, float, int, int, int, int, int, int]:
-    shape, grams, seed, n, fine, changes, own_step = args
+def row(args: tuple) -> list[tuple[str, str, float, int, int, int, int, int, int]]:
+    """One (shape, mass, seed): the fine reference once, then each labelled configuration
+    (``(name, spec)``: "default" is ``--set``, a variant is ``--set`` and its own changes) against
+    it; per configuration ``(name, shape, grams, seed, simulated, successes, successes fine, agree,
+    widths beyond the tolerance)``."""
+    shape, grams, seed, n, fine, changes, own_step, labelled = args
     config = parse_variant(changes)[1]
+    out = []
     with tempfile.TemporaryDirectory() as tmp:
-        s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp), config, own_step)
         sf, wf = run_at(shape, grams, seed, n, fine, Path(tmp), config)
-    both = s1 & sf
-    wide = int(np.sum(np.abs(w1[both] - wf[both]) > WIDTH_TOLERANCE))
-    return shape, grams, seed, len(s1), int(s1.sum()), int(sf.sum()), int(np.sum(s1 == sf)), wide
+        for name, spec in labelled:
+            variant = parse_variant(spec, base=config)[1] if spec else config
+            s1, w1 = run_at(shape, grams, seed, n, 1, Path(tmp), variant, own_step)
+            both = s1 & sf
+            wide = int(np.sum(np.abs(w1[both] - wf[both]) > WIDTH_TOLERANCE))
+            out.append(
+                (name, shape, grams, seed, len(s1), int(s1.sum()), int(sf.sum()), int(np.sum(s1 == sf)), wide)
+            )
+    return out
 
 
 def main() -> None:
@@ -125,72 +140,86 @@ def main() -> None:
     ap.add_argument(
         "--own-step", action="store_true", help="label at the annotator's own steps, not 1/240 s throughout"
     )
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help="NAME:FIELD=VALUE[,...]: also label with these changes on top of --set, against the same "
+        "fine reference (repeatable)",
+    )
     args = ap.parse_args()
     config = parse_variant(args.set)[1]  # an unknown field exits here, not in a worker
+    labelled = [("default", "")] + [(parse_variant(v, base=config)[0], v) for v in args.variant]
     if "all" in args.shapes:
         args.shapes = list(SHAPES)
     grid = [
-        (s, g, seed, args.candidates, args.fine, args.set, args.own_step)
+        (s, g, seed, args.candidates, args.fine, args.set, args.own_step, labelled)
         for s in args.shapes
         for g in args.grams
         for seed in args.seeds
     ]
-    totals: dict[float, np.ndarray] = {}
+    totals: dict[tuple[str, float], np.ndarray] = {}
     steps = "the annotator's own steps" if args.own_step else "1/240 s"
     print(f"{steps} against 1/{240 * args.fine} s, default gripper and protocol {args.set}", flush=True)
     header = ("shape", "g", "seed", "sim", "ok@240", "ok@fine", "agree", "w>0.2mm")
     print(
-        " ".join(
+        "variant  "
+        + " ".join(
             f"{h:8s}" if k == 0 else f"{h:>{w}s}" for k, (h, w) in enumerate(zip(header, WIDTHS, strict=True))
         )
     )
     with Run("light_threshold", config=vars(args), annotator=config) as run:
         rows = []
         with ProcessPoolExecutor(args.jobs) as pool:
-            for shape, grams, seed, sim, ok1, okf, agree, wide in pool.map(row, grid):
+            for results in pool.map(row, grid):
+                for name, shape, grams, seed, sim, ok1, okf, agree, wide in results:
+                    print(
+                        f"{name:8s} {shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} "
+                        f"{wide:7d}",
+                        flush=True,
+                    )
+                    totals.setdefault((name, grams), np.zeros(5, int))
+                    totals[name, grams] += (sim, ok1, okf, agree, wide)
+                    rows.append(
+                        {
+                            "variant": name,
+                            "shape": shape,
+                            "grams": grams,
+                            "seed": seed,
+                            "simulated": sim,
+                            "success_240": ok1,
+                            "success_fine": okf,
+                            "agree": agree,
+                            "widths_over_0p2mm": wide,
+                        }
+                    )
+        print("\nper mass, all shapes and seeds:")
+        per_mass = []
+        for name, _ in labelled:
+            for grams in sorted(g for n, g in totals if n == name):
+                sim, ok1, okf, agree, wide = (int(v) for v in totals[name, grams])
                 print(
-                    f"{shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} {wide:7d}",
-                    flush=True,
+                    f"{name}: {grams:5.1f} g: {agree} of {sim} agree ({100.0 * agree / max(sim, 1):.1f} %), "
+                    f"successes {ok1} at {steps} vs {okf} fine, {wide} widths beyond 0.2 mm"
                 )
-                totals.setdefault(grams, np.zeros(5, int))
-                totals[grams] += (sim, ok1, okf, agree, wide)
-                rows.append(
+                per_mass.append(
                     {
-                        "shape": shape,
+                        "variant": name,
                         "grams": grams,
-                        "seed": seed,
                         "simulated": sim,
+                        "agree": agree,
+                        "agree_pct": 100.0 * agree / max(sim, 1),
                         "success_240": ok1,
                         "success_fine": okf,
-                        "agree": agree,
                         "widths_over_0p2mm": wide,
                     }
                 )
-        print("\nper mass, all shapes and seeds:")
-        per_mass = []
-        for grams in sorted(totals):
-            sim, ok1, okf, agree, wide = (int(v) for v in totals[grams])
-            print(
-                f"{grams:5.1f} g: {agree} of {sim} agree ({100.0 * agree / max(sim, 1):.1f} %), "
-                f"successes {ok1} at {steps} vs {okf} fine, {wide} widths beyond 0.2 mm"
-            )
-            per_mass.append(
-                {
-                    "grams": grams,
-                    "simulated": sim,
-                    "agree": agree,
-                    "agree_pct": 100.0 * agree / max(sim, 1),
-                    "success_240": ok1,
-                    "success_fine": okf,
-                    "widths_over_0p2mm": wide,
-                }
-            )
         run.table(
             "per_mass",
             per_mass,
             note=f"all shapes and seeds; {steps} (success_240) against 1/{240 * args.fine} s",
         )
-        run.table("rows", rows, note="per shape, mass and seed")
+        run.table("rows", rows, note="per variant, shape, mass and seed")
 
 
 if __name__ == "__main__":
