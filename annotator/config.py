@@ -128,7 +128,7 @@ class PhysicsConfig(_Section):
     light_object_mass: float = _field(0.04, gt=0.0)  # kg
     # kg; a light object this heavy is closed on at its finer step, then lifted and shaken at time_step
     # (lighter: its finer step throughout). see docs/decisions/0025-light-objects-held-at-the-time-step.md
-    light_hold_mass: float = _field(0.02, gt=0.0)  # >= light_object_mass: never
+    light_hold_mass: float = _field(0.028, gt=0.0)  # >= light_object_mass: never
     # Contact ERP of that lift and shake: 0.8 squeezed light objects out of the pads at time_step.
     # see docs/decisions/0025-light-objects-held-at-the-time-step.md
     light_hold_contact_erp: float = _field(0.5, gt=0.0, le=1.0)

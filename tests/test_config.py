@@ -135,7 +135,7 @@ def test_a_folder_made_before_light_objects_were_held_at_the_time_step_reads_bac
         old["physics"].pop(name)
     assert _spec(config, 1).differences(RunSpec(0, 5, 1, None, 5, old).to_json()) == [
         "[physics] light_hold_contact_erp None in the folder, 0.5 now",
-        "[physics] light_hold_mass None in the folder, 0.02 now",
+        "[physics] light_hold_mass None in the folder, 0.028 now",
     ]
     never = dataclasses.replace(config.physics, light_hold_mass=config.physics.light_object_mass)
     throughout = dataclasses.replace(config, physics=never)
