@@ -126,8 +126,8 @@ class PhysicsConfig(_Section):
     # kg; lighter objects take ceil(sqrt(light_object_mass / m)) steps per time_step (contact_substeps).
     # see docs/decisions/0003-light-objects.md
     light_object_mass: float = _field(0.04, gt=0.0)  # kg
-    # kg; a light object this heavy is closed on at its finer step, then lifted and shaken at time_step
-    # (lighter: its finer step throughout). see docs/decisions/0025-light-objects-held-at-the-time-step.md
+    # kg; a floating light object this heavy is lifted and shaken at time_step (lighter or resting: finer).
+    # see docs/decisions/0025-light-objects-held-at-the-time-step.md
     light_hold_mass: float = _field(0.028, gt=0.0)  # >= light_object_mass: never
     # Contact ERP of that lift and shake: 0.8 squeezed light objects out of the pads at time_step.
     # see docs/decisions/0025-light-objects-held-at-the-time-step.md
@@ -640,8 +640,8 @@ class AnnotatorConfig:
         motions (translations along x, y, z, then rotations about them), each three 0.35 s sine
         periods at 4.5 cm and 30 deg (1.5 g): 6.3 s, over ten times the default's 0.6 s, at 1.5x its
         amplitudes, judged after a 0.05 s settle. A light object is simulated at its finer step
-        throughout (``light_hold_mass = light_object_mass``). Fixed values, so that tuning the default cannot
-        move the reference.
+        throughout (``light_hold_mass = light_object_mass``). Fixed values, so that tuning the
+        default cannot move the reference.
         """
         base = base or cls()
         return dataclasses.replace(

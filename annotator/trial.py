@@ -397,7 +397,7 @@ class GraspTrial:
         object at rest (``RobustConfig.fingers_from_contact``), and its close ends when the drive
         stalls by travel as well as by speed (``RobustConfig.stall_by_travel``).
         """
-        physics = self.world.physics  # a light object's lift and shake may change it (_hold)
+        physics = self.world.physics  # a light object's lift and shake may change it (_held_physics)
         if perturbation is None:
             try:
                 return self._run(T_obj_tcp, width_expected, Perturbation.none())  # trial 0's plan
