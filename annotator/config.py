@@ -144,8 +144,8 @@ class PhysicsConfig(_Section):
         """The settings an object of ``mass`` (kg) is lifted and shaken with once the fingers have
         closed on it, when these are its own finer step in a run of ``base`` (``physics_for``) and
         it weighs at least ``base.light_hold_mass``: ``base``'s time step with
-        ``light_hold_contact_erp``. None: these settings throughout (a heavy object; a world that
-        steps for a lighter neighbour, ``[scenes] substeps = "lightest"``)."""
+        ``light_hold_contact_erp``. None: these settings throughout (a heavy object; one under
+        ``light_hold_mass``; a world stepping at any other step, such as a bench's fixed step)."""
         n = base.substeps(mass)
         if n == 1 or not mass >= base.light_hold_mass or self.time_step != base.time_step / n:
             return None

@@ -398,20 +398,18 @@ class GraspTrial:
         stalls by travel as well as by speed (``RobustConfig.stall_by_travel``).
         """
         physics = self.world.physics  # a light object's lift and shake may change it (_held_physics)
-        if perturbation is None:
-            try:
-                return self._run(T_obj_tcp, width_expected, Perturbation.none())  # trial 0's plan
-            finally:
-                self.world.use(physics)
-        if np.any(perturbation.com_offset):
+        if perturbation is not None and np.any(perturbation.com_offset):
             self.world.before_step = _OffsetMass(self, perturbation)
         try:
+            if perturbation is None:
+                return self._run(T_obj_tcp, width_expected, Perturbation.none())  # trial 0's plan
             plan = TrialPlan.perturbed(self.robust, self.shake)
             return self._run(T_obj_tcp, width_expected, perturbation, plan)
         finally:
             self.world.use(physics)
-            self.world.before_step = None
-            self._apply(Perturbation.none())
+            if perturbation is not None:
+                self.world.before_step = None
+                self._apply(Perturbation.none())
 
     def _run(
         self,
