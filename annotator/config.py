@@ -328,6 +328,14 @@ class ProtocolConfig(_Section):
     # s: 0.5 m/s on average, 0.75 m/s at peak (the UR3's tool speed is ~1 m/s).
     # see docs/decisions/0004-short-paired-shake.md
     lift_duration: float = _field(0.2, gt=0.0)
+    # Benchmark motion after the lift (GRASPA's S5): +a, -a, 0 about the approach, then +b, -b, 0 about
+    # the closing axis, in motion_duration; both 0: no motion stage. docs/decisions/0026-stages.md
+    motion_approach_angle: float = _field(0.0, ge=0.0, le=math.pi)  # rad
+    motion_closing_angle: float = _field(0.0, ge=0.0, le=math.pi / 2)  # rad
+    motion_duration: float = _field(1.5, gt=0.0, le=60.0)  # s, all six moves
+    # The stage trial 0 must hold through for success: "close", "lift", "motion" or "shake"
+    # (every stage still runs); see docs/decisions/0026-stages.md
+    gate: str = _field("shake", choices=("close", "lift", "motion", "shake"))
     # The shake: one 0.2 s sine period per paired motion, peak 3 g and 345 rad/s^2.
     # see docs/decisions/0004-short-paired-shake.md
     shake_amplitude: float = _field(0.03, ge=0.0)  # m, "a shake of a few centimetres"
@@ -342,6 +350,11 @@ class ProtocolConfig(_Section):
     max_slip: float = _field(0.02, gt=0.0)
     lost_distance: float = _field(0.03, gt=0.0)  # m: early exit once the object is this far from its grasp
     check_every: int = _field(6, ge=1)  # steps between loss checks during lift and shake (25 ms)
+
+
+# The largest factor an exploration may scale a range by (RobustConfig.scale_levels): ranges are
+# explored up to a few times what they are set to, not orders of magnitude beyond.
+SCALE_LEVEL_MAX = 10.0
 
 
 @dataclass(frozen=True)
@@ -374,6 +387,15 @@ class RobustConfig(_Section):
     # false: a perturbed trial ends after the lift, judged there as after a shake; true: shaken as trial 0
     # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md
     shake: bool = False
+    # true: a perturbed trial also runs the benchmark motion and is judged after it (shake implies it)
+    # see docs/decisions/0026-stages.md
+    motion: bool = False
+    # true: perturbed trials run even when trial 0 collides (the object may lie elsewhere)
+    # see docs/decisions/0026-stages.md
+    perturb_collisions: bool = False
+    # Exploration (calibrate --fit-ranges): each trial scales each range by one level drawn from this
+    # list; empty: the ranges themselves. docs/decisions/0026-stages.md
+    scale_levels: tuple[float, ...] = ()
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
     approach_from_contact: bool = True
@@ -383,6 +405,14 @@ class RobustConfig(_Section):
     # true: after that approach from the contact, the fingers start near what they touch if the object
     # is at rest (docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md)
     fingers_from_contact: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if any(not 0.0 < level <= SCALE_LEVEL_MAX for level in self.scale_levels):
+            raise ConfigError(
+                f"[robust] scale_levels: each level must be > 0 and <= {SCALE_LEVEL_MAX:g}, "
+                f"got {list(self.scale_levels)}"
+            )
 
     def over(self, gripper: Mapping[str, float]) -> RobustConfig:
         """These ranges over a gripper's own (its description's ``[robust]`` table): a field a
@@ -704,6 +734,7 @@ class AnnotatorConfig:
         ``fingers_from_contact``, one whose fingers closed from where the approach left them. A
         ``[physics]`` without ``light_hold_mass`` is one whose light objects were simulated at their
         finer step throughout (``light_hold_mass = light_object_mass``)."""
+        data = _before_stages(data)
         physics = data.get("physics") if isinstance(data, dict) else None
         if isinstance(physics, dict) and "light_hold_mass" not in physics:
             before = physics.get("light_object_mass", PhysicsConfig.light_object_mass)
@@ -753,6 +784,26 @@ class AnnotatorConfig:
             except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
                 raise ConfigError(f"not a TOML file ({exc})") from exc
         return cls.from_dict(data)
+
+
+# What a folder made before the stages existed simulated, for each field it lacks: no benchmark
+# motion, success through the shake, perturbed trials after the lift only and none after a trial 0
+# that collided, every perturbed trial at the ranges themselves.
+_BEFORE_STAGES: dict[str, dict[str, Any]] = {
+    "protocol": {"motion_approach_angle": 0.0, "motion_closing_angle": 0.0, "gate": "shake"},
+    "robust": {"motion": False, "perturb_collisions": False, "scale_levels": ()},
+}
+
+
+def _before_stages(data: Any) -> Any:
+    """``data`` (a run's bound configuration) with :data:`_BEFORE_STAGES` for the fields it lacks."""
+    if not isinstance(data, dict):
+        return data
+    out = dict(data)
+    for section, values in _BEFORE_STAGES.items():
+        if isinstance(out.get(section), dict):
+            out[section] = {**values, **out[section]}
+    return out
 
 
 _SECTION_NAMES = {

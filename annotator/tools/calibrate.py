@@ -41,8 +41,15 @@ DEFAULT_FRICTIONS = (0.3, 0.45, 0.6, 0.8, 1.0)  # pad friction; OnRobot's own mo
 DEFAULT_FORCE_SHARES = (0.5, 0.75, 1.0)
 DEFAULT_FORCES = (20.0, 30.0, 40.0)  # N: the RG2's (DEFAULT_FORCE_SHARES of its 40 N)
 DEFAULT_SEVERITIES = (0.5, 1.0, 1.5)  # x the shake's amplitude and angle
-BOOTSTRAP_SAMPLES = 2000
-CONFIDENCE = 0.95
+from annotator.agreement import (  # noqa: E402, F401  (the statistics calibrate reports, re-exported)
+    BOOTSTRAP_SAMPLES,
+    CONFIDENCE,
+    STATISTICS,
+    Agreement,
+    agreement,
+    agreement_text,
+)
+
 REAL_COLUMNS = ("object_id", "grasp_id", "real_success")
 OBJECTIVES = ("balanced", "accuracy")  # what the best setting maximises
 DEFAULT_FOLDS = 5  # object-wise cross-validation folds (at most one per object)
@@ -70,80 +77,6 @@ class Setting:
             shake_angle=base.protocol.shake_angle * self.severity,
         )
         return dataclasses.replace(base, gripper=gripper, protocol=protocol)
-
-
-@dataclass(frozen=True)
-class Agreement:
-    """Agreement of simulated with real outcomes; each statistic with its (low, high) interval.
-
-    Positive is "success". ``nan`` where undefined (no simulated successes for precision, no real
-    ones for recall, neither for F1). ``balanced``: the mean of recall and specificity.
-    """
-
-    n: int
-    accuracy: float
-    precision: float
-    recall: float
-    balanced: float
-    accuracy_ci: tuple[float, float]
-    precision_ci: tuple[float, float]
-    recall_ci: tuple[float, float]
-    balanced_ci: tuple[float, float] = (float("nan"), float("nan"))
-    f1: float = float("nan")
-    f1_ci: tuple[float, float] = (float("nan"), float("nan"))
-
-    def value(self, name: str) -> float:
-        """A statistic by name (``accuracy``, ``balanced``, ``precision``, ``recall``, ``f1``)."""
-        return float(getattr(self, name))
-
-    def interval(self, name: str) -> tuple[float, float]:
-        return getattr(self, f"{name}_ci")
-
-
-STATISTICS = ("accuracy", "precision", "recall", "balanced", "f1")  # the columns of _rates
-
-
-def _rates(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
-    """(..., 5) accuracy, precision, recall, balanced accuracy, F1 over the last axis of bool arrays."""
-    tp = np.sum(real & sim, axis=-1)
-    tn = np.sum(~real & ~sim, axis=-1)
-    fp = np.sum(~real & sim, axis=-1)
-    fn = np.sum(real & ~sim, axis=-1)
-    n = real.shape[-1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        acc = (tp + tn) / n
-        prec = tp / (tp + fp)
-        rec = tp / (tp + fn)
-        spec = tn / (tn + fp)
-        bal = np.where(np.isnan(spec), rec, np.where(np.isnan(rec), spec, (rec + spec) / 2))
-        f1 = 2 * tp / (2 * tp + fp + fn)
-    return np.stack(np.broadcast_arrays(acc, prec, rec, bal, f1), axis=-1)
-
-
-def agreement(
-    real: np.ndarray, sim: np.ndarray, samples: int = BOOTSTRAP_SAMPLES, seed: int = 0
-) -> Agreement:
-    """Statistics of ``sim`` against ``real`` (bool (n,)) with percentile bootstrap intervals.
-
-    The resampling indices depend only on ``seed`` and ``n`` (the same for every setting, so
-    settings are compared on the same resamples).
-    """
-    real, sim = np.asarray(real, bool), np.asarray(sim, bool)
-    n = len(real)
-    k = len(STATISTICS)
-    point = _rates(real, sim)
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), n, 0x43414C])))
-    idx = rng.integers(0, n, size=(samples, n))
-    boot = _rates(real[idx], sim[idx])
-    alpha = (1 - CONFIDENCE) / 2
-    lo, hi = np.full(k, np.nan), np.full(k, np.nan)
-    defined = ~np.all(np.isnan(boot), axis=0) if n else np.zeros(k, bool)  # e.g. precision, no successes
-    if defined.any():
-        lo[defined] = np.nanquantile(boot[:, defined], alpha, axis=0)
-        hi[defined] = np.nanquantile(boot[:, defined], 1 - alpha, axis=0)
-    ci = [(float(lo[i]), float(hi[i])) for i in range(k)]
-    acc, prec, rec, bal, f1 = (float(v) for v in point)
-    return Agreement(n, acc, prec, rec, bal, ci[0], ci[1], ci[2], ci[3], f1, ci[4])
 
 
 @dataclass
@@ -244,7 +177,7 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
     """REAL.csv joined with the labels (pose, width, outcome); one-line errors for bad input."""
     import pandas as pd
 
-    from annotator.tools.common import ToolError, csv_header, unique_columns
+    from annotator.tools.common import ToolError, csv_header, truth_column, unique_columns
 
     try:
         unique_columns(csv_header(path), path)  # a column named twice: which one is meant?
@@ -258,14 +191,7 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
         raise ToolError(f"{path}: missing column(s) {missing}; need {', '.join(REAL_COLUMNS)} [, grip_force]")
     if real.empty:
         raise ToolError(f"{path}: no trials")
-    success = real["real_success"]
-    if success.dtype != bool:
-        text = success.astype(str).str.strip().str.lower()
-        mapping = {"1": True, "0": False, "true": True, "false": False, "yes": True, "no": False}
-        if not text.isin(list(mapping)).all():
-            bad = success[~text.isin(list(mapping))].iloc[0]
-            raise ToolError(f"{path}: real_success must be 1/0 or true/false, got {bad!r}")
-        real["real_success"] = text.map(mapping).astype(bool)
+    real["real_success"] = truth_column(real["real_success"], path, "real_success")
     real["object_id"] = real["object_id"].astype(str)
     ids = pd.to_numeric(real["grasp_id"], errors="coerce")
     bad = ids.isna() | (ids != ids.round()) | (ids < 0) | (ids > 2**62)
@@ -460,9 +386,9 @@ def fit_confidence(
     from annotator.config import ConfidenceConfig
 
     base = dataclasses.replace(base, confidence=ConfidenceConfig())  # no p_success while fitting it
-    score = simulate_grid(
-        trials, [setting], base, objects_dir, workers, seed, gripper, resting, k, "score"
-    )[setting]
+    score = simulate_grid(trials, [setting], base, objects_dir, workers, seed, gripper, resting, k, "score")[
+        setting
+    ]
     real = trials["real_success"].to_numpy(dtype=bool)
     objects = trials["object_id"].astype(str).to_numpy()
     mapping = conf.fit_isotonic(score, real, k)
@@ -756,21 +682,6 @@ def setting_text(s: Setting) -> str:
     """``pad friction 0.6, 70 N, shake x1``."""
     force = "each trial's own force" if s.force is None else f"{s.force:g} N"
     return f"pad friction {s.friction:g}, {force}, shake x{s.severity:g}"
-
-
-def agreement_text(
-    a: Agreement, names: tuple[str, ...] = ("accuracy", "balanced", "precision", "recall")
-) -> str:
-    """``accuracy 80.0 % [70, 88], balanced 75.1 % [..]`` over the named statistics."""
-    parts = []
-    for name in names:
-        v, (lo, hi) = a.value(name), a.interval(name)
-        parts.append(
-            f"{name} n/a"
-            if not np.isfinite(v)
-            else f"{name} {100 * v:.1f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
-        )
-    return ", ".join(parts)
 
 
 def format_folds(cv: CrossValidation) -> str:
