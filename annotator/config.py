@@ -393,8 +393,8 @@ class RobustConfig(_Section):
     # true: perturbed trials run even when trial 0 collides (the object may lie elsewhere)
     # see docs/decisions/0026-stages.md
     perturb_collisions: bool = False
-    # Exploration (calibrate --fit-ranges): each trial scales each range by one level drawn from this
-    # list; empty: the ranges themselves. docs/decisions/0026-stages.md
+    # Exploration (calibrate --fit-ranges): each trial scales the pose errors (object and hand) and the
+    # friction spread each by a level drawn from this list; empty: none. docs/decisions/0026-stages.md
     scale_levels: tuple[float, ...] = ()
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
@@ -455,6 +455,9 @@ class ConfidenceConfig(_Section):
     # The perturbed trials of the scores it was fitted on shook ([robust] shake); a file written
     # before the perturbed trials could end at the lift was fitted on shaken ones.
     perturbed_shake: bool = True
+    # The p_success at and above which the calibration calls a grasp a success, chosen by balanced
+    # accuracy on the real trials (calibrate --fit-ranges); 0.5 where none was chosen.
+    threshold: float = _field(0.5, ge=0.0, le=1.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -97,11 +97,12 @@ class Perturbation:
         # drawn last and only when set: the other draws, and so the scores of runs made without
         # it, stay what they were
         com = rng.normal(0.0, robust.com_offset_sigma, 3) if robust.com_offset_sigma > 0 else np.zeros(3)
-        if robust.scale_levels:  # exploring the ranges: each scaled by a level of its own, drawn last
-            levels = np.asarray(robust.scale_levels)[rng.integers(0, len(robust.scale_levels), 5)]
-            place, turn, across, along, rub = (float(v) for v in levels)
-            shift, yaw, friction = shift * place, yaw * turn, friction * rub
-            pos = pos * np.array([across, across, along])
+        if robust.scale_levels:  # exploring the ranges: a level for the pose, one for friction, drawn last
+            pose, rub = (
+                float(v)
+                for v in np.asarray(robust.scale_levels)[rng.integers(0, len(robust.scale_levels), 2)]
+            )
+            shift, yaw, pos, friction = shift * pose, yaw * pose, pos * pose, friction * rub
         return cls(
             Transform.from_rotation(_rotation(rotvec), pos),
             float(friction),

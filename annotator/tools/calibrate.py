@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from annotator.config import AnnotatorConfig
+from annotator.config import AnnotatorConfig, ConfidenceConfig
 
 if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` stays fast
     import pandas as pd
@@ -243,13 +243,33 @@ def default_forces(gripper=None) -> tuple[float, ...]:
 def _simulate_task(setting, base, span, force, seed, gripper, resting, k=1):
     from annotator.tools.given import simulate_given
 
-    rows, error = simulate_given(span, setting.config(base, force), seed, k, gripper=gripper, resting=resting)
+    if setting is not None:
+        config = setting.config(base, force)
+    elif force is not None:  # the configuration as it is, at the trial's own force
+        config = dataclasses.replace(base, gripper=dataclasses.replace(base.gripper, grip_force=float(force)))
+    else:
+        config = base
+    rows, error = simulate_given(span, config, seed, k, gripper=gripper, resting=resting)
     return setting, span.object_id, force, rows, error
+
+
+def span_groups(trials: pd.DataFrame) -> list[tuple[str, float | None, np.ndarray]]:
+    """How :func:`simulate_grid` splits real trials into spans: ``(object_id, force, rows)`` per
+    object (and per recorded ``grip_force``), ``rows`` the trials' positions in span order. A
+    grasp's index in its span is the key of its perturbed trials' generator
+    (:func:`annotator.rng.trial_rng` of the object and that index)."""
+    has_force = "grip_force" in trials.columns
+    groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
+    out = []
+    for key, idx in groups.indices.items():
+        key = key if isinstance(key, tuple) else (key,)
+        out.append((str(key[0]), float(key[1]) if has_force else None, np.asarray(idx)))
+    return out
 
 
 def simulate_grid(
     trials: pd.DataFrame,
-    settings: list[Setting],
+    settings: list[Setting | None],
     base: AnnotatorConfig,
     objects_dir: Path,
     workers: int = 1,
@@ -258,11 +278,11 @@ def simulate_grid(
     resting: bool | str | None = False,
     k: int = 1,
     column: str = "success",
-) -> dict[Setting, np.ndarray]:
-    """Simulated success of every trial (row order of ``trials``) under every setting, with
-    ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's ``rest_q*``);
-    ``k``: ``--trials`` of each simulation, ``column``: the label column returned (``score``:
-    floats)."""
+) -> dict[Setting | None, np.ndarray]:
+    """Simulated success of every trial (row order of ``trials``) under every setting (None: ``base``
+    as it is), with ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's
+    ``rest_q*``); ``k``: ``--trials`` of each simulation, ``column``: the label column returned
+    (``score``: floats; ``trial_stages``: strings)."""
     import joblib
 
     from annotator.objects import ObjectDiscoveryError, discover_objects
@@ -276,14 +296,10 @@ def simulate_grid(
     missing = sorted(set(trials["object_id"]) - set(sources))
     if missing:
         raise ToolError(f"object(s) {missing} are not in {objects_dir}")
-    has_force = "grip_force" in trials.columns
-    groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
     stroke = _max_width(base, gripper)
     rest_columns = ["rest_qx", "rest_qy", "rest_qz", "rest_qw"]
     spans, where = [], {}
-    for key, idx in groups.indices.items():
-        key = key if isinstance(key, tuple) else (key,)
-        oid, force = str(key[0]), (float(key[1]) if has_force else None)
+    for oid, force, idx in span_groups(trials):
         rows = trials.iloc[idx]
         scale = float(rows["object_scale"].iloc[0])
         T, width, quat = replay_grasps(rows, base, stroke)
@@ -309,7 +325,7 @@ def simulate_grid(
         for setting in settings
         for span, force in spans
     ]
-    kind = bool if column == "success" else np.float64
+    kind = {"success": bool, "trial_stages": object}.get(column, np.float64)
     out = {s: np.zeros(len(trials), dtype=kind) for s in settings}
     for setting, oid, force, rows, error in joblib.Parallel(n_jobs=workers, return_as="generator_unordered")(
         tasks
@@ -318,6 +334,178 @@ def simulate_grid(
             raise ToolError(f"{oid}: {error}")
         out[setting][where[(oid, force)]] = rows[column].to_numpy(dtype=kind)
     return out
+
+
+def explore(
+    trials: pd.DataFrame,
+    base: AnnotatorConfig,
+    objects_dir: Path,
+    workers: int = 1,
+    seed: int = 0,
+    gripper=None,
+    resting: bool | str | None = False,
+    m: int = 24,
+    levels=None,
+):
+    """The exploration of :mod:`annotator.tools.ranges` on the real trials: each grasp simulated
+    once (a grasp executed several times is one grasp) with ``m`` perturbed trials from the
+    proposal over ``levels`` (default :data:`annotator.tools.ranges.LEVELS`), their stages read
+    back and their draws drawn again, as an :class:`annotator.tools.ranges.Exploration` in the
+    row order of ``trials``."""
+    from annotator.grippers import load_gripper
+    from annotator.tools import ranges
+
+    levels = ranges.LEVELS if levels is None else tuple(levels)
+    config = ranges.exploration_config(dataclasses.replace(base, confidence=ConfidenceConfig()), levels)
+    key = ["object_id", "grasp_id"] + (["grip_force"] if "grip_force" in trials.columns else [])
+    first = ~trials.duplicated(key).to_numpy()
+    grasps = trials[first].reset_index(drop=True)
+    stages = simulate_grid(
+        grasps, [None], config, objects_dir, workers, seed, gripper, resting, m + 1, "trial_stages"
+    )
+    keys: list[tuple[str, int]] = [("", 0)] * len(grasps)
+    for oid, _, idx in span_groups(grasps):
+        for position, row in enumerate(idx):
+            keys[int(row)] = (oid, position)
+    robust = config.robust.over(dict(load_gripper(gripper).robust))  # what GraspTrial draws with
+    explored = ranges.Exploration.of(list(stages[None]), ranges.draws_of(robust, seed, keys, m), levels)
+    which = grasps.reset_index().merge(trials[key], on=key, how="right")["index"].to_numpy()
+    return explored.take(which)  # every trial its grasp's exploration
+
+
+@dataclass(frozen=True)
+class RangesResult:
+    """``calibrate --fit-ranges``: the exploration of the real trials, the fit on all of them
+    (:class:`annotator.tools.ranges.Fit`), its object-wise cross-validation (None with fewer than
+    two folds or objects), the real outcomes and each trial's object."""
+
+    exploration: object  # annotator.tools.ranges.Exploration
+    fit: object  # annotator.tools.ranges.Fit
+    held_out: object | None  # annotator.tools.ranges.HeldOut
+    real: np.ndarray
+    objects: np.ndarray
+
+
+def fit_ranges(
+    trials: pd.DataFrame,
+    base: AnnotatorConfig,
+    objects_dir: Path,
+    workers: int = 1,
+    seed: int = 0,
+    *,
+    gripper=None,
+    resting: bool | str | None = False,
+    m: int = 64,
+    levels=None,
+    folds: int = DEFAULT_FOLDS,
+) -> RangesResult:
+    """Explore the real trials (:func:`explore`), fit the execution's ranges, the stages, the
+    trial count and the score's mapping to them (:func:`annotator.tools.ranges.fit`), and
+    cross-validate the whole fit by object."""
+    from annotator.tools import ranges
+
+    exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
+    real = trials["real_success"].to_numpy(dtype=bool)
+    objects = trials["object_id"].astype(str).to_numpy()
+    start = ranges.base_levels(base.robust, exp.levels)
+    held_out = None
+    if folds >= 2 and len(set(objects)) >= 2:
+        held_out = ranges.cross_validate(exp, real, objects, start, folds, seed)
+    return RangesResult(exp, ranges.fit(exp, real, start), held_out, real, objects)
+
+
+def profile_config(base: AnnotatorConfig, result: RangesResult) -> AnnotatorConfig:
+    """The robot cell's profile: ``base`` with the fitted ranges (perturbed trials after a
+    colliding trial 0, judged at the fitted stage), trial 0's gate and the ``[confidence]``
+    mapping of the score of the fitted K, with its threshold and its cross-validated figures."""
+    from annotator import confidence as conf
+
+    f = result.fit
+    execution = f.execution.execution
+    robust = dataclasses.replace(
+        base.robust,
+        **f.ranges(),
+        perturb_collisions=True,
+        motion=execution.stage == "motion",
+        shake=False,
+        scale_levels=(),
+    )
+    protocol = dataclasses.replace(base.protocol, gate=f.gate)
+    scores, p = f.scored.mapping.knots()
+    if result.held_out is not None:
+        p_cv = result.held_out.p
+        brier = conf.brier(result.real, p_cv)
+        bins = [b for b in conf.reliability(result.real, p_cv) if b.n > 0]
+    else:
+        brier, bins = f.scored.brier, []
+    confidence = ConfidenceConfig(
+        method="isotonic",
+        trials=f.k,
+        scores=scores,
+        p_success=p,
+        n=len(result.real),
+        brier=float(min(1.0, max(0.0, brier))),
+        reliability_p=tuple(b.mean_p for b in bins),
+        reliability_rate=tuple(b.real_rate for b in bins),
+        reliability_n=tuple(float(b.n) for b in bins),
+        perturbed_shake=False,
+        threshold=f.threshold,
+    )
+    return dataclasses.replace(base, robust=robust, protocol=protocol, confidence=confidence)
+
+
+def ranges_text(result: RangesResult, bootstrap: int = BOOTSTRAP_SAMPLES, seed: int = 0) -> str:
+    """What the fit found: the exploration, each group's level and whether the data identify it,
+    the stages, lapses, K and mapping; then the cross-validated figures."""
+    from annotator import confidence as conf
+    from annotator.tools import ranges
+
+    f, exp = result.fit, result.exploration
+    e = f.execution.execution
+    n, m = exp.stages.shape
+    lines = [
+        f"exploration: {n} real trials x {m} perturbed trials, levels "
+        + ", ".join(f"{v:g}" for v in exp.levels)
+    ]
+    for i, g in enumerate(ranges.GROUPS):
+        level = exp.levels[e.theta[i]]
+        sizes = ", ".join(f"{c.field} {c.unit * level:.4g}" for c in g.components)
+        profile = f.execution.profile[g.name]
+        drop = ", ".join(f"{v - max(profile):+.1f}" for v in profile)
+        how = (
+            "identified" if f.execution.identified[g.name] else "not identified: the run's own, nearest level"
+        )
+        lines.append(f"  {g.name}: x{level:g} ({sizes}); {how}; log-likelihood by level {drop}")
+    knots = ", ".join(f"{s:.2f} -> {p:.2f}" for s, p in zip(*f.scored.mapping.knots(), strict=True))
+    lines.append(
+        f"  perturbed trials judged after the {e.stage}; lapses: real fails {e.fail:g}, holds {e.hold:g} "
+        "whatever the simulation says"
+    )
+    lines.append(
+        f"  trial 0's gate: {f.gate}; --trials {f.k}; score -> p_success: {knots}; "
+        f"threshold p_success >= {f.threshold:.3f}"
+    )
+    h = result.held_out
+    if h is None:
+        return "\n".join(lines)
+    real = result.real
+    called = h.called >= 0.5
+    auc = conf.bootstrap(conf.auc, real, h.p, bootstrap, seed)
+    brier = conf.bootstrap(conf.brier, real, h.p, bootstrap, seed)
+    base = conf.brier(real, np.full(len(real), real.mean()))
+    calls = agreement(real, called, bootstrap, seed)
+    lines.append(
+        f"cross-validated by object ({len(h.folds)} folds; each fold's fit on the other objects), expected "
+        f"over the trials' scores: AUC {auc.text()}, Brier {brier.text()} (always the success rate: "
+        f"{base:.3f}); at each fold's threshold {agreement_text(calls, ('balanced', 'precision', 'recall'))}"
+    )
+    for b in conf.reliability(real, h.p):
+        if b.n:
+            lines.append(
+                f"  p_success {b.low:.1f}-{b.high:.1f}: {b.n} trials, "
+                f"mean {b.mean_p:.3f}, real {b.real_rate:.3f}"
+            )
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------ confidence
@@ -634,12 +822,16 @@ def written_by_calibrate(path: Path) -> bool:
         return f.read(len(CONFIG_MARK)) == CONFIG_MARK.encode()
 
 
-def config_toml(config: AnnotatorConfig, header: str = "") -> str:
-    """The fields of ``config`` that differ from the defaults, as TOML for ``--config``."""
+def config_toml(config: AnnotatorConfig, header: str = "", keep=None) -> str:
+    """The fields of ``config`` that differ from the defaults, and those ``keep`` names per
+    section (``{"robust": {"position_sigma"}}``: written even at the default, so that a gripper's
+    own ``[robust]`` cannot replace them), as TOML for ``--config``."""
     defaults = AnnotatorConfig().to_dict()
+    keep = keep or {}
     lines = [f"# {line}" for line in header.splitlines()]
     for section, values in config.to_dict().items():
-        changed = {k: v for k, v in values.items() if defaults.get(section, {}).get(k) != v}
+        wanted = keep.get(section, ())
+        changed = {k: v for k, v in values.items() if k in wanted or defaults.get(section, {}).get(k) != v}
         if changed:
             lines.append(f"\n[{section}]")
             lines += [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
