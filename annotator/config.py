@@ -178,6 +178,9 @@ class GripperConfig(_Section):
     # Passive links only posed for the kinematic checks, or coupled and colliding ("simulated": the
     # arm and the GUI always); docs/decisions/0203-kinematic-passive-links.md.
     passive_links: str = _field("kinematic", choices=("simulated", "kinematic"))
+    # The gripper's convex shapes (its box pads) with polyhedral features, as [objects] sat_features.
+    # see docs/decisions/0028-contact-and-objects-measured.md
+    sat_features: bool = False
     # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); 0202.
     coupling_erp: float = _field(0.8, gt=0.0, le=1.0)
     coupling_max_force: float = _field(1000.0, gt=0.0)  # N or N m; far above any squeeze it resists
@@ -228,6 +231,9 @@ class ObjectConfig(_Section):
     rolling_friction: float = _field(0.0, ge=0.0)  # see GripperConfig.pad_rolling_friction
     # Bullet's collision margin on convex meshes (bullet3 #2867): 0 keeps widths within 0.25 mm.
     collision_margin: float = _field(0.0, ge=0.0)  # m
+    # Convex shapes with their polyhedral features (bullet3's SAT clipping): a whole contact patch per
+    # step, not a point; with [gripper] sat_features. docs/decisions/0028-contact-and-objects-measured.md
+    sat_features: bool = False
     # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
     # CoACD concavity thresholds, the first down to the last, x 0.6 each to one significant digit
@@ -325,9 +331,9 @@ class ProtocolConfig(_Section):
     # GraspDataGen closes for 1 s; the close ends earlier as soon as the fingers stall.
     close_timeout: float = _field(1.0, gt=0.0)  # s
     lift_height: float = _field(0.10, ge=0.0)  # m, a 10 cm lift
-    # s: 0.5 m/s on average, 0.75 m/s at peak (the UR3's tool speed is ~1 m/s).
-    # see docs/decisions/0004-short-paired-shake.md
-    lift_duration: float = _field(0.2, gt=0.0)
+    # s: peak 0.3 m/s and 2.4 m/s^2, near a UR's movel defaults (0.25 m/s, 1.2 m/s^2), not 1.5 g.
+    # see docs/decisions/0028-stages-chosen-on-real-trials.md
+    lift_duration: float = _field(0.5, gt=0.0)
     # Benchmark motion after the lift (GRASPA's S5): +a, -a, 0 about the approach, then +b, -b, 0 about
     # the closing axis, in motion_duration; both 0: no motion stage. docs/decisions/0026-stages.md
     motion_approach_angle: float = _field(0.0, ge=0.0, le=math.pi)  # rad
@@ -458,6 +464,9 @@ class ConfidenceConfig(_Section):
     # The p_success at and above which the calibration calls a grasp a success, chosen by balanced
     # accuracy on the real trials (calibrate --fit-ranges); 0.5 where none was chosen.
     threshold: float = _field(0.5, ge=0.0, le=1.0)
+    # The real success rate of the trials it was fitted on (0: not recorded): what always answering
+    # it scores, the baseline a mapping applied to other trials must beat.
+    base_rate: float = _field(0.0, ge=0.0, le=1.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -348,7 +348,8 @@ def _fit_ranges(
         folds=folds,
     )
     click.echo(cal.ranges_text(result, seed=seed))
-    profile = cal.profile_config(source.config, result)
+    held_p = None if result.held_out is None else result.held_out.p
+    profile = cal.profile_config(source.config, result.fit, result.real, held_p)
     f = result.fit
     if result.held_out is not None:
         bins = conf.reliability(result.real, result.held_out.p)
@@ -365,8 +366,7 @@ def _fit_ranges(
         f"{profile.confidence.threshold:.3f}\n"
         f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --trials {f.k} --config THIS_FILE"
     )
-    keep = {"robust": {c.field for c in ranges.COMPONENTS} | {"perturb_collisions", "motion"}}
-    config_out.write_text(cal.config_toml(profile, header, keep), encoding="utf-8")
+    config_out.write_text(cal.config_toml(profile, header, cal.PROFILE_KEEP), encoding="utf-8")
     click.echo(f"wrote {config_out}")
     if outcomes_out is not None:
         table = trials[["object_id", "grasp_id", "real_success"]].reset_index(drop=True).copy()

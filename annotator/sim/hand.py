@@ -106,7 +106,8 @@ class FloatingGripper:
         self.client = world.client
         self.config = config or GripperConfig()
         self.description = load_gripper(gripper)
-        self.body = Body.load(self.client, self.description.urdf, flags=GRIPPER_LOAD_FLAGS)
+        sat = pb.URDF_INITIALIZE_SAT_FEATURES if self.config.sat_features else 0
+        self.body = Body.load(self.client, self.description.urdf, flags=GRIPPER_LOAD_FLAGS | sat)
         self.gripper = ParallelGripper(
             self.body, self.description, self.config, passive_links=self.config.passive_links
         )

@@ -414,44 +414,62 @@ def fit_ranges(
     return RangesResult(exp, ranges.fit(exp, real, start), held_out, real, objects)
 
 
-def profile_config(base: AnnotatorConfig, result: RangesResult) -> AnnotatorConfig:
-    """The robot cell's profile: ``base`` with the fitted ranges (perturbed trials after a
-    colliding trial 0, judged at the fitted stage), trial 0's gate and the ``[confidence]``
-    mapping of the score of the fitted K, with its threshold and its cross-validated figures."""
+def profile_config(
+    base: AnnotatorConfig, fit, real: np.ndarray | None = None, held_out_p: np.ndarray | None = None
+) -> AnnotatorConfig:
+    """The robot cell's profile: ``base`` with the fitted ranges (``fit``, an
+    :class:`annotator.tools.ranges.Fit`: perturbed trials after a colliding trial 0, judged at the
+    fitted stage), trial 0's gate and the ``[confidence]`` mapping of the score of the fitted K
+    with its threshold; its Brier score and reliability those of ``held_out_p`` (the cross-validated
+    P(success) of the ``real`` outcomes) where given, else of the fit on its own trials."""
     from annotator import confidence as conf
 
-    f = result.fit
-    execution = f.execution.execution
+    execution = fit.execution.execution
     robust = dataclasses.replace(
         base.robust,
-        **f.ranges(),
+        **fit.ranges(),
         perturb_collisions=True,
         motion=execution.stage == "motion",
         shake=False,
         scale_levels=(),
     )
-    protocol = dataclasses.replace(base.protocol, gate=f.gate)
-    scores, p = f.scored.mapping.knots()
-    if result.held_out is not None:
-        p_cv = result.held_out.p
-        brier = conf.brier(result.real, p_cv)
-        bins = [b for b in conf.reliability(result.real, p_cv) if b.n > 0]
+    protocol = dataclasses.replace(base.protocol, gate=fit.gate)
+    scores, p = fit.scored.mapping.knots()
+    if held_out_p is not None and real is not None:
+        brier = conf.brier(real, held_out_p)
+        bins = [b for b in conf.reliability(real, held_out_p) if b.n > 0]
     else:
-        brier, bins = f.scored.brier, []
+        brier, bins = fit.scored.brier, []
     confidence = ConfidenceConfig(
         method="isotonic",
-        trials=f.k,
+        trials=fit.k,
         scores=scores,
         p_success=p,
-        n=len(result.real),
+        n=len(fit.scored.p),
         brier=float(min(1.0, max(0.0, brier))),
         reliability_p=tuple(b.mean_p for b in bins),
         reliability_rate=tuple(b.real_rate for b in bins),
         reliability_n=tuple(float(b.n) for b in bins),
         perturbed_shake=False,
-        threshold=f.threshold,
+        threshold=fit.threshold,
+        base_rate=float(fit.base_rate),
     )
     return dataclasses.replace(base, robust=robust, protocol=protocol, confidence=confidence)
+
+
+# The [robust] fields a profile writes even at their defaults: a gripper's own [robust] table
+# must not replace a fitted range (RobustConfig.over).
+PROFILE_KEEP = {
+    "robust": {
+        "object_position_sigma",
+        "object_yaw_sigma",
+        "position_sigma",
+        "approach_sigma",
+        "friction_delta",
+        "perturb_collisions",
+        "motion",
+    }
+}
 
 
 def ranges_text(result: RangesResult, bootstrap: int = BOOTSTRAP_SAMPLES, seed: int = 0) -> str:

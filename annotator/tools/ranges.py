@@ -483,6 +483,7 @@ class Fit:
     scored: Scored
     levels: tuple[float, ...]
     threshold: float
+    base_rate: float  # the real success rate of the trials it was fitted on
 
     @property
     def gate(self) -> str:
@@ -520,7 +521,7 @@ def fit(
     least = min(s.brier for s in by_k)
     chosen = next(s for s in by_k if s.brier <= least + K_TOLERANCE)
     j = threshold_index(chosen.pmf, y)
-    return Fit(ex, chosen, exp.levels, float(chosen.mapping.p[j]))
+    return Fit(ex, chosen, exp.levels, float(chosen.mapping.p[j]), float(y.mean()) if len(y) else 0.0)
 
 
 @dataclass(frozen=True)
