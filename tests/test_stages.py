@@ -304,3 +304,23 @@ def test_evaluate_compares_every_stage_with_a_real_outcome_column(tmp_path, bric
     )
     assert "row 11: held_on_robot must be 1/0 or true/false, got 'maybe'" in bad.output
     assert not (tmp_path / "ev2").exists()
+
+
+def test_a_sampled_collision_s_perturbed_trials_come_with_why_trial_0_failed(brick):
+    """Sampled candidates (annotate) whose perturbed trials run after a colliding trial 0 say why
+    trial 0 failed (collided_with, collision_stage), as evaluate's rows do; without
+    perturb_collisions their columns are the object mode's alone."""
+    source, cands = brick
+    wide = {"object_position_sigma": 0.02, "perturb_collisions": True}
+    rows = {}
+    for name, config in (("on", _with(CONFIG, robust=wide)), ("off", CONFIG)):
+        task = SpanTask(span=Span("brick", source, None, 0, 24), config=config, seed=0, n=24, trials=3)
+        rows[name] = label_span(task).rows
+    on, off = rows["on"], rows["off"]
+    assert {"collided_with", "collision_stage"} <= set(on.columns)
+    assert not {"collided_with", "collision_stage"} & set(off.columns)
+    hits = on["outcome"].eq("collision")
+    assert hits.any() and (on.loc[hits, "collided_with"] == "object").all()
+    assert set(on.loc[hits, "collision_stage"]) <= {"approach", "closed"}
+    assert (on.loc[~hits, "collided_with"] == "").all()
+    assert (on.loc[hits, "trial_stages"].str.len() == 3).all()
