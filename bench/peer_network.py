@@ -397,35 +397,59 @@ class Steps:
         self.logs.mkdir(parents=True, exist_ok=True)
         self.rows: list[dict] = []
 
-    def run(self, step: str, cmd: list[str], *, cwd: Path | None = None, env: dict | None = None) -> float:
+    def run(self, step: str, cmd: list[str], *, cwd: Path | None = None, env: dict | None = None,
+            shown: str | None = None) -> float:  # fmt: skip
         """Run ``cmd`` (its output to logs/STEP.log); its CPU seconds. A failure stops the bench."""
-        log = self.logs / f"{step}.log"
+        return self.run_many([(step, cmd, cwd, env, shown)])[0]
+
+    def run_many(self, jobs: list[tuple]) -> list[float]:
+        """Run the ``(step, cmd, cwd, env, shown)`` jobs at once, each niced, its output to
+        logs/STEP.log; their CPU seconds (all of them together, shared out by wall time when
+        more than one ran). A failure stops the bench."""
         t0, c0 = time.perf_counter(), _children_cpu()
-        print(f"[{step}] {shlex.join(cmd)}", flush=True)
-        with log.open("w") as out:
-            result = subprocess.run(
+        running = []
+        for step, cmd, cwd, env, shown in jobs:
+            print(f"[{step}] {shown or shlex.join(cmd)}", flush=True)
+            out = (self.logs / f"{step}.log").open("w")
+            process = subprocess.Popen(
                 ["nice", "-n", str(self.args.nice), *cmd],
                 cwd=cwd,
                 env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,
             )
-        cpu, seconds = _children_cpu() - c0, time.perf_counter() - t0
-        if result.returncode != 0:
-            tail = log.read_text().splitlines()[-15:]
-            raise SystemExit(f"[{step}] exit {result.returncode}; the end of {log}:\n" + "\n".join(tail))
-        self.rows.append(
-            {"step": step, "command": shlex.join(cmd), "cpu_s": round(cpu, 1), "seconds": round(seconds, 1)}
-        )
-        print(f"[{step}] {seconds:.0f} s, {cpu:.0f} CPU-s", flush=True)
-        return cpu
+            running.append((step, shown or shlex.join(cmd), process, out, time.perf_counter()))
+        ends = []
+        for step, _, process, out, started in running:
+            code = process.wait()
+            out.close()
+            ends.append(time.perf_counter() - started)
+            if code != 0:
+                log = self.logs / f"{step}.log"
+                tail = log.read_text(errors="replace").splitlines()[-15:]
+                raise SystemExit(f"[{step}] exit {code}; the end of {log}:\n" + "\n".join(tail))
+        cpu = _children_cpu() - c0
+        shares = [cpu * e / sum(ends) for e in ends] if sum(ends) > 0 else [cpu / len(ends)] * len(ends)
+        for (step, shown, _, _, _), seconds, share in zip(running, ends, shares, strict=True):
+            self.rows.append(
+                {"step": step, "command": shown, "cpu_s": round(share, 1), "seconds": round(seconds, 1)}
+            )
+            print(f"[{step}] {seconds:.0f} s, {share:.0f} CPU-s", flush=True)
+        print(f"  ({time.perf_counter() - t0:.0f} s wall)", flush=True)
+        return shares
 
-    def vgn(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> float:
-        """VGN's ``scripts/SCRIPT`` with ``argv``, through LAUNCHER, in WORK/vgn."""
+    def vgn_job(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> tuple:
+        """The job running VGN's ``scripts/SCRIPT`` with ``argv`` through LAUNCHER in WORK/vgn."""
         env = dict(os.environ, PYTHONPATH=str(self.args.vgn / "src"), OMP_NUM_THREADS=str(threads))
         cmd = [str(self.args.vgn_python), "-W", "ignore", "-c", LAUNCHER, str(seed), str(threads)]
         cmd += [str(self.args.vgn / "scripts" / script), *argv]
-        return self.run(step, cmd, cwd=self.work / "vgn", env=env)
+        shown = shlex.join([str(self.args.vgn_python), f"scripts/{script}", *argv])
+        shown += f"  (seeded {seed}, {threads} torch thread(s), cwd WORK/vgn, PYTHONPATH=VGN/src)"
+        return (step, cmd, self.work / "vgn", env, shown)
+
+    def vgn(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> float:
+        """Run VGN's ``scripts/SCRIPT`` (:meth:`vgn_job`); its CPU seconds."""
+        return self.run_many([self.vgn_job(step, script, argv, seed, threads)])[0]
 
 
 def _exe(name: str) -> str:
@@ -544,9 +568,9 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
 
 def train(args, steps: Steps, work: Path, datasets: dict[str, Path], record: Run) -> dict[str, Path]:
     """Step 3: VGN's train_vgn.py on each dataset; the last epoch's model of each and the curves."""
-    models, rows = {}, []
+    models, rows, jobs, logdirs = {}, [], [], {}
     for name, dataset in datasets.items():
-        logdir = work / "runs" / name
+        logdirs[name] = logdir = work / "runs" / name
         if logdir.exists():
             shutil.rmtree(logdir)
         argv = [
@@ -554,7 +578,9 @@ def train(args, steps: Steps, work: Path, datasets: dict[str, Path], record: Run
             "--epochs", str(args.epochs), "--batch-size", str(args.batch_size), "--lr", "3e-4",
             "--val-split", "0.1",
         ]  # fmt: skip
-        cpu = steps.vgn(f"train_{name}", "train_vgn.py", argv, args.seed, args.threads)
+        jobs.append(steps.vgn_job(f"train_{name}", "train_vgn.py", argv, args.seed, args.threads))
+    cpus = steps.run_many(jobs) if args.parallel else [steps.run_many([job])[0] for job in jobs]
+    for (name, logdir), cpu in zip(logdirs.items(), cpus, strict=True):
         run_dir = next(p for p in logdir.iterdir() if p.is_dir())
         checkpoints = sorted(run_dir.glob("*.pt"), key=lambda p: (p.stat().st_mtime, p.name))
         models[name] = checkpoints[-1]
@@ -757,12 +783,12 @@ def main() -> None:
     parser.add_argument("--vgn-python", type=Path, required=True, help="the Python that runs VGN")
     parser.add_argument("--quick", action="store_true", help="every step, small (under 20 minutes)")
     parser.add_argument(
-        "--grasps", type=int, default=None, help="VGN's --num-grasps (default 12000; quick 240)"
+        "--grasps", type=int, default=None, help="VGN's --num-grasps (default 3600; quick 120)"
     )
     parser.add_argument(
         "--per-family", type=int, default=None, help="training objects per family (4; quick 1)"
     )
-    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default 10; quick 1)")
+    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default 3; quick 1)")
     parser.add_argument("--batch-size", type=int, default=None, help="default VGN's 32; quick 4")
     parser.add_argument("--rounds", type=int, default=None, help="clutter rounds per network (40; quick 2)")
     parser.add_argument(
@@ -776,9 +802,12 @@ def main() -> None:
         "--threads", type=int, default=1, help="torch threads in VGN's training and detection"
     )
     parser.add_argument("--nice", type=int, default=15, help="niceness of every subprocess")
+    parser.add_argument(
+        "--serial", dest="parallel", action="store_false", help="train the two networks one after the other"
+    )
     parser.add_argument("--work", type=Path, default=None, help="working folder (default: a temporary one)")
     args = parser.parse_args()
-    quick = {"grasps": 240, "per_family": 1, "epochs": 1, "batch_size": 4, "rounds": 2, "oracle_rounds": 1}
+    quick = {"grasps": 120, "per_family": 1, "epochs": 1, "batch_size": 4, "rounds": 2, "oracle_rounds": 1}
     full = {
         "grasps": 12000,
         "per_family": 4,
