@@ -467,7 +467,7 @@ def clean_vgn_raw(raw: Path, size: float) -> dict:
     export's ``--balance``); the counts before and after."""
     from annotator.tools.export_vgn import vgn_clean
 
-    df = pd.read_csv(raw / "grasps.csv", float_precision="round_trip")
+    df = pd.read_csv(raw / "grasps.csv")
     before = {"grasps": len(df), "positives": int(df["label"].sum())}
     side, dropped = vgn_clean(df[["x", "y", "z"]].to_numpy(), df["label"].to_numpy(), size)
     kept = df[~side & ~dropped]
@@ -488,19 +488,8 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
     """Step 2: VGN's labels and ours on the training objects, cleaned; VGN's datasets of both."""
     vgn_raw, ours_labels, ours_raw = work / "raw_vgn", work / "labels_ours", work / "raw_ours"
     rows = []
-    cpu = steps.vgn(
-        "labels_vgn",
-        "generate_data.py",
-        [str(vgn_raw), "--scene", "pile", "--object-set", "train", "--num-grasps", str(args.grasps)],
-        args.seed,
-    )
-    written = pd.read_csv(vgn_raw / "grasps.csv")
-    n_vgn = len(written)
-    scenes_vgn = written["scene_id"].nunique()
-    counts = clean_vgn_raw(vgn_raw, 0.3)
-    rows.append({"labels": "vgn", "scenes": scenes_vgn, "cpu_s": round(cpu, 1), **counts})
-    # ours: as many scenes of 120 as VGN wrote grasps
-    scenes = max(1, math.ceil(n_vgn / GRASPS_PER_SCENE))
+    # ours: as many scenes of 120 grasps as VGN is asked for (it may skip a scene whose cloud is empty)
+    scenes = max(1, math.ceil(args.grasps / GRASPS_PER_SCENE))
     config = work / "labels.toml"
     config.write_text(LABELS_CONFIG)
     cmd = [
@@ -509,7 +498,17 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
         str(args.seed), "--config", str(config), "--workers", str(args.workers), "--out",
         str(ours_labels), "--quiet",
     ]  # fmt: skip
-    cpu = steps.run("labels_ours", cmd)
+    vgn_job = steps.vgn_job(
+        "labels_vgn",
+        "generate_data.py",
+        [str(vgn_raw), "--scene", "pile", "--object-set", "train", "--num-grasps", str(args.grasps)],
+        args.seed,
+    )
+    cpu_vgn, cpu = steps.run_many([vgn_job, ("labels_ours", cmd, None, None, None)])
+    written = pd.read_csv(vgn_raw / "grasps.csv")
+    scenes_vgn = written["scene_id"].nunique()
+    counts = clean_vgn_raw(vgn_raw, 0.3)
+    rows.append({"labels": "vgn", "scenes": scenes_vgn, "cpu_s": round(cpu_vgn, 1), **counts})
     labels = pd.read_parquet(ours_labels)
     cmd = [
         _exe("annotator"),
@@ -576,7 +575,7 @@ def train(args, steps: Steps, work: Path, datasets: dict[str, Path], record: Run
         argv = [
             "--dataset", str(dataset), "--logdir", str(logdir), "--description", name, "--net", "conv",
             "--epochs", str(args.epochs), "--batch-size", str(args.batch_size), "--lr", "3e-4",
-            "--val-split", "0.1",
+            "--val-split", str(args.val_split),
         ]  # fmt: skip
         jobs.append(steps.vgn_job(f"train_{name}", "train_vgn.py", argv, args.seed, args.threads))
     cpus = steps.run_many(jobs) if args.parallel else [steps.run_many([job])[0] for job in jobs]
@@ -783,13 +782,16 @@ def main() -> None:
     parser.add_argument("--vgn-python", type=Path, required=True, help="the Python that runs VGN")
     parser.add_argument("--quick", action="store_true", help="every step, small (under 20 minutes)")
     parser.add_argument(
-        "--grasps", type=int, default=None, help="VGN's --num-grasps (default 3600; quick 120)"
+        "--grasps", type=int, default=None, help="VGN's --num-grasps (default 3600; quick 240)"
     )
     parser.add_argument(
         "--per-family", type=int, default=None, help="training objects per family (4; quick 1)"
     )
     parser.add_argument("--epochs", type=int, default=None, help="training epochs (default 3; quick 1)")
-    parser.add_argument("--batch-size", type=int, default=None, help="default VGN's 32; quick 4")
+    parser.add_argument("--batch-size", type=int, default=None, help="default VGN's 32; quick 2")
+    parser.add_argument(
+        "--val-split", type=float, default=None, help="train_vgn.py's validation share (VGN's 0.1; quick 0.5)"
+    )
     parser.add_argument("--rounds", type=int, default=None, help="clutter rounds per network (40; quick 2)")
     parser.add_argument(
         "--oracle-rounds", type=int, default=None, help="the labels oracle's rounds (20; quick 1)"
@@ -807,15 +809,10 @@ def main() -> None:
     )
     parser.add_argument("--work", type=Path, default=None, help="working folder (default: a temporary one)")
     args = parser.parse_args()
-    quick = {"grasps": 120, "per_family": 1, "epochs": 1, "batch_size": 4, "rounds": 2, "oracle_rounds": 1}
-    full = {
-        "grasps": 12000,
-        "per_family": 4,
-        "epochs": 10,
-        "batch_size": 32,
-        "rounds": 40,
-        "oracle_rounds": 20,
-    }
+    quick = {"grasps": 240, "per_family": 1, "epochs": 1, "batch_size": 2, "val_split": 0.5, "rounds": 2,
+             "oracle_rounds": 1}  # fmt: skip
+    full = {"grasps": 9600, "per_family": 4, "epochs": 3, "batch_size": 32, "val_split": 0.1, "rounds": 40,
+            "oracle_rounds": 20}  # fmt: skip
     for key, value in (quick if args.quick else full).items():
         if getattr(args, key) is None:
             setattr(args, key, value)
