@@ -69,7 +69,9 @@ import pandas as pd
 import trimesh
 
 from annotator.config import AnnotatorConfig
+from bench import vgn_policy
 from bench.harness import Run
+from bench.vgn_policy import ROS_STAND_INS
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "objects"
@@ -90,8 +92,13 @@ LABELS_CONFIG = "[scenes]\nshake = false\n\n[kinect]\nviews_color_scale = 0.1\n"
 GRASPS_PER_SCENE = 120  # VGN's generate_data.py GRASPS_PER_SCENE and annotate --scenes' --n default
 
 # Runs a VGN script as its __main__ after seeding random, NumPy and torch, with torch's threads
-# set, and closing TensorBoard's writers at exit (train_vgn.py never closes them).
-LAUNCHER = r"""
+# set, and closing TensorBoard's writers at exit (train_vgn.py never closes them). Without ROS,
+# the ROS modules that VGN's rviz module (vgn.vis, imported by its clutter-removal experiment)
+# imports are stand-ins that accept any call: sim_grasp.py runs without --rviz, so nothing of them
+# is ever used.
+LAUNCHER = (
+    ROS_STAND_INS
+    + r"""
 import atexit, random, runpy, sys
 import numpy as np
 seed, threads = int(sys.argv[1]), int(sys.argv[2])
@@ -114,6 +121,7 @@ except ImportError:
 sys.argv = sys.argv[3:]
 runpy.run_path(sys.argv[0], run_name="__main__")
 """
+)
 
 CURVES = r"""
 import json, sys
@@ -128,6 +136,26 @@ print(json.dumps(out))
 
 
 # --- provenance --------------------------------------------------------------------------------------
+
+
+VERSIONS = r"""
+import importlib.metadata as m, json
+names = ("torch", "numpy", "open3d-cpu", "open3d", "pybullet", "scipy", "pandas", "pytorch-ignite",
+         "tensorboard")
+out = {}
+for name in names:
+    try:
+        out[name] = m.version(name)
+    except m.PackageNotFoundError:
+        pass
+print(json.dumps(out))
+"""
+
+
+def vgn_libraries(python: Path) -> dict:
+    """The versions of what VGN runs on in ``python`` (torch, NumPy, Open3D, PyBullet, ...)."""
+    out = subprocess.run([str(python), "-c", VERSIONS], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
 
 
 def vgn_provenance(checkout: Path) -> dict:
@@ -404,10 +432,10 @@ class Steps:
 
     def run_many(self, jobs: list[tuple]) -> list[float]:
         """Run the ``(step, cmd, cwd, env, shown)`` jobs at once, each niced, its output to
-        logs/STEP.log; their CPU seconds (all of them together, shared out by wall time when
-        more than one ran). A failure stops the bench."""
-        t0, c0 = time.perf_counter(), _children_cpu()
-        running = []
+        logs/STEP.log; the CPU seconds of each (itself and the children it waited for, from its
+        own resource usage). A failure stops the bench."""
+        t0 = time.perf_counter()
+        running: dict[int, tuple] = {}
         for step, cmd, cwd, env, shown in jobs:
             print(f"[{step}] {shown or shlex.join(cmd)}", flush=True)
             out = (self.logs / f"{step}.log").open("w")
@@ -418,25 +446,27 @@ class Steps:
                 stdout=out,
                 stderr=subprocess.STDOUT,
             )
-            running.append((step, shown or shlex.join(cmd), process, out, time.perf_counter()))
-        ends = []
-        for step, _, process, out, started in running:
-            code = process.wait()
+            running[process.pid] = (step, shown or shlex.join(cmd), process, out, time.perf_counter())
+        done: dict[int, tuple[float, float]] = {}
+        order = list(running)
+        while len(done) < len(order):
+            pid, status, usage = os.wait4(-1, 0)
+            if pid not in running:
+                continue
+            step, shown, process, out, started = running[pid]
+            process.returncode = code = os.waitstatus_to_exitcode(status)
             out.close()
-            ends.append(time.perf_counter() - started)
+            done[pid] = (usage.ru_utime + usage.ru_stime, time.perf_counter() - started)
             if code != 0:
                 log = self.logs / f"{step}.log"
                 tail = log.read_text(errors="replace").splitlines()[-15:]
                 raise SystemExit(f"[{step}] exit {code}; the end of {log}:\n" + "\n".join(tail))
-        cpu = _children_cpu() - c0
-        shares = [cpu * e / sum(ends) for e in ends] if sum(ends) > 0 else [cpu / len(ends)] * len(ends)
-        for (step, shown, _, _, _), seconds, share in zip(running, ends, shares, strict=True):
-            self.rows.append(
-                {"step": step, "command": shown, "cpu_s": round(share, 1), "seconds": round(seconds, 1)}
-            )
-            print(f"[{step}] {seconds:.0f} s, {share:.0f} CPU-s", flush=True)
-        print(f"  ({time.perf_counter() - t0:.0f} s wall)", flush=True)
-        return shares
+            self.rows.append({"step": step, "command": shown, "cpu_s": round(done[pid][0], 1),
+                              "seconds": round(done[pid][1], 1)})  # fmt: skip
+            print(f"[{step}] {done[pid][1]:.0f} s, {done[pid][0]:.0f} CPU-s", flush=True)
+        if len(order) > 1:
+            print(f"  ({time.perf_counter() - t0:.0f} s wall for {len(order)} side by side)", flush=True)
+        return [done[pid][0] for pid in order]
 
     def vgn_job(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> tuple:
         """The job running VGN's ``scripts/SCRIPT`` with ``argv`` through LAUNCHER in WORK/vgn."""
@@ -468,6 +498,7 @@ def clean_vgn_raw(raw: Path, size: float) -> dict:
     from annotator.tools.export_vgn import vgn_clean
 
     df = pd.read_csv(raw / "grasps.csv")
+    shutil.copy(raw / "grasps.csv", raw / "grasps_before_cleanup.csv")  # VGN reads grasps.csv only
     before = {"grasps": len(df), "positives": int(df["label"].sum())}
     side, dropped = vgn_clean(df[["x", "y", "z"]].to_numpy(), df["label"].to_numpy(), size)
     kept = df[~side & ~dropped]
@@ -715,6 +746,7 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
             )
             t0, c0 = time.perf_counter(), time.process_time() + _children_cpu()
             summary = clutter_removal(job, rounds, args.workers)
+            vgn_policy.close_servers()  # waited for: its CPU is counted below
             cpu = time.process_time() + _children_cpu() - c0
             keep = work / "sim_ours" / f"{arrangement}_{label}"
             keep.mkdir(parents=True, exist_ok=True)
@@ -819,6 +851,7 @@ def main() -> None:
     args.vgn, args.vgn_python = args.vgn.resolve(), args.vgn_python.absolute()
     provenance = vgn_provenance(args.vgn)
     recorded = {k: str(v) for k, v in vars(args).items()} | {f"vgn_{k}": v for k, v in provenance.items()}
+    recorded["vgn_libraries"] = vgn_libraries(args.vgn_python)
     print(
         f"VGN: {args.vgn} at {provenance['commit']} ({provenance['branch']}), licence: {provenance['licence']}"  # noqa: E501
     )

@@ -27,6 +27,7 @@ import atexit
 import logging
 import os
 import subprocess
+import tempfile
 from functools import lru_cache
 from pathlib import Path
 
@@ -40,19 +41,47 @@ log = logging.getLogger(__name__)
 GRID = 40  # VGN's grid: 40 voxels a side
 FINGER_DEPTH = 0.05  # m: VGN's finger depth (its Gripper.finger_depth; workspace size / 6)
 
+# VGN's rviz module (vgn.vis, imported by its detection and clutter-removal modules) imports ROS.
+# Without ROS, those modules are stand-ins that accept any call; nothing of them is used (no rviz).
+ROS_STAND_INS = r"""
+import sys, types
+try:
+    import rospy
+except ImportError:
+    class _Anything:
+        def __init__(self, *args, **kwargs):
+            pass
+        def __call__(self, *args, **kwargs):
+            return _Anything()
+        def __getattr__(self, name):
+            if name.startswith("__"):
+                raise AttributeError(name)
+            return _Anything()
+    class _Stand_in(types.ModuleType):
+        def __getattr__(self, name):
+            if name.startswith("__"):
+                raise AttributeError(name)
+            return _Anything()
+    for name in ("rospy", "sensor_msgs", "sensor_msgs.msg", "visualization_msgs", "visualization_msgs.msg",
+                 "geometry_msgs", "geometry_msgs.msg", "std_msgs", "std_msgs.msg", "tf2_ros"):
+        sys.modules[name] = _Stand_in(name)
+"""
+
 # Run by VGN's Python with the checkout's src/ on the path: read grids (8-byte length + float32
 # bytes), answer rows (8-byte length + float64 (n, 9): i, j, k, qx, qy, qz, qw, width (voxels),
 # quality) until stdin closes.
-SERVER = r"""
-import sys
+SERVER = (
+    ROS_STAND_INS
+    + r"""
 import numpy as np
 import torch
 from vgn.detection import predict, process, select
+from pathlib import Path
 from vgn.networks import load_network
 
 torch.set_num_threads(int(sys.argv[2]))
 device = torch.device("cpu")
-net = load_network(sys.argv[1], device)
+net = load_network(Path(sys.argv[1]), device)
 inp, out = sys.stdin.buffer, sys.stdout.buffer
 while True:
     head = inp.read(8)
@@ -68,6 +97,7 @@ while True:
     out.write(data)
     out.flush()
 """
+)
 
 
 class VgnServer:
@@ -76,11 +106,12 @@ class VgnServer:
     def __init__(self, python: str, checkout: str, model: str, threads: int = 1) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = str(Path(checkout) / "src")
+        self.errors = tempfile.TemporaryFile()
         self.process = subprocess.Popen(
             [python, "-W", "ignore", "-c", SERVER, str(model), str(int(threads))],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
+            stderr=self.errors,
             env=env,
         )
         atexit.register(self.close)
@@ -89,11 +120,18 @@ class VgnServer:
         """VGN's grasps for ``grid`` (40, 40, 40) float32: (n, 9) rows (module docstring)."""
         data = np.ascontiguousarray(grid, dtype=np.float32).reshape(GRID, GRID, GRID).tobytes()
         assert self.process.stdin is not None and self.process.stdout is not None
-        self.process.stdin.write(len(data).to_bytes(8, "little") + data)
-        self.process.stdin.flush()
-        head = self.process.stdout.read(8)
+        try:
+            self.process.stdin.write(len(data).to_bytes(8, "little") + data)
+            self.process.stdin.flush()
+            head = self.process.stdout.read(8)
+        except BrokenPipeError:
+            head = b""
         if len(head) < 8:
-            raise RuntimeError(f"VGN's detection process ended (exit code {self.process.poll()})")
+            self.errors.seek(0)
+            tail = self.errors.read().decode(errors="replace").strip().splitlines()[-5:]
+            raise RuntimeError(
+                f"VGN's detection process ended (exit code {self.process.wait()}): " + " | ".join(tail)
+            )
         body = self.process.stdout.read(int.from_bytes(head, "little"))
         return np.frombuffer(body, np.float64).reshape(-1, 9).copy()
 
@@ -107,10 +145,22 @@ class VgnServer:
                 self.process.kill()
 
 
-@lru_cache(maxsize=4)
+_SERVERS: dict[tuple, VgnServer] = {}
+
+
 def server(python: str, checkout: str, model: str, threads: int = 1) -> VgnServer:
     """This process's :class:`VgnServer` for the arguments (started once)."""
-    return VgnServer(python, checkout, model, threads)
+    key = (python, checkout, model, threads)
+    if key not in _SERVERS:
+        _SERVERS[key] = VgnServer(python, checkout, model, threads)
+    return _SERVERS[key]
+
+
+def close_servers() -> None:
+    """End this process's detection children (waited for: their CPU counts as the caller's
+    children's); the next call starts them again."""
+    for key in list(_SERVERS):
+        _SERVERS.pop(key).close()
 
 
 @lru_cache(maxsize=4)
