@@ -43,6 +43,10 @@ through a launcher that seeds ``random``, NumPy and torch and sets torch's threa
    vision policy (:mod:`bench.vgn_policy`), beside ``vision-random`` and the ``labels`` oracle on
    the same rounds; grasp success and percent cleared with 95 % Wilson intervals.
 
+``--work OUT`` keeps every file; the same command with the same ``--work`` resumes a run that
+stopped: steps that finished are not run again (their rows are kept), VGN's labelling is asked
+for the grasps it still owes (it appends), ``annotate`` resumes its own folder.
+
 Printed against the targets: the network trained on our labels at least as good as the one
 trained on VGN's (success and percent cleared, both simulations, piles and packed, >= 100
 attempts each); both above vision-random by >= 10 points of percent cleared on piles.
@@ -436,7 +440,14 @@ class Steps:
         own resource usage). A failure stops the bench."""
         t0 = time.perf_counter()
         running: dict[int, tuple] = {}
+        saved = {job[0]: self.saved(job[0]) for job in jobs}
+        for step, row in saved.items():
+            if row is not None:  # finished by an earlier run of this --work: its row as it was
+                print(f"[{step}] done in an earlier run ({row['seconds']:.0f} s, {row['cpu_s']:.0f} CPU-s)")
+                self.rows.append(row | {"resumed": True})
         for step, cmd, cwd, env, shown in jobs:
+            if saved[step] is not None:
+                continue
             print(f"[{step}] {shown or shlex.join(cmd)}", flush=True)
             out = (self.logs / f"{step}.log").open("w")
             process = subprocess.Popen(
@@ -461,12 +472,24 @@ class Steps:
                 log = self.logs / f"{step}.log"
                 tail = log.read_text(errors="replace").splitlines()[-15:]
                 raise SystemExit(f"[{step}] exit {code}; the end of {log}:\n" + "\n".join(tail))
-            self.rows.append({"step": step, "command": shown, "cpu_s": round(done[pid][0], 1),
-                              "seconds": round(done[pid][1], 1)})  # fmt: skip
+            row = {
+                "step": step,
+                "command": shown,
+                "cpu_s": round(done[pid][0], 1),
+                "seconds": round(done[pid][1], 1),
+            }
+            (self.logs / f"{step}.done.json").write_text(json.dumps(row))
+            self.rows.append(row)
             print(f"[{step}] {done[pid][1]:.0f} s, {done[pid][0]:.0f} CPU-s", flush=True)
         if len(order) > 1:
             print(f"  ({time.perf_counter() - t0:.0f} s wall for {len(order)} side by side)", flush=True)
-        return [done[pid][0] for pid in order]
+        cpu = {running[pid][0]: done[pid][0] for pid in order}
+        return [cpu[step] if row is None else row["cpu_s"] for step, row in saved.items()]
+
+    def saved(self, step: str) -> dict | None:
+        """The row of ``step`` if an earlier run of this --work finished it, else None."""
+        path = self.logs / f"{step}.done.json"
+        return json.loads(path.read_text()) if path.exists() else None
 
     def vgn_job(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> tuple:
         """The job running VGN's ``scripts/SCRIPT`` with ``argv`` through LAUNCHER in WORK/vgn."""
@@ -529,16 +552,24 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
         str(args.seed), "--config", str(config), "--workers", str(args.workers), "--out",
         str(ours_labels), "--quiet",
     ]  # fmt: skip
+    asked = args.grasps
+    if steps.saved("labels_vgn") is None and (vgn_raw / "grasps.csv").exists():
+        # an earlier run of this --work stopped while VGN labelled: it appends, so ask for the rest
+        asked = max(0, args.grasps - len(pd.read_csv(vgn_raw / "grasps.csv")))
     vgn_job = steps.vgn_job(
         "labels_vgn",
         "generate_data.py",
-        [str(vgn_raw), "--scene", "pile", "--object-set", "train", "--num-grasps", str(args.grasps)],
+        [str(vgn_raw), "--scene", "pile", "--object-set", "train", "--num-grasps", str(asked)],
         args.seed,
     )
     cpu_vgn, cpu = steps.run_many([vgn_job, ("labels_ours", cmd, None, None, None)])
-    written = pd.read_csv(vgn_raw / "grasps.csv")
-    scenes_vgn = written["scene_id"].nunique()
-    counts = clean_vgn_raw(vgn_raw, 0.3)
+    counts_file = work / "labels_vgn_cleanup.json"
+    if counts_file.exists():
+        scenes_vgn, counts = json.loads(counts_file.read_text())
+    else:
+        scenes_vgn = int(pd.read_csv(vgn_raw / "grasps.csv")["scene_id"].nunique())
+        counts = clean_vgn_raw(vgn_raw, 0.3)
+        counts_file.write_text(json.dumps([scenes_vgn, counts]))
     rows.append({"labels": "vgn", "scenes": scenes_vgn, "cpu_s": round(cpu_vgn, 1), **counts})
     labels = pd.read_parquet(ours_labels)
     cmd = [
@@ -587,7 +618,7 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
     datasets = {}
     for name, raw in (("vgn", vgn_raw), ("ours", ours_raw)):
         datasets[name] = work / f"dataset_{name}"
-        if datasets[name].exists():
+        if datasets[name].exists() and steps.saved(f"dataset_{name}") is None:
             shutil.rmtree(datasets[name])
         steps.vgn(f"dataset_{name}", "construct_dataset.py", [str(raw), str(datasets[name])], args.seed)
     return datasets
@@ -601,7 +632,7 @@ def train(args, steps: Steps, work: Path, datasets: dict[str, Path], record: Run
     models, rows, jobs, logdirs = {}, [], [], {}
     for name, dataset in datasets.items():
         logdirs[name] = logdir = work / "runs" / name
-        if logdir.exists():
+        if logdir.exists() and steps.saved(f"train_{name}") is None:
             shutil.rmtree(logdir)
         argv = [
             "--dataset", str(dataset), "--logdir", str(logdir), "--description", name, "--net", "conv",
@@ -666,12 +697,12 @@ def _row(
         "objects": objects,
         "attempts": attempts,
         "successes": successes,
-        "success": 100 * successes / attempts if attempts else float("nan"),
-        "success_lo": 100 * lo,
-        "success_hi": 100 * hi,
-        "cleared": 100 * successes / objects if objects else float("nan"),
-        "cleared_lo": 100 * clo,
-        "cleared_hi": 100 * chi,
+        "success": round(100 * successes / attempts, 2) if attempts else float("nan"),
+        "success_lo": round(100 * lo, 2),
+        "success_hi": round(100 * hi, 2),
+        "cleared": round(100 * successes / objects, 2) if objects else float("nan"),
+        "cleared_lo": round(100 * clo, 2),
+        "cleared_hi": round(100 * chi, 2),
         **extra,
     }
 
@@ -682,7 +713,7 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
     for arrangement in args.arrangements:
         for name, model in models.items():
             logdir = work / "sim_vgn" / f"{arrangement}_{name}"
-            if logdir.exists():
+            if logdir.exists() and steps.saved(f"sim_vgn_{arrangement}_{name}") is None:
                 shutil.rmtree(logdir)
             argv = [
                 "--model", str(model), "--logdir", str(logdir), "--description", name, "--scene", arrangement,
@@ -732,6 +763,11 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                     ("threads", str(args.threads)),
                 )
             rounds = args.oracle_rounds if policy == "labels" else args.rounds
+            keep = work / "sim_ours" / f"{arrangement}_{label}"
+            if (keep / "row.json").exists():  # finished by an earlier run of this --work
+                rows.append(json.loads((keep / "row.json").read_text()) | {"resumed": True})
+                _print(rows[-1])
+                continue
             job = ClutterJob(
                 sources,
                 5,
@@ -748,7 +784,6 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
             summary = clutter_removal(job, rounds, args.workers)
             vgn_policy.close_servers()  # waited for: its CPU is counted below
             cpu = time.process_time() + _children_cpu() - c0
-            keep = work / "sim_ours" / f"{arrangement}_{label}"
             keep.mkdir(parents=True, exist_ok=True)
             rounds_table, grasps = summary.tables()
             rounds_table.to_csv(keep / "rounds.csv", index=False)
@@ -764,6 +799,7 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                 cpu_s=round(cpu, 1),
                 seconds=round(time.perf_counter() - t0, 1),
             )
+            (keep / "row.json").write_text(json.dumps(row))
             rows.append(row)
             _print(row)
     return rows
