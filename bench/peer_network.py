@@ -555,7 +555,8 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
     asked = args.grasps
     if steps.saved("labels_vgn") is None and (vgn_raw / "grasps.csv").exists():
         # an earlier run of this --work stopped while VGN labelled: it appends, so ask for the rest
-        asked = max(0, args.grasps - len(pd.read_csv(vgn_raw / "grasps.csv")))
+        owed = max(0, args.grasps - len(pd.read_csv(vgn_raw / "grasps.csv")))
+        asked = GRASPS_PER_SCENE * round(owed / GRASPS_PER_SCENE)  # it labels whole scenes of 120
     vgn_job = steps.vgn_job(
         "labels_vgn",
         "generate_data.py",
