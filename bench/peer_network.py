@@ -856,7 +856,7 @@ def main() -> None:
     parser.add_argument(
         "--per-family", type=int, default=None, help="training objects per family (4; quick 1)"
     )
-    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default 5; quick 1)")
+    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default 3; quick 1)")
     parser.add_argument("--batch-size", type=int, default=None, help="default VGN's 32; quick 2")
     parser.add_argument(
         "--val-split", type=float, default=None, help="train_vgn.py's validation share (VGN's 0.1; quick 0.5)"
@@ -880,7 +880,7 @@ def main() -> None:
     args = parser.parse_args()
     quick = {"grasps": 240, "per_family": 1, "epochs": 1, "batch_size": 2, "val_split": 0.5, "rounds": 2,
              "oracle_rounds": 1}  # fmt: skip
-    full = {"grasps": 9600, "per_family": 4, "epochs": 5, "batch_size": 32, "val_split": 0.1, "rounds": 40,
+    full = {"grasps": 9600, "per_family": 4, "epochs": 3, "batch_size": 32, "val_split": 0.1, "rounds": 40,
             "oracle_rounds": 20}  # fmt: skip
     for key, value in (quick if args.quick else full).items():
         if getattr(args, key) is None:
