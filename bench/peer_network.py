@@ -552,16 +552,18 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
         str(args.seed), "--config", str(config), "--workers", str(args.workers), "--out",
         str(ours_labels), "--quiet",
     ]  # fmt: skip
-    asked = args.grasps
+    asked, seed = args.grasps, args.seed
     if steps.saved("labels_vgn") is None and (vgn_raw / "grasps.csv").exists():
         # an earlier run of this --work stopped while VGN labelled: it appends, so ask for the rest
-        owed = max(0, args.grasps - len(pd.read_csv(vgn_raw / "grasps.csv")))
-        asked = GRASPS_PER_SCENE * round(owed / GRASPS_PER_SCENE)  # it labels whole scenes of 120
+        # (whole scenes of 120), seeded anew so that it does not label the same piles again
+        written = len(pd.read_csv(vgn_raw / "grasps.csv"))
+        asked = GRASPS_PER_SCENE * round(max(0, args.grasps - written) / GRASPS_PER_SCENE)
+        seed = args.seed + 1000 + written
     vgn_job = steps.vgn_job(
         "labels_vgn",
         "generate_data.py",
         [str(vgn_raw), "--scene", "pile", "--object-set", "train", "--num-grasps", str(asked)],
-        args.seed,
+        seed,
     )
     cpu_vgn, cpu = steps.run_many([vgn_job, ("labels_ours", cmd, None, None, None)])
     counts_file = work / "labels_vgn_cleanup.json"
