@@ -134,3 +134,30 @@ def test_the_bench_records_the_checkouts_commit_and_licence(tmp_path):
     subprocess.run([*git, "commit", "-q", "-m", "x"], check=True)
     info = peer_network.vgn_provenance(Path(repo))
     assert len(info["commit"]) == 40 and info["licence"] == "BSD 3-Clause License" and not info["dirty"]
+
+
+def test_steps_keep_each_commands_cpu_and_are_not_run_again(tmp_path):
+    """Commands run side by side, each with its own CPU (from its own resource usage); a step
+    that finished is not run again by a later run of the same folder (its row is kept); a failing
+    command stops the bench with the end of its log."""
+    import sys
+    from types import SimpleNamespace as NS
+
+    steps = peer_network.Steps(NS(nice=0), tmp_path)
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass\nprint('ran')"
+    cpu = steps.run_many(
+        [
+            ("burn", [sys.executable, "-c", burn], None, None, None),
+            ("idle", [sys.executable, "-c", "0"], None, None, None),
+        ]
+    )
+    assert cpu[0] >= 0.3 and cpu[1] < 0.3
+    assert (tmp_path / "logs" / "burn.log").read_text().strip() == "ran"
+    again = peer_network.Steps(NS(nice=0), tmp_path)
+    marker = tmp_path / "ran-again"
+    assert again.run("burn", [sys.executable, "-c", f"open({str(marker)!r}, 'w')"]) == pytest.approx(
+        cpu[0], abs=0.05
+    )
+    assert not marker.exists() and again.rows[0]["resumed"]
+    with pytest.raises(SystemExit, match="exit 3"):
+        again.run("fails", [sys.executable, "-c", "import sys; print('why'); sys.exit(3)"])
