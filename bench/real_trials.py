@@ -1040,8 +1040,8 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
             {
                 "fold": i + 1,
                 "held_out": " ".join(objects),
-                "pose_level": fold.levels[fe.theta[0]],
-                "friction_level": fold.levels[fe.theta[1]],
+                "pose": fold.exploration.label(fe.theta[0]),
+                "friction": fold.exploration.label(fe.theta[1]),
                 "perturbed_stage": fe.stage,
                 "gate": fold.gate,
                 "k": fold.k,

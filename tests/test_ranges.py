@@ -90,7 +90,9 @@ def test_importance_weights_give_the_share_each_level_would_hold():
     draws = ranges.draws_of(explore.robust, 0, keys, m)
     margin = np.linspace(0.001, 0.012, n)[:, None]
     held = np.abs(draws.values["object_position_sigma"][:, :, 0]) < margin
-    exp = ranges.Exploration(np.full(n, 4), np.where(held, 3, 1), draws, ranges.LEVELS)
+    exp = ranges.Exploration.of(
+        ["4" + "".join("3" if h else "1" for h in row) for row in held], draws, ranges.LEVELS, CONFIG.robust
+    )
     ratios = exp.ratios()
     for level in (0, 2, 4):
         robust = dataclasses.replace(
@@ -156,7 +158,6 @@ def test_the_fit_recovers_the_pose_error_that_drew_the_real_outcomes(brick_grasp
     table.assign(real_success=1).to_csv(folder / "executions.csv", index=False)
     trials = cal.read_real_trials(folder / "executions.csv", src.grasps)
     exp = cal.explore(trials, src.config, objects, workers=2, seed=0, m=32)  # the outcomes play no part
-    start = ranges.base_levels(src.config.robust, exp.levels)
     for level in (3, 1):
         sizes = {
             c.field: c.unit * ranges.LEVELS[level] for c in ranges.COMPONENTS if c.field != "friction_delta"
@@ -169,6 +170,6 @@ def test_the_fit_recovers_the_pose_error_that_drew_the_real_outcomes(brick_grasp
             grasps, [None], truth, objects, 2, 7, None, False, repeats + 1, "trial_stages"
         )[None]
         real = np.array([int(d) >= 3 for stages in drawn for d in stages[1:]])
-        found[level] = ranges.fit_execution(exp, real, start)
+        found[level] = ranges.fit_execution(exp, real)
     assert found[3].execution.theta[0] == 3 and found[3].identified["pose"], found[3]
-    assert found[1].execution.theta[0] < 3, found[1]
+    assert found[1].execution.theta[0] < 3 or found[1].execution.theta[0] == exp.own_index, found[1]

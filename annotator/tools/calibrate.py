@@ -368,7 +368,10 @@ def explore(
         for position, row in enumerate(idx):
             keys[int(row)] = (oid, position)
     robust = config.robust.over(dict(load_gripper(gripper).robust))  # what GraspTrial draws with
-    explored = ranges.Exploration.of(list(stages[None]), ranges.draws_of(robust, seed, keys, m), levels)
+    draws = ranges.draws_of(robust, seed, keys, m)
+    explored = ranges.Exploration.of(
+        list(stages[None]), draws, levels, base.robust.over(dict(load_gripper(gripper).robust))
+    )
     which = grasps.reset_index().merge(trials[key], on=key, how="right")["index"].to_numpy()
     return explored.take(which)  # every trial its grasp's exploration
 
@@ -407,11 +410,10 @@ def fit_ranges(
     exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
     real = trials["real_success"].to_numpy(dtype=bool)
     objects = trials["object_id"].astype(str).to_numpy()
-    start = ranges.base_levels(base.robust, exp.levels)
     held_out = None
     if folds >= 2 and len(set(objects)) >= 2:
-        held_out = ranges.cross_validate(exp, real, objects, start, folds, seed)
-    return RangesResult(exp, ranges.fit(exp, real, start), held_out, real, objects)
+        held_out = ranges.cross_validate(exp, real, objects, folds, seed)
+    return RangesResult(exp, ranges.fit(exp, real), held_out, real, objects)
 
 
 def profile_config(

@@ -36,7 +36,7 @@ import dataclasses
 import itertools
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,9 +58,10 @@ class Component:
     kind: str = "gauss"
     dims: int = 1
 
-    def density(self, v: np.ndarray, scale: float) -> np.ndarray:
-        """Density of draws ``v`` (..., dims) at ``unit x scale``, (...)."""
-        size = self.unit * scale
+    def density(self, v: np.ndarray, size: float) -> np.ndarray:
+        """Density of draws ``v`` (..., dims) at the range ``size`` (sigma, or the uniform's half
+        width), (...)."""
+        size = max(float(size), self.unit * OWN_FLOOR)
         if self.kind == "uniform":
             return np.where(np.abs(v[..., 0]) <= size, 1.0 / (2.0 * size), 0.0)
         z = v / size
@@ -75,12 +76,17 @@ class RangeGroup:
     name: str
     components: tuple[Component, ...]
 
-    def density(self, draws: Draws, scale: float) -> np.ndarray:
-        """Density of every trial's draws of this group at ``scale``, (n, M)."""
+    def density(self, draws: Draws, sizes: Mapping[str, float]) -> np.ndarray:
+        """Density of every trial's draws of this group at the ranges ``sizes`` (field -> size),
+        (n, M)."""
         out = np.ones(draws.values[self.components[0].field].shape[:2])
         for c in self.components:
-            out = out * c.density(draws.values[c.field], scale)
+            out = out * c.density(draws.values[c.field], sizes[c.field])
         return out
+
+    def at(self, level: float) -> dict[str, float]:
+        """This group's ranges at a scale level: field -> unit x level."""
+        return {c.field: c.unit * level for c in self.components}
 
 
 # The ranges the fit scales (docs/decisions/0027), each group by one level, with their sizes at
@@ -103,6 +109,9 @@ GROUPS: tuple[RangeGroup, ...] = (
 COMPONENTS: tuple[Component, ...] = tuple(c for g in GROUPS for c in g.components)
 # The scale levels every group is explored at: from half to eight times its sizes.
 LEVELS: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0, 8.0)
+# A range of 0 has no density to weigh draws by: the run's own ranges are taken at least this share
+# of their units (a tenth of a micrometre of placement; nothing a grasp notices).
+OWN_FLOOR = 1e-4
 # Perturbed trials per real grasp in the exploration (M).
 EXPLORE_TRIALS = 64
 # The trial counts K a profile may choose; the smallest whose expected Brier score is within
@@ -172,34 +181,58 @@ def draws_of(robust: RobustConfig, seed: int, keys: Sequence[tuple[str, int]], m
 class Exploration:
     """What the exploration gave for ``n`` real grasps: trial 0's stage ``stage0`` (n,) int, the
     perturbed trials' stages ``stages`` (n, M) int (:class:`annotator.outcome.Stage` values), their
-    draws, and the scale ``levels`` explored."""
+    draws, the scale ``levels`` explored and ``own``: the run's own ranges (field -> size).
+
+    A group's candidates are the levels, by index, and the run's own ranges, index
+    ``len(levels)`` (:attr:`own_index`): a group the data do not identify keeps them exactly."""
 
     stage0: np.ndarray
     stages: np.ndarray
     draws: Draws
     levels: tuple[float, ...]
+    own: Mapping[str, float]
 
     @classmethod
-    def of(cls, trial_stages: Sequence[str], draws: Draws, levels: Sequence[float]) -> Exploration:
-        """From each grasp's ``trial_stages`` (trial 0 first, then M perturbed trials)."""
+    def of(
+        cls, trial_stages: Sequence[str], draws: Draws, levels: Sequence[float], own: RobustConfig
+    ) -> Exploration:
+        """From each grasp's ``trial_stages`` (trial 0 first, then M perturbed trials) and the
+        run's own ``[robust]``."""
         m = draws.shape[1]
         bad = [s for s in trial_stages if len(s) != m + 1]
         if bad:
             raise ValueError(f"a grasp's trial_stages has {len(bad[0])} trials, not {m + 1}: {bad[0]!r}")
         digits = np.array([[int(c) for c in s] for s in trial_stages], dtype=np.int64).reshape(-1, m + 1)
-        return cls(digits[:, 0], digits[:, 1:], draws, tuple(float(v) for v in levels))
+        sizes = {c.field: float(getattr(own, c.field)) for c in COMPONENTS}
+        return cls(digits[:, 0], digits[:, 1:], draws, tuple(float(v) for v in levels), sizes)
+
+    @property
+    def own_index(self) -> int:
+        """The candidate index of the run's own ranges (after the levels)."""
+        return len(self.levels)
+
+    def sizes(self, group: RangeGroup, index: int) -> dict[str, float]:
+        """A group's ranges at candidate ``index``: a level's, or the run's own."""
+        if index == self.own_index:
+            return {c.field: self.own[c.field] for c in group.components}
+        return group.at(self.levels[index])
+
+    def label(self, index: int) -> str:
+        """``x2`` for a level, ``the run's own`` for the own ranges."""
+        return "the run's own" if index == self.own_index else f"x{self.levels[index]:g}"
 
     def take(self, rows: np.ndarray) -> Exploration:
         """These grasps only."""
-        return Exploration(self.stage0[rows], self.stages[rows], self.draws.take(rows), self.levels)
+        return Exploration(self.stage0[rows], self.stages[rows], self.draws.take(rows), self.levels, self.own)
 
     def ratios(self) -> list[np.ndarray]:
-        """Per group, the target-over-proposal density ratio of every trial at every level,
-        (L, n, M): the factors of the importance weights (at most L each)."""
+        """Per group, the target-over-proposal density ratio of every trial at every candidate,
+        (L + 1, n, M): the factors of the importance weights (at most L each at a level)."""
         out = []
         for g in GROUPS:
-            target = np.stack([g.density(self.draws, level) for level in self.levels])  # (L, n, M)
-            proposal = target.mean(axis=0)
+            grid = np.stack([g.density(self.draws, g.at(level)) for level in self.levels])  # (L, n, M)
+            proposal = grid.mean(axis=0)
+            target = np.concatenate([grid, g.density(self.draws, self.sizes(g, self.own_index))[None]])
             with np.errstate(invalid="ignore", divide="ignore"):
                 out.append(np.where(proposal > 0, target / proposal, 0.0))
         return out
@@ -303,7 +336,7 @@ def _table(
         held = _held(exp.stages, stage)
         if trials is not None:
             held = held[:, trials]
-        for theta in itertools.product(range(len(exp.levels)), repeat=len(GROUPS)):
+        for theta in itertools.product(range(exp.own_index + 1), repeat=len(GROUPS)):
             out[(theta, stage)] = _best_lapses(held_share(ratios, theta, held), y)
     return out
 
@@ -311,19 +344,19 @@ def _table(
 def fit_execution(
     exp: Exploration,
     real: np.ndarray,
-    base: Sequence[int],
     stages: Sequence[str] = PERTURBED_STAGES,
 ) -> ExecutionFit:
     """The levels, perturbed stage and lapses that maximise the likelihood of ``real`` (n,) under
     the model of :class:`Execution`, each group free only where the data identify it; the others
-    keep their ``base`` level (the run's own range's nearest level).
+    keep the run's own ranges (:attr:`Exploration.own_index`).
 
     A group is identified when its best level found on one half of the perturbed trials (even and
-    odd columns) beats its base level on the other half by more than the 95 % likelihood-ratio
+    odd columns) beats the run's own ranges on the other half by more than the 95 % likelihood-ratio
     interval (:data:`LIKELIHOOD_INTERVAL`), both ways: the importance weights make the likelihood
     of every level noisy, and a level chosen on noise does not win on trials it was not chosen on.
     """
     y = np.asarray(real, dtype=bool)
+    base = (exp.own_index,) * len(GROUPS)
     m = exp.stages.shape[1]
     halves = (np.arange(0, m, 2), np.arange(1, m, 2))
     tables = [_table(exp, y, stages, h) for h in halves]
@@ -336,7 +369,7 @@ def fit_execution(
             wins.append(other[(theta, stage)][0] - other[(at_base, stage)][0] > LIKELIHOOD_INTERVAL)
         found[g.name] = all(wins)
     table = _table(exp, y, stages)
-    n_levels = len(exp.levels)
+    n_levels = exp.own_index + 1
     profile = {
         g.name: [max(v[0] for (t, _), v in table.items() if t[i] == level) for level in range(n_levels)]
         for i, g in enumerate(GROUPS)
@@ -349,16 +382,6 @@ def fit_execution(
         ((key, v) for key, v in table.items() if allowed(key[0])), key=lambda kv: kv[1][0]
     )
     return ExecutionFit(Execution(theta, stage, e0, e1), ll, profile, found)
-
-
-def base_levels(robust: RobustConfig, levels: Sequence[float]) -> tuple[int, ...]:
-    """Per group, the level nearest (in log scale) the run's own range (its first component's)."""
-    out = []
-    for g in GROUPS:
-        c = g.components[0]
-        ratio = max(float(getattr(robust, c.field)), 1e-12) / c.unit
-        out.append(int(np.argmin([abs(math.log(ratio / level)) for level in levels])))
-    return tuple(out)
 
 
 # ------------------------------------------------------------------------ the score and its mapping
@@ -481,7 +504,7 @@ class Fit:
 
     execution: ExecutionFit
     scored: Scored
-    levels: tuple[float, ...]
+    exploration: Exploration  # what it was fitted on (its levels and the run's own ranges)
     threshold: float
     base_rate: float  # the real success rate of the trials it was fitted on
 
@@ -494,17 +517,16 @@ class Fit:
         return self.scored.k
 
     def ranges(self) -> dict[str, float]:
-        """The ``[robust]`` fields of the fitted levels."""
-        theta = self.execution.execution.theta
-        return {
-            c.field: c.unit * self.levels[t] for g, t in zip(GROUPS, theta, strict=True) for c in g.components
-        }
+        """The ``[robust]`` fields of the fitted levels (or the run's own, where kept)."""
+        out: dict[str, float] = {}
+        for g, t in zip(GROUPS, self.execution.execution.theta, strict=True):
+            out.update(self.exploration.sizes(g, t))
+        return out
 
 
 def fit(
     exp: Exploration,
     real: np.ndarray,
-    base: Sequence[int],
     ks: Sequence[int] = TRIAL_COUNTS,
     gates: Sequence[str] = GATES,
 ) -> Fit:
@@ -512,7 +534,7 @@ def fit(
     with the highest expected log-likelihood at the largest K, then the smallest K within
     :data:`K_TOLERANCE` of the best expected Brier score, its mapping and threshold."""
     y = np.asarray(real, dtype=bool)
-    ex = fit_execution(exp, y, base)
+    ex = fit_execution(exp, y)
     e = ex.execution
     share = held_share(exp.ratios(), e.theta, _held(exp.stages, e.stage))  # what the K trials draw from
     top = max(ks)
@@ -521,7 +543,7 @@ def fit(
     least = min(s.brier for s in by_k)
     chosen = next(s for s in by_k if s.brier <= least + K_TOLERANCE)
     j = threshold_index(chosen.pmf, y)
-    return Fit(ex, chosen, exp.levels, float(chosen.mapping.p[j]), float(y.mean()) if len(y) else 0.0)
+    return Fit(ex, chosen, exp, float(chosen.mapping.p[j]), float(y.mean()) if len(y) else 0.0)
 
 
 @dataclass(frozen=True)
@@ -539,7 +561,6 @@ def cross_validate(
     exp: Exploration,
     real: np.ndarray,
     objects: np.ndarray,
-    base: Sequence[int],
     folds: int,
     seed: int = 0,
     ks: Sequence[int] = TRIAL_COUNTS,
@@ -558,7 +579,7 @@ def cross_validate(
     out = []
     for held_out in groups:
         held = np.isin(objects, held_out)
-        f = fit(exp.take(np.flatnonzero(~held)), y[~held], base, ks)
+        f = fit(exp.take(np.flatnonzero(~held)), y[~held], ks)
         part = exp.take(np.flatnonzero(held))
         e = f.execution.execution
         share = held_share(part.ratios(), e.theta, _held(part.stages, e.stage))
