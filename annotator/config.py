@@ -33,9 +33,13 @@ def _field(
     lt: float | None = None,
     le: float | None = None,
     choices: tuple[str, ...] | None = None,
+    implicit: bool = False,
 ) -> Any:
-    """A configuration field with its allowed range (checked when a section is built)."""
-    return field(default=default, metadata={"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices})
+    """A configuration field with its allowed range (checked when a section is built). ``implicit``:
+    a number every run had before it became a field: a run binds it only where it differs from
+    that default (:meth:`AnnotatorConfig.to_dict`), so folders made before still resume."""
+    metadata = {"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices, "implicit": implicit}
+    return field(default=default, metadata=metadata)
 
 
 # Field types a section may have: what a value must be (for the message), the test, the conversion.
@@ -218,6 +222,9 @@ class ObjectConfig(_Section):
     max_extent: float = _field(2.0, gt=0.0)  # m; larger is almost surely millimetres
     min_extent: float = _field(0.005, gt=0.0)  # m; smaller than any graspable household object
     min_volume: float = _field(1e-9, gt=0.0)  # m^3 (a 1 mm cube): a hull below is flat or collinear
+    # A repair (annotator/objects/repair.py) may change the surface area by this share at most: a
+    # filled hole or a removed fin changes it a little, a repair that lost half the object does not.
+    mend_area_tolerance: float = _field(0.1, gt=0.0, implicit=True)
     min_faces: int = _field(4, ge=4)  # a tetrahedron
     # Faces above which a mesh is simplified (quadric decimation); 200,000 keep a household
     # object's surface within a fraction of a millimetre (0102-memory).
@@ -255,6 +262,9 @@ class ObjectConfig(_Section):
     coacd_first_cut_share: float = _field(0.3, gt=0.0, le=1.0)
     coacd_remesh_resolution: int = _field(20, ge=10, le=200)
     coacd_remesh_search_iterations: int = _field(20, ge=1, le=10_000)
+    # The search a near miss of the bounded one is cut again with: CoACD 1.0's own tree-search
+    # iterations per cut (coacd.run_coacd's mcts_iterations default); 0101-collision-ladder.
+    coacd_refine_iterations: int = _field(150, ge=1, le=10_000, implicit=True)
     # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
     # the full mesh. A mesh with more faces is cut as the smallest copy of max_faces, doubled up to
     # copy_max_faces, that strays at most copy_tolerance from it (0101-collision-ladder).
@@ -322,6 +332,9 @@ class ProtocolConfig(_Section):
     # there in physics, pushing what it meets (real trials); docs/decisions/0212-simulated-approach.md
     approach: str = _field("kinematic", choices=("kinematic", "simulated"))
     approach_speed: float = _field(0.05, gt=0.0)  # m/s of a simulated approach; 0212
+    # s the carrier keeps pulling at the end of a simulated approach, so that an unhindered gripper
+    # reaches the grasp pose (its lag closes) before it is held there (0212-simulated-approach)
+    approach_hold: float = _field(0.1, ge=0.0, implicit=True)
     approach_force: float = _field(
         50.0, gt=0.0
     )  # N the gripper's carrier pushes with on a simulated approach; 0212
@@ -405,12 +418,19 @@ class RobustConfig(_Section):
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
     approach_from_contact: bool = True
+    # m of that approach kept before the first contact: a sweep increment at least, the carrier at its
+    # speed within 1 mm (docs/decisions/0022-perturbed-approach-from-contact.md)
+    approach_lead: float = _field(0.01, ge=0.0, implicit=True)
     # true: a lift-only perturbed trial's close ends once the drive moved <= the stall speed's travel
     # over stall_steps steps (docs/decisions/0023-perturbed-close-stalls-by-travel.md)
     stall_by_travel: bool = True
     # true: after that approach from the contact, the fingers start near what they touch if the object
     # is at rest (docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md)
     fingers_from_contact: bool = True
+    # m/s and rad/s under which the object counts as at rest after that approach (the fingers start
+    # near it): docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md
+    rest_speed: float = _field(1e-3, gt=0.0, implicit=True)
+    rest_spin: float = _field(1e-2, gt=0.0, implicit=True)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -520,6 +540,9 @@ class CellConfig(_Section):
     placement_settle_time: float = _field(0.5, ge=0.0)  # s
     # A pose that moves more than this while settling is skipped for the next one.
     placement_max_drift: float = _field(0.005, gt=0.0)  # m, of any point of the object's bounding box
+    # A placed object is lowered onto the table when its collision shape is within this of the top
+    # (a placement from the mesh's hull is off by far less).
+    touch_search: float = _field(0.05, gt=0.0, implicit=True)  # m
     # "probability": an object's rows shared by stable-pose probability; "even": the same share each.
     # see docs/decisions/0010-cell-candidates.md
     candidates_per_placement: str = _field("probability", choices=("probability", "even"))
@@ -723,6 +746,10 @@ class AnnotatorConfig:
         shaken perturbed trials.
         """
         data = dataclasses.asdict(self)
+        for section in dataclasses.fields(self):  # implicit fields at the value every run had
+            for f in dataclasses.fields(getattr(self, section.name)):
+                if f.metadata.get("implicit") and data[section.name][f.name] == f.default:
+                    data[section.name].pop(f.name)
         if not scenes:
             data.pop("scenes")
         if self.confidence.method == "none":

@@ -36,6 +36,8 @@ from annotator.rng import keyed_rng
 if TYPE_CHECKING:
     import trimesh  # loaded with the objects, only by load_object_mesh
 
+    from annotator.store.reader import LabelsFolder
+
 log = logging.getLogger(__name__)
 
 
@@ -60,18 +62,25 @@ def poses_as_matrices(df: pd.DataFrame) -> np.ndarray:
 
 
 def load_labels(path: str | Path) -> pd.DataFrame:
-    """Every label under ``path`` (an output directory or one Parquet file), validated.
+    """Every label under ``path`` (an output directory or one Parquet file), validated: in a folder
+    a run wrote, the label files its manifest and journal vouch for (files of other runs or a
+    user's are not its labels); in any other folder, every label file
+    (:class:`annotator.store.reader.LabelsFolder`, the one reader of a labels folder).
 
     Sorted by (object_id, grasp_id) with a fresh index. Raises FileNotFoundError for a missing
-    path or a directory without label files, :class:`SchemaError` for a table off the schema.
+    path or a directory without label files, :class:`SchemaError` for a table off the schema. A
+    ``_manifest.json`` that is not a run's manifest is passed over with a warning (every label
+    file is read).
     """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no labels at {path}")
-    if path.is_dir() and not any(p.suffix == ".parquet" and p.name[0] not in "._" for p in path.iterdir()):
-        raise FileNotFoundError(f"no label files (*.parquet) in {path}")
-    df = pd.read_parquet(path)
-    df = validate_labels(df)
+    from annotator.store.errors import ManifestUnreadableError
+    from annotator.store.reader import LabelsFolder
+
+    try:
+        folder = LabelsFolder.open(path)
+    except ManifestUnreadableError as exc:  # not a run's folder after all: its label files are read
+        log.warning("%s; reading every label file in it", exc)
+        folder = LabelsFolder.without_manifest(path)
+    df = validate_labels(folder.read())
     return df.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
 
 
@@ -236,7 +245,6 @@ def load_geometry(labels_dir: str | Path) -> pd.DataFrame:
     collision_method, collision_parts, collision_threshold, collision_error_mean,
     collision_error_max (m), collision_approximate, properties (JSON), digest.
     """
-    path = Path(labels_dir) / "_manifest.json"
     info = _run_manifest(labels_dir).get("objects_info", {})
     rows = []
     for entry in (v for v in info.values() if isinstance(v, dict)):
@@ -245,7 +253,7 @@ def load_geometry(labels_dir: str | Path) -> pd.DataFrame:
             if isinstance(record, dict) and "geometry" in record:
                 rows.append(record["geometry"])
     if not rows:
-        raise FileNotFoundError(f"no geometry record in {path}")
+        raise FileNotFoundError(f"no geometry record in the run manifest of {labels_dir}")
     return pd.DataFrame(rows).drop_duplicates("object_id").set_index("object_id").sort_index()
 
 
@@ -277,9 +285,8 @@ def load_object_mesh(labels_dir: str | Path, object_id: str) -> trimesh.Trimesh:
     from annotator.config import AnnotatorConfig, ObjectConfig
 
     config = ObjectConfig()
-    manifest = Path(labels_dir) / "_manifest.json"
     try:  # the run's own object settings (face budget) when its manifest says them
-        config = AnnotatorConfig.from_dict(json.loads(manifest.read_text())["config"]).objects
+        config = AnnotatorConfig.from_dict(_run_manifest(labels_dir)["run"]["config"]).objects
     except (OSError, ValueError, KeyError, TypeError):
         pass
     return read_object_mesh(source, config, float(row["scale"]))
@@ -290,12 +297,12 @@ def load_object_mesh(labels_dir: str | Path, object_id: str) -> trimesh.Trimesh:
 
 def _run_manifest(labels_dir: str | Path) -> dict:
     """The run's manifest with the journal of what changed since applied
-    (:func:`annotator.store.manifest.load_state`), as a dict; FileNotFoundError if none reads."""
+    (:class:`annotator.store.reader.LabelsFolder`), as a dict; FileNotFoundError if none reads."""
     from annotator.store.errors import ManifestUnreadableError
-    from annotator.store.manifest import load_state
+    from annotator.store.reader import LabelsFolder
 
     try:
-        manifest = load_state(Path(labels_dir)).manifest
+        manifest = LabelsFolder.open(labels_dir).manifest
     except (OSError, ManifestUnreadableError) as exc:
         raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
     if manifest is None:
@@ -303,21 +310,21 @@ def _run_manifest(labels_dir: str | Path) -> dict:
     return manifest.to_json()
 
 
-def _scene_manifest(labels_dir: str | Path) -> dict:
-    manifest = _run_manifest(labels_dir)
-    if not isinstance(manifest, dict) or "scenes" not in (manifest.get("run") or {}).get("inputs", {}):
+def _scene_folder(labels_dir: str | Path) -> LabelsFolder:
+    """The folder of an ``annotate --scenes`` run (:class:`annotator.store.reader.LabelsFolder`);
+    FileNotFoundError without a readable manifest, ValueError for a folder of object labels."""
+    from annotator.store.errors import ManifestUnreadableError
+    from annotator.store.reader import LabelsFolder
+
+    try:
+        folder = LabelsFolder.open(labels_dir)
+    except (OSError, ManifestUnreadableError) as exc:
+        raise FileNotFoundError(f"no readable run manifest in {labels_dir} ({exc})") from None
+    if folder.manifest is None:
+        raise FileNotFoundError(f"no readable run manifest in {labels_dir} (no _manifest.json)")
+    if "scenes" not in (folder.run.get("inputs") or {}):
         raise ValueError(f"{labels_dir} holds no scenes (made without annotate --scenes)")
-    return manifest
-
-
-def _scene_records(manifest: dict) -> dict[str, list[dict]]:
-    """Each scene unit's label file records (its merged file, or its chunks), from the manifest."""
-    out: dict[str, list[dict]] = {}
-    for unit, entry in (manifest.get("objects_done") or {}).items():
-        out.setdefault(unit, []).append(entry)
-    for unit, entry in (manifest.get("chunks_done") or {}).items():
-        out.setdefault(unit, []).extend(entry["files"].values())
-    return out
+    return folder
 
 
 def load_scenes(labels_dir: str | Path) -> pd.DataFrame:
@@ -327,14 +334,12 @@ def load_scenes(labels_dir: str | Path) -> pd.DataFrame:
     and instance id. Each scene's table is the ``scene.parquet`` artifact its labels came with.
 
     Raises FileNotFoundError without a manifest, ValueError for a folder of object labels."""
-    manifest = _scene_manifest(labels_dir)
-    frames = []
-    for records in _scene_records(manifest).values():
-        for record in records:
-            artifact = (record.get("artifacts") or {}).get("scene.parquet")
-            if artifact is not None:
-                frames.append(pd.read_parquet(Path(labels_dir) / artifact["file"]))
-                break
+    folder = _scene_folder(labels_dir)
+    manifest = folder.manifest
+    assert manifest is not None  # a scene folder has its manifest
+    units = sorted(set(manifest.objects_done) | set(manifest.chunks_done))
+    tables = [folder.artifact(unit, "scene.parquet") for unit in units]
+    frames = [pd.read_parquet(path) for path in tables if path is not None]
     if not frames:
         raise FileNotFoundError(f"{labels_dir}: its run has labelled no scene yet")
     table = pd.concat(frames, ignore_index=True)
@@ -344,10 +349,11 @@ def load_scenes(labels_dir: str | Path) -> pd.DataFrame:
 def scene_labels(labels_dir: str | Path, scene_id: int) -> pd.DataFrame:
     """The labels of scene ``scene_id`` of an ``annotate --scenes`` run (validated), by grasp id;
     KeyError if the run has none of it."""
-    manifest = _scene_manifest(labels_dir)
-    unit = f"scene_{int(scene_id):06d}"  # annotator.store.names.scene_unit
-    records = _scene_records(manifest).get(unit)
+    from annotator.store.names import scene_unit
+
+    folder = _scene_folder(labels_dir)
+    records = folder.records(scene_unit(scene_id))
     if not records:
         raise KeyError(f"{labels_dir} has no labels of scene {scene_id}")
-    df = pd.concat([pd.read_parquet(Path(labels_dir) / r["file"]) for r in records], ignore_index=True)
+    df = folder.read([r["file"] for r in records])
     return validate_labels(df).sort_values("grasp_id", kind="stable").reset_index(drop=True)

@@ -46,6 +46,14 @@ def _fsync_dir(folder: Path) -> None:
             os.close(fd)
 
 
+def check_writable(folder: Path) -> None:
+    """Make ``folder`` (and its parents) and write and remove a file in it (``.rg2-write-check-*``):
+    OSError when it cannot be written, before any work depends on it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=folder, prefix=".rg2-write-check-"):
+        pass
+
+
 def atomic_write_path(
     path: Path | str,
     write: Callable[[Path], object],

@@ -73,6 +73,13 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return m.reshape(m.shape[:-1] + (3, 3))
 
 
+def canonical_quat(q: np.ndarray) -> np.ndarray:
+    """xyzw quaternion(s) ``q`` ((4,) or (n, 4)) with ``w >= 0``: the same rotations (q and -q are
+    one), a new array; the labels write their orientations so."""
+    q = np.asarray(q, dtype=np.float64)
+    return np.where((q[..., 3] < 0)[..., None], -q, q)
+
+
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     """Quaternion (xyzw, w >= 0) from rotation matrix/matrices. ``R`` : (3, 3) or (n, 3, 3)."""
     R = np.asarray(R, dtype=np.float64)
@@ -95,7 +102,7 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     )
     q = cands[np.arange(len(R)), np.argmax(t, axis=1)]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q[q[:, 3] < 0] *= -1.0
+    q = canonical_quat(q)
     return q[0] if single else q
 
 

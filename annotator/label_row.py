@@ -12,9 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-import numpy as np
-
-from annotator.geometry import Transform
+from annotator.geometry import Transform, canonical_quat
 from annotator.outcome import Outcome, Stage
 from annotator.schema import MODES, REASON_COLUMNS
 
@@ -55,11 +53,6 @@ class LabelledObject(Protocol):
         ...
 
 
-def canonical(q: np.ndarray) -> np.ndarray:
-    """The quaternion ``q`` (xyzw) with ``w >= 0`` (the same rotation)."""
-    return -q if q[3] < 0 else q
-
-
 def label_row(
     mode: str,
     *,
@@ -87,7 +80,7 @@ def label_row(
         "object_id": object_id,
         "grasp_id": grasp_id,
         **dict(zip(("x", "y", "z"), result.T_label.pos.tolist(), strict=True)),
-        **dict(zip(("qx", "qy", "qz", "qw"), canonical(result.T_label.quat).tolist(), strict=True)),
+        **dict(zip(("qx", "qy", "qz", "qw"), canonical_quat(result.T_label.quat).tolist(), strict=True)),
         "width": result.width,
         "success": result.outcome == Outcome.SUCCESS if result.success is None else bool(result.success),
         "outcome": result.outcome.label,

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from annotator.sim import pb
+from annotator.sim import camera as sim_camera
+from annotator.sim.camera import TINY_RENDERER
 
 
 @dataclass(frozen=True)
@@ -36,14 +37,12 @@ def orbit_camera(
 
     ``fov`` is the vertical field of view in degrees (PyBullet's GUI uses 60 as well).
     """
-    view = pb.computeViewMatrixFromYawPitchRoll(
-        cameraTargetPosition=list(target), distance=distance, yaw=yaw, pitch=pitch, roll=0.0, upAxisIndex=2
-    )
-    projection = pb.computeProjectionMatrixFOV(fov=fov, aspect=width / height, nearVal=near, farVal=far)
-    return Camera(tuple(view), tuple(projection), width, height)
+    view = sim_camera.view_from_yaw_pitch(target, distance, yaw, pitch)
+    projection = sim_camera.projection_fov(fov, width / height, near, far)
+    return Camera(view, projection, width, height)
 
 
-def render_rgb(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER) -> np.ndarray:
+def render_rgb(client: int, camera: Camera, renderer: int = TINY_RENDERER) -> np.ndarray:
     """Render one frame; returns (height, width, 3) uint8 RGB."""
     rgba, _, _ = _camera_image(client, camera, renderer)
     return _rgb(rgba, camera)
@@ -51,15 +50,9 @@ def render_rgb(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER)
 
 def _camera_image(client: int, camera: Camera, renderer: int) -> tuple:
     """PyBullet's raw ``(rgba, zbuffer, segmentation)`` buffers for ``camera``."""
-    _, _, rgba, zbuffer, seg = pb.getCameraImage(
-        camera.width,
-        camera.height,
-        viewMatrix=list(camera.view),
-        projectionMatrix=list(camera.projection),
-        renderer=renderer,
-        physicsClientId=client,
+    return sim_camera.camera_image(
+        client, camera.width, camera.height, camera.view, camera.projection, renderer
     )
-    return rgba, zbuffer, seg
 
 
 def _rgb(rgba, camera: Camera) -> np.ndarray:
@@ -114,7 +107,7 @@ def _near_far(camera: Camera) -> tuple[float, float]:
     return b / (a - 1.0), b / (a + 1.0)
 
 
-def render_frame(client: int, camera: Camera, renderer: int = pb.ER_TINY_RENDERER) -> Frame:
+def render_frame(client: int, camera: Camera, renderer: int = TINY_RENDERER) -> Frame:
     """Render RGB, metric depth and body segmentation in one call (see :class:`Frame`)."""
     rgba, zbuffer, seg = _camera_image(client, camera, renderer)
     shape = (camera.height, camera.width)
@@ -153,10 +146,8 @@ def look_at_camera(
     far: float = 5.0,
 ) -> Camera:
     """A camera at ``eye`` looking at ``target`` with ``up`` upwards in the image (vertical fov, deg)."""
-    view = pb.computeViewMatrix(
-        cameraEyePosition=np.asarray(eye, float).tolist(),
-        cameraTargetPosition=np.asarray(target, float).tolist(),
-        cameraUpVector=np.asarray(up, float).tolist(),
+    view = sim_camera.view_from_eye(
+        np.asarray(eye, float).tolist(), np.asarray(target, float).tolist(), np.asarray(up, float).tolist()
     )
-    projection = pb.computeProjectionMatrixFOV(fov=fov, aspect=width / height, nearVal=near, farVal=far)
-    return Camera(tuple(view), tuple(projection), width, height)
+    projection = sim_camera.projection_fov(fov, width / height, near, far)
+    return Camera(view, projection, width, height)

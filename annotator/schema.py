@@ -2,11 +2,13 @@
 
 A *mode* is what wrote a row: ``object`` (``annotate``, the floating gripper), ``cell``
 (``annotate --cell``), ``resting`` (``annotator evaluate --resting``), ``scene`` and
-``scene_cell`` (``annotate --scenes``, without and with ``--cell``), ``evaluate`` (``annotator
-evaluate``) and ``capture`` (the seed scene's capture key). :data:`MODES` gives each mode's
-columns in the order its rows hold them; :data:`REQUIRED` are the columns every label table has
-and :func:`annotator.dataset.validate_labels` checks. docs/labels.md shows these tables
-(:func:`markdown_table`; ``tests/test_label_schema.py`` checks the page against them).
+``scene_cell`` (``annotate --scenes``, without and with ``--cell``) and ``capture`` (the seed
+scene's capture key); ``annotator evaluate`` writes the rows of the mode it simulates in
+(``object``, ``resting``). :data:`MODES` gives each mode's columns in the order its rows hold them
+(a mode added outside this module declares its own: :func:`declare_mode`); :data:`REQUIRED` are
+the columns every label table has and :func:`annotator.dataset.validate_labels` checks.
+docs/labels.md shows these tables (:func:`markdown_table`; ``tests/test_label_schema.py`` checks
+the page against them).
 
 This module imports neither pybullet nor pandas.
 """
@@ -340,7 +342,6 @@ MODES: dict[str, tuple[str, ...]] = {
     "resting": OBJECT_COLUMNS + _names(RESTING_GROUPS),
     "scene": _OBJECT_BUT_GRIPPER + _names(SCENE_GROUPS) + ("gripper",),
     "scene_cell": _OBJECT_BUT_GRIPPER + _names(SCENE_GROUPS) + ("gripper",) + _names(REACH_GROUPS),
-    "evaluate": OBJECT_COLUMNS,
     "capture": OBJECT_COLUMNS,
 }
 
@@ -371,6 +372,23 @@ def _by_name() -> dict[str, Column]:
 COLUMNS: dict[str, Column] = _by_name()
 # The columns every label table has, in order, with their dtypes (what load_labels checks).
 REQUIRED: dict[str, str] = {c.name: c.dtype for c in COLUMNS.values() if c.required}
+
+
+def declare_mode(mode: str, groups: tuple[ColumnGroup, ...], base: str = "object") -> tuple[str, ...]:
+    """Declare the rows of a mode added outside this module (docs/architecture.md, "Adding a
+    mode"): ``base``'s columns, then those of ``groups``. Declaring the same again is a no-op; a
+    mode or a column declared otherwise before is a ValueError. Returns the mode's columns."""
+    names = MODES[base] + _names(groups)
+    for group in groups:
+        for column in group.columns():
+            if COLUMNS.get(column.name, column) != column:
+                raise ValueError(f"label column {column.name} is declared already, differently")
+    if MODES.get(mode, names) != names:
+        raise ValueError(f"label mode {mode!r} is declared already, with other columns")
+    for group in groups:
+        COLUMNS.update((c.name, c) for c in group.columns())
+    MODES[mode] = names
+    return names
 
 
 def columns_of(mode: str) -> tuple[Column, ...]:

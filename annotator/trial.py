@@ -31,30 +31,12 @@ import numpy as np
 from annotator.config import AnnotatorConfig, PhysicsConfig, RobustConfig
 from annotator.geometry import Transform, axis_angle_to_matrix
 from annotator.outcome import Outcome, Stage
-from annotator.rng import trial_rng  # noqa: F401  (re-exported)
-from annotator.sim import pb
+from annotator.sim import rigid
 from annotator.sim.contacts import closest_points, touching
 from annotator.sim.hand import BenchmarkMotion, FloatingGripper, ShakeMotion
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
-
-
-# s the carrier keeps pulling at the end of a simulated approach, so that an unhindered gripper
-# reaches the grasp pose (its lag behind the moving target closes) before it is held there.
-APPROACH_HOLD = 0.1
-# m of a lift-only perturbed trial's simulated approach kept before the first place the open
-# gripper would touch anything (RobustConfig.approach_from_contact): the travel through free space
-# before it changes nothing but time; the carrier reaches its speed within 1 mm (0.1 m/s, 300 N),
-# and the lead is at least one sweep increment, so a contact between increments is never skipped.
-# docs/decisions/0022-perturbed-approach-from-contact.md measures it.
-APPROACH_LEAD = 0.01
-# m/s and rad/s under which the object counts as at rest after a perturbed trial's approach from
-# the contact: an object at rest stays so while the fingers travel through free space, so they may
-# start near it (GraspTrial._preclose); one the approach set moving is closed on from where it is.
-# docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md measures it.
-REST_SPEED = 1e-3
-REST_SPIN = 1e-2
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,9 +203,10 @@ class GraspTrial:
         self.shake = shake
         self.obstacle_margin = obstacle_margin
         self.client = world.client
-        info = pb.getDynamicsInfo(object_uid, -1, physicsClientId=self.client)
-        self._mass, self._inertia, self._friction = info[0], np.asarray(info[2]), info[1]
-        self._T_com_obj = Transform(info[3], info[4]).inverse()  # mesh frame in the COM frame
+        info = rigid.dynamics(self.client, object_uid)
+        self._mass, self._inertia, self._friction = info.mass, np.asarray(info.inertia), info.lateral_friction
+        # the mesh frame in the COM frame
+        self._T_com_obj = Transform(info.inertial_position, info.inertial_orientation).inverse()
         # the perturbed trials' ranges: the run's [robust] over the gripper's own (RobustConfig.over)
         self.robust = config.robust.over(dict(hand.gripper.description.robust))
         # the stage trial 0 must hold through for the row's success ([protocol] gate)
@@ -236,7 +219,7 @@ class GraspTrial:
     # --- helpers ----------------------------------------------------------------------------
 
     def _T_world_obj(self) -> Transform:
-        pos, orn = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
+        pos, orn = rigid.pose(self.client, self.obj)
         return Transform(pos, orn) * self._T_com_obj
 
     def _intersects(self, skip_pads: bool = False) -> bool:
@@ -321,7 +304,7 @@ class GraspTrial:
         the object rests (off for a floating one): what it meets is pushed or stops it, as a real
         arm stops against a board or nudges a misplaced object. The close then starts where the
         gripper came to rest; the carrier holds it there. ``from_contact``: the approach starts
-        ``APPROACH_LEAD`` before the first increment of the kinematic sweep that touches anything
+        ``[robust] approach_lead`` before the first increment of the kinematic sweep that touches anything
         (:meth:`_free_travel`), not ``approach_distance`` back."""
         p = self.config.protocol
         hand = self.hand
@@ -337,20 +320,20 @@ class GraspTrial:
             return CollisionCheck(True, open_width, "pregrasp", hit)
         travel = p.approach_distance
         if from_contact:
-            skip = max(0.0, self._free_travel(start, T_world_tcp.rotation[:, 2]) - APPROACH_LEAD)
+            skip = max(0.0, self._free_travel(start, T_world_tcp.rotation[:, 2]) - self.robust.approach_lead)
             start = Transform(start.pos + T_world_tcp.rotation[:, 2] * skip, start.quat)
             hand.teleport(start, open_width)
             travel -= skip
         self.world.set_gravity(self.resting)
         steps = max(1, round(travel / p.approach_speed / self.world.dt))
-        hold = round(APPROACH_HOLD / self.world.dt)
+        hold = round(self.config.protocol.approach_hold / self.world.dt)
         hand.approach(T_world_base, steps, p.approach_force, hand.gripper.table.angle_of(open_width), hold)
         return CollisionCheck(False, open_width)
 
     def _at_rest(self) -> bool:
-        """Is the object still (below ``REST_SPEED`` and ``REST_SPIN``)?"""
-        v, w = pb.getBaseVelocity(self.obj, physicsClientId=self.client)
-        return bool(np.linalg.norm(v) < REST_SPEED and np.linalg.norm(w) < REST_SPIN)
+        """Is the object still (below ``[robust] rest_speed`` and ``rest_spin``)?"""
+        v, w = rigid.velocity(self.client, self.obj)
+        return bool(np.linalg.norm(v) < self.robust.rest_speed and np.linalg.norm(w) < self.robust.rest_spin)
 
     def _preclose(self) -> None:
         """After a perturbed trial's simulated approach from the contact, the object at rest: the
@@ -358,10 +341,9 @@ class GraspTrial:
         width at a time while they touch nothing, and kept at the last width that touches nothing,
         as the teleported approach starts them ``preclose_gap`` outside the chord. Fingers that
         already touch something at the first such width are left exactly as they were."""
-        g, uid, client = self.hand.gripper, self.hand.uid, self.client
+        g = self.hand.gripper
         step = 2 * self.config.protocol.preclose_gap
-        joints = range(pb.getNumJoints(uid, physicsClientId=client))
-        before = [s[:2] for s in pb.getJointStates(uid, joints, physicsClientId=client)]
+        before = self.hand.body.joint_states()
         width = g.measured_width()
         free = None
         while step > 0 and width - step > 0:
@@ -371,8 +353,7 @@ class GraspTrial:
             width -= step
             free = width
         if free is None:
-            for j, (position, velocity) in zip(joints, before, strict=True):
-                pb.resetJointState(uid, j, position, velocity, physicsClientId=client)
+            self.hand.body.reset_joint_states(before)
         else:
             g.reset_width(free)
 
@@ -385,13 +366,12 @@ class GraspTrial:
     def _apply(self, perturbation: Perturbation) -> None:
         """Object friction and mass for this trial (restoreState does not reset dynamics)."""
         s = perturbation.mass_scale
-        pb.changeDynamics(
+        rigid.change_dynamics(
+            self.client,
             self.obj,
-            -1,
             mass=self._mass * s,
             localInertiaDiagonal=(self._inertia * s).tolist(),
             lateralFriction=max(0.0, self._friction + perturbation.friction_delta),
-            physicsClientId=self.client,
         )
 
     def run(
@@ -438,7 +418,7 @@ class GraspTrial:
         plan = TrialPlan(self.shake, motion=self.shake) if plan is None else plan
         self.world.restore_state(self.state)
         self._apply(perturbation)
-        com_world = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)[0]
+        com_world = rigid.pose(self.client, self.obj)[0]
         T_obj_tcp = perturbation.T_obj_tcp(T_obj_tcp, self._T_world_obj(), np.asarray(com_world))
         steps0 = self.world.steps
         cfg, force = self.config.protocol, self.hand.grip_force * perturbation.force_scale
@@ -450,23 +430,8 @@ class GraspTrial:
         if check.collided:
             return TrialResult(Outcome.COLLISION, T_obj_tcp, open_width, 0, float("nan"), check)
 
-        # 2. close (gravity off on a free object, on for a resting one). The fingers' travel
-        # through free space has no effect but time, so they start preclose_gap outside the
-        # expected chord, unless the gripper intersects the object there (a feature inside the
-        # chord): then fully open. After a simulated approach they close from where they are,
-        # unless the plan moves them in first over an object at rest (_preclose).
-        if cfg.approach == "simulated" and plan.fingers_from_contact and self._at_rest():
-            self._preclose()
-        elif cfg.approach != "simulated":
-            T_world_tcp = self._T_world_obj() * T_obj_tcp
-            T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
-            start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
-            self.hand.teleport(T_world_base, start_width)
-            if start_width < open_width and self._intersects():
-                self.hand.teleport(T_world_base, open_width)
-        self.world.set_gravity(self.resting)
-        max_steps = round(cfg.close_timeout / self.world.dt)
-        self.hand.close(force=force, max_steps=max_steps, stall_by_travel=plan.stall_by_travel)
+        # 2. close (gravity off on a free object, on for a resting one)
+        self._close(T_obj_tcp, width_expected, open_width, force, plan)
         width = self.hand.gripper.measured_width()
         T_obj_tcp_closed = (
             self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.gripper.T_base_tcp(width)
@@ -495,14 +460,7 @@ class GraspTrial:
             return result(Outcome.SLIPPED_LIFT, Stage.CLOSED)
         # the stages after the lift, each judged as it ends (the last one after the settle)
         motion = BenchmarkMotion.of(cfg)
-        # without a motion stage in the protocol, holding through the lift passes it (Stage)
-        stages: list[tuple[Outcome, Stage, str | None]] = [
-            (Outcome.SLIPPED_LIFT, Stage.LIFTED if motion.active else Stage.MOVED, None)
-        ]
-        if plan.motion and motion.active:
-            stages.append((Outcome.SLIPPED_MOTION, Stage.MOVED, "motion"))
-        if plan.shake:
-            stages.append((Outcome.SLIPPED_SHAKE, Stage.SHAKEN, "shake"))
+        stages = _stages_after_lift(plan, motion)
         reached = Stage.CLOSED
         for k, (failed, stage, what) in enumerate(stages):
             if what is not None:
@@ -529,6 +487,28 @@ class GraspTrial:
             return result(Outcome.SUCCESS, stage, slip)
         raise AssertionError("unreachable: the stages always end in a verdict")
 
+    def _close(
+        self, T_obj_tcp: Transform, width_expected: float, open_width: float, force: float, plan: TrialPlan
+    ) -> None:
+        """Close the gripper on the object with ``force`` (N). The fingers' travel through free
+        space has no effect but time, so they start ``preclose_gap`` outside the expected chord,
+        unless the gripper intersects the object there (a feature inside the chord): then fully
+        open. After a simulated approach they close from where they are, unless the plan moves them
+        in first over an object at rest (:meth:`_preclose`)."""
+        cfg = self.config.protocol
+        if cfg.approach == "simulated" and plan.fingers_from_contact and self._at_rest():
+            self._preclose()
+        elif cfg.approach != "simulated":
+            T_world_tcp = self._T_world_obj() * T_obj_tcp
+            T_world_base = self.hand.T_world_base_for_tcp(T_world_tcp, width_expected)
+            start_width = min(open_width, width_expected + 2 * cfg.preclose_gap)
+            self.hand.teleport(T_world_base, start_width)
+            if start_width < open_width and self._intersects():
+                self.hand.teleport(T_world_base, open_width)
+        self.world.set_gravity(self.resting)
+        max_steps = round(cfg.close_timeout / self.world.dt)
+        self.hand.close(force=force, max_steps=max_steps, stall_by_travel=plan.stall_by_travel)
+
     def _held_physics(self) -> PhysicsConfig | None:
         """The settings this trial lifts and shakes with once closed (``PhysicsConfig.held``): a
         floating object's only; one resting on a table (the cell, scenes) keeps the world's."""
@@ -542,10 +522,8 @@ class GraspTrial:
 
     def _hand_obj_xyz(self) -> tuple[float, float, float]:
         """:meth:`_hand_obj_position` as PyBullet gives it (a tuple: no array per call)."""
-        hand = pb.getBasePositionAndOrientation(self.hand.uid, physicsClientId=self.client)
-        obj = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)
-        inv = pb.invertTransform(hand[0], hand[1])
-        x, y, z = pb.multiplyTransforms(inv[0], inv[1], obj[0], obj[1])[0]
+        hand, obj = rigid.pose(self.client, self.hand.uid), rigid.pose(self.client, self.obj)
+        x, y, z = rigid.multiply(rigid.invert(hand), obj)[0]
         return x, y, z
 
     def _slip(self, reference: np.ndarray) -> float:
@@ -554,6 +532,20 @@ class GraspTrial:
 
     def _loss_monitor(self, reference: np.ndarray) -> _LossMonitor:
         return _LossMonitor(self, reference)
+
+
+def _stages_after_lift(plan: TrialPlan, motion: BenchmarkMotion) -> list[tuple[Outcome, Stage, str | None]]:
+    """The stages a trial of ``plan`` holds through after the lift, in order: each as (the outcome
+    of failing it, the stage holding through it reaches, what it runs: None, ``motion``, ``shake``)."""
+    # without a motion stage in the protocol, holding through the lift passes it (Stage)
+    stages: list[tuple[Outcome, Stage, str | None]] = [
+        (Outcome.SLIPPED_LIFT, Stage.LIFTED if motion.active else Stage.MOVED, None)
+    ]
+    if plan.motion and motion.active:
+        stages.append((Outcome.SLIPPED_MOTION, Stage.MOVED, "motion"))
+    if plan.shake:
+        stages.append((Outcome.SLIPPED_SHAKE, Stage.SHAKEN, "shake"))
+    return stages
 
 
 class _LossMonitor:
@@ -596,19 +588,20 @@ class _OffsetMass:
         self.trial = trial
         self.r_com = tuple(float(v) for v in perturbation.com_offset)
         self.mass = trial._mass * perturbation.mass_scale
-        self.velocity: tuple[float, float, float] | None = None
+        self.velocity: tuple[float, ...] | None = None
 
     def __call__(self) -> None:
         t = self.trial
         client, world = t.client, t.world
-        v = pb.getBaseVelocity(t.obj, physicsClientId=client)[0]
+        v = rigid.velocity(client, t.obj)[0]
+        a: tuple[float, ...]
         if self.velocity is None:
             a = (0.0, 0.0, 0.0)
         else:
             a = tuple((v[i] - self.velocity[i]) / world.dt for i in range(3))
         self.velocity = v
         g = world.physics.gravity if world.gravity_on else 0.0
-        orn = pb.getBasePositionAndOrientation(t.obj, physicsClientId=client)[1]
-        r = np.asarray(pb.multiplyTransforms((0, 0, 0), orn, self.r_com, (0, 0, 0, 1))[0])
+        orn = rigid.pose(client, t.obj)[1]
+        r = np.asarray(rigid.multiply(((0, 0, 0), orn), (self.r_com, (0, 0, 0, 1)))[0])
         f = self.mass * np.array([-a[0], -a[1], g - a[2]])
-        pb.applyExternalTorque(t.obj, -1, np.cross(r, f).tolist(), pb.WORLD_FRAME, physicsClientId=client)
+        rigid.apply_torque(client, t.obj, np.cross(r, f).tolist())

@@ -34,14 +34,16 @@ import re
 import time
 from pathlib import Path
 
-import joblib
 import numpy as np
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectError, default_cache_dir, discover_objects, load_object
+from annotator.pipeline.in_memory import ExecutionOptions, run_in_memory
 from annotator.pipeline.plan import CHUNK_SIZE
-from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span, max_width, object_candidates
+from annotator.pipeline.simulate import object_candidates
+from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
+from annotator.sim.hand import max_width
 from bench._variants import parse_variant
 from bench.harness import Run
 
@@ -52,8 +54,12 @@ CELL_ONLY = ("cell", "kinect")
 
 
 def label(chunks: list[Span], config: AnnotatorConfig, seed: int, workers: int) -> pd.DataFrame:
-    tasks = (SpanTask(span=c, config=config, seed=seed, n=c.size) for c in chunks)
-    out = joblib.Parallel(n_jobs=workers)(joblib.delayed(label_span)(t) for t in tasks)
+    """The chunks' labels, through the runner's execution on ``workers`` processes."""
+    tasks = [SpanTask(span=c, config=config, seed=seed, n=c.size) for c in chunks]
+    out = run_in_memory(tasks, ExecutionOptions(workers))
+    failed = [r.error for r in out if r.error is not None]
+    if failed:
+        raise RuntimeError(f"{len(failed)} chunks failed: {failed[0]}")
     return pd.concat([r.rows for r in out], ignore_index=True).sort_values(KEY, ignore_index=True)
 
 

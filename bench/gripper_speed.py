@@ -19,7 +19,8 @@ from pathlib import Path
 from annotator.config import AnnotatorConfig
 from annotator.grippers import load_gripper
 from annotator.objects import discover_objects
-from annotator.pipeline import worker
+from annotator.pipeline.tasks import Span, SpanTask
+from annotator.pipeline.worker import label_span
 from bench.harness import Run
 
 GRIPPERS = ("rg2", "panda", "robotiq_2f85")
@@ -31,10 +32,8 @@ def label_all(sources, gripper, n: int, config: AnnotatorConfig) -> tuple[float,
     cpu0 = time.process_time()
     rows = simulated = 0
     for source in sources:
-        span = worker.Span(source.object_id, source, None, 0, n)
-        result = worker.label_span(
-            worker.SpanTask(span=span, config=config, seed=0, n=n, gripper=description)
-        )
+        span = Span(source.object_id, source, None, 0, n)
+        result = label_span(SpanTask(span=span, config=config, seed=0, n=n, gripper=description))
         if result.error is not None:
             raise RuntimeError(f"{source.object_id}: {result.error}")
         rows += len(result.rows)

@@ -119,7 +119,9 @@ def train_model(labels: list[Path], objects: Path, out: Path, record: Run) -> Pa
 
 def clutter(args, model: Path, record: Run) -> list[dict]:
     from annotator.objects import default_cache_dir, discover_objects
-    from annotator.policies.clutter import ClutterJob, clutter_removal, wilson
+    from annotator.pipeline.in_memory import ExecutionOptions
+    from annotator.policies.clutter import ClutterSetup, wilson
+    from annotator.tools.clutter_runs import run_clutter_removal
 
     config = AnnotatorConfig()
     sources = tuple(discover_objects(args.test_objects, config.objects))
@@ -127,7 +129,7 @@ def clutter(args, model: Path, record: Run) -> list[dict]:
     for arrangement in args.arrangements:
         for policy in args.policies:
             t0 = time.perf_counter()
-            job = ClutterJob(
+            job = ClutterSetup(
                 sources,
                 5,
                 args.seed,
@@ -139,7 +141,7 @@ def clutter(args, model: Path, record: Run) -> list[dict]:
                 arrangement=arrangement,
             )
             rounds = args.oracle_rounds if policy == "labels" and args.oracle_rounds else args.rounds
-            summary = clutter_removal(job, rounds, args.workers or os.cpu_count() or 1)
+            summary = run_clutter_removal(job, rounds, ExecutionOptions(args.workers or os.cpu_count() or 1))
             lo, hi = wilson(summary.successes, summary.attempts)
             clo, chi = wilson(summary.successes, summary.objects)
             for line in summary.lines(f"{policy} ({arrangement})"):

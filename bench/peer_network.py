@@ -747,7 +747,9 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
     oracle on the same rounds."""
     from annotator.grippers import load_gripper
     from annotator.objects import default_cache_dir, discover_objects
-    from annotator.policies.clutter import ClutterJob, clutter_removal
+    from annotator.pipeline.in_memory import ExecutionOptions
+    from annotator.policies.clutter import ClutterSetup
+    from annotator.tools.clutter_runs import run_clutter_removal
 
     config = AnnotatorConfig()
     sources = tuple(discover_objects(work / "vgn" / "data" / "urdfs" / "test", config.objects))
@@ -771,7 +773,7 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                 rows.append(json.loads((keep / "row.json").read_text()) | {"resumed": True})
                 _print(rows[-1])
                 continue
-            job = ClutterJob(
+            job = ClutterSetup(
                 sources,
                 5,
                 args.seed,
@@ -784,7 +786,7 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                 arrangement=arrangement,
             )
             t0, c0 = time.perf_counter(), time.process_time() + _children_cpu()
-            summary = clutter_removal(job, rounds, args.workers)
+            summary = run_clutter_removal(job, rounds, ExecutionOptions(args.workers))
             vgn_policy.close_servers()  # waited for: its CPU is counted below
             cpu = time.process_time() + _children_cpu() - c0
             keep.mkdir(parents=True, exist_ok=True)

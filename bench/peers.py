@@ -89,7 +89,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
 from annotator.outcome import Outcome
-from annotator.pipeline.worker import object_candidates
+from annotator.pipeline.simulate import object_candidates
 from annotator.sampler import Candidates
 from annotator.sim import pb
 from annotator.sim.hand import FloatingGripper

@@ -291,7 +291,9 @@ def _touching(manager, boxes, T_table_tcp: np.ndarray):
 
 def clutter(args, record: Run) -> None:
     from annotator.objects import default_cache_dir, discover_objects
-    from annotator.policies.clutter import ClutterJob, clutter_removal, wilson
+    from annotator.pipeline.in_memory import ExecutionOptions
+    from annotator.policies.clutter import ClutterSetup, wilson
+    from annotator.tools.clutter_runs import run_clutter_removal
 
     config = AnnotatorConfig()
     everything = tuple(discover_objects(args.objects))
@@ -303,8 +305,10 @@ def clutter(args, record: Run) -> None:
     for set_name, sources in sets.items():
         for policy in ("labels", "random"):
             t0 = time.perf_counter()
-            job = ClutterJob(sources, 5, args.seed, policy, config, cache_dir=str(default_cache_dir()))
-            summary = clutter_removal(job, args.rounds, args.workers or os.cpu_count() or 1)
+            job = ClutterSetup(sources, 5, args.seed, policy, config, cache_dir=str(default_cache_dir()))
+            summary = run_clutter_removal(
+                job, args.rounds, ExecutionOptions(args.workers or os.cpu_count() or 1)
+            )
             lo, hi = wilson(summary.successes, summary.attempts)
             clo, chi = wilson(summary.successes, summary.objects)
             for line in summary.lines(f"{policy} ({set_name})"):

@@ -36,7 +36,8 @@ import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
-from annotator.pipeline.worker import Span, SpanTask, label_span
+from annotator.pipeline.tasks import Span, SpanTask
+from annotator.pipeline.worker import label_span
 from bench.harness import ROOT, Run
 
 TRIAL0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]

@@ -29,9 +29,9 @@ from annotator.cli import annotate_command, main
 from annotator.config import AnnotatorConfig
 from annotator.dataset import OUTCOMES, load_labels
 from annotator.objects import ObjectSource, load_object
-from annotator.pipeline.worker import max_width as _max_width
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
+from annotator.sim.hand import max_width as _max_width
 from annotator.store import MANIFEST_NAME
 from annotator.store.files import write_labels
 from annotator.store.names import chunk_filename

@@ -12,7 +12,7 @@ import pytest
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import load_object
-from annotator.pipeline.worker import object_candidates
+from annotator.pipeline.simulate import object_candidates
 from annotator.sim import pb
 from bench import peers
 from bench.reference import free_step

@@ -109,16 +109,15 @@ def test_a_light_objects_capture_is_the_batch_jobs_label(tmp_path):
     import trimesh
 
     from annotator.objects import discover_objects
-    from annotator.pipeline import worker
+    from annotator.pipeline.tasks import Span, SpanTask
+    from annotator.pipeline.worker import label_span
     from annotator.seed_scene.capture import Candidate
 
     config = AnnotatorConfig()
     trimesh.creation.box((0.03, 0.03, 0.022)).export(tmp_path / "block.obj")
     (source,) = discover_objects(tmp_path)
     n = 8
-    batch = worker.label_span(
-        worker.SpanTask(span=worker.Span("block", source, None, 0, n), config=config, seed=0, n=n)
-    ).rows
+    batch = label_span(SpanTask(span=Span("block", source, None, 0, n), config=config, seed=0, n=n)).rows
     assert (batch["outcome"] != "collision").sum() >= 4
     model = load_capture_object(tmp_path / "block.obj", config)
     assert model.substeps(config.physics) == 3

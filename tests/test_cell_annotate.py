@@ -156,16 +156,16 @@ def test_a_puck_lower_than_the_pads_is_held_from_above(tmp_path):
     100). Standing off along the approach, grasps from above hold it (32 of 40), the pad centres
     more than 15 mm above the table top."""
     from annotator.objects import discover_objects
-    from annotator.pipeline import worker
+    from annotator.pipeline.modes import CellMode
+    from annotator.pipeline.tasks import Span, SpanTask
+    from annotator.pipeline.worker import label_span
 
     trimesh.creation.cylinder(radius=0.03, height=0.016, sections=32).export(tmp_path / "puck.obj")
     (source,) = discover_objects(tmp_path)
     n = 8
     config = AnnotatorConfig.from_dict({"cell": {"placements_per_object": 1}})  # flat, not on its rim
-    task = worker.SpanTask(
-        span=worker.Span("puck", source, None, 0, n), config=config, seed=0, n=n, cell=worker.CellOptions()
-    )
-    result = worker.label_span(task)
+    task = SpanTask(span=Span("puck", source, None, 0, n), config=config, seed=0, n=n, mode=CellMode())
+    result = label_span(task)
     assert result.error is None, result.error
     rows = result.rows
     assert rows["success"].sum() >= 3

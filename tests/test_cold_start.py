@@ -33,7 +33,8 @@ from annotator.pipeline.progress import Progress
 from annotator.pipeline.run import RunOptions, Workers, execute, run
 from annotator.pipeline.schedule import Schedule
 from annotator.pipeline.summary import Summary, format_summary
-from annotator.pipeline.worker import Prepare, PreparedObject, SpanResult, SpanTask, label_span
+from annotator.pipeline.tasks import Prepare, PreparedObject, SpanResult, SpanTask
+from annotator.pipeline.worker import label_span
 from annotator.store import MANIFEST_NAME
 
 

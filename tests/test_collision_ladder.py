@@ -97,7 +97,8 @@ def seam(monkeypatch, commands: dict[str, list[str]], calls: list[str] | None = 
 
 @pytest.mark.slow
 def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_again(tmp_path, monkeypatch):
-    from annotator.pipeline.worker import Span, SpanTask, WorkerState
+    from annotator.pipeline.tasks import Span, SpanTask
+    from annotator.pipeline.worker import WorkerState
 
     calls: list[str] = []
     seam(monkeypatch, {"coacd": SPIN}, calls)
@@ -563,7 +564,7 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
     torus = trimesh.creation.torus(0.04, 0.012, major_sections=16, minor_sections=8)
     only = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, coacd_retry_margin=0.0)
     _, bounded, _ = decomposers.refine_coacd(torus.vertices, torus.faces, only)
-    own_config = dataclasses.replace(only, coacd_search_iterations=decomposers.COACD_OWN_SEARCH_ITERATIONS)
+    own_config = dataclasses.replace(only, coacd_search_iterations=only.coacd_refine_iterations)
     _, own, _ = decomposers.refine_coacd(torus.vertices, torus.faces, own_config)
     assert bounded.max > 0.0
 
@@ -583,7 +584,7 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
     )
     assert calls == [
         (0.05, CONFIG.coacd_search_iterations),
-        (0.05, decomposers.COACD_OWN_SEARCH_ITERATIONS),
+        (0.05, only.coacd_refine_iterations),
     ]
     assert threshold == 0.05 and error.max == min(bounded.max, own.max)
     assert kept[0] == bounded.max  # the bounded cut was saved before the retry started

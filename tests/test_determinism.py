@@ -16,7 +16,9 @@ import pytest
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
-from annotator.pipeline import worker
+from annotator.pipeline import object_cache, worker
+from annotator.pipeline.modes import CellMode
+from annotator.pipeline.tasks import Span, SpanTask
 
 SAMPLES = Path(__file__).resolve().parents[1] / "objects"
 N = 30  # three spans per object
@@ -46,7 +48,7 @@ def _fresh_worker() -> None:
 def _run(spans, config) -> pd.DataFrame:
     frames = []
     for span in spans:
-        result = worker.label_span(worker.SpanTask(span=span, config=config, seed=0, n=N))
+        result = worker.label_span(SpanTask(span=span, config=config, seed=0, n=N))
         assert result.error is None, result.error
         frames.append(result.rows)
     return pd.concat(frames).sort_values(["object_id", "grasp_id"]).reset_index(drop=True)
@@ -56,7 +58,7 @@ def _run(spans, config) -> pd.DataFrame:
 def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
     config = AnnotatorConfig()
     sources = discover_objects(concave)
-    spans = [worker.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, N, 10)]
+    spans = [Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, N, 10)]
     _fresh_worker()
     reference = _run(spans, config)
     assert (reference["outcome"] != "collision").sum() >= 10  # enough trials reach the physics
@@ -70,7 +72,7 @@ def test_span_results_do_not_depend_on_the_worker_history(concave, cache):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("budget", [worker.RECENT_OBJECT_BYTES, 0])
+@pytest.mark.parametrize("budget", [object_cache.RECENT_OBJECT_BYTES, 0])
 def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     concave, cache, monkeypatch, budget
 ):
@@ -79,8 +81,8 @@ def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
     and samples it again; the labels are the same bit for bit either way."""
     config = AnnotatorConfig()
     sources = discover_objects(concave)
-    firsts = [worker.Span(s.object_id, s, None, 0, 10) for s in sources]
-    rest = [worker.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(10, N, 10)]
+    firsts = [Span(s.object_id, s, None, 0, 10) for s in sources]
+    rest = [Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(10, N, 10)]
     _fresh_worker()
     reference = _run(firsts + rest, config)
     loads, samplings = [], []
@@ -95,7 +97,7 @@ def test_a_worker_returning_to_an_object_reuses_it_within_the_memory_budget(
         "object_candidates",
         lambda model, *a: samplings.append(model) or object_candidates(model, *a),
     )
-    monkeypatch.setattr(worker, "RECENT_OBJECT_BYTES", budget)
+    monkeypatch.setattr(object_cache, "RECENT_OBJECT_BYTES", budget)
     _fresh_worker()
     again = _run(firsts + rest, config)
     pd.testing.assert_frame_equal(again, reference, check_exact=True)
@@ -120,7 +122,7 @@ def test_labels_do_not_depend_on_another_worlds_contact_breaking_threshold(conca
         base, physics=dataclasses.replace(base.physics, contact_breaking_threshold=0.02)
     )
     source = next(s for s in discover_objects(concave) if s.object_id == "banana")
-    span = worker.Span(source.object_id, source, None, 0, N)
+    span = Span(source.object_id, source, None, 0, N)
     _fresh_worker()
     alone = _run([span], config)
     with_other = _run([span], other)
@@ -173,7 +175,7 @@ QUICK_VIEWS = AnnotatorConfig.from_dict({"kinect": {"views_color_scale": 0.25}})
 def _run_cell(spans, config, cell) -> tuple[pd.DataFrame, dict[str, bytes]]:
     frames, artifacts = [], {}
     for span in spans:
-        result = worker.label_span(worker.SpanTask(span=span, config=config, seed=0, n=CELL_N, cell=cell))
+        result = worker.label_span(SpanTask(span=span, config=config, seed=0, n=CELL_N, mode=cell))
         assert result.error is None, result.error
         frames.append(result.rows)
         for name, data in (result.artifacts or {}).items():
@@ -189,8 +191,8 @@ def test_cell_rows_and_views_do_not_depend_on_the_worker_history(cache):
     bytes of a fresh worker; and a floating span after cell spans is the floating span of a fresh
     worker (the modes leave nothing behind)."""
     sources = [s for s in discover_objects(SAMPLES) if s.object_id in ("box", "banana")]
-    spans = [worker.Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, CELL_N, 10)]
-    cell = worker.CellOptions(views=1)
+    spans = [Span(s.object_id, s, None, a, a + 10) for s in sources for a in range(0, CELL_N, 10)]
+    cell = CellMode(views=1)
     _fresh_worker()
     reference, ref_views = _run_cell(spans, QUICK_VIEWS, cell)
     assert reference["reachable"].any() and (reference["outcome"] != "collision").sum() >= 3

@@ -119,3 +119,12 @@ def test_no_two_classes_in_the_package_share_a_name():
             if isinstance(node, ast.ClassDef):
                 where[node.name].append(f"{path.relative_to(REPO)}:{node.lineno}")
     assert {name: places for name, places in where.items() if len(places) > 1} == {}
+
+
+def test_pybullet_is_called_inside_sim_only():
+    """Nothing outside ``annotator/sim/`` imports PyBullet or calls it: the physics layer wraps
+    every call (bodies, joints, contacts, cameras, the GUI's controls)."""
+    from bench.structure import raw_pybullet
+
+    uses, calls, importers = raw_pybullet(PACKAGE)
+    assert (uses, calls, importers) == (0, 0, [])

@@ -259,6 +259,7 @@ def test_a_worker_keeps_its_objects_across_configurations_with_the_same_labels(t
     worker keeps the objects it loaded, and its rows are those of a fresh worker."""
     from annotator.objects import discover_objects
     from annotator.pipeline import worker
+    from annotator.pipeline.tasks import Span, SpanTask
 
     folder = tmp_path / "objects"
     folder.mkdir()
@@ -270,8 +271,8 @@ def test_a_worker_keeps_its_objects_across_configurations_with_the_same_labels(t
     )
 
     def task(config):
-        return worker.SpanTask(
-            span=worker.Span("box", source, None, 0, 6),
+        return SpanTask(
+            span=Span("box", source, None, 0, 6),
             config=config,
             seed=0,
             n=6,
@@ -280,8 +281,8 @@ def test_a_worker_keeps_its_objects_across_configurations_with_the_same_labels(t
 
     reused = worker.WorkerState()
     reused.label(task(base))
-    model = reused.obj.model
+    model = reused.strategy.current.model
     second = reused.label(task(other))
-    assert reused.obj.model is model  # not loaded again
+    assert reused.strategy.current.model is model  # not loaded again
     fresh = worker.WorkerState().label(task(other))
     pd.testing.assert_frame_equal(second.rows, fresh.rows, check_exact=True)

@@ -21,16 +21,17 @@ from annotator.config import AnnotatorConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.grippers import DescriptionError, gripper_dir, load_gripper, shipped_grippers
 from annotator.objects import ObjectSource, discover_objects
-from annotator.pipeline import worker
-from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
+from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
+from annotator.pipeline.worker import _State, label_span
 from annotator.sampler import _first_hits, object_rng, sample_candidates
 from annotator.sim import ur3
 from annotator.sim.body import Body
 from annotator.sim.gripper import ParallelGripper
-from annotator.sim.hand import FloatingGripper, ShakeMotion
+from annotator.sim.hand import FloatingGripper, ShakeMotion, max_width
 from annotator.sim.world import World
 
-GRIPPERS = ("rg2", "panda", "robotiq_2f85")
+# Every shipped gripper: a new one is tested as these are (and needs its generator in GENERATORS).
+GRIPPERS = tuple(sorted(shipped_grippers()))
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # TCP +z pointing down (-z world): a top grasp
 CONFIG = AnnotatorConfig()
 SAMPLES = Path(__file__).resolve().parents[1] / "objects"
@@ -77,7 +78,8 @@ def box_pos(world: World, box: int) -> np.ndarray:
 
 
 def test_the_three_grippers_are_shipped_and_rg2_is_the_default():
-    assert set(GRIPPERS) <= set(shipped_grippers())
+    assert {"rg2", "panda", "robotiq_2f85"} <= set(GRIPPERS)
+    assert set(GRIPPERS) == set(GENERATORS)  # every shipped model is generated
     assert load_gripper(None).name == "rg2"
 
 
@@ -224,7 +226,7 @@ def _source(tmp_path: Path, name: str, mesh: trimesh.Trimesh) -> ObjectSource:
 
 def _label(source: ObjectSource, mesh, gripper: str, n: int, workers: int = 1) -> tuple[pd.DataFrame, object]:
     """Labels of the object's first ``n`` candidates sampled for ``gripper``'s stroke, in spans of 10."""
-    stroke = worker.max_width(CONFIG, gripper)
+    stroke = max_width(CONFIG, gripper)
     c = sample_candidates(mesh, n, object_rng(0, source.object_id), CONFIG.sampler, stroke)
     tasks = []
     for a in range(0, n, 10):
@@ -290,7 +292,7 @@ def test_mug_labels_do_not_depend_on_workers_or_span_order(mug, name):
         assert all(r.error is None for r in out), [r.error for r in out]
         return pd.concat([r.rows for r in out]).sort_values("grasp_id", ignore_index=True)
 
-    worker._State.instance = None
+    _State.instance = None
     reference = run(range(len(spans)))
     other = "panda" if name != "panda" else "rg2"  # the worker rebuilds its world for another gripper
     label_span(SpanTask(span=spans[0], config=CONFIG, seed=0, n=n, gripper=load_gripper(other)))
@@ -353,7 +355,7 @@ def test_model_loads_cleanly_and_survives_random_targets(name, mounted, capfd, t
 
 # --- the passive links of the four-bar grippers ---------------------------------------------------
 
-LINKAGES = ("rg2", "robotiq_2f85")
+LINKAGES = tuple(n for n in GRIPPERS if load_gripper(n).drive_kind == "revolute")  # four-bars
 
 
 @pytest.mark.parametrize("name", LINKAGES)

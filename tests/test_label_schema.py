@@ -39,7 +39,7 @@ def test_every_mode_column_is_declared_once_and_every_declared_column_is_used():
         assert len(set(names)) == len(names), mode
         assert [c.name for c in schema.columns_of(mode)] == list(names)
         assert set(LEGACY_REQUIRED) <= set(names), mode
-    assert schema.MODES["capture"] == schema.MODES["object"] == schema.MODES["evaluate"]
+    assert schema.MODES["capture"] == schema.MODES["object"]
     assert len(schema.MODES["object"]) == 32
     with pytest.raises(KeyError, match="unknown label mode"):
         schema.columns_of("nope")
@@ -118,10 +118,11 @@ def test_the_row_builder_orders_a_mode_and_refuses_other_columns():
 def test_worker_rows_are_the_object_mode(tmp_path):
     """Real rows from a worker: exactly the object mode's columns, in order, with their dtypes."""
     from annotator.objects import discover_objects
-    from annotator.pipeline import worker
+    from annotator.pipeline.tasks import Span, SpanTask
+    from annotator.pipeline.worker import label_span
 
     config = AnnotatorConfig()
     (source,) = [s for s in discover_objects(SAMPLES) if s.object_id == "box"]
-    task = worker.SpanTask(span=worker.Span("box", source, None, 0, 4), config=config, seed=0, n=4)
-    rows = worker.label_span(task).rows
+    task = SpanTask(span=Span("box", source, None, 0, 4), config=config, seed=0, n=4)
+    rows = label_span(task).rows
     assert mode_errors(rows, "object") == []

@@ -14,12 +14,12 @@ from annotator.cell import build_cell
 from annotator.cell.mount import mounted_urdf
 from annotator.config import CellConfig, PhysicsConfig
 from annotator.geometry import Transform
-from annotator.grippers import DescriptionError, gripper_dir, load_gripper
+from annotator.grippers import DescriptionError, gripper_dir, load_gripper, shipped_grippers
 from annotator.sim import pb
 from annotator.sim.body import Body
 from annotator.sim.world import World
 
-GRIPPERS = ("rg2", "panda", "robotiq_2f85")
+GRIPPERS = tuple(sorted(shipped_grippers()))  # every shipped gripper
 
 
 @pytest.fixture(autouse=True)

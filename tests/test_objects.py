@@ -38,7 +38,9 @@ from annotator.objects import (
     source_digest,
 )
 from annotator.objects.fidelity import closest_distance
-from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span, object_candidates
+from annotator.pipeline.simulate import object_candidates
+from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
+from annotator.pipeline.worker import label_span
 from annotator.sampler import pad_opening
 
 REPO_OBJECTS = Path(__file__).resolve().parents[1] / "objects"
@@ -891,7 +893,8 @@ def test_geometry_record_ties_each_object_to_the_mesh_its_poses_refer_to(tmp_pat
 def test_a_crashing_decomposition_still_labels_its_object_in_a_worker(tmp_path, monkeypatch):
     """The worker's own code path (in this process, so the seam applies): the object whose
     decompositions abort is labelled on its hull, and so is the next object."""
-    from annotator.pipeline.worker import Span, SpanTask, WorkerState
+    from annotator.pipeline.tasks import Span, SpanTask
+    from annotator.pipeline.worker import WorkerState
 
     monkeypatch.setenv("RG2_CACHE_DIR", str(tmp_path / "cache"))
     crash = [sys.executable, "-c", "import os; os.abort()"]

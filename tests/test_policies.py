@@ -15,7 +15,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import discover_objects
 from annotator.policies import Grasp, Grasps, Observation, PolicyError
-from annotator.policies.clutter import FAILURES, ClutterJob, clutter_removal
+from annotator.policies.clutter import FAILURES, ClutterSetup, clutter_removal
 
 SEEN: list[Observation] = []
 TOP_DOWN = (1.0, 0.0, 0.0, 0.0)  # xyzw: the TCP's +z (approach) along the table's -z
@@ -36,7 +36,7 @@ def test_a_callable_sees_the_kinect_only_and_the_arm_executes_its_best_grasp(con
     config = AnnotatorConfig()
     sources = tuple(discover_objects(convex_objects))
     name = f"{__name__}:above_the_highest_point"
-    job = ClutterJob(sources, 2, 0, name, config, policy_args=(("depth", "0.02"),), views=2)
+    job = ClutterSetup(sources, 2, 0, name, config, policy_args=(("depth", "0.02"),), views=2)
     summary = clutter_removal(job, 1)
     (round_,) = summary.rounds
     assert len(SEEN) == len(round_.attempts) >= 1
@@ -76,7 +76,7 @@ def test_every_attempt_says_what_it_went_for_and_why_it_failed(convex_objects):
     config = AnnotatorConfig()
     sources = tuple(discover_objects(convex_objects))
     for policy in ("above_the_highest_point", "thin_air"):
-        job = ClutterJob(sources, 2, 0, f"{__name__}:{policy}", config, views=1)
+        job = ClutterSetup(sources, 2, 0, f"{__name__}:{policy}", config, views=1)
         summary = clutter_removal(job, 1)
         _, grasps = summary.tables()
         assert {"target_instance", "target_object", "failure"} <= set(grasps.columns)
@@ -146,9 +146,9 @@ def test_vision_random_grasps_clear_the_observed_cloud_and_the_table(convex_obje
     from annotator.config import ProtocolConfig
     from annotator.grippers import load_gripper
     from annotator.objects import load_object
-    from annotator.policies.clutter import Round
     from annotator.policies.gripper_boxes import box_corners, gripper_boxes, points_in_boxes
     from annotator.policies.observe import observe
+    from annotator.policies.round_world import Round
     from annotator.policies.vision import TABLE_MARGIN, observed_surface, vision_random
     from annotator.scenes import SceneBuilder, SceneSpec
 

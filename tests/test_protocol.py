@@ -15,7 +15,8 @@ from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.dataset import poses_as_matrices
 from annotator.geometry import Transform
 from annotator.objects import ObjectProperties, ObjectSource
-from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
+from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
+from annotator.pipeline.worker import label_span
 from annotator.rng import object_rng, trial_rng
 from annotator.sampler import _first_hits, sample_candidates
 from annotator.trial import Perturbation

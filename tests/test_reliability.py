@@ -26,7 +26,8 @@ from annotator.objects import discover_objects
 from annotator.pipeline.plan import PlannedObject
 from annotator.pipeline.run import RunOptions, Workers, execute
 from annotator.pipeline.schedule import Schedule
-from annotator.pipeline.worker import Prepare, Span, SpanResult, SpanTask, label_span
+from annotator.pipeline.tasks import Prepare, Span, SpanResult, SpanTask
+from annotator.pipeline.worker import label_span
 from annotator.store import LOCK_NAME, MANIFEST_NAME, STALE_DIR
 from annotator.store.names import object_filename
 

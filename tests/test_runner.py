@@ -11,6 +11,7 @@ from test_import_cycles import import_graph
 
 from annotator.config import AnnotatorConfig
 from annotator.pipeline.evaluate_job import EvaluateJob, EvaluateOptions
+from annotator.pipeline.modes import RestingMode
 from annotator.pipeline.object_job import ObjectJob, ObjectOptions
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.run import UsageError, job_for
@@ -72,13 +73,13 @@ def test_a_run_binds_what_it_always_bound():
     options = RunOptions(SAMPLES, 10)
     floating = ObjectJob(CONFIG)
     floating.check(options)
-    spec, units = floating.bind(options, summary)
-    assert spec.inputs == {} and set(units) >= {"box", "mug"} and not summary.failed
+    bound = floating.bind(options, summary)
+    assert bound.spec.inputs == {} and set(bound.units) >= {"box", "mug"} and not summary.failed
     cell = ObjectJob(CONFIG, ObjectOptions(cell=True, views=1))
     cell.check(options)
-    assert cell.bind(options, summary)[0].inputs == {"cell": {"views": 1}}
-    resting = EvaluateJob(CONFIG, EvaluateOptions(_given(), resting=True))
+    assert cell.bind(options, summary).spec.inputs == {"cell": {"views": 1}}
+    resting = EvaluateJob(CONFIG, EvaluateOptions(_given(), RestingMode()))
     resting.check(options)
-    spec, units = resting.bind(options, summary)
-    assert spec.inputs == {"given_sha256": "digest", "counts": {"box": 1}, "resting": True}
-    assert list(units) == ["box"]
+    bound = resting.bind(options, summary)
+    assert bound.spec.inputs == {"given_sha256": "digest", "counts": {"box": 1}, "resting": True}
+    assert list(bound.units) == ["box"]

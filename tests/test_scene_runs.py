@@ -25,7 +25,7 @@ from scene_helpers import CONCAVE, REPO
 from annotator.config import AnnotatorConfig
 from annotator.dataset import keyed_rng, load_scenes, scene_labels
 from annotator.objects import discover_objects
-from annotator.pipeline import scene_mode, worker
+from annotator.pipeline import scene_artifact, tasks, worker
 from annotator.pipeline.scene_job import SCENE_CHUNK_SIZE, plan_scene_spans
 from annotator.scenes import records as scene_records
 from annotator.scenes.arrange import draw_objects
@@ -127,9 +127,9 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
     (as the main process passes it once the first span is back), give the same rows and the same
     scene file."""
     pool = tuple(discover_objects(concave))
-    job = worker.SceneRequest(pool, None, "pile", 4, 4, N, seed=0)
+    job = tasks.SceneRequest(pool, None, "pile", 4, 4, N, seed=0)
     config = AnnotatorConfig()
-    spans = [worker.SceneSpan(1, a, a + SCENE_CHUNK_SIZE) for a in range(0, N, SCENE_CHUNK_SIZE)]
+    spans = [tasks.SceneSpan(1, a, a + SCENE_CHUNK_SIZE) for a in range(0, N, SCENE_CHUNK_SIZE)]
 
     def run(order, record=None):
         worker.worker_state().close()
@@ -137,7 +137,7 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
         frames, files = [], {}
         for k in order:
             result = worker.label_span(
-                worker.SceneTask(span=spans[k], request=job, config=config, record=record)
+                tasks.SceneTask(span=spans[k], request=job, config=config, record=record)
             )
             assert result.error is None, result.error
             frames.append(result.rows)
@@ -152,7 +152,7 @@ def test_scene_spans_do_not_depend_on_the_order_or_the_worker(concave):
     backward, files_back = run([1, 0])
     pd.testing.assert_frame_equal(backward, forward, check_exact=True)
     assert files_back == files
-    record = scene_mode.record_from_artifact(files[scene_mode.SCENE_FILE])
+    record = scene_artifact.record_from_artifact(files[scene_artifact.SCENE_FILE])
     given, _ = run([1, 0], record)
     pd.testing.assert_frame_equal(given, forward, check_exact=True)
     worker.worker_state().close()

@@ -13,7 +13,7 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import load_scenes
 from annotator.geometry import Transform
 from annotator.objects import discover_objects, load_object
-from annotator.policies.clutter import ClutterJob, clutter_removal, read_predictions, wilson
+from annotator.policies.clutter import ClutterSetup, clutter_removal, read_predictions, wilson
 from annotator.scenes import SceneBuilder, SceneSpec, same_scene, scenes_from_table
 from annotator.tools import export_cgn, export_vgn
 from annotator.tools.export import TcpDepth
@@ -135,7 +135,7 @@ def test_show_scene_draws_a_clutter_round_s_attempts_on_it(convex_objects, conve
     from annotator.tools.show_scene import attempt_rows, render_scene
 
     config = AnnotatorConfig()
-    job = ClutterJob(tuple(discover_objects(convex_objects)), 3, 0, "labels", config)
+    job = ClutterSetup(tuple(discover_objects(convex_objects)), 3, 0, "labels", config)
     _, grasps = clutter_removal(job, 1).tables()
     csv = tmp_path / "grasps.csv"
     grasps.to_csv(csv, index=False)
@@ -187,13 +187,13 @@ def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(
     recorded = {r.scene_id: r for r in scenes_from_table(load_scenes(convex_scene_run))}[0]
     assert same_scene(built, recorded)
 
-    summary = clutter_removal(ClutterJob(sources, 3, 0, "labels", config), 1)
+    summary = clutter_removal(ClutterSetup(sources, 3, 0, "labels", config), 1)
     (round_,) = summary.rounds
     assert round_.object_count == len(built.kept) and summary.attempts >= 1
     assert summary.successes >= round_.object_count - 1, [
         (a.proposal.instance_id, a.success) for a in round_.attempts
     ]
-    again = clutter_removal(ClutterJob(sources, 3, 0, "labels", config), 1)
+    again = clutter_removal(ClutterSetup(sources, 3, 0, "labels", config), 1)
     pd.testing.assert_frame_equal(again.tables()[1], summary.tables()[1], check_exact=True)
 
     scenes = open_scene_labels(convex_scene_run, "test")

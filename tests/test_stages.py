@@ -21,7 +21,8 @@ from annotator.dataset import held_through
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource, create_body, load_object
 from annotator.outcome import Outcome, Stage
-from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
+from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
+from annotator.pipeline.worker import label_span
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
 from annotator.sim.hand import BenchmarkMotion, FloatingGripper

@@ -19,12 +19,14 @@ from annotator.config import AnnotatorConfig, RobustConfig
 from annotator.geometry import Transform
 from annotator.objects import ObjectSource, create_body, load_object, physics_for
 from annotator.outcome import Outcome
-from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
+from annotator.pipeline.modes import RestingMode
+from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
+from annotator.pipeline.worker import label_span
 from annotator.rng import object_rng
 from annotator.sampler import sample_candidates
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
-from annotator.trial import APPROACH_LEAD, GraspTrial, Perturbation, _OffsetMass
+from annotator.trial import GraspTrial, Perturbation, _OffsetMass
 
 CONFIG = AnnotatorConfig()
 OBJECTS = Path(__file__).resolve().parent.parent / "objects"
@@ -143,7 +145,7 @@ def test_trial_0_is_the_same_whatever_the_number_of_trials():
         oid = f"box_k{trials}"
         span = Span(oid, source, None, 0, len(above), given)
         result = label_span(
-            SpanTask(span=span, config=CONFIG, seed=0, n=len(above), trials=trials, resting="table")
+            SpanTask(span=span, config=CONFIG, seed=0, n=len(above), trials=trials, mode=RestingMode("table"))
         )
         assert result.error is None, result.error
         rows[trials] = result.rows
@@ -542,7 +544,7 @@ def test_a_trial_takes_its_gripper_s_robust_table(my_rg2):
 
 @pytest.mark.slow
 def test_a_perturbed_trial_s_simulated_approach_starts_near_the_first_contact(brick):
-    """A lift-only perturbed trial's simulated approach starts ``APPROACH_LEAD`` before the first
+    """A lift-only perturbed trial's simulated approach starts ``[robust] approach_lead`` before the first
     increment of the kinematic sweep that touches the brick, not ``approach_distance`` back: the
     free travel it skips changes nothing but time. Against the whole approach
     (``approach_from_contact = false``), the same trials hold and slip, close to the same width,
@@ -593,5 +595,5 @@ def test_a_perturbed_trial_s_simulated_approach_starts_near_the_first_contact(br
         if b.outcome == Outcome.SUCCESS:  # held the same: the same width, the same slip
             assert abs(a.width - b.width) < 2e-4 and abs(a.slip - b.slip) < 2e-4, (a, b)
     saved = sum(b.steps - a.steps for a, b in tried) / len(tried)
-    lead = round(APPROACH_LEAD / p.approach_speed / simulated.physics.time_step)
+    lead = round(RobustConfig().approach_lead / p.approach_speed / simulated.physics.time_step)
     assert saved > lead, saved  # more than the lead's steps saved on average

@@ -31,14 +31,7 @@ CLEAN = (
     "annotator/grippers/",
     "annotator/objects/",
     "annotator/dataset.py",
-    "annotator/pipeline/lifecycle.py",
-    "annotator/pipeline/execution.py",
-    "annotator/pipeline/object_job.py",
-    "annotator/pipeline/evaluate_job.py",
-    "annotator/pipeline/scene_job.py",
-    "annotator/pipeline/run.py",
-    "annotator/pipeline/options.py",
-    "annotator/pipeline/object_units.py",
+    "annotator/pipeline/",
 )
 
 _ERROR = re.compile(r"^(annotator/[^:]+\.py):\d+: error: ")

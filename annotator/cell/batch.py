@@ -44,11 +44,11 @@ from annotator.cell.reach import READY, Reach, check_reach
 from annotator.cell.views import OBJECT_POSE_COLUMNS, SEG_NOTHING, SEG_OBJECT, SEG_ROBOT, SEG_TABLE
 from annotator.cell.world import Cell, build_cell
 from annotator.config import AnnotatorConfig
-from annotator.geometry import Transform
+from annotator.geometry import Transform, canonical_quat
 from annotator.objects import ObjectError, ObjectModel, create_body, get_object_pose, reset_object_pose
 from annotator.rng import keyed_rng
 from annotator.sampler import Candidates
-from annotator.sim import pb
+from annotator.sim import rigid
 from annotator.sim.contacts import closest_points
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
@@ -60,9 +60,6 @@ log = logging.getLogger(__name__)
 # Where the floating gripper waits while no trial runs: 2 m above the world origin (the arm's
 # base), 2 m above the table top and far from any object on it.
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
-# The lowering search: the object's collision shape is brought to touch the table when it is
-# within this distance of it (a placement from the mesh's hull is off by far less).
-TOUCH_SEARCH = 0.05  # m
 JOINT_COLUMNS = tuple(f"q_grasp_{i}" for i in range(6))  # ur3.JOINT_NAMES order, rad
 REACH_ERROR = "error"  # unreachable_reason when the check itself failed (logged)
 
@@ -80,18 +77,15 @@ class SettledPlacement:
     drift: float
 
 
-def _canonical(q: np.ndarray) -> np.ndarray:
-    return -q if q[3] < 0 else q
-
-
 def _zero_velocity(client: int, uid: int) -> None:
-    pb.resetBaseVelocity(uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=client)
+    rigid.reset_velocity(client, uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
 
 
-def _touching(client: int, uid: int, table: int, T_world_obj: Transform) -> Transform:
-    """``T_world_obj`` moved vertically until the body's collision shape touches ``table``."""
+def _touching(client: int, uid: int, table: int, T_world_obj: Transform, search: float) -> Transform:
+    """``T_world_obj`` moved vertically until the body's collision shape touches ``table`` when it
+    is within ``search`` m of it (``[cell] touch_search``)."""
     reset_object_pose(client, uid, T_world_obj)
-    pts = closest_points(client, uid, table, TOUCH_SEARCH)
+    pts = closest_points(client, uid, table, search)
     if not pts:
         return T_world_obj
     gap = min(p.distance for p in pts)
@@ -136,7 +130,7 @@ def settle_placements(world: World, uid: int, cell: Cell, model: ObjectModel) ->
         if len(kept) == config.placements_per_object:
             break
         T = place(pose, cell.top, xy, 0.0, np.asarray(model.center_mass))
-        T = _touching(world.client, uid, cell.table.uid, T)
+        T = _touching(world.client, uid, cell.table.uid, T, config.touch_search)
         T_settled, drift = _settle(world, uid, T, config.placement_settle_time, corners)
         if drift > config.placement_max_drift:
             log.info(
@@ -279,7 +273,7 @@ class CellObject:
             reach = Reach(False, REACH_ERROR, str(exc))
         q = reach.q_grasp if reach.reachable else np.full(6, np.nan)
         T = placement.T_world_obj
-        pose = [*T.pos.tolist(), *_canonical(T.quat).tolist()]
+        pose = [*T.pos.tolist(), *canonical_quat(T.quat).tolist()]
         return {
             "placement_id": p,
             "placement_probability": placement.probability,
@@ -351,7 +345,7 @@ class CellObject:
                     "color_cy": cK.cy,
                 }
             )
-            pose = [*T_world_obj.pos.tolist(), *_canonical(T_world_obj.quat).tolist()]
+            pose = [*T_world_obj.pos.tolist(), *canonical_quat(T_world_obj.quat).tolist()]
             row.update(dict(zip(OBJECT_POSE_COLUMNS, pose, strict=True)))
             rows.append(row)
         buffer = io.BytesIO()

@@ -32,7 +32,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import get_object_pose
 from annotator.render import Camera, render_rgb
-from annotator.sim import pb
+from annotator.sim.contacts import contact_points
 
 log = logging.getLogger(__name__)
 
@@ -150,12 +150,12 @@ def execute_plan(
 
     def watch_contacts() -> None:
         for body, what in ((obj, "the object"), (cell.table.uid, "the table")):
-            for c in pb.getContactPoints(robot.uid, body, physicsClientId=cell.client):
+            for c in contact_points(cell.client, robot.uid, body):
                 if body == obj:
-                    result.links_on_object.add(names[c[3]])
+                    result.links_on_object.add(names[c.link_a])
                 else:
                     result.table_touched = True
-                text = f"{names[c[3]]} touched {what}"
+                text = f"{names[c.link_a]} touched {what}"
                 if text not in result.approach_contacts:
                     result.approach_contacts.append(text)
 
@@ -173,14 +173,13 @@ def execute_plan(
     _follow(cell, path[-1:], SETTLE_TIME, hold_open_and_watch, rec)
 
     # close: the arm holds the grasp, the gripper squeezes until the fingers stall
-    driven = robot.joints[gripper.driven].index
     stall_speed = g.stall_fraction * gripper.settings.close_speed
     stalled = 0
     for _ in range(round(p.close_timeout / cell.world.dt)):
         cell.command_arm(path[-1])
         gripper.squeeze(force)
         rec.step()
-        speed = pb.getJointState(robot.uid, driven, physicsClientId=cell.client)[1]
+        speed = robot.joint_velocity(gripper.driven)
         stalled = stalled + 1 if abs(speed) < stall_speed else 0
         if stalled >= g.stall_steps:
             break

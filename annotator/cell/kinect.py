@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 
 from annotator.config import KinectConfig
 from annotator.geometry import Transform
-from annotator.sim import pb
+from annotator.sim.camera import OPENGL_RENDERER, TINY_RENDERER, camera_image
 
 # T_gl_optical: OpenGL's eye frame (looks along -z, y up) from the optical frame (z forward, y down).
 _GL_FROM_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -92,7 +92,7 @@ class Intrinsics:
 # Where each renderer samples a pixel (from its lower-left corner, in pixels). TinyRenderer
 # (DIRECT mode) rasterises at pixel corners: measured, a box's mask came out one pixel wider on the
 # right and the top than pixel-centre sampling predicts (tests/test_kinect.py checks every pixel).
-RENDERER_SAMPLE = {pb.ER_TINY_RENDERER: (0.0, 0.0), pb.ER_BULLET_HARDWARE_OPENGL: (0.5, 0.5)}
+RENDERER_SAMPLE = {TINY_RENDERER: (0.0, 0.0), OPENGL_RENDERER: (0.5, 0.5)}
 
 
 def depth_intrinsics(config: KinectConfig) -> Intrinsics:
@@ -171,13 +171,13 @@ def _render(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rgb (h, w, 3) uint8, depth (h, w) m (inf where nothing is drawn), segmentation (h, w) int32)."""
     near, far = config.near_plane, config.far_plane
-    _, _, rgba, zbuffer, seg = pb.getCameraImage(
+    rgba, zbuffer, seg = camera_image(
+        client,
         K.width,
         K.height,
-        viewMatrix=list(view_matrix(T_world_optical)),
-        projectionMatrix=list(K.projection_matrix(near, far, RENDERER_SAMPLE[renderer])),
-        renderer=renderer,
-        physicsClientId=client,
+        view_matrix(T_world_optical),
+        K.projection_matrix(near, far, RENDERER_SAMPLE[renderer]),
+        renderer,
     )
     rgb = np.asarray(rgba, dtype=np.uint8).reshape(K.height, K.width, 4)[:, :, :3]
     zb = np.asarray(zbuffer, dtype=np.float64).reshape(K.height, K.width)
@@ -208,7 +208,7 @@ def render_view(
     color: bool = True,
     color_scale: float = 1.0,
     rng: np.random.Generator | None = None,
-    renderer: int = pb.ER_TINY_RENDERER,
+    renderer: int = TINY_RENDERER,
 ) -> KinectView:
     """Render depth, segmentation and (if ``color``) colour from the optical frame ``T_world_camera``.
 

@@ -21,8 +21,9 @@ import numpy as np
 
 from annotator.cell.world import Cell
 from annotator.geometry import Transform
-from annotator.sim import pb, ur3
+from annotator.sim import ur3
 from annotator.sim.contacts import closest_points, contact_points
+from annotator.sim.rigid import detect_collisions
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +105,7 @@ def arm_collision(cell: Cell, obj: int | Sequence[int] | None, margin: float) ->
         for link, distance in _closest(client, robot.uid, body, margin):
             if names[link] not in gripper_links:
                 return ARM_OBJECT, f"{names[link]} touches {what} ({distance * 1000:.1f} mm)"
-    pb.performCollisionDetection(physicsClientId=client)
+    detect_collisions(client)
     for c in contact_points(client, robot.uid, robot.uid):
         a, b = names[c.link_a], names[c.link_b]
         if c.distance < -1e-4 and not (a in gripper_links and b in gripper_links):

@@ -33,30 +33,13 @@ from annotator.cell.batch import _settle, _touching, _zero_velocity
 from annotator.cell.views import OBJECT_POSE_COLUMNS
 from annotator.cell.world import build_cell
 from annotator.config import AnnotatorConfig
-from annotator.geometry import Transform, quat_to_matrix
+from annotator.geometry import Transform, canonical_quat, quat_to_matrix
 from annotator.objects import ObjectModel, reset_object_pose
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial
 
 log = logging.getLogger(__name__)
-
-# How the grasps relate to a settling object: "object", they move with it (the default); "table",
-# they stay where they were given in the table frame, as a robot executing them in its own frame
-# does when the object comes to rest elsewhere than it was believed to lie.
-RESTING_MODES = ("object", "table")
-
-
-def resting_mode(value: bool | str | None) -> str | None:
-    """``--resting`` as a mode: None (floating) for False/None, ``"object"`` for True."""
-    if value is None or value is False:
-        return None
-    if value is True:
-        return "object"
-    if value not in RESTING_MODES:
-        raise ValueError(f"resting {value!r}: choose from {', '.join(RESTING_MODES)}")
-    return str(value)
-
 
 # Where the floating gripper waits while no trial runs: 2 m above the world origin, as in the cell.
 PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
@@ -69,8 +52,8 @@ RESTING_COLUMNS = (*REST_COLUMNS, *OBJECT_POSE_COLUMNS, "settle_drift")
 
 def orientation_key(quat: np.ndarray) -> tuple[float, float, float, float]:
     """An xyzw quaternion as a key: w >= 0 (q and -q are one orientation), floats as given."""
-    q = np.asarray(quat, dtype=np.float64).reshape(4)
-    if q[3] < 0 or (q[3] == 0 and next((v for v in q[:3] if v != 0), 0.0) < 0):
+    q = canonical_quat(np.asarray(quat, dtype=np.float64).reshape(4))
+    if q[3] == 0 and next((v for v in q[:3] if v != 0), 0.0) < 0:  # w = 0: the first other one > 0
         q = -q
     return tuple(float(v) for v in q)  # type: ignore[return-value]
 
@@ -85,12 +68,15 @@ class RestingWorld:
         self.world = world
         self.hand = hand
         self.config = config
-        self.grasps = grasps  # RESTING_MODES: do the grasps move with the settling object?
+        self.grasps = grasps  # "object": the grasps move with the settling object; "table": they stay
         self.table_cell = build_cell(world, config.cell, robot=False, kinect=False)
 
     @property
     def table(self) -> int:
         return self.table_cell.table.uid
+
+    def close(self) -> None:
+        """Nothing of its own to free: the table is a body of the trial world."""
 
     def load(self, model: ObjectModel, uid: int) -> RestingObject:
         return RestingObject(self, model, uid)
@@ -132,7 +118,9 @@ class RestingObject:
             ]
         )
         T = Transform.from_rotation(R_world, pos)
-        return _touching(self.worlds.world.client, self.uid, self.worlds.table, T)
+        return _touching(
+            self.worlds.world.client, self.uid, self.worlds.table, T, self.worlds.config.cell.touch_search
+        )
 
     def trial_for(self, quat_table_obj: np.ndarray) -> tuple[GraspTrial, Transform, float, Transform]:
         """The trial of the object resting in this orientation, its settled ``T_world_obj``, its

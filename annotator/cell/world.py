@@ -23,10 +23,11 @@ from annotator.cell.mount import mounted_urdf
 from annotator.config import CellConfig, GripperConfig, KinectConfig
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
-from annotator.sim import pb, ur3
+from annotator.sim import ur3
 from annotator.sim.body import Body
 from annotator.sim.gripper import ParallelGripper
-from annotator.sim.world import World
+from annotator.sim.rigid import URDF_FLAGS, collision_shapes
+from annotator.sim.world import World, private_client
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +35,9 @@ log = logging.getLogger(__name__)
 # so the gripper's finger pairs collide (ParallelGripper filters the in-finger pairs), and inertia
 # from the file.
 ROBOT_FLAGS = (
-    pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT | pb.URDF_USE_INERTIA_FROM_FILE
+    URDF_FLAGS["self_collision"]
+    | URDF_FLAGS["self_collision_exclude_parent"]
+    | URDF_FLAGS["inertia_from_file"]
 )
 KINECT_OPTICAL_LINK = "camera_optical_frame"
 
@@ -72,12 +75,9 @@ def table_urdf(config: CellConfig) -> Path:
 @functools.lru_cache(maxsize=2)
 def T_kinect_optical(urdf: str | None = None) -> Transform:
     """The Kinect's optical frame in its body frame, read from the URDF (private DIRECT client)."""
-    client = pb.connect(pb.DIRECT)
-    try:
+    with private_client() as client:
         body = Body.load(client, urdf or paths.kinect_urdf(), fixed_base=True)
         return body.base_pose().inverse() * body.link_pose(KINECT_OPTICAL_LINK)
-    finally:
-        pb.disconnect(physicsClientId=client)
 
 
 @dataclass(frozen=True)
@@ -101,12 +101,12 @@ class TableTop:
 
 def table_top_of(body: Body) -> TableTop:
     """The top face of the table's collision box (the seed's table: one box on its base link)."""
-    shapes = pb.getCollisionShapeData(body.uid, -1, physicsClientId=body.client)
-    boxes = [s for s in shapes if s[2] == pb.GEOM_BOX]
+    boxes = [s for s in collision_shapes(body.client, body.uid) if s.kind == "box"]
     if not boxes:
         raise ValueError("the table has no collision box for its top")
-    top = max(boxes, key=lambda s: s[5][2] + s[3][2] / 2)  # the highest box
-    size, local_pos, local_quat = np.asarray(top[3]), np.asarray(top[5]), np.asarray(top[6])
+    top = max(boxes, key=lambda s: s.local_position[2] + s.dimensions[2] / 2)  # the highest box
+    size = np.asarray(top.dimensions)
+    local_pos, local_quat = np.asarray(top.local_position), np.asarray(top.local_orientation)
     # collision shape frames are given in the link's inertial frame: base_pose is the URDF frame
     T_world_com = body.base_pose() * body.T_com_base.inverse()
     T_world_box = T_world_com * Transform(local_pos, local_quat)

@@ -185,11 +185,13 @@ def clutter_removal_command(
     """
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.objects import ObjectDiscoveryError, ObjectError, default_cache_dir, discover_objects
+    from annotator.pipeline.in_memory import ExecutionOptions
     from annotator.policies import PolicyError
-    from annotator.policies.clutter import ClutterJob, clutter_removal
+    from annotator.policies.clutter import ClutterSetup
     from annotator.policies.loop import check_signature
     from annotator.policies.predictions import check_predictions, read_predictions
     from annotator.policies.resolve import ORACLES, is_vision_policy, load_callable
+    from annotator.tools.clutter_runs import run_clutter_removal
     from annotator.tools.common import ToolError, check_output_dir
 
     config = load_config(config_file)
@@ -227,7 +229,7 @@ def clutter_removal_command(
         sources = tuple(discover_objects(objects_dir, config.objects))
     except ObjectDiscoveryError as exc:
         raise ToolError(str(exc)) from None
-    job = ClutterJob(
+    job = ClutterSetup(
         sources,
         per_scene,
         seed,
@@ -240,7 +242,7 @@ def clutter_removal_command(
         arrangement=arrangement,
     )
     try:
-        summary = clutter_removal(job, rounds, workers or os.cpu_count() or 1)
+        summary = run_clutter_removal(job, rounds, ExecutionOptions(workers or os.cpu_count() or 1))
     except ObjectError as exc:
         raise ToolError(f"an object of the piles cannot be loaded: {exc}") from None
     except PolicyError as exc:

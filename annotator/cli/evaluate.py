@@ -136,7 +136,8 @@ def evaluate_command(
     """
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.pipeline.evaluate_job import EvaluateOptions
-    from annotator.pipeline.worker import max_width
+    from annotator.pipeline.modes import resting as resting_mode
+    from annotator.sim.hand import max_width
     from annotator.tools.common import labelling_config, labelling_gripper, labels_resting
     from annotator.tools.evaluate import given_candidates, read_grasps
 
@@ -182,7 +183,7 @@ def evaluate_command(
         gripper=hand.description,
         cache_dir=cache_dir,
         config=config,
-        own=EvaluateOptions(candidates, resting=resting or False),
+        own=EvaluateOptions(candidates, resting_mode(resting)),
         on_done=None if real is None else lambda: _compare_stages(out_dir, real, real_column, config),
     )
 

@@ -16,6 +16,7 @@ from annotator.cli.common import (
     overwrite_option,
     setup_logging,
 )
+from annotator.tools.formats import exporters, format_help
 
 
 @click.command("export", context_settings=CONTEXT)
@@ -24,11 +25,8 @@ from annotator.cli.common import (
     "--format",
     "fmt",
     required=True,
-    type=click.Choice(["acronym", "graspgen", "vgn", "contact_graspnet"]),
-    help="acronym: one HDF5 file per object (needs h5py: the 'export' extra); graspgen: one JSON per object "
-    "and the gripper's description for GraspGen (gripper/); for labels of annotate --scenes: vgn (VGN's "
-    "grasps.csv and scenes/*.npz, its dataset/, GIGA's mesh_pose_list/; needs --views) or "
-    "contact_graspnet (one npz per scene, contacts on the mesh).",
+    type=click.Choice(list(exporters())),
+    help=format_help(),
 )
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False))
 @OBJECTS_OPTION
@@ -73,7 +71,7 @@ def export_command(
       annotator export scene_labels/ --format contact_graspnet --objects objects/ --out cgn/
     """
     setup_logging(False, verbose, default=logging.WARNING)
-    if fmt in ("vgn", "contact_graspnet"):
+    if exporters()[fmt].unit == "scene":
         from annotator.tools.common import ToolError
         from annotator.tools.export_scenes import export_scenes
 

@@ -98,7 +98,7 @@ def replay_command(
         one_row_per_grasp,
         read_labels,
     )
-    from annotator.tools.replay import default_camera, label_row, plan_replay, replay_world
+    from annotator.tools.replay import default_camera, find_label, plan_replay, replay_world
 
     if gif_path is not None:
         check_output_file(gif_path, "--gif")
@@ -106,7 +106,7 @@ def replay_command(
     config = chosen.config
     table = one_row_per_grasp(read_labels(labels), labels, scene)  # scene labels: --scene N
     try:
-        row = label_row(table, object_id, grasp_id)
+        row = find_label(table, object_id, grasp_id)
     except KeyError as exc:
         raise click.UsageError(f"{labels}: {exc.args[0] if exc.args else exc}") from exc
     hand = labelling_gripper(labels, gripper, table)
@@ -173,12 +173,8 @@ def _hold_window(world, seconds: float | None) -> None:
     """Keep the GUI open (stepping, real time) until it is closed or ``seconds`` pass."""
     import time
 
-    from annotator.sim import pb
-
     start = time.monotonic()
     while seconds is None or time.monotonic() - start < seconds:
-        try:
-            pb.stepSimulation(physicsClientId=world.client)
-        except pb.error:
+        if not world.step_while_open():
             return
         time.sleep(world.dt)

@@ -242,60 +242,11 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
         if link.find("collision/geometry/box") is not None
         and link.find("collision/geometry/*") is link.find("collision/geometry/box")
     )
-    joints: dict[str, UrdfJoint] = {}
+    joints = {}
     for el in root.findall("joint"):
-        name = el.attrib.get("name", "")
-        try:
-            origin = el.find("origin")
-            mimic_el = el.find("mimic")
-            mimic = None
-            if mimic_el is not None:
-                mimic = Mimic(
-                    follower=name,
-                    driven=mimic_el.attrib["joint"],
-                    multiplier=float(mimic_el.attrib.get("multiplier", 1.0)),
-                    offset=float(mimic_el.attrib.get("offset", 0.0)),
-                )
-            axis_el, limit = el.find("axis"), el.find("limit")
-            axis = (1.0, 0.0, 0.0) if axis_el is None else _vec3(axis_el.attrib.get("xyz"), 1.0)
-            if not any(axis):
-                raise ValueError("its axis is zero")
-            joints[name] = UrdfJoint(
-                name=name,
-                kind=el.attrib["type"],
-                parent=_link_of(el, "parent"),
-                child=_link_of(el, "child"),
-                xyz=_vec3(None if origin is None else origin.attrib.get("xyz")),
-                rpy=_vec3(None if origin is None else origin.attrib.get("rpy")),
-                mimic=mimic,
-                axis=axis,
-                lower=_scalar(None if limit is None else limit.attrib.get("lower")),
-                upper=_scalar(None if limit is None else limit.attrib.get("upper")),
-            )
-        except (KeyError, AttributeError, ValueError) as exc:
-            raise ValueError(f"{path.name}: joint {name!r} is malformed ({exc})") from exc
+        joint = _read_joint(el, path.name)
+        joints[joint.name] = joint
     meshes = tuple(m.attrib.get("filename", "") for m in root.iter("mesh"))
-    collision_meshes: dict[str, tuple[tuple[str, tuple[float, float, float]], ...]] = {}
-    for link in root.findall("link"):
-        found: list[tuple[str, tuple[float, float, float]]] = []
-        for mesh in link.findall("collision/geometry/mesh"):
-            try:
-                scale = _vec3(mesh.attrib.get("scale"), default=1.0)
-            except ValueError as exc:
-                name = link.attrib.get("name", "")
-                raise ValueError(f"{path.name}: link {name!r}: mesh scale {exc}") from None
-            found.append((mesh.attrib.get("filename", ""), scale))
-        if found:
-            collision_meshes[link.attrib.get("name", "")] = tuple(found)
-    box_sizes: dict[str, tuple[float, float, float]] = {}
-    for link in root.findall("link"):
-        box = link.find("collision/geometry/box")
-        if box is not None:
-            try:
-                box_sizes[link.attrib.get("name", "")] = _vec3(box.attrib.get("size"))
-            except ValueError as exc:
-                name = link.attrib.get("name", "")
-                raise ValueError(f"{path.name}: link {name!r}: box size {exc}") from None
     return UrdfModel(
         path,
         root.attrib.get("name", ""),
@@ -304,9 +255,76 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
         meshes,
         colliding,
         boxes,
-        collision_meshes,
-        box_sizes,
+        _collision_meshes(root, path.name),
+        _box_sizes(root, path.name),
     )
+
+
+def _read_joint(el: ET.Element, where: str) -> UrdfJoint:
+    """One ``<joint>`` element; ValueError naming it when it is malformed."""
+    name = el.attrib.get("name", "")
+    try:
+        origin = el.find("origin")
+        mimic_el = el.find("mimic")
+        mimic = None
+        if mimic_el is not None:
+            mimic = Mimic(
+                follower=name,
+                driven=mimic_el.attrib["joint"],
+                multiplier=float(mimic_el.attrib.get("multiplier", 1.0)),
+                offset=float(mimic_el.attrib.get("offset", 0.0)),
+            )
+        axis_el, limit = el.find("axis"), el.find("limit")
+        axis = (1.0, 0.0, 0.0) if axis_el is None else _vec3(axis_el.attrib.get("xyz"), 1.0)
+        if not any(axis):
+            raise ValueError("its axis is zero")
+        return UrdfJoint(
+            name=name,
+            kind=el.attrib["type"],
+            parent=_link_of(el, "parent"),
+            child=_link_of(el, "child"),
+            xyz=_vec3(None if origin is None else origin.attrib.get("xyz")),
+            rpy=_vec3(None if origin is None else origin.attrib.get("rpy")),
+            mimic=mimic,
+            axis=axis,
+            lower=_scalar(None if limit is None else limit.attrib.get("lower")),
+            upper=_scalar(None if limit is None else limit.attrib.get("upper")),
+        )
+    except (KeyError, AttributeError, ValueError) as exc:
+        raise ValueError(f"{where}: joint {name!r} is malformed ({exc})") from exc
+
+
+def _collision_meshes(
+    root: ET.Element, where: str
+) -> dict[str, tuple[tuple[str, tuple[float, float, float]], ...]]:
+    """Each link's collision meshes: (file name, scale) in document order, links without none left out."""
+    collision_meshes: dict[str, tuple[tuple[str, tuple[float, float, float]], ...]] = {}
+    for link in root.findall("link"):
+        found: list[tuple[str, tuple[float, float, float]]] = []
+        for mesh in link.findall("collision/geometry/mesh"):
+            try:
+                scale = _vec3(mesh.attrib.get("scale"), default=1.0)
+            except ValueError as exc:
+                name = link.attrib.get("name", "")
+                raise ValueError(f"{where}: link {name!r}: mesh scale {exc}") from None
+            found.append((mesh.attrib.get("filename", ""), scale))
+        if found:
+            collision_meshes[link.attrib.get("name", "")] = tuple(found)
+    return collision_meshes
+
+
+def _box_sizes(root: ET.Element, where: str) -> dict[str, tuple[float, float, float]]:
+    """Each link's collision box size (m), links without one left out."""
+    box_sizes: dict[str, tuple[float, float, float]] = {}
+    for link in root.findall("link"):
+        box = link.find("collision/geometry/box")
+        if box is not None:
+            try:
+                box_sizes[link.attrib.get("name", "")] = _vec3(box.attrib.get("size"))
+            except ValueError as exc:
+                name = link.attrib.get("name", "")
+                raise ValueError(f"{where}: link {name!r}: box size {exc}") from None
+    return box_sizes
 
 
 def read_mimic_table(urdf: Path | str) -> dict[str, Mimic]:

@@ -26,8 +26,8 @@ from annotator.geometry import Transform
 from annotator.learn.policy import CANDIDATES, SEEDS
 from annotator.objects import ObjectModel
 from annotator.outcome import Outcome
-from annotator.policies.clutter import nearest_instance
 from annotator.policies.records import Observation
+from annotator.policies.round_world import nearest_instance
 from annotator.policies.vision import ObservedSurface, sample_grasps
 from annotator.rng import keyed_rng
 from annotator.scenes.labels import SceneTrials

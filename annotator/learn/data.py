@@ -12,7 +12,6 @@ the objects, each scene adds the policy's own candidates, tried in simulation
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,19 +49,10 @@ def scene_views(labels_dir: str | Path, scene_id: int) -> list:
     rendered none (``annotate`` without ``--views``)."""
     from annotator.scenes.views import read_views
     from annotator.store.names import scene_unit
+    from annotator.store.reader import LabelsFolder
 
-    labels_dir = Path(labels_dir)
-    manifest = json.loads((labels_dir / "_manifest.json").read_text())
-    unit = scene_unit(scene_id)
-    records = []
-    if unit in (manifest.get("objects_done") or {}):
-        records.append(manifest["objects_done"][unit])
-    records += list(((manifest.get("chunks_done") or {}).get(unit) or {}).get("files", {}).values())
-    for record in records:
-        artifact = (record.get("artifacts") or {}).get("cameras.parquet")
-        if artifact is not None:
-            return read_views((labels_dir / artifact["file"]).parent)
-    return []
+    cameras = LabelsFolder.open(labels_dir).artifact(scene_unit(scene_id), "cameras.parquet")
+    return [] if cameras is None else read_views(cameras.parent)
 
 
 def scene_observation(

@@ -21,7 +21,8 @@ import numpy as np
 from annotator.config import ObjectConfig
 from annotator.geometry import Transform
 from annotator.objects.errors import ObjectError
-from annotator.sim import pb
+from annotator.objects.mass import principal_axes
+from annotator.sim import rigid
 
 if TYPE_CHECKING:
     from annotator.objects.model import ObjectModel
@@ -60,14 +61,6 @@ def quiet_c_output(what: str) -> Iterator[None]:
                 log.debug("%s: PyBullet said: %s", what, text.replace("\n", " | ")[:2000])
 
 
-def principal_axes(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Principal moments (3,) and a proper rotation (3, 3) whose columns are the principal axes."""
-    moments, R = np.linalg.eigh(0.5 * (inertia + inertia.T))
-    if np.linalg.det(R) < 0:
-        R[:, 2] *= -1.0
-    return np.maximum(moments, 0.0), R
-
-
 def create_body(
     client: int,
     model: ObjectModel,
@@ -89,28 +82,27 @@ def create_body(
     with quiet_c_output(model.object_id):
         if len(model.parts) <= 1:
             hull = model.parts[0] if model.parts else model.mesh.convex_hull
-            col = pb.createCollisionShape(
-                pb.GEOM_MESH, vertices=np.asarray(hull.vertices).tolist(), physicsClientId=client
-            )
+            col = rigid.collision_shape(client, "mesh", vertices=np.asarray(hull.vertices).tolist())
         else:
             path = model.collision_file
             if path is None or not path.is_file():
                 raise ObjectError(f"{model.object_id}: collision parts file missing: {path}")
-            col = pb.createCollisionShape(pb.GEOM_MESH, fileName=str(path), physicsClientId=client)
+            col = rigid.collision_shape(client, "mesh", fileName=str(path))
         if col < 0:
             raise ObjectError(f"{model.object_id}: PyBullet rejected the collision shape")
         visual = model.mesh if 3 * len(model.mesh.faces) <= MAX_VISUAL_INDICES else model.mesh.convex_hull
-        vis = pb.createVisualShape(
-            pb.GEOM_MESH,
+        vis = rigid.visual_shape(
+            client,
+            "mesh",
             vertices=np.asarray(visual.vertices).tolist(),
             indices=np.asarray(visual.faces).reshape(-1).tolist(),
             rgbaColor=list(OBJECT_RGBA),
-            physicsClientId=client,
         )
     moments, R = principal_axes(model.inertia)
     T_obj_com = Transform.from_rotation(R, model.center_mass)
     pos, quat = T_world_obj.to_pybullet()
-    body = pb.createMultiBody(
+    body = rigid.multibody(
+        client,
         baseMass=model.mass,
         baseCollisionShapeIndex=col,
         baseVisualShapeIndex=vis,
@@ -118,17 +110,15 @@ def create_body(
         baseOrientation=quat,
         baseInertialFramePosition=T_obj_com.pos.tolist(),
         baseInertialFrameOrientation=T_obj_com.quat.tolist(),
-        physicsClientId=client,
     )
-    pb.changeDynamics(
+    rigid.change_dynamics(
+        client,
         body,
-        -1,
         localInertiaDiagonal=moments.tolist(),
         lateralFriction=model.friction,
         spinningFriction=config.spinning_friction,
         rollingFriction=config.rolling_friction,
         collisionMargin=config.collision_margin,
-        physicsClientId=client,
     )
     return body
 
@@ -174,24 +164,17 @@ def _create_body_with_sat(
             )
         pos, quat = T_world_obj.to_pybullet()
         with quiet_c_output(model.object_id):
-            body = pb.loadURDF(
-                urdf,
-                pos,
-                quat,
-                flags=pb.URDF_INITIALIZE_SAT_FEATURES | pb.URDF_USE_INERTIA_FROM_FILE,
-                physicsClientId=client,
-            )
+            body = rigid.load_urdf(client, urdf, pos, quat, flags=("sat_features", "inertia_from_file"))
     if body < 0:
         raise ObjectError(f"{model.object_id}: PyBullet rejected the collision shape")
     # loadURDF places the link frame: the mesh frame at T_world_obj, as createMultiBody's base pose
-    pb.changeDynamics(
+    rigid.change_dynamics(
+        client,
         body,
-        -1,
         lateralFriction=model.friction,
         spinningFriction=config.spinning_friction,
         rollingFriction=config.rolling_friction,
         collisionMargin=config.collision_margin,
-        physicsClientId=client,
     )
     return body
 
@@ -208,13 +191,13 @@ def _rpy(R: np.ndarray) -> tuple[float, float, float]:
 
 
 def _T_com_obj(client: int, body: int) -> Transform:
-    info = pb.getDynamicsInfo(body, -1, physicsClientId=client)
-    return Transform(np.asarray(info[3]), np.asarray(info[4])).inverse()
+    info = rigid.dynamics(client, body)
+    return Transform(np.asarray(info.inertial_position), np.asarray(info.inertial_orientation)).inverse()
 
 
 def get_object_pose(client: int, body: int) -> Transform:
     """``T_world_obj`` of the body's mesh frame (PyBullet's base pose is its centre of mass)."""
-    T_world_com = Transform.from_pybullet(pb.getBasePositionAndOrientation(body, physicsClientId=client))
+    T_world_com = Transform.from_pybullet(rigid.pose(client, body))
     return T_world_com * _T_com_obj(client, body)
 
 
@@ -222,4 +205,4 @@ def reset_object_pose(client: int, body: int, T_world_obj: Transform) -> None:
     """Teleport the body so its mesh frame is at ``T_world_obj`` (velocities are left unchanged)."""
     T_world_com = T_world_obj * _T_com_obj(client, body).inverse()
     pos, quat = T_world_com.to_pybullet()
-    pb.resetBasePositionAndOrientation(body, pos, quat, physicsClientId=client)
+    rigid.reset_pose(client, body, pos, quat)

@@ -23,9 +23,6 @@ REMESHED = "coacd-remeshed"  # the second rung: CoACD on the mesh remeshed by it
 VHACD = "vhacd"  # the third rung: V-HACD
 # Surface points per side measuring how far a simplified copy strays from the mesh (seeded).
 COPY_SAMPLES = 4_000
-# CoACD 1.0's own tree-search iterations per cut (coacd.run_coacd's mcts_iterations default): the
-# search a near miss of the bounded one is retried with (refine_coacd).
-COACD_OWN_SEARCH_ITERATIONS = 150
 
 
 def thresholds(config: ObjectConfig) -> tuple[float, ...]:
@@ -177,7 +174,7 @@ def refine_coacd(
     """CoACD at thresholds coarse to fine (:func:`thresholds`, skipping those :func:`next_threshold`
     finds too coarse) until within the error limits; the best (lowest max) otherwise. A threshold
     whose bounded search is a :func:`near_miss` is cut again with CoACD's own search
-    (:data:`COACD_OWN_SEARCH_ITERATIONS`) and the better of the two kept: the YCB cracker box at
+    (``[objects] coacd_refine_iterations``) and the better of the two kept: the YCB cracker box at
     0.02, 2.03 mm bounded, 1.97 mm with the own search (13 CPU-s), where 0.01 does not finish in
     the budget; the scissors at 0.02, 2.06 mm, 1.91 mm and 28 parts, where 0.01 gives 97. A wider
     miss goes finer: the master chef can at 0.03, 2.13 mm, is still 2.04 mm with the own search
@@ -205,13 +202,13 @@ def refine_coacd(
 
     todo = thresholds(config)
     iterations = config.coacd_remesh_search_iterations if remesh else config.coacd_search_iterations
-    retry = not remesh and iterations < COACD_OWN_SEARCH_ITERATIONS
+    retry = not remesh and iterations < config.coacd_refine_iterations
     while todo:
         threshold, todo = todo[0], todo[1:]
         cut = _cut_coacd(coacd, mesh, copy, threshold, iterations, config, remesh)
         keep(cut, threshold)
         if cut is not None and retry and near_miss(cut[1], config):
-            again = _cut_coacd(coacd, mesh, copy, threshold, COACD_OWN_SEARCH_ITERATIONS, config)
+            again = _cut_coacd(coacd, mesh, copy, threshold, config.coacd_refine_iterations, config)
             keep(again, threshold)
             if again is not None and again[1].max < cut[1].max:
                 cut = again
@@ -257,13 +254,13 @@ def run_vhacd(
 ) -> list[trimesh.Trimesh]:
     """V-HACD's convex parts (pybullet.vhacd, voxel mode, ``vhacd_resolution`` voxels, its other
     settings PyBullet's defaults) of the mesh, simplified to ``decomposition_max_faces`` first."""
-    from annotator.sim import pb
+    from annotator.sim.decompose import vhacd
 
     v, f = decomposition_input(vertices, faces, config.decomposition_max_faces)
     src, out = job / "vhacd_in.obj", job / "vhacd_out.obj"
     lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f.tolist()]
     src.write_text("\n".join(lines) + "\n")
-    pb.vhacd(str(src), str(out), str(job / "vhacd.log"), resolution=int(config.vhacd_resolution))
+    vhacd(src, out, job / "vhacd.log", int(config.vhacd_resolution))
     return read_vhacd_parts(out) if out.is_file() else []
 

@@ -50,6 +50,10 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple[
     if len(mesh.faces) > config.decomposition_max_faces:
         # shape only what is simplified
         ladder += (copy_sizes(config), config.decomposition_copy_tolerance, COPY_SAMPLES)
+    # an implicit setting (every decomposition had its default before it was one) keys a shape only
+    # where it differs from that, so the shapes cached before keep their keys
+    if config.coacd_refine_iterations != ObjectConfig.coacd_refine_iterations:
+        ladder += (("coacd_refine_iterations", config.coacd_refine_iterations),)
     return error + ladder
 
 

@@ -19,6 +19,14 @@ import trimesh
 from annotator.config import ObjectConfig
 
 
+def principal_axes(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal moments (3,) and a proper rotation (3, 3) whose columns are the principal axes."""
+    moments, R = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    if np.linalg.det(R) < 0:
+        R[:, 2] *= -1.0
+    return np.maximum(moments, 0.0), R
+
+
 @dataclass(frozen=True)
 class MassProperties:
     """``mass`` kg, ``volume`` m^3 of material, ``center_mass`` (3,) m and ``inertia`` (3, 3) kg m^2

@@ -23,7 +23,6 @@ from annotator.config import ObjectConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.objects import mass as mass_model
 from annotator.objects import memory, reading, repair, urdf
-from annotator.objects.bodies import principal_axes
 from annotator.objects.decomposition import CollisionGeometry, Progress, collision_geometry
 from annotator.objects.discovery import ObjectSource
 from annotator.objects.errors import ObjectError
@@ -86,7 +85,7 @@ class ObjectModel:
     @property
     def T_obj_com(self) -> Transform:
         """Centre-of-mass frame (principal axes) in the mesh frame."""
-        _, R = principal_axes(self.inertia)
+        _, R = mass_model.principal_axes(self.inertia)
         return Transform.from_rotation(R, self.center_mass)
 
     def substeps(self, physics: PhysicsConfig) -> int:
@@ -339,7 +338,7 @@ def _close(
     if report.holes_filled:
         warnings.append(f"mesh was open; filled {report.holes_filled} hole(s)")
         return filled, True
-    mended = repair.mend(mesh, config.min_volume)
+    mended = repair.mend(mesh, config.min_volume, config.mend_area_tolerance)
     if mended is not None:
         report.mended = True
         warnings.append(

@@ -29,11 +29,6 @@ import trimesh
 if TYPE_CHECKING:
     from pymeshfix import PyTMesh  # loaded on first use: a repair is rare
 
-# A repair may change the surface area by this share at most: filling holes and removing a fin or
-# a self-intersection changes it a little (a 50 mm box with a 35 mm fin: 6 %), while a repair that
-# lost half of the object (MeshFix's clean on the box with its fin: a wedge, -31 %) is rejected.
-MEND_AREA_TOLERANCE = 0.1
-
 
 @dataclass(frozen=True)
 class Pieces:
@@ -160,13 +155,16 @@ def fill_holes(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
     return out, filled
 
 
-def mend(mesh: trimesh.Trimesh, min_volume: float) -> trimesh.Trimesh | None:
+def mend(mesh: trimesh.Trimesh, min_volume: float, area_tolerance: float) -> trimesh.Trimesh | None:
     """MeshFix's repair of a mesh that is still open or not a manifold: holes filled, degenerate
     faces and self-intersections removed (``clean``); first with every piece MeshFix sees, then
     with its largest alone (MeshFix splits a surface at non-manifold edges, so a stray fin is a
     piece of its own). The first result that is a closed surface enclosing more than
-    ``min_volume`` (m^3) with its area within :data:`MEND_AREA_TOLERANCE` of the input's (a repair,
-    not a different object), else None."""
+    ``min_volume`` (m^3) with its area within ``area_tolerance`` (a share, ``[objects]
+    mend_area_tolerance``) of the input's (a repair, not a different object), else None: filling
+    holes and removing a fin or a self-intersection changes it a little (a 50 mm box with a 35 mm
+    fin: 6 %), while a repair that lost half of the object (MeshFix's clean on the box with its
+    fin: a wedge, -31 %) is rejected."""
     area = float(mesh.area)
     for largest_only in (False, True):
         tin = _meshfix(mesh)
@@ -175,7 +173,7 @@ def mend(mesh: trimesh.Trimesh, min_volume: float) -> trimesh.Trimesh | None:
             tin.remove_smallest_components()
         tin.clean(max_iters=10, inner_loops=3)
         out = _arrays_mesh(tin)
-        if not _closed(out) or abs(float(out.area) - area) > MEND_AREA_TOLERANCE * area:
+        if not _closed(out) or abs(float(out.area) - area) > area_tolerance * area:
             continue
         if out.volume < 0:
             out.invert()

@@ -5,9 +5,9 @@ resting on the table; the same resume, determinism and workers as ``annotate``."
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from annotator.config import AnnotatorConfig
+from annotator.pipeline.modes import FloatingMode, Mode
 from annotator.pipeline.object_units import ObjectUnitsJob
 from annotator.pipeline.source import GivenCandidates
 
@@ -15,25 +15,16 @@ from annotator.pipeline.source import GivenCandidates
 @dataclass(frozen=True)
 class EvaluateOptions:
     """``evaluate``'s own options: the ``candidates`` given (:func:`annotator.tools.evaluate.
-    given_candidates`) and ``resting``: False (floating), True or ``"object"`` (resting on the
-    table, the grasps move with the settling object) or ``"table"`` (they stay in the table
-    frame)."""
+    given_candidates`) and the ``mode`` they are simulated in (:mod:`annotator.pipeline.modes`:
+    floating, or resting on the table with the grasps moving with the settling object or staying
+    in the table frame)."""
 
     candidates: GivenCandidates
-    resting: bool | str = False
+    mode: Mode = FloatingMode()
 
 
 class EvaluateJob(ObjectUnitsJob):
     """Given grasps per object (:class:`ObjectUnitsJob`), floating or resting."""
 
     def __init__(self, config: AnnotatorConfig, own: EvaluateOptions) -> None:
-        super().__init__(config, own.candidates, resting=own.resting)
-
-    def inputs(self) -> dict[str, Any]:
-        inputs = super().inputs()
-        if self.resting:
-            from annotator.cell.resting import resting_mode
-
-            mode = resting_mode(self.resting)
-            inputs["resting"] = True if mode == "object" else mode  # True: as folders before "table" existed
-        return inputs
+        super().__init__(config, own.candidates, mode=own.mode)

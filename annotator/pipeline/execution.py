@@ -17,10 +17,9 @@ import os
 import weakref
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from annotator.pipeline import status
-from annotator.pipeline.options import RunOptions
 from annotator.pipeline.schedule import Schedule, Stream
 from annotator.pipeline.tasks import SpanResult, WorkerStats
 from annotator.pipeline.worker import label_span
@@ -51,6 +50,17 @@ def _worker_died_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
+class WorkerOptions(Protocol):
+    """Where the work runs: ``workers`` local processes, or the Dask cluster at ``scheduler``
+    (:class:`annotator.pipeline.options.RunOptions`, ``annotator.pipeline.in_memory.ExecutionOptions``)."""
+
+    @property
+    def workers(self) -> int: ...
+
+    @property
+    def scheduler(self) -> str | None: ...
+
+
 class Workers:
     """Local worker processes (joblib's loky executor) or a Dask cluster's, behind one interface.
 
@@ -62,7 +72,7 @@ class Workers:
     # stop request every PARENT_CHECK_SECONDS) before the pool is shut down by force.
     STOP_SECONDS = 3.0
 
-    def __init__(self, options: RunOptions, status_dir: str | None = None) -> None:
+    def __init__(self, options: WorkerOptions, status_dir: str | None = None) -> None:
         self.client = None
         self.status_dir = status_dir
         self._futures: weakref.WeakSet[cf.Future] = weakref.WeakSet()
@@ -95,7 +105,7 @@ class Workers:
                 self._executor = get_memmapping_executor(self.count)
         return self._executor
 
-    def submit(self, task: Task, fn: Callable[[Task], SpanResult] = label_span) -> cf.Future:
+    def submit(self, task: Task, fn: Callable[[Task], Any] = label_span) -> cf.Future:
         future = self.executor().submit(fn, task)
         self._futures.add(future)
         return future
@@ -137,7 +147,7 @@ class Workers:
 
 
 # A unit of work (an object's Span or Prepare, a scene's SceneSpan): it has a ``key`` (its order
-# when retried), a ``size`` and an ``object_id`` (the store's unit it belongs to); a task carries
+# when retried), a ``size`` and a ``unit_id`` (the store's unit it belongs to); a task carries
 # it to a worker.
 Unit = Any
 Task = Any
@@ -147,9 +157,9 @@ def execute(
     work: Schedule | Stream | Iterator[Unit],
     make_task: Callable[[Unit], Task],
     workers: Workers,
-    on_result: Callable[[SpanResult], None],
+    on_result: Callable[[Any], None],
     on_tick: Callable[[], None] = lambda: None,
-    fn: Callable[[Task], SpanResult] = label_span,
+    fn: Callable[[Task], Any] = label_span,
 ) -> None:
     """Run every unit of ``work`` (``fn``, in a worker) and hand each result to ``on_result`` (in
     this process). ``work``: a :class:`Schedule` (units wait for their object's decomposition), or
@@ -170,9 +180,9 @@ class _Execution:
     source: Schedule | Stream
     make_task: Callable[[Unit], Task]
     workers: Workers
-    on_result: Callable[[SpanResult], None]
+    on_result: Callable[[Any], None]
     on_tick: Callable[[], None]
-    fn: Callable[[Task], SpanResult]
+    fn: Callable[[Task], Any]
 
     def __post_init__(self) -> None:
         self.died = _worker_died_errors()
@@ -209,7 +219,7 @@ class _Execution:
                 return [unit]
         return []
 
-    def _deliver(self, result: SpanResult) -> None:
+    def _deliver(self, result: Any) -> None:
         self.source.record(result)
         self.on_result(result)
 
@@ -249,8 +259,8 @@ def _retry_alone(
     workers: Workers,
     died: tuple[type[BaseException], ...],
     on_tick: Callable[[], None],
-    fn: Callable[[Task], SpanResult],
-) -> SpanResult:
+    fn: Callable[[Task], Any],
+) -> Any:
     future = workers.submit(make_task(span), fn)
     while True:
         done, _ = cf.wait([future], timeout=TICK_SECONDS)

@@ -25,6 +25,7 @@ from types import FrameType
 from typing import Any, Protocol
 
 from annotator.dataset import Outcome
+from annotator.files import check_writable
 from annotator.grippers import DescriptionError, GripperDescription, load_gripper
 from annotator.objects import default_cache_dir
 from annotator.pipeline import status
@@ -63,13 +64,37 @@ class TaskContext:
     cache_dir: str | None
     local: bool
 
+    def fields(self) -> dict[str, Any]:
+        """What every task of the run carries of it (:class:`annotator.pipeline.tasks.WorkerTask`'s
+        fields)."""
+        return {
+            "versions": self.versions,
+            "parent_pid": self.parent_pid,
+            "status_dir": self.status_dir,
+            "cache_dir": self.cache_dir,
+        }
+
+
+@dataclass(frozen=True)
+class Binding:
+    """What a job's :meth:`Job.bind` found: the run's ``spec``, its ``units`` of work (id -> source
+    digest), the units the manifest lists as ``planned`` and the user's gripper folder it records
+    (None: a shipped gripper, or none)."""
+
+    spec: RunSpec
+    units: dict[str, str]
+    planned: list[str]
+    gripper_folder: str | None = None
+
 
 @dataclass
 class WorkPlan:
     """What a run has left to do: ``total`` candidates of ``units`` units (objects, scenes),
     ``remaining`` label spans per unit; ``work(workers)`` the units in the order to hand them out
     for that many workers; ``decompositions``: objects whose decomposition task runs first;
-    ``left``: candidates per unit not yet shown as done (advanced on a failure)."""
+    ``left``: candidates per unit not yet shown as done (advanced on a failure); ``complete``:
+    units whose every chunk is on disk (only their merge is missing); ``kept``: chunks of
+    unfinished units an earlier run wrote."""
 
     total: int
     units: int
@@ -77,6 +102,8 @@ class WorkPlan:
     work: Callable[[int], Any]
     decompositions: int = 0
     left: dict[str, int] = field(default_factory=dict)
+    complete: list[str] = field(default_factory=list)
+    kept: int = 0
 
 
 class Job(Protocol):
@@ -93,23 +120,26 @@ class Job(Protocol):
         ...
 
     def check(self, options: RunOptions) -> None:
-        """UsageError for options the job cannot run with, before anything is read."""
+        """UsageError for options the job cannot run with, before anything is read. Changes
+        nothing."""
 
-    def bind(self, options: RunOptions, summary: Summary) -> tuple[RunSpec, dict[str, str]]:
-        """Find the inputs; what the run binds, and its units of work (id -> source digest).
-        Inputs that cannot be used go into ``summary.failed``."""
+    def bind(self, options: RunOptions, summary: Summary) -> Binding:
+        """Find the inputs and hash them: sets the job's inputs (what its tasks carry); inputs
+        that cannot be used go into ``summary.failed``. Returns what the run binds."""
         ...
 
-    def plan(self, options: RunOptions, store: Store, resume: Resume, summary: Summary) -> WorkPlan | None:
-        """The work left after what ``store`` holds (``resume``); None when nothing is."""
+    def plan(self, options: RunOptions, store: Store, resume: Resume) -> WorkPlan:
+        """The work left after what ``store`` holds (``resume``). Reads the store, changes nothing
+        (the lifecycle records the plan: :func:`record_plan`)."""
         ...
 
     def make_task(self, unit: Any, context: TaskContext) -> Any:
-        """The task that carries ``unit`` to a worker."""
+        """The task that carries ``unit`` to a worker. Changes nothing."""
         ...
 
     def take(self, result: SpanResult, collector: Collector) -> None:
-        """A result in the main process: written, or its unit failed (through ``collector``)."""
+        """A result in the main process: written, or its unit failed (through ``collector``, the
+        one writer of results)."""
 
 
 @dataclass
@@ -145,7 +175,7 @@ class Collector:
         summary, store, df = self.summary, self.store, result.rows
         span: Any = result.labelled  # a Span (a decomposition task's first) or a scene's SceneSpan
         assert df is not None
-        unit = span.object_id
+        unit = span.unit_id
         self.seconds[unit] = self.seconds.get(unit, 0.0) + result.stats.seconds
         summary.step_seconds += result.stats.step_seconds
         summary.sim_steps += int(df["sim_steps"].sum())
@@ -165,15 +195,37 @@ class Collector:
             self.progress.object_done(unit, done.line())
 
 
-def resumed(store: Store, summary: Summary, done: set[str]) -> None:
-    """The units an earlier run finished, into the summary."""
-    for unit in sorted(done):
+def record_plan(
+    options: RunOptions,
+    job: Job,
+    bound: Binding,
+    plan: WorkPlan,
+    store: Store,
+    resume: Resume,
+    summary: Summary,
+) -> None:
+    """Before any work: the manifest lists the units planned and the user's gripper folder, and
+    fails the inputs that cannot be used; the units an earlier run finished go into the summary;
+    a unit whose every chunk is on disk (only its merge was missing) is merged now."""
+    store.manifest.objects_planned = bound.planned
+    store.manifest.gripper_folder = bound.gripper_folder
+    for unit, error in summary.failed.items():
+        store.fail_object(unit, error)
+    for unit in sorted(resume.done):
         summary.resumed[unit] = ObjectStats.from_json(store.manifest.objects_done[unit]["stats"], None)
-
-
-def merged(store: Store, summary: Summary, unit: str, digest: str) -> None:
-    """A unit whose every chunk is on disk (only the merge was missing): merged now."""
-    summary.done[unit] = ObjectStats.from_json(store.finish_object(unit, digest), 0.0)
+    for unit in plan.complete:
+        summary.done[unit] = ObjectStats.from_json(store.finish_object(unit, bound.units[unit]), 0.0)
+    if resume.done or plan.kept:
+        log.info(
+            "resuming %s: %d %ss done earlier, %d chunks of unfinished %ss kept; %d %s to do",
+            options.out_dir,
+            len(resume.done),
+            job.unit,
+            plan.kept,
+            job.unit,
+            plan.total,
+            job.noun,
+        )
 
 
 def run_job(options: RunOptions, job: Job) -> Summary:
@@ -182,12 +234,13 @@ def run_job(options: RunOptions, job: Job) -> Summary:
     job.check(options)
     check_workers(options)
     summary = Summary(unit=job.unit, trials=options.trials)
-    spec, units = job.bind(options, summary)
-    store, resume = open_store(options, spec, units)
+    bound = job.bind(options, summary)
+    store, resume = open_store(options, bound.spec, bound.units)
     with running(store, summary) as status_dir:
-        plan = job.plan(options, store, resume, summary)
-        if plan is not None:
-            _execute(options, job, plan, store, summary, units, status_dir)
+        plan = job.plan(options, store, resume)
+        record_plan(options, job, bound, plan, store, resume, summary)
+        if plan.total > 0:
+            _execute(options, job, plan, store, summary, bound.units, status_dir)
     return summary
 
 
@@ -275,9 +328,7 @@ def check_cache(options: RunOptions) -> RunOptions:
         if not options.scheduler:  # the default cache ($RG2_CACHE_DIR): checked the same way
             default = default_cache_dir()
             try:
-                default.mkdir(parents=True, exist_ok=True)
-                with tempfile.NamedTemporaryFile(dir=default, prefix=".rg2-write-check-"):
-                    pass
+                check_writable(default)
             except OSError as exc:
                 raise UsageError(
                     f"the decomposition cache {default} cannot be written ({exc.strerror or exc}); set "
@@ -288,9 +339,7 @@ def check_cache(options: RunOptions) -> RunOptions:
     if options.scheduler and not folder.exists():
         return dataclasses.replace(options, cache_dir=folder)
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".rg2-write-check-"):
-            pass
+        check_writable(folder)
     except OSError as exc:
         raise UsageError(f"--cache {options.cache_dir}: cannot write there ({exc.strerror or exc})") from exc
     return dataclasses.replace(options, cache_dir=folder)

@@ -5,22 +5,29 @@ reachability, ``--views K`` Kinect views per placement)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from annotator.config import AnnotatorConfig
 from annotator.pipeline.execution import UsageError
+from annotator.pipeline.modes import CellMode, FloatingMode, Mode
 from annotator.pipeline.object_units import ObjectUnitsJob
 from annotator.pipeline.options import RunOptions
-from annotator.pipeline.tasks import CellOptions
 
 
 @dataclass(frozen=True)
 class ObjectOptions:
     """``annotate``'s own options: ``cell``: objects rest on the seed's table (UR3 reachability
-    columns); ``views``: Kinect views per placement (``--cell`` only)."""
+    columns); ``views``: Kinect views per placement (``--cell`` only); ``mode``: any registered
+    mode of objects instead (:data:`annotator.pipeline.modes.REGISTRY`; None: the flags')."""
 
     cell: bool = False
     views: int = 0
+    mode: Mode | None = None
+
+    def chosen(self) -> Mode:
+        """The mode the options ask for."""
+        if self.mode is not None:
+            return self.mode
+        return CellMode(self.views) if self.cell else FloatingMode()
 
 
 class ObjectJob(ObjectUnitsJob):
@@ -28,7 +35,7 @@ class ObjectJob(ObjectUnitsJob):
 
     def __init__(self, config: AnnotatorConfig, own: ObjectOptions | None = None) -> None:
         own = own or ObjectOptions()
-        super().__init__(config, cell=CellOptions(own.views) if own.cell else None)
+        super().__init__(config, mode=own.chosen())
         self.own = own
 
     def check(self, options: RunOptions) -> None:
@@ -37,9 +44,3 @@ class ObjectJob(ObjectUnitsJob):
         if self.own.views < 0:
             raise UsageError(f"--views must be 0 or more, got {self.own.views}")
         super().check(options)
-
-    def inputs(self) -> dict[str, Any]:
-        inputs = super().inputs()
-        if self.cell is not None:
-            inputs["cell"] = self.cell.to_json()
-        return inputs

@@ -1,79 +1,135 @@
-"""The object modes (:mod:`annotator.pipeline.modes`), one small object each: ``floating`` (the
-gripper alone around the object), ``cell`` (the object resting on the seed's table in its
-placements, the UR3's reachability) and ``resting`` (the object resting on the table in given
-orientations). Each builds its world (:class:`ObjectMode`: a PyBullet DIRECT world, the floating
-gripper, and the mode's part: the table, the UR3's world) and places an object the worker state
-loaded (:meth:`ObjectMode.place`); the placed object makes its candidates and gives each grasp its
-trial, the pose to run it at and its row's extra columns. A span of it (:class:`ObjectSpan`) makes
-its rows through :func:`annotator.pipeline.simulate.simulate`, the same loop for every mode.
+"""The object modes' strategies (:mod:`annotator.pipeline.strategies`), one small class each:
+floating (the gripper alone around the object), the cell (the object resting on the seed's table in
+its placements, the UR3's reachability, Kinect views) and resting (the object resting on the table
+in given orientations). Each builds its world (:class:`ObjectLabeller`: a PyBullet DIRECT world,
+the floating gripper, and the mode's part: the table, the UR3's world), places an object the
+worker's object cache loaded (:meth:`ObjectLabeller.place`), and the placed object sets each grasp
+up (:class:`annotator.pipeline.loaded.PlacedObject`). A span of it (:class:`ObjectSpan`) makes its
+rows through :func:`annotator.pipeline.simulate.simulate`, the same loop for every mode.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from collections.abc import Hashable
+from typing import Any
 
 import numpy as np
 
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription
-from annotator.objects import ObjectError, ObjectModel
+from annotator.objects import ObjectError, ObjectModel, create_body, physics_for
 from annotator.pipeline import status
-from annotator.pipeline.loaded import LoadedObject, object_info
-from annotator.pipeline.modes import Labelled
+from annotator.pipeline.loaded import GraspSetup, LoadedObject, PlacedObject, model_record
+from annotator.pipeline.modes import CellMode, Mode, RestingMode
+from annotator.pipeline.object_cache import ObjectCache
 from annotator.pipeline.simulate import TrialSettings, object_candidates, simulate
+from annotator.pipeline.strategies import Labelled
 from annotator.pipeline.tasks import Span, SpanGrasps, SpanTask
 from annotator.sampler import Candidates
+from annotator.sim.hand import FloatingGripper
+from annotator.sim.world import World
 from annotator.trial import GraspTrial
-
-if TYPE_CHECKING:
-    from annotator.pipeline.modes import PlacedObject
-    from annotator.pipeline.worker import WorkerState
 
 # The orientation an object rests in when none is given: its mesh frame's own (+z up), xyzw.
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
+# Where the floating gripper waits while no trial runs: 2 m above the object's mesh frame.
+PARKED = Transform([0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0])
 
 
-class ObjectMode:
+class ObjectLabeller:
     """What the object modes share: the world (PyBullet DIRECT, ``config.physics``) with the
-    floating gripper, built at once; an object loaded through the worker state's objects
-    (:meth:`annotator.pipeline.worker.WorkerState.object_for`) and placed by the mode
-    (:meth:`place`); its candidates, sampled once per (seed, N) and kept; a span's grasps."""
+    floating gripper, built at once; the object of a span taken from the worker's object cache,
+    its body created in the world once and placed by the mode (:meth:`place`); its candidates,
+    sampled once per (seed, N) and kept with it; a span's grasps, its views and what the manifest
+    records of it."""
 
-    key: tuple = ("object", False, None)
-
-    def __init__(self, config: AnnotatorConfig, gripper: GripperDescription) -> None:
-        from annotator.sim.hand import FloatingGripper
-        from annotator.sim.world import World
-
+    def __init__(self, mode: Mode, config: AnnotatorConfig, gripper: GripperDescription) -> None:
+        self.mode = mode
+        self.world_key: Hashable = mode.world()
         self.config = config
         self.world = World(config.physics)
         self.hand = FloatingGripper(self.world, config.gripper, gripper)
+        self.worlds: Any = self.part()  # the mode's part of the world (the table, the arm's world)
+        self.current: LoadedObject | None = None
+        # objects that cannot be placed in this mode (no stable placement): key -> the error
+        self.failed: dict[tuple[Hashable, ...], str] = {}
+
+    # --- what a mode gives ------------------------------------------------------------------------
+
+    def part(self) -> Any:
+        """The mode's part of the world beside the floating gripper (None: none)."""
+        return None
 
     def place(self, model: ObjectModel, uid: int) -> PlacedObject:
         """The object (body ``uid`` in the trial world) placed in the mode; ObjectError when it
         cannot be (no stable placement on the table)."""
         raise NotImplementedError
 
-    def load(self, state: WorkerState, task: SpanTask) -> ObjectSpan:
+    def sample(self, loaded: LoadedObject, n: int, seed: int) -> Candidates:
+        """The object's N candidates (the same on every worker); ObjectError for a mode of given
+        grasps only."""
+        raise ObjectError(f"{self.mode.flags()} simulates given grasps only")
+
+    def artifacts(self, loaded: LoadedObject, task: SpanTask) -> dict[str, bytes] | None:
+        """The files a span renders beside its rows (None: none)."""
+        return None
+
+    def info(self, loaded: LoadedObject) -> dict[str, Any]:
+        """What the manifest records of the object placed, beside the object itself."""
+        return {}
+
+    # --- the span's object --------------------------------------------------------------------
+
+    def load(self, objects: ObjectCache, task: SpanTask) -> ObjectSpan:
         """The span's object placed in this world and the grasps it simulates; ObjectError."""
-        loaded = state.object_for(task, self)
+        loaded = self.object_for(objects, task)
         assert isinstance(task.span, Span)
-        return ObjectSpan(self, loaded, self._grasps(task, task.span, loaded))
+        return ObjectSpan(self, loaded, self._grasps(objects, task, task.span, loaded))
 
-    def candidates(self, loaded: LoadedObject, seed: int, n: int, config: AnnotatorConfig) -> Candidates:
-        """The object's N candidates, sampled once per (seed, N) and kept."""
-        cands = loaded.candidates.get((seed, n))
-        if cands is None:
-            cands = loaded.placed.candidates(loaded.model, n, seed, config, self.hand.gripper.max_width)
-            loaded.candidates[(seed, n)] = cands
-        return cands
+    def object_for(self, objects: ObjectCache, task: SpanTask) -> LoadedObject:
+        """The task's object placed in this world (its body is created once per object); ObjectError."""
+        unit = task.span
+        key = objects.key(unit.source, task.source_sha256, unit.scale, task.config.objects)
+        if key in self.failed:
+            raise ObjectError(self.failed[key])
+        if self.current is not None and self.current.key == key:
+            return self.current
+        got = objects.of(task)
+        if self.current is not None:
+            self.current.placed.release()
+            self.world.remove_body(self.current.uid)
+            self.current = None
+        self.current = self._create(got.model, key, got.candidates)
+        return self.current
 
-    def _grasps(self, task: SpanTask, span: Span, loaded: LoadedObject) -> SpanGrasps:
+    def _create(
+        self, model: ObjectModel, key: tuple[Hashable, ...], candidates: dict[Hashable, Candidates]
+    ) -> LoadedObject:
+        """The object's body in the world, placed in the mode (its trial, or its placements)."""
+        world, hand = self.world, self.hand
+        physics = physics_for(model, self.config.physics)  # a light object needs a finer time step
+        if world.physics != physics:
+            world.physics = physics
+            world.configure()
+        hand.teleport(PARKED, hand.gripper.max_width)
+        uid = create_body(world.client, model)
+        try:
+            placed = self.place(model, uid)
+        except ObjectError as exc:  # no stable placement on the table
+            world.remove_body(uid)
+            self.failed[key] = str(exc)
+            raise
+        except BaseException:
+            world.remove_body(uid)
+            raise
+        return LoadedObject(key, model, uid, placed, candidates)
+
+    def _grasps(self, objects: ObjectCache, task: SpanTask, span: Span, loaded: LoadedObject) -> SpanGrasps:
         """What the span simulates: its share of the object's sampled candidates, or its given grasps."""
         if span.given is not None:
             g = span.given
-            if loaded.placed.mode != "resting" and g.rest_quat is not None:
+            if not isinstance(self.mode, RestingMode) and g.rest_quat is not None:
                 raise ObjectError("grasps given with resting orientations, but the run is not --resting")
             return SpanGrasps(
                 object_id=span.object_id,
@@ -83,7 +139,14 @@ class ObjectMode:
                 quat=g.quat,
                 rest_quat=g.rest_quat,
             )
-        cands = self.candidates(loaded, task.seed, task.n, task.config)
+        config = task.config
+        # what the candidates depend on besides seed and N: a calibration grid, which changes the
+        # gripper's or the protocol's numbers from task to task, keeps them
+        on = (config.sampler, config.cell, self.hand.description.key, self.world_key, task.seed, task.n)
+        cands = loaded.candidates.get(on)
+        if cands is None:
+            cands = loaded.candidates[on] = self.sample(loaded, task.n, task.seed)
+            objects.measure(loaded.key)
         placements = None if cands.placement is None else cands.placement[span.start : span.stop]
         return SpanGrasps(
             object_id=span.object_id,
@@ -95,18 +158,21 @@ class ObjectMode:
 
     def close(self) -> None:
         """Free the mode's part of the world, then the world."""
+        self.current = None
+        if self.worlds is not None:
+            self.worlds.close()
         self.world.close()
 
 
 class ObjectSpan:
     """A span of an object loaded in an object mode: its trials and rows
-    (:func:`annotator.pipeline.simulate.simulate`) and, in the cell with ``--views``, its views."""
+    (:func:`annotator.pipeline.simulate.simulate`), and the files the mode renders with them."""
 
-    def __init__(self, mode: ObjectMode, loaded: LoadedObject, grasps: SpanGrasps) -> None:
-        self.mode, self.loaded, self.grasps = mode, loaded, grasps
+    def __init__(self, labeller: ObjectLabeller, loaded: LoadedObject, grasps: SpanGrasps) -> None:
+        self.labeller, self.loaded, self.grasps = labeller, loaded, grasps
 
     def label(self, task: SpanTask) -> Labelled:
-        span, loaded, world = task.span, self.loaded, self.mode.world
+        span, loaded, world = task.span, self.loaded, self.labeller.world
         assert isinstance(span, Span)
         status.write(task.status_dir, f"simulating {span.object_id}")
         steps0 = world.step_seconds
@@ -114,56 +180,42 @@ class ObjectSpan:
             config=task.config,
             seed=task.seed,
             trials=task.trials,
-            gripper=self.mode.hand.description.name,
+            gripper=self.labeller.hand.description.name,
+            mode=task.mode.row_mode(),
             # why a collision is one: for given grasps, and wherever a collision's perturbed trials
             # run (its score need not be 0)
             reasons=span.given is not None or (task.trials > 1 and task.config.robust.perturb_collisions),
         )
         rows = simulate(loaded, grasps=self.grasps, run=run)
-        artifacts = None
-        if task.cell is not None and task.cell.views > 0:
-            views, seed = task.cell.views, task.seed
-            artifacts = loaded.placed.views(span.start, span.stop, task.n, views, seed, task.status_dir)
-        info = {**object_info(loaded.model), **loaded.placed.info()}
+        artifacts = self.labeller.artifacts(loaded, task)
+        info = {**model_record(loaded.model), **self.labeller.info(loaded)}
         return Labelled(rows, artifacts, info, world.step_seconds - steps0)
 
 
 # --- floating ---------------------------------------------------------------------------------------
 
 
-class FloatingMode(ObjectMode):
-    """The floating gripper alone: the object at the origin, no gravity, one trial."""
-
-    key = ("object", False, None)
+class FloatingLabeller(ObjectLabeller):
+    """:class:`annotator.pipeline.modes.FloatingMode`: the object at the origin, no gravity, one trial."""
 
     def place(self, model: ObjectModel, uid: int) -> FloatingObject:
         self.world.set_gravity(False)
         return FloatingObject(GraspTrial(self.world, self.hand, uid, self.config))
 
+    def sample(self, loaded: LoadedObject, n: int, seed: int) -> Candidates:
+        return object_candidates(loaded.model, n, seed, self.config, self.hand.gripper.max_width)
+
 
 class FloatingObject:
-    mode = "object"
+    """An object floating at the origin: every grasp in its one trial, as given."""
 
     def __init__(self, trial: GraspTrial) -> None:
         self.trial = trial
 
-    def candidates(self, model, n, seed, config, max_width) -> Candidates:
-        return object_candidates(model, n, seed, config, max_width)
-
-    def trial_for(self, T, placement, rest) -> tuple[GraspTrial, int]:
-        return self.trial, 0
-
-    def grasp(self, rest, T: Transform) -> Transform:
-        return T
-
-    def columns(self, placement, T, width, grasp_id, rest) -> None:
-        return None
-
-    def views(self, start, stop, n, views, seed, status_dir) -> None:
-        return None
-
-    def info(self) -> dict[str, Any]:
-        return {}
+    def setup(
+        self, T: Transform, width: float, grasp_id: int, placement: int | None, rest: np.ndarray | None
+    ) -> GraspSetup:
+        return GraspSetup(self.trial, T)
 
     def release(self) -> None:
         self.trial.close()
@@ -172,61 +224,42 @@ class FloatingObject:
 # --- the robot cell ---------------------------------------------------------------------------------
 
 
-class CellMode(ObjectMode):
-    """``annotate --cell``: the seed's table and the UR3's world (:class:`annotator.cell.batch.
-    CellWorlds`); an object settles in its placements."""
+class CellLabeller(ObjectLabeller):
+    """:class:`annotator.pipeline.modes.CellMode`: the seed's table and the UR3's world
+    (:class:`annotator.cell.batch.CellWorlds`); an object settles in its placements."""
 
-    key = ("object", True, None)
-
-    def __init__(self, config: AnnotatorConfig, gripper: GripperDescription) -> None:
+    def part(self) -> Any:
         from annotator.cell.batch import CellWorlds
 
-        super().__init__(config, gripper)
-        self.worlds = CellWorlds(self.world, self.hand, config)
+        return CellWorlds(self.world, self.hand, self.config)
 
     def place(self, model: ObjectModel, uid: int) -> CellPlaced:
         return CellPlaced(self.worlds.load(model, uid))
 
-    def close(self) -> None:
-        self.worlds.close()
-        super().close()
+    def sample(self, loaded: LoadedObject, n: int, seed: int) -> Candidates:
+        assert isinstance(loaded.placed, CellPlaced)
+        return loaded.placed.on.candidates(n, seed)  # per placement, knowing the table
 
-
-class CellPlaced:
-    """An object in its placements on the table (:class:`annotator.cell.batch.CellObject`)."""
-
-    mode = "cell"
-
-    def __init__(self, cell) -> None:
-        self.cell = cell  # annotator.cell.batch.CellObject
-
-    def candidates(self, model, n, seed, config, max_width) -> Candidates:
-        return self.cell.candidates(n, seed)  # per placement, knowing the table
-
-    def trial_for(self, T: Transform, placement: int | None, rest) -> tuple[GraspTrial, int]:
-        if placement is None:  # a given grasp: where it comes most from above
-            placement = self.cell.placement_for(T)
-        return self.cell.trials[placement], placement  # else the placement it was sampled for
-
-    def grasp(self, rest, T: Transform) -> Transform:
-        return T
-
-    def columns(self, placement: int, T: Transform, width: float, grasp_id: int, rest) -> dict[str, Any]:
-        return self.cell.columns(placement, T, width, grasp_id)  # placement, settled pose, reachability
-
-    def views(
-        self, start: int, stop: int, n: int, views: int, seed: int, status_dir: str | None
-    ) -> dict[str, bytes]:
-        """Placement ``p``'s views come with the span holding grasp ``min(p, n - 1)``: exactly one
-        span renders each placement, whatever the spans are (the first, unless P > chunk size)."""
+    def artifacts(self, loaded: LoadedObject, task: SpanTask) -> dict[str, bytes] | None:
+        """With ``views``, placement ``p``'s views come with the span holding grasp ``min(p, n - 1)``:
+        exactly one span renders each placement, whatever the spans are (the first, unless P > chunk
+        size)."""
+        mode = task.mode
+        assert isinstance(mode, CellMode) and isinstance(loaded.placed, CellPlaced)
+        span = task.span
+        assert isinstance(span, Span)  # a decomposition task's first span is labelled as a span
+        if mode.views <= 0:
+            return None
+        cell = loaded.placed.on
         files: dict[str, bytes] = {}
-        for p in range(len(self.cell.placements)):
-            if start <= min(p, n - 1) < stop:
-                status.write(status_dir, f"rendering {self.cell.model.object_id}")
-                files.update(self.cell.render_views(p, views, seed))
+        for p in range(len(cell.placements)):
+            if span.start <= min(p, task.n - 1) < span.stop:
+                status.write(task.status_dir, f"rendering {cell.model.object_id}")
+                files.update(cell.render_views(p, mode.views, task.seed))
         return files
 
-    def info(self) -> dict[str, Any]:
+    def info(self, loaded: LoadedObject) -> dict[str, Any]:
+        assert isinstance(loaded.placed, CellPlaced)
         placements = [
             {
                 "placement_id": p.placement_id,
@@ -234,68 +267,59 @@ class CellPlaced:
                 "probability": float(p.probability),
                 "settle_drift": float(p.drift),
             }
-            for p in self.cell.placements
+            for p in loaded.placed.on.placements
         ]
         return {"placements": placements}
 
+
+class PlacedOnPart:
+    """An object placed by the mode's part of the world: ``on``, what the part made of it (its
+    trials and snapshots), freed with it."""
+
+    def __init__(self, on: Any) -> None:
+        self.on = on
+
     def release(self) -> None:
-        self.cell.close()
+        self.on.close()
+
+
+class CellPlaced(PlacedOnPart):
+    """An object in its placements on the table (``on``: :class:`annotator.cell.batch.CellObject`)."""
+
+    def setup(
+        self, T: Transform, width: float, grasp_id: int, placement: int | None, rest: np.ndarray | None
+    ) -> GraspSetup:
+        # a given grasp: where it comes most from above; else the placement it was sampled for
+        chosen = self.on.placement_for(T) if placement is None else placement
+        # placement, settled pose, reachability
+        return GraspSetup(self.on.trials[chosen], T, lambda: self.on.columns(chosen, T, width, grasp_id))
 
 
 # --- resting on the table ---------------------------------------------------------------------------
 
 
-class RestingMode(ObjectMode):
-    """``evaluate --resting``: the seed's table beside the floating gripper; an object settles in
-    each orientation its grasps give. ``grasps``: ``"object"`` (they move with the settling
-    object) or ``"table"`` (they stay where given in the table frame)."""
+class RestingLabeller(ObjectLabeller):
+    """:class:`annotator.pipeline.modes.RestingMode`: the seed's table beside the floating gripper;
+    an object settles in each orientation its grasps give, the grasps moving with it or staying in
+    the table frame (the record's ``grasps``)."""
 
-    def __init__(self, config: AnnotatorConfig, gripper: GripperDescription, grasps: str) -> None:
+    def part(self) -> Any:
         from annotator.cell.resting import RestingWorld
 
-        super().__init__(config, gripper)
-        self.key = ("object", False, grasps)
-        self.worlds = RestingWorld(self.world, self.hand, config, grasps)
+        assert isinstance(self.mode, RestingMode)
+        return RestingWorld(self.world, self.hand, self.config, self.mode.grasps)
 
     def place(self, model: ObjectModel, uid: int) -> RestingPlaced:
         return RestingPlaced(self.worlds.load(model, uid))
 
 
-class RestingPlaced:
-    """An object resting on the table (:class:`annotator.cell.resting.RestingObject`)."""
+class RestingPlaced(PlacedOnPart):
+    """An object resting on the table (``on``: :class:`annotator.cell.resting.RestingObject`)."""
 
-    mode = "resting"
-
-    def __init__(self, resting) -> None:
-        self.resting = resting  # annotator.cell.resting.RestingObject
-
-    def candidates(self, model, n, seed, config, max_width) -> Candidates:
-        raise ObjectError("--resting simulates given grasps only")
-
-    def trial_for(self, T, placement, rest: np.ndarray | None) -> tuple[GraspTrial, int]:
-        return self.resting.trial_for(UPRIGHT if rest is None else rest)[0], 0
-
-    def grasp(self, rest: np.ndarray | None, T: Transform) -> Transform:
-        return self.resting.grasp(UPRIGHT if rest is None else rest, T)
-
-    def columns(self, placement, T, width, grasp_id, rest: np.ndarray | None) -> dict[str, Any]:
-        return self.resting.columns(UPRIGHT if rest is None else rest)  # the settled pose on the table
-
-    def views(self, start, stop, n, views, seed, status_dir) -> None:
-        return None
-
-    def info(self) -> dict[str, Any]:
-        return {}
-
-    def release(self) -> None:
-        self.resting.close()
-
-
-def build_object_mode(key: tuple, config: AnnotatorConfig, gripper: GripperDescription) -> ObjectMode:
-    """The object mode of ``key`` (``("object", cell, resting mode)``, a ``SpanTask``'s mode key)."""
-    _, cell, resting = key
-    if cell:
-        return CellMode(config, gripper)
-    if resting:
-        return RestingMode(config, gripper, resting)
-    return FloatingMode(config, gripper)
+    def setup(
+        self, T: Transform, width: float, grasp_id: int, placement: int | None, rest: np.ndarray | None
+    ) -> GraspSetup:
+        orientation = UPRIGHT if rest is None else rest
+        trial = self.on.trial_for(orientation)[0]
+        pose = self.on.grasp(orientation, T)
+        return GraspSetup(trial, pose, lambda: self.on.columns(orientation))  # the settled pose

@@ -10,42 +10,45 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from annotator.config import AnnotatorConfig
-from annotator.grippers import (
-    DescriptionError,
-    GripperDescription,
-    GripperFiles,
-    gripper_record,
-    is_shipped,
-)
-from annotator.objects import ObjectDiscoveryError, ObjectError, ObjectSource, discover_objects, source_digest
+from annotator.grippers import GripperDescription, gripper_record, is_shipped
+from annotator.objects import ObjectSource
 from annotator.pipeline.execution import UsageError
-from annotator.pipeline.lifecycle import Collector, TaskContext, WorkPlan, loaded_gripper, merged, resumed
+from annotator.pipeline.inputs import digest_sources, discover, sent_gripper
+from annotator.pipeline.lifecycle import Binding, Collector, TaskContext, WorkPlan, loaded_gripper
+from annotator.pipeline.modes import FLOATING, Mode
 from annotator.pipeline.options import RunOptions
 from annotator.pipeline.plan import MAX_N, PlannedObject, candidates_to_do, chunk_size_for, spans_to_do
 from annotator.pipeline.schedule import Schedule
 from annotator.pipeline.source import GivenCandidates, SampledCandidates
 from annotator.pipeline.summary import Summary
-from annotator.pipeline.tasks import CellOptions, Prepare, Span, SpanResult, SpanTask
+from annotator.pipeline.tasks import Prepare, Span, SpanResult, SpanTask
 from annotator.pipeline.worker import label_span
 from annotator.store import Resume, RunSpec, Store
 
 log = logging.getLogger(__name__)
 
 
-def _gripper_files(gripper: GripperDescription) -> GripperFiles:
-    try:
-        return GripperFiles.of(gripper)
-    except DescriptionError as exc:
-        raise UsageError(f"--gripper: {exc}") from exc
+@dataclass(frozen=True)
+class FoundInputs:
+    """What an object job's :meth:`ObjectUnitsJob.bind` found: the run's ``options``, where the
+    ``candidates`` come from, the ``gripper``, the objects (``sources``) and the digests of those
+    that can be read."""
+
+    options: RunOptions
+    candidates: SampledCandidates | GivenCandidates
+    gripper: GripperDescription
+    sources: list[ObjectSource]
+    digests: dict[str, str]
 
 
 class ObjectUnitsJob:
     """A job over objects with ``candidates`` from a source (given, or None: ``n`` sampled per
-    object), in the worker mode
-    ``cell`` (the robot cell, None: not) or ``resting`` (False, True/"object", "table")."""
+    object), labelled in ``mode`` (:mod:`annotator.pipeline.modes`: floating, the robot cell,
+    resting)."""
 
     unit = "object"
     noun = "candidates"
@@ -56,43 +59,37 @@ class ObjectUnitsJob:
         config: AnnotatorConfig,
         candidates: SampledCandidates | GivenCandidates | None = None,
         *,
-        cell: CellOptions | None = None,
-        resting: bool | str = False,
+        mode: Mode = FLOATING,
     ) -> None:
         self.config = config
-        self.candidates = candidates
-        self.cell = cell
-        self.resting = resting
-        self.gripper: GripperDescription | None = None
-        self.sources: list[ObjectSource] = []
-        self.digests: dict[str, str] = {}
-        self._sent: GripperDescription | GripperFiles | None = None
-        self._options: RunOptions | None = None  # the run's, from check()
+        self.given = candidates
+        self.mode = mode
+        self.inputs_found: FoundInputs | None = None  # bind() sets them
+        self.fields: dict[str, Any] | None = None  # what every task carries, made once
+
+    def source(self, n: int) -> SampledCandidates | GivenCandidates:
+        """Where the candidates come from: the given ones, else ``n`` sampled per object."""
+        return self.given if self.given is not None else SampledCandidates(n)
 
     # --- the job interface ---------------------------------------------------------------------------
 
     def check(self, options: RunOptions) -> None:
-        self._options = options
-        if self.candidates is None:
-            self.candidates = SampledCandidates(options.n)
         if not 1 <= options.n <= MAX_N:
             raise UsageError(f"--n must be between 1 and {MAX_N:,} candidates per object, got {options.n}")
-        self.gripper = loaded_gripper(options.gripper)
+        if self.mode.unit != "object":
+            raise UsageError(f"{self.mode.flags()} labels {self.mode.unit}s, not objects")
+        if self.given is None and not self.mode.sampled:
+            raise UsageError(f"{self.mode.flags()} simulates given grasps only")
+        loaded_gripper(options.gripper)
 
-    def bind(self, options: RunOptions, summary: Summary) -> tuple[RunSpec, dict[str, str]]:
-        assert self.gripper is not None and self.candidates is not None
-        try:
-            sources = discover_objects(options.objects_dir, self.config.objects)
-        except ObjectDiscoveryError as exc:
-            raise UsageError(str(exc)) from exc
-        sources, missing = self.candidates.select(sources)
+    def bind(self, options: RunOptions, summary: Summary) -> Binding:
+        candidates = self.source(options.n)
+        gripper = loaded_gripper(options.gripper)
+        sources, missing = candidates.select(discover(options, self.config))
         summary.failed.update(missing)
-        for source in sources:
-            try:
-                self.digests[source.object_id] = source_digest(source, self.config.objects.memory_budget)
-            except ObjectError as exc:
-                summary.failed[source.object_id] = str(exc)
-        self.sources = sources
+        digests, unreadable = digest_sources(sources, self.config)
+        summary.failed.update(unreadable)
+        self.inputs_found = FoundInputs(options, candidates, gripper, sources, digests)
         spec = RunSpec(
             options.seed,
             options.n,
@@ -100,27 +97,21 @@ class ObjectUnitsJob:
             options.scale,
             chunk_size_for(options.n),
             self.config.to_dict(trials=options.trials),
-            inputs=self.inputs(),
-            gripper=gripper_record(self.gripper),
+            inputs=self.inputs(candidates),
+            gripper=gripper_record(gripper),
         )
-        return spec, self.digests
+        folder = None if is_shipped(gripper) else str(gripper.folder.resolve())
+        return Binding(spec, digests, sorted(set(digests) | set(summary.failed)), folder)
 
-    def inputs(self) -> dict[str, Any]:
-        """RunSpec.inputs: the candidate source's, and the worker mode when not floating (a
-        floating run records nothing new, so folders made before the modes existed still resume;
-        a folder of one mode never resumes as another)."""
-        assert self.candidates is not None
-        return dict(self.candidates.inputs())
+    def inputs(self, candidates: SampledCandidates | GivenCandidates) -> dict[str, Any]:
+        """RunSpec.inputs: the candidate source's, and what the mode binds (a floating run binds
+        nothing, so folders made before the modes existed still resume; a folder of one mode never
+        resumes as another)."""
+        return {**candidates.inputs(), **self.mode.binds()}
 
-    def plan(self, options: RunOptions, store: Store, resume: Resume, summary: Summary) -> WorkPlan | None:
-        assert self.gripper is not None and self.candidates is not None
-        digests, candidates = self.digests, self.candidates
-        store.manifest.objects_planned = sorted(set(digests) | set(summary.failed))
-        gripper = self.gripper
-        store.manifest.gripper_folder = None if is_shipped(gripper) else str(gripper.folder.resolve())
-        for oid, error in summary.failed.items():
-            store.fail_object(oid, error)
-        resumed(store, summary, resume.done)
+    def plan(self, options: RunOptions, store: Store, resume: Resume) -> WorkPlan:
+        found = self._found()
+        digests, candidates = found.digests, found.candidates
         n, chunk = options.n, store.spec.chunk_size
         planned = [
             PlannedObject(
@@ -129,59 +120,44 @@ class ObjectUnitsJob:
                 candidates.count(s.object_id),
                 candidates.given,
             )
-            for s in self.sources
+            for s in found.sources
             if s.object_id in digests and s.object_id not in resume.done
         ]
         remaining = {p.source.object_id: spans_to_do(p, n, chunk) for p in planned}
-        for p in planned:
-            if remaining[p.source.object_id] == 0:  # every chunk on disk: only the merge was missing
-                merged(store, summary, p.source.object_id, digests[p.source.object_id])
-        total = sum(candidates_to_do(p, n, chunk) for p in planned)
-        if resume.done or any(p.done for p in planned):
-            log.info(
-                "resuming %s: %d objects done earlier, %d chunks of unfinished objects kept; "
-                "%d candidates to do",
-                options.out_dir,
-                len(resume.done),
-                sum(len(p.done) for p in planned),
-                total,
-            )
-        if total <= 0:
-            return None
         todo = [p for p in planned if remaining[p.source.object_id] > 0]
         return WorkPlan(
-            total,
+            sum(candidates_to_do(p, n, chunk) for p in planned),
             len(planned),
             remaining,
             lambda workers: Schedule(todo, n, chunk, options.scale, workers),
             decompositions=len(todo),
             left={p.source.object_id: candidates_to_do(p, n, chunk) for p in todo},
+            complete=[p.source.object_id for p in planned if remaining[p.source.object_id] == 0],
+            kept=sum(len(p.done) for p in planned),
         )
 
     def make_task(self, unit: Span | Prepare, context: TaskContext) -> SpanTask:
-        options = self._options
-        assert options is not None and self.gripper is not None
-        if self._sent is None:
-            # a cluster's workers may not see the gripper's folder: they get its files
-            self._sent = self.gripper if context.local else _gripper_files(self.gripper)
-        return SpanTask(
-            span=unit,
-            config=self.config,
-            seed=options.seed,
-            n=options.n,
-            trials=options.trials,
-            source_sha256=self.digests[unit.object_id],
-            versions=context.versions,
-            parent_pid=context.parent_pid,
-            status_dir=context.status_dir,
-            cache_dir=context.cache_dir,
-            cell=self.cell,
-            gripper=self._sent,
-            resting=self.resting,
-        )
+        found = self._found()
+        if self.fields is None:
+            options = found.options
+            self.fields = {
+                "config": self.config,
+                "seed": options.seed,
+                "n": options.n,
+                "trials": options.trials,
+                "mode": self.mode,
+                "gripper": sent_gripper(found.gripper, context),
+                **context.fields(),
+            }
+        return SpanTask(span=unit, source_sha256=found.digests[unit.object_id], **self.fields)
+
+    def _found(self) -> FoundInputs:
+        if self.inputs_found is None:
+            raise RuntimeError("the job's inputs are found by bind(), before it plans or makes tasks")
+        return self.inputs_found
 
     def take(self, result: SpanResult, collector: Collector) -> None:
-        oid = result.span.object_id
+        oid = result.span.unit_id
         summary, progress = collector.summary, collector.progress
         collector.account(result)
         if oid in summary.failed:  # another task of it failed first: the object is failed

@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from annotator.objects import ObjectSource
-from annotator.pipeline.worker import GivenGrasps, Span
+from annotator.pipeline.tasks import GivenGrasps, Span
 
 # Candidates per unit of work (and per chunk file): small enough that the first labels are on disk
 # within seconds, that 2..64 workers stay balanced and that an interrupt loses little; large enough
@@ -69,15 +69,23 @@ def object_spans(obj: PlannedObject, n: int, chunk: int, scale: float | None) ->
         yield obj.span(*rng, scale)
 
 
+def spans_left(done: frozenset[tuple[int, int]], n: int, chunk: int) -> int:
+    """How many spans of a unit of ``n`` candidates are missing when the chunks ``done`` (start,
+    stop) are on disk (without listing them)."""
+    total = math.ceil(n / chunk)
+    return total - sum(1 for a, b in done if a % chunk == 0 and b == min(n, a + chunk))
+
+
+def candidates_left(done: frozenset[tuple[int, int]], n: int, chunk: int) -> int:
+    """How many candidates of a unit of ``n`` are missing when the chunks ``done`` are on disk."""
+    return n - sum(b - a for a, b in done if a % chunk == 0 and b == min(n, a + chunk))
+
+
 def spans_to_do(obj: PlannedObject, n: int, chunk: int) -> int:
     """How many spans of ``obj`` are missing (without listing them)."""
-    n = obj.count(n)
-    total = math.ceil(n / chunk)
-    return total - sum(1 for a, b in obj.done if a % chunk == 0 and b == min(n, a + chunk))
+    return spans_left(obj.done, obj.count(n), chunk)
 
 
 def candidates_to_do(obj: PlannedObject, n: int, chunk: int) -> int:
     """How many candidates of ``obj`` are missing."""
-    n = obj.count(n)
-    done = sum(b - a for a, b in obj.done if a % chunk == 0 and b == min(n, a + chunk))
-    return n - done
+    return candidates_left(obj.done, obj.count(n), chunk)

@@ -16,7 +16,8 @@ from annotator.objects import (
     default_cache_dir,
     load_object,
 )
-from annotator.pipeline.worker import Prepare, SpanTask, label_span
+from annotator.pipeline.tasks import Prepare, SpanTask
+from annotator.pipeline.worker import label_span
 
 
 def load_prepared(

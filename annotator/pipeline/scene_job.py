@@ -23,15 +23,16 @@ import logging
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from annotator.config import AnnotatorConfig
-from annotator.grippers import GripperDescription, GripperFiles, gripper_record, is_shipped
-from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
+from annotator.grippers import GripperDescription, gripper_record, is_shipped
 from annotator.pipeline.execution import UsageError
-from annotator.pipeline.lifecycle import Collector, TaskContext, WorkPlan, loaded_gripper, merged, resumed
+from annotator.pipeline.inputs import digest_sources, discover, sent_gripper
+from annotator.pipeline.lifecycle import Binding, Collector, TaskContext, WorkPlan, loaded_gripper
 from annotator.pipeline.options import RunOptions
-from annotator.pipeline.plan import FIRST_SPANS_AHEAD, MAX_N
-from annotator.pipeline.scene_mode import SCENE_FILE, record_from_artifact
+from annotator.pipeline.plan import FIRST_SPANS_AHEAD, MAX_N, candidates_left, spans_left
+from annotator.pipeline.scene_artifact import SCENE_FILE, record_from_artifact
 from annotator.pipeline.summary import Summary
 from annotator.pipeline.tasks import UNUSABLE_OBJECT, SceneRequest, SceneSpan, SceneTask, SpanResult
 from annotator.pipeline.worker import label_span
@@ -134,41 +135,32 @@ class SceneJob:
     def __init__(self, config: AnnotatorConfig, own: SceneOptions) -> None:
         self.config = config
         self.own = own
-        self.request: SceneRequest | None = None
-        self.units: dict[str, str] = {}
+        self.request: SceneRequest | None = None  # bind() sets it, with the gripper
+        self.gripper: GripperDescription | None = None
+        self.fields: dict[str, Any] | None = None  # what every task carries, made once
+        # the scenes' records: from their first span's artifact (on a resume, read by plan())
         self.records: dict[int, SceneRecord] = {}
-        self.store: Store | None = None
-        # objects left out of every scene (their files cannot be read): object id -> reason
-        self.left_out: dict[str, str] = {}
         # objects a worker could not load: object id -> (reason, the scenes that draw it)
         self.unusable: dict[str, tuple[str, list[str]]] = {}
         self.failed_scenes: set[str] = set()
-        self.gripper: GripperDescription | None = None  # the run's, from check()
-        self._sent: GripperDescription | GripperFiles | None = None  # what the tasks carry
 
     def check(self, options: RunOptions) -> None:
-        self.gripper = loaded_gripper(options.gripper)
+        loaded_gripper(options.gripper)
         check_scene_options(options, self.own)
 
-    def bind(self, options: RunOptions, summary: Summary) -> tuple[RunSpec, dict[str, str]]:
+    def bind(self, options: RunOptions, summary: Summary) -> Binding:
         own = self.own
-        try:
-            sources = discover_objects(options.objects_dir, self.config.objects)
-        except ObjectDiscoveryError as exc:
-            raise UsageError(str(exc)) from exc
-        digests: dict[str, str] = {}
-        for source in sources:
-            try:
-                digests[source.object_id] = source_digest(source, self.config.objects.memory_budget)
-            except ObjectError as exc:  # a file that cannot be read: the scenes draw from the others
-                self.left_out[source.object_id] = f"left out of every scene: {exc}"
-        summary.failed.update(self.left_out)
+        sources = discover(options, self.config)
+        digests, unreadable = digest_sources(sources, self.config)
+        # a file that cannot be read: the scenes draw from the others
+        summary.failed.update({oid: f"left out of every scene: {why}" for oid, why in unreadable.items()})
         sources = [s for s in sources if s.object_id in digests]
         if not sources:
             first = next(iter(summary.failed.values()))
             raise UsageError(f"no object in {options.objects_dir} can be read: {first}")
         lo, hi = own.per_scene
-        self.request = job = SceneRequest(
+        self.gripper = gripper = loaded_gripper(options.gripper)
+        self.request = request = SceneRequest(
             tuple(sources),
             digests,
             own.arrangement,
@@ -188,86 +180,66 @@ class SceneJob:
             options.scale,
             scene_chunk_size(options.n),
             self.config.to_dict(scenes=True, trials=options.trials),
-            inputs={"scenes": job.to_json()},
+            inputs={"scenes": request.to_json()},
             # the RG2 is bound as before grippers were data, so folders made then still resume
-            gripper=None if self.gripper is None or _is_rg2(self.gripper) else gripper_record(self.gripper),
+            gripper=None if _is_rg2(gripper) else gripper_record(gripper),
         )
-        self.units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}
-        return spec, self.units
+        units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}
+        return Binding(spec, units, sorted(units))
 
-    def plan(self, options: RunOptions, store: Store, resume: Resume, summary: Summary) -> WorkPlan | None:
-        self.store = store
+    def plan(self, options: RunOptions, store: Store, resume: Resume) -> WorkPlan:
         n, chunk = options.n, store.spec.chunk_size
-        store.manifest.objects_planned = sorted(self.units)
-        for oid, error in self.left_out.items():  # one line per object in the manifest as in the summary
-            store.fail_object(oid, error)
-        resumed(store, summary, resume.done)
         todo = []
         remaining: dict[str, int] = {}
+        complete = []
         for scene_id in range(self.own.scenes):
             unit = scene_unit(scene_id)
             if unit in resume.done:
                 continue
             done = frozenset(resume.chunks.get(unit, set()))
-            remaining[unit] = math.ceil(n / chunk) - sum(
-                1 for a, b in done if a % chunk == 0 and b == min(n, a + chunk)
-            )
+            remaining[unit] = spans_left(done, n, chunk)
             if remaining[unit] == 0:  # every chunk on disk: only the merge was missing
-                merged(store, summary, unit, self.units[unit])
+                complete.append(unit)
                 continue
-            self._recorded_scene(scene_id)
+            self._recorded_scene(store, scene_id)
             todo.append((scene_id, done))
-        total = sum(n - sum(b - a for a, b in done) for _, done in todo)
-        if resume.done or any(done for _, done in todo):
-            log.info(
-                "resuming %s: %d scenes done earlier, %d chunks of unfinished scenes kept; %d grasps to do",
-                options.out_dir,
-                len(resume.done),
-                sum(len(done) for _, done in todo),
-                total,
-            )
-        if not todo:
-            return None
         return WorkPlan(
-            total,
+            sum(candidates_left(done, n, chunk) for _, done in todo),
             len(todo),
             remaining,
             lambda workers: plan_scene_spans(todo, n, chunk, max(FIRST_SPANS_AHEAD, 2 * workers)),
+            complete=complete,
+            kept=sum(len(done) for _, done in todo),
         )
 
-    def _recorded_scene(self, scene_id: int) -> None:
+    def _recorded_scene(self, store: Store, scene_id: int) -> None:
         """The scene's record from its first chunk's artifact when that chunk is on disk (resume)."""
-        assert self.store is not None
-        entry = self.store.manifest.chunks_done.get(scene_unit(scene_id), {"files": {}})
+        entry = store.manifest.chunks_done.get(scene_unit(scene_id), {"files": {}})
         for record in entry["files"].values():
             artifact = record.get("artifacts", {}).get(SCENE_FILE)
             if artifact is not None:
                 with contextlib.suppress(OSError, ValueError):
-                    data = (self.store.out_dir / artifact["file"]).read_bytes()
+                    data = (store.out_dir / artifact["file"]).read_bytes()
                     self.records[scene_id] = record_from_artifact(data)
 
     def make_task(self, span: SceneSpan, context: TaskContext) -> SceneTask:
-        assert self.request is not None
-        if self._sent is None and self.gripper is not None and not _is_rg2(self.gripper):
-            # a cluster's workers may not see the gripper's folder: they get its files
-            self._sent = self.gripper if context.local else GripperFiles.of(self.gripper)
-        return SceneTask(
-            span=span,
-            request=self.request,
-            config=self.config,
-            record=self.records.get(span.scene_id),
-            versions=context.versions,
-            parent_pid=context.parent_pid,
-            status_dir=context.status_dir,
-            cache_dir=context.cache_dir,
-            gripper=self._sent,
-        )
+        if self.request is None or self.gripper is None:
+            raise RuntimeError("the job's inputs are found by bind(), before it makes tasks")
+        if self.fields is None:
+            sent = None if _is_rg2(self.gripper) else sent_gripper(self.gripper, context)
+            self.fields = {
+                "request": self.request,
+                "config": self.config,
+                "gripper": sent,
+                **context.fields(),
+            }
+        return SceneTask(span=span, record=self.records.get(span.scene_id), **self.fields)
 
     def take(self, result: SpanResult, collector: Collector) -> None:
         """Write a span's artifacts and labels (or fail its scene); merge a finished scene."""
         span = result.span
         assert isinstance(span, SceneSpan)
-        unit = span.object_id
+        unit = span.unit_id
         collector.progress.advance(span.size)
         collector.account(result)
         if unit in collector.summary.failed or unit in self.failed_scenes:
@@ -290,10 +262,10 @@ class SceneJob:
         line, the scene's id then the object's reason). The object is reported once, by its name,
         in the summary and the manifest, with the scenes that draw it; each such scene's own
         manifest entry (it failed: retried on a resume, an export needs --partial) names it."""
-        assert self.store is not None
+        store = collector.store
         reason = error.removeprefix(f"{unit}: ")
         self.failed_scenes.add(unit)
-        self.store.fail_object(unit, f"draws {oid}, which cannot be loaded: {reason}")
+        store.fail_object(unit, f"draws {oid}, which cannot be loaded: {reason}")
         first = oid not in self.unusable
         scenes = self.unusable.setdefault(oid, (reason, []))[1]
         scenes.append(unit)
@@ -301,7 +273,7 @@ class SceneJob:
         drawn = _scenes_text(sorted(scenes))
         line = f"cannot be loaded in a worker ({why}); not labelled, as they draw it: {drawn}"
         collector.summary.failed[oid] = line
-        self.store.fail_object(oid, line)
+        store.fail_object(oid, line)
         if first:
             log.error("%s: %s", oid, line)
         collector.progress.object_done(unit, f"failed (draws {oid})")

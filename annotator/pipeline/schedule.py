@@ -1,6 +1,6 @@
 """The order work reaches the workers: each object's decomposition task, then its label spans.
 
-Every object of a run gets one decomposition task (:class:`~annotator.pipeline.worker.Prepare`):
+Every object of a run gets one decomposition task (:class:`~annotator.pipeline.tasks.Prepare`):
 a worker loads it, making its collision shape (a concave object's convex decomposition, up to a
 minute of a reference machine's CPU) and writing it to the cache unless the cache holds it
 already, then labels the object's first span (an object of one span costs one task and one load).
@@ -23,7 +23,7 @@ first, in plan order); as soon as the first object is ready its spans start, whi
 decompositions go on. The limit in 1. is for a warm cache, where a decomposition task only reads
 its object (a fraction of a CPU-second): without it one worker ran through every object's task
 ahead of the labelling, and a worker keeps only so many objects
-(:data:`~annotator.pipeline.worker.RECENT_OBJECT_BYTES`), so the labelling loaded most of them
+(:data:`~annotator.pipeline.object_cache.RECENT_OBJECT_BYTES`), so the labelling loaded most of them
 again. Spans are generated lazily per object (memory independent of N); an object that fails
 (its decomposition or a span) hands out nothing more.
 """
@@ -36,7 +36,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 from annotator.pipeline.plan import PlannedObject, object_spans
-from annotator.pipeline.worker import Prepare, Span, SpanResult
+from annotator.pipeline.tasks import Prepare, Span, SpanResult
 
 
 @dataclass(order=True)
@@ -93,7 +93,7 @@ class Schedule:
     def record(self, result: SpanResult) -> None:
         """A unit's result: a finished decomposition opens its object's spans; an error closes them."""
         unit = result.span
-        oid = unit.object_id
+        oid = unit.unit_id
         if isinstance(unit, Prepare):
             self.preparing.discard(oid)
             spans = self.pending.pop(oid, iter(()))

@@ -1,13 +1,12 @@
-"""The trials of a span and its label rows: each grasp runs in the trial of its mode (floating, a
-cell placement, resting on the table), trial 0 unperturbed and K-1 perturbed, and becomes one row
-(:func:`annotator.label_row.label_row`). :func:`simulate` takes what the span is
-(:class:`annotator.pipeline.tasks.SpanGrasps`) and the run's settings (:class:`TrialSettings`)."""
+"""The trials of a span and its label rows: each grasp runs in the trial its placed object sets it
+up in (floating, a cell placement, resting on the table), trial 0 unperturbed and K-1 perturbed,
+and becomes one row (:func:`annotator.label_row.label_row`). :func:`simulate` takes what the span
+is (:class:`annotator.pipeline.tasks.SpanGrasps`) and the run's settings (:class:`TrialSettings`)."""
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -20,19 +19,19 @@ from annotator.grippers import DEFAULT_GRIPPER
 from annotator.k_trials import run_k_trials
 from annotator.label_row import TrialsResult, label_row
 from annotator.objects import ObjectModel
+from annotator.pipeline.loaded import LoadedObject
 from annotator.pipeline.tasks import SpanGrasps
 from annotator.rng import object_rng
-from annotator.sampler import sample_candidates
-from annotator.schema import REASON_COLUMNS  # noqa: F401  (named in the docstring; the workers' import)
+from annotator.sampler import Candidates, sample_candidates
+from annotator.schema import REASON_COLUMNS  # noqa: F401  (named in the docstring)
 from annotator.trial import CollisionCheck, GraspTrial
-
-if TYPE_CHECKING:
-    from annotator.pipeline.loaded import LoadedObject
 
 log = logging.getLogger(__name__)
 
 
-def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float):
+def object_candidates(
+    model: ObjectModel, n: int, seed: int, config: AnnotatorConfig, max_width: float
+) -> Candidates:
     """The object's N candidates: the same for every worker (Generator keyed on seed and id)."""
     return sample_candidates(model.mesh, n, object_rng(seed, model.object_id), config.sampler, max_width)
 
@@ -41,13 +40,15 @@ def object_candidates(model: ObjectModel, n: int, seed: int, config: AnnotatorCo
 class TrialSettings:
     """The run's settings every trial of a span shares: the ``config``, the run's ``seed``,
     ``trials`` per grasp (trial 0 unperturbed), the ``gripper``'s name written in every row's
-    ``gripper`` column, and ``reasons``: each row also says why a ``collision`` is one
-    (:data:`REASON_COLUMNS`; given grasps only: sampled labels keep their columns)."""
+    ``gripper`` column, the rows' ``mode`` (:data:`annotator.schema.MODES`) and ``reasons``: each
+    row also says why a ``collision`` is one (:data:`REASON_COLUMNS`; given grasps only: sampled
+    labels keep their columns)."""
 
     config: AnnotatorConfig
     seed: int
     trials: int
     gripper: str = DEFAULT_GRIPPER
+    mode: str = "object"
     reasons: bool = False
 
 
@@ -59,9 +60,9 @@ def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) ->
     (None: the placement where it approaches most from above,
     :meth:`annotator.cell.batch.CellObject.placement_for`); ``rest_quat`` (k, 4): resting, the
     orientation each grasp's object rests in (None: upright). ``run``: the run's settings
-    (:class:`TrialSettings`). The object ``placed`` in the worker's mode
-    (:mod:`annotator.pipeline.modes`) gives each grasp its trial, the pose to run it at and the
-    row's columns of the mode.
+    (:class:`TrialSettings`). The object placed in the mode's world
+    (:class:`annotator.pipeline.loaded.PlacedObject`) sets each grasp up: its trial, the pose to
+    run it at and the row's columns of the mode.
 
     Trial 0 of each candidate is unperturbed and gives ``success``, ``outcome``, ``width`` and the
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
@@ -93,12 +94,13 @@ def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) ->
             T = Transform.exact(T_obj_tcp[k][:3, 3], quats[k])
         width_expected = float(widths[k])
         rest = None if rest_quats is None else rest_quats[k]
-        trial, placement = placed.trial_for(T, None if placements is None else int(placements[k]), rest)
-        run_T = placed.grasp(rest, T)
-        result = _run_trials(trial, run_T, width_expected, seed, trials, object_id, grasp_id)
+        placement = None if placements is None else int(placements[k])
+        setup = placed.setup(T, width_expected, grasp_id, placement, rest)
+        trial = setup.trial
+        result = _run_trials(trial, setup.pose, width_expected, seed, trials, object_id, grasp_id)
         rows.append(
             label_row(
-                placed.mode,
+                run.mode,
                 object_id=object_id,
                 grasp_id=grasp_id,
                 result=result,
@@ -108,7 +110,7 @@ def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) ->
                 model=model,
                 seed=seed,
                 gripper=gripper,
-                extra=placed.columns(placement, T, width_expected, grasp_id, rest),
+                extra=None if setup.columns is None else setup.columns(),
                 reasons=_reasons(result.check, trial) if run.reasons else None,
                 p_success=None if mapping is None else float(mapping.p_success(result.held / trials)),
             )

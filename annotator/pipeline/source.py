@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from annotator.objects import ObjectSource
-from annotator.pipeline.worker import GivenGrasps
+from annotator.pipeline.tasks import GivenGrasps
 
 
 @dataclass(frozen=True)

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from annotator.dataset import OUTCOMES
-
-if TYPE_CHECKING:
-    from annotator.pipeline.worker import PreparedObject
+from annotator.pipeline.tasks import PreparedObject
 
 
 @dataclass

@@ -7,7 +7,7 @@ travel by pickle to local workers and to a Dask cluster.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -17,6 +17,7 @@ import pandas as pd
 from annotator.config import AnnotatorConfig
 from annotator.grippers import GripperDescription, GripperFiles
 from annotator.objects import ObjectError, ObjectModel, ObjectSource
+from annotator.pipeline.modes import FloatingMode, Mode, SceneMode
 from annotator.store.names import scene_unit
 
 if TYPE_CHECKING:
@@ -67,6 +68,11 @@ class Span:
     given: GivenGrasps | None = None
 
     @property
+    def unit_id(self) -> str:
+        """Its object's unit of the store (the object id)."""
+        return self.object_id
+
+    @property
     def size(self) -> int:
         return self.stop - self.start
 
@@ -102,23 +108,17 @@ class Prepare:
         return 0 if self.first is None else self.first.size
 
     @property
+    def unit_id(self) -> str:
+        """Its object's unit of the store (the object id)."""
+        return self.object_id
+
+    @property
     def key(self) -> tuple[str, int]:
         return (self.object_id, -1)  # before the object's spans
 
     def describe(self) -> str:
         text = "loading (decomposing) the object"
         return text if self.first is None else f"{text}, then {self.first.describe()}"
-
-
-@dataclass(frozen=True)
-class CellOptions:
-    """``annotate --cell``: objects rest on the seed's table; ``views`` Kinect views per placement."""
-
-    views: int = 0
-
-    def to_json(self) -> dict[str, Any]:
-        """What the manifest binds (RunSpec.inputs['cell'])."""
-        return {"views": int(self.views)}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -150,10 +150,8 @@ class SpanTask(WorkerTask):
 
     ``seed``, ``n`` candidates per object, ``trials`` per candidate: the run's; ``source_sha256``:
     the object's source digest (a worker keeps a loaded object only while it is the same);
-    ``cell``: label in the robot cell (None: the floating gripper); ``resting``: the object rests on
-    the cell's table while the given grasps close (``evaluate --resting``,
-    :mod:`annotator.cell.resting`): True or ``"object"``, the grasps move with it as it settles;
-    ``"table"``, they stay where they were given in the table frame.
+    ``mode``: the mode it labels in (:mod:`annotator.pipeline.modes`: floating, the robot cell,
+    resting on the table).
     """
 
     span: Span | Prepare
@@ -161,27 +159,40 @@ class SpanTask(WorkerTask):
     n: int
     trials: int = 1
     source_sha256: str | None = None
-    cell: CellOptions | None = None
-    resting: bool | str = False
+    mode: Mode = FloatingMode()
 
-    @property
-    def mode_key(self) -> tuple:
-        """The worker mode it labels in (:func:`annotator.pipeline.worker.build_mode`)."""
-        from annotator.cell.resting import resting_mode
 
-        return ("object", self.cell is not None, resting_mode(self.resting))
+@dataclass(frozen=True, kw_only=True)
+class Call(WorkerTask):
+    """A module-level function ``fn`` to run on ``args`` in a worker, after the checks every task
+    gets (:class:`WorkerTask`): what in-memory work that is not a labelling span runs (a clutter
+    removal round). ``index``: its position among the tasks of its run."""
+
+    fn: Callable[..., Any]
+    args: tuple[Any, ...] = ()
+    index: int = 0
+
+
+@dataclass(frozen=True)
+class Performed:
+    """A :class:`Call`'s ``value``, or the exception it raised (``error``), with the call's ``index``."""
+
+    index: int
+    value: Any = None
+    error: Exception | None = None
 
 
 @dataclass(frozen=True)
 class SceneSpan:
-    """Grasps ``start..stop-1`` of scene ``scene_id``; ``object_id`` is its store unit id."""
+    """Grasps ``start..stop-1`` of scene ``scene_id``; ``unit_id`` is its store unit id."""
 
     scene_id: int
     start: int
     stop: int
 
     @property
-    def object_id(self) -> str:
+    def unit_id(self) -> str:
+        """Its scene's unit of the store (``scene_000003``)."""
         return scene_unit(self.scene_id)
 
     @property
@@ -190,7 +201,7 @@ class SceneSpan:
 
     @property
     def key(self) -> tuple[str, int]:
-        return (self.object_id, self.start)
+        return (self.unit_id, self.start)
 
 
 @dataclass(frozen=True)
@@ -239,9 +250,9 @@ class SceneTask(WorkerTask):
     record: SceneRecord | None = None
 
     @property
-    def mode_key(self) -> tuple:
-        """The worker mode it labels in (:func:`annotator.pipeline.worker.build_mode`)."""
-        return ("scene", self.request.cell)
+    def mode(self) -> SceneMode:
+        """The mode it labels in: a scene, with the arm's reachability when the request asks."""
+        return SceneMode(cell=self.request.cell)
 
 
 @dataclass(frozen=True)

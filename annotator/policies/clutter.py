@@ -25,7 +25,6 @@ in the settled scenes; each with a 95 % Wilson score interval.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections import Counter
@@ -35,19 +34,15 @@ from pathlib import Path
 
 import pandas as pd
 
-from annotator.cell.reach import READY, Reach, check_reach
 from annotator.config import AnnotatorConfig
-from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
-from annotator.objects import ObjectModel, get_object_pose, physics_for
+from annotator.objects import ObjectModel
 from annotator.policies.oracle import RoundPolicy
 from annotator.policies.predictions import PREDICTION_COLUMNS, read_predictions  # noqa: F401 (re-exported)
 from annotator.policies.records import Proposal
+from annotator.policies.round_world import Round
 from annotator.scenes.arrange import SceneBuilder
-from annotator.scenes.records import KEPT, Instance, SceneRecord, SceneSpec
-from annotator.scenes.world import LoadedScene, load_scene_with_arm
-from annotator.sim import pb
-from annotator.sim.world import World
+from annotator.scenes.records import SceneSpec
 
 log = logging.getLogger(__name__)
 
@@ -66,17 +61,6 @@ def wilson(successes: int, trials: int, z: float = Z95) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-@dataclass(frozen=True)
-class Executed:
-    """What executing one proposal did: ``held``; ``target``, the instance the arm went for (the
-    proposal's, or the one nearest its TCP; -1: none within the gripper's reach); ``why`` a failure
-    failed (:data:`FAILURES`), empty for a held object."""
-
-    held: bool
-    target: int
-    why: str = ""
-
-
 # Why an attempt failed, in the order the execution meets them (grasps.csv's ``failure``).
 FAILURES = {
     "nothing_there": "no object within the gripper's opening of the TCP",
@@ -91,7 +75,8 @@ FAILURES = {
 @dataclass(frozen=True)
 class Attempt:
     """One executed grasp: its proposal, whether it held, the object it held (-1: none), the
-    instance the arm went for and why it failed (:class:`Executed`)."""
+    instance the arm went for and why it failed
+    (:class:`annotator.policies.round_world.Executed`)."""
 
     round_id: int
     attempt: int
@@ -201,198 +186,10 @@ class ClutterSummary:
 # --- one round ------------------------------------------------------------------------------------------
 
 
-class Round:
-    """One round's world: the settled scene with the UR3 and its gripper, objects dynamic."""
-
-    def __init__(
-        self,
-        record: SceneRecord,
-        models: Mapping[str, ObjectModel],
-        config: AnnotatorConfig,
-        gripper: GripperDescription,
-    ) -> None:
-        self.record = record
-        self.models = models
-        self.config = config
-        self.gripper = gripper
-        self.world = World(config.physics.whole_linkage())
-        try:
-            self.scene: LoadedScene = load_scene_with_arm(self.world, record, models, config, gripper)
-            self.present: dict[int, int] = dict(self.scene.uids)  # instance -> body, still on the table
-            self._home()
-        except BaseException:
-            self.world.close()
-            raise
-
-    @property
-    def cell(self):
-        return self.scene.cell
-
-    def close(self) -> None:
-        self.world.close()
-
-    def _home(self) -> None:
-        cell = self.cell
-        cell.reset_arm(READY)
-        cell.command_arm(READY)
-        cell.gripper.reset_width(cell.gripper.max_width)
-
-    def now(self) -> SceneRecord:
-        """The scene as it is: the objects still present at their poses now (table frame)."""
-        T_table_world = self.record.T_world_table.inverse()
-        instances = []
-        for inst in self.record.instances:
-            uid = self.present.get(inst.instance_id)
-            if uid is None:
-                continue
-            T = T_table_world * get_object_pose(self.world.client, uid)
-            instances.append(
-                Instance(
-                    inst.instance_id,
-                    inst.object_id,
-                    KEPT,
-                    Transform.exact(T.pos, T.quat),
-                    inst.scale,
-                    inst.mass,
-                )
-            )
-        return dataclasses.replace(self.record, instances=tuple(instances))
-
-    def reach(self, T_table_tcp: Transform, width: float, instance_id: int) -> Reach:
-        """Can the arm execute the grasp in the scene as it is?"""
-        protocol, cell = self.config.protocol, self.cell
-        first = self.present.get(instance_id)
-        bodies = ([first] if first is not None else []) + [
-            u for i, u in sorted(self.present.items()) if i != instance_id
-        ]
-        return check_reach(
-            cell,
-            self.record.T_world_table * T_table_tcp,
-            width,
-            open_width=min(cell.gripper.max_width, width + 2 * protocol.pregrasp_clearance),
-            approach_distance=protocol.approach_distance,
-            approach_step=protocol.approach_step,
-            obj=tuple(bodies),
-            q_seed=READY,
-        )
-
-    def execute(self, proposal: Proposal) -> Executed:
-        """Execute ``proposal`` on the arm from a snapshot of the scene as it is."""
-        from annotator.cell.execute import Plan
-        from annotator.cell.execute import execute_plan as replay
-
-        target = proposal.instance_id if proposal.instance_id in self.present else self._nearest(proposal)
-        if target < 0:
-            return Executed(False, -1, "nothing_there")
-        self._use_physics_of(target)
-        state = self.world.save_state()
-        self.world.restore_state(state)  # no contact memory: the attempt depends on the scene only
-        self.world.remove_state(state)
-        lift = dataclasses.replace(self.config.protocol, lift_height=self.config.scenes.clutter_lift_height)
-        config = dataclasses.replace(self.config, protocol=lift)
-        uid = self.present[target]
-        T_world_tcp = self.record.T_world_table * proposal.T_table_tcp
-        open_width = min(self.cell.gripper.max_width, proposal.width + 2 * lift.pregrasp_clearance)
-        plan = Plan(
-            get_object_pose(self.world.client, uid),
-            T_world_tcp,
-            proposal.width,
-            open_width,
-            proposal.reach,
-            "",
-        )
-        result = replay(self.cell, uid, plan, config)
-        held = result.held(lift.lift_height, lift.max_slip)
-        if held:
-            self.world.remove_body(uid)
-            del self.present[target]
-        self._home()
-        self.settle()
-        pads = self.cell.gripper.description.pad_links
-        return Executed(held, target, "" if held else _failure(result, lift.lift_height, pads))
-
-    def _nearest(self, proposal: Proposal) -> int:
-        """The object nearest the proposal's TCP (a file's grasp names none); -1 if none is within
-        the gripper's reach of it."""
-        point = (self.record.T_world_table * proposal.T_table_tcp).pos
-        return nearest_instance(self.world.client, self.present, point, self.cell.gripper.max_width)
-
-    def _use_physics_of(self, instance_id: int) -> None:
-        model = self.models[self.record.instance(instance_id).object_id]
-        physics = physics_for(model, self.config.physics.whole_linkage())
-        if self.world.physics != physics:
-            self.world.physics = physics
-            self.world.configure()
-
-    def settle(self) -> None:
-        """VGN's remove_and_wait: settle; remove objects whose centre of mass left the workspace."""
-        scenes = self.config.scenes
-        chunk = max(1, round(scenes.rest_check_time / self.world.dt))
-        limit = round(scenes.settle_time / self.world.dt)
-        T_table_world = self.record.T_world_table.inverse()
-        self.world.set_gravity(True)
-        for _ in range(scenes.settle_rounds):
-            elapsed = 0
-            while elapsed < limit and not self._at_rest():
-                for _ in range(chunk):
-                    self.cell.command_arm(READY)
-                    self.world.step()
-                elapsed += chunk
-            gone = [
-                i
-                for i, uid in self.present.items()
-                if not self.record.workspace.contains(
-                    T_table_world.apply(get_object_pose(self.world.client, uid).pos)
-                )[0]
-            ]
-            for instance_id in gone:
-                self.world.remove_body(self.present.pop(instance_id))
-            if not gone:
-                return
-
-    def _at_rest(self) -> bool:
-        speed = self.config.scenes.rest_speed
-        for uid in self.present.values():
-            linear, angular = pb.getBaseVelocity(uid, physicsClientId=self.world.client)
-            if math.sqrt(sum(v * v for v in (*linear, *angular))) >= speed:
-                return False
-        return True
-
-
-def nearest_instance(client: int, bodies: Mapping[int, int], point_world, within: float) -> int:
-    """The instance (of ``bodies``: instance -> body) whose body is nearest ``point_world`` (3,) m,
-    world frame; -1 if none is within ``within`` m of it."""
-    best, who = within, -1
-    probe = pb.createCollisionShape(pb.GEOM_SPHERE, radius=1e-4, physicsClientId=client)
-    body = pb.createMultiBody(0.0, probe, -1, list(map(float, point_world)), physicsClientId=client)
-    try:
-        for instance_id, uid in sorted(bodies.items()):
-            pts = pb.getClosestPoints(body, uid, best, physicsClientId=client)
-            if pts and min(p[8] for p in pts) < best:
-                best, who = min(p[8] for p in pts), instance_id
-    finally:
-        pb.removeBody(body, physicsClientId=client)
-    return who
-
-
 def _counted(items) -> str:
     """``"a 3, b 1"``: each distinct item with its count, most frequent first (``"none"``)."""
     counts = Counter(items)
     return ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))) or "none"
-
-
-def _failure(result, lift_height: float, pads: tuple[str, ...]) -> str:
-    """The :data:`FAILURES` key of an execution that did not hold (``result``: an Execution;
-    ``pads``: the gripper's pad links, which may touch the object on the way in)."""
-    if result.table_touched:
-        return "arm_touched_table"
-    if result.links_on_object - set(pads):
-        return "gripper_pushed_object"
-    if result.pads_touching < 2:
-        return "no_contact"
-    if not result.lifted(lift_height):
-        return "not_lifted"
-    return "slipped"
 
 
 # --- the benchmark -----------------------------------------------------------------------------------------
@@ -435,8 +232,15 @@ def play_round(
             aimed = record.instance(done.target).object_id if done.target >= 0 else ""
             result.attempts.append(
                 Attempt(
-                    round_id, len(result.attempts), proposal, held, instance, oid,
-                    target=done.target, target_object=aimed, failure=done.why,
+                    round_id,
+                    len(result.attempts),
+                    proposal,
+                    held,
+                    instance,
+                    oid,
+                    target=done.target,
+                    target_object=aimed,
+                    failure=done.why,
                 )  # fmt: skip
             )
             failures = 0 if held else failures + 1
@@ -463,7 +267,7 @@ def _pool(sources: tuple, config: AnnotatorConfig, cache_dir: str | None) -> dic
 
 
 @dataclass(frozen=True)
-class ClutterJob:
+class ClutterSetup:
     """What every round shares: the pool (sorted sources), objects per pile, seed, the policy
     (a name of :mod:`annotator.policies.resolve` or a predictions table), trials per label, the
     gripper; for a vision policy its ``policy_args`` (KEY, VALUE) pairs and the depth ``views`` it
@@ -492,7 +296,7 @@ class ClutterJob:
         )
 
 
-def run_round(job: ClutterJob, round_id: int) -> RoundResult:
+def run_round(job: ClutterSetup, round_id: int) -> RoundResult:
     """Round ``round_id`` of ``job`` (in this process or a worker)."""
     models = _pool(job.sources, job.config, job.cache_dir)
     return play_round(
@@ -507,11 +311,7 @@ def run_round(job: ClutterJob, round_id: int) -> RoundResult:
     )
 
 
-def clutter_removal(job: ClutterJob, rounds: int, workers: int = 1) -> ClutterSummary:
-    """Rounds 0..rounds-1 of ``job``, on ``workers`` processes (the figures do not depend on it)."""
-    if workers <= 1:
-        return ClutterSummary([run_round(job, r) for r in range(rounds)])
-    from joblib import Parallel, delayed
-
-    results = Parallel(n_jobs=workers)(delayed(run_round)(job, r) for r in range(rounds))
-    return ClutterSummary(sorted(results, key=lambda r: r.round_id))
+def clutter_removal(job: ClutterSetup, rounds: int) -> ClutterSummary:
+    """Rounds 0..rounds-1 of ``job``, one after the other in this process (the commands run them
+    through the runner's execution: :func:`annotator.tools.clutter_runs.run_clutter_removal`)."""
+    return ClutterSummary([run_round(job, r) for r in range(rounds)])

@@ -52,7 +52,7 @@ class GripperBoxes:
 
 @lru_cache(maxsize=512)
 def _boxes_at(boxes: GripperBoxes, width: float, placed_for: float) -> tuple[Box, ...]:
-    from annotator.sim import pb
+    from annotator.sim import rigid
 
     g = boxes.gripper
     boxes.body.reset_base_pose(g.T_base_tcp(placed_for).inverse())
@@ -60,15 +60,12 @@ def _boxes_at(boxes: GripperBoxes, width: float, placed_for: float) -> tuple[Box
     out = []
     client, uid = boxes.world.client, boxes.body.uid
     for index in [-1, *boxes.body.links.values()]:
-        if index == -1:
-            pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=client)
-        else:
-            pos, orn = pb.getLinkState(uid, index, computeForwardKinematics=1, physicsClientId=client)[:2]
+        pos, orn = rigid.link_pose(client, uid, index)
         T_com = Transform(pos, orn)
-        for shape in pb.getCollisionShapeData(uid, index, physicsClientId=client):
-            if shape[2] == pb.GEOM_BOX:
-                T_tcp_box = (T_com * Transform(shape[5], shape[6])).as_matrix()
-                out.append(Box(np.asarray(shape[3], float), T_tcp_box))
+        for shape in rigid.collision_shapes(client, uid, index):
+            if shape.kind == "box":
+                T_tcp_box = (T_com * Transform(shape.local_position, shape.local_orientation)).as_matrix()
+                out.append(Box(np.asarray(shape.dimensions, float), T_tcp_box))
     return tuple(out)
 
 

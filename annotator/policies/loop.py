@@ -25,7 +25,7 @@ from annotator.policies.predictions import WORKSPACE_MARGIN
 from annotator.policies.records import Grasps, PolicyError, Proposal
 
 if TYPE_CHECKING:
-    from annotator.policies.clutter import Round
+    from annotator.policies.round_world import Round
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ from annotator.scenes.tsdf import fuse
 from annotator.scenes.views import SEG_ROBOT, SceneView, render_views
 
 if TYPE_CHECKING:
-    from annotator.policies.clutter import Round
+    from annotator.policies.round_world import Round
 
 # VGN's grid: 40 voxels over the 0.3 m workspace (its ``resolution``).
 TSDF_RESOLUTION = 40

@@ -10,7 +10,7 @@
   that the kinematic check lets through (no gripper collision with anything, along the approach or
   closed) and the arm can reach is executed. No physics decides it.
 
-Each is a :data:`RoundPolicy`: called with the round (:class:`annotator.policies.clutter.Round`), the
+Each is a :data:`RoundPolicy`: called with the round (:class:`annotator.policies.round_world.Round`), the
 attempt's index and the set of what it tried (its own bookkeeping), it returns a
 :class:`annotator.policies.records.Proposal` or None.
 """
@@ -29,7 +29,7 @@ from annotator.scenes.labels import SceneCandidates, SceneTrials, label_scene
 from annotator.scenes.records import SceneRecord
 
 if TYPE_CHECKING:
-    from annotator.policies.clutter import Round
+    from annotator.policies.round_world import Round
 
 # Candidates drawn per look of the ``labels`` and ``random`` policies at the scene as it is (VGN's
 # 120 per scene), labelled in batches of 20 before the search may stop, and drawn anew up to

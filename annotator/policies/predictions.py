@@ -22,7 +22,7 @@ from annotator.policies.records import Proposal
 from annotator.scenes.records import Workspace
 
 if TYPE_CHECKING:
-    from annotator.policies.clutter import Round
+    from annotator.policies.round_world import Round
 
 PREDICTION_COLUMNS = ("round", "x", "y", "z", "qx", "qy", "qz", "qw", "width", "score")
 # How far (m) a TCP may lie outside the workspace's box: a grasp on an object at the box's edge

@@ -48,7 +48,8 @@ from annotator.scenes.records import (
     SceneSpec,
     Workspace,
 )
-from annotator.sim import pb
+from annotator.sim import rigid
+from annotator.sim.contacts import closest_points
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -124,15 +125,13 @@ class _Build:
     def clear_of_others(self, body: _Body, gap: float) -> bool:
         """Whether ``body`` is at least ``gap`` m from every other placed body."""
         for other in self.bodies:
-            if other is not body and pb.getClosestPoints(
-                body.uid, other.uid, gap, physicsClientId=self.client
-            ):
+            if other is not body and closest_points(self.client, body.uid, other.uid, gap):
                 return False
         return True
 
 
 def _com_world(client: int, uid: int) -> np.ndarray:
-    return np.asarray(pb.getBasePositionAndOrientation(uid, physicsClientId=client)[0], dtype=np.float64)
+    return np.asarray(rigid.pose(client, uid)[0], dtype=np.float64)
 
 
 def settle(build: _Build, seconds: float) -> bool:
@@ -152,7 +151,7 @@ def settle(build: _Build, seconds: float) -> bool:
 
 
 def _at_rest(client: int, uid: int, speed: float) -> bool:
-    linear, angular = pb.getBaseVelocity(uid, physicsClientId=client)
+    linear, angular = rigid.velocity(client, uid)
     return math.sqrt(sum(v * v for v in (*linear, *angular))) < speed
 
 
@@ -194,10 +193,19 @@ def _add_walls(build: _Build) -> list[int]:
             half[axis] = half_t
             centre = np.array([ws.center[0], ws.center[1], half_h])
             centre[axis] += sign * (inner + half_t)
-            shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=build.client)
+            shape = rigid.collision_shape(build.client, "box", halfExtents=half)
             pos = build.table_to_world(centre).tolist()
             quat = build.T_world_table.quat.tolist()
-            walls.append(pb.createMultiBody(0.0, shape, -1, pos, quat, physicsClientId=build.client))
+            walls.append(
+                rigid.multibody(
+                    build.client,
+                    baseMass=0.0,
+                    baseCollisionShapeIndex=shape,
+                    baseVisualShapeIndex=-1,
+                    basePosition=pos,
+                    baseOrientation=quat,
+                )
+            )
     return walls
 
 
@@ -205,7 +213,7 @@ def _pile_top(build: _Build) -> float:
     """Height of the highest point of the objects placed so far above the table top (0 if none)."""
     top = 0.0
     for b in build.bodies:
-        aabb_max = pb.getAABB(b.uid, physicsClientId=build.client)[1]
+        aabb_max = rigid.aabb(build.client, b.uid)[1]
         top = max(top, float(aabb_max[2]) - build.cell.top.z)
     return top
 

@@ -43,10 +43,10 @@ from annotator.cell.candidates import TableSide, allocate, sample_placement
 from annotator.cell.reach import READY, Reach, check_reach
 from annotator.config import AnnotatorConfig
 from annotator.dataset import Outcome
-from annotator.geometry import Transform, matrix_to_quat
+from annotator.geometry import Transform, canonical_quat, matrix_to_quat
 from annotator.grippers import GripperDescription
 from annotator.k_trials import run_k_trials
-from annotator.label_row import TrialsResult, canonical, label_row
+from annotator.label_row import TrialsResult, label_row
 from annotator.objects import ObjectModel, get_object_pose, physics_for
 from annotator.rng import keyed_rng
 from annotator.scenes.records import SceneRecord
@@ -406,7 +406,7 @@ def label_scene(
         got = _try(trials, instance_id, T, width_expected, unit, grasp_id, n_trials, seed)
         assert inst.T_table_obj is not None
         T_table_tcp = inst.T_table_obj * got.trials.T_label
-        T_table_tcp_pose = [*T_table_tcp.pos.tolist(), *canonical(T_table_tcp.quat).tolist()]
+        T_table_tcp_pose = [*T_table_tcp.pos.tolist(), *canonical_quat(T_table_tcp.quat).tolist()]
         extra = {
             "scene_id": int(record.scene_id),
             "instance_id": instance_id,

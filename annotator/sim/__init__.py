@@ -1,7 +1,8 @@
 """PyBullet simulation: a world per process, bodies with joints by name, any parallel gripper.
 
 Modules: ``world`` (a physics client and its settings, one per process), ``body`` (a loaded URDF
-with its joints and links by name), ``contacts`` (contact and distance queries), ``width_table``
+with its joints and links by name), ``rigid`` (rigid bodies by id), ``contacts`` (contact and
+distance queries), ``camera``, ``gui``, ``decompose``, ``width_table``
 (a gripper's opening against its driven joint, from forward kinematics), ``gripper`` (the
 :class:`~annotator.sim.gripper.ParallelGripper` any gripper description is simulated as), ``hand``
 (the floating gripper the object trials move by a constraint), ``ur3`` (the arm: names, DH
@@ -9,8 +10,12 @@ kinematics, closed-form IK). The grippers themselves are data (:mod:`annotator.g
 ``assets/grippers/``). The package imports nothing above it but ``config``, ``geometry`` and the
 gripper descriptions (docs/architecture.md, "Floors").
 
-Import pybullet through this package (``from annotator.sim import pb``): it is imported here with
-its C-level "pybullet build time" banner silenced.
+Nothing outside this package calls PyBullet (``tests/test_floors.py`` checks it): ``rigid`` (a
+body's pose, velocity, dynamics, shapes; loading and creating bodies; PyBullet's frame arithmetic),
+``camera`` (view and projection matrices, images), ``gui`` (the GUI's sliders, text, camera and
+keys) and ``decompose`` (V-HACD) wrap what the layers above need. Inside it, import pybullet
+through this package (``from annotator.sim import pb``): it is imported here with its C-level
+"pybullet build time" banner silenced.
 """
 
 import os

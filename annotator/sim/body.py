@@ -104,6 +104,24 @@ class Body:
         """The position of joint ``name`` (rad or m)."""
         return float(pb.getJointState(self.uid, self.joints[name].index, physicsClientId=self.client)[0])
 
+    def joint_velocity(self, name: str) -> float:
+        """The velocity of joint ``name`` (rad/s or m/s)."""
+        return float(pb.getJointState(self.uid, self.joints[name].index, physicsClientId=self.client)[1])
+
+    def joint_states(self) -> dict[str, tuple[float, float]]:
+        """Every joint's position (rad or m) and velocity, by name: what
+        :meth:`reset_joint_states` puts back."""
+        idx = [j.index for j in self.joints.values()]
+        states = pb.getJointStates(self.uid, idx, physicsClientId=self.client)
+        return {name: (s[0], s[1]) for name, s in zip(self.joints, states, strict=True)}
+
+    def reset_joint_states(self, states: dict[str, tuple[float, float]]) -> None:
+        """Put the named joints back at their positions and velocities (:meth:`joint_states`)."""
+        for name, (position, velocity) in states.items():
+            pb.resetJointState(
+                self.uid, self.joints[name].index, position, velocity, physicsClientId=self.client
+            )
+
     def reset_joints(self, positions: dict[str, float]) -> None:
         """Teleport joints (zero velocity); for set-up only, not during a dynamic phase."""
         for name, q in positions.items():

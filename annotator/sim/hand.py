@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
-from annotator.config import GripperConfig, ProtocolConfig
+from annotator.config import AnnotatorConfig, GripperConfig, ProtocolConfig
 from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.sim.body import Body
@@ -348,6 +348,13 @@ class FloatingGripper:
         steps = self._follow(positions, matrix_to_quat(R_all @ centre.rotation), force, on_step)
         self.set_target(centre)
         return steps
+
+
+def max_width(config: AnnotatorConfig, gripper: GripperDescription | str | None = None) -> float:
+    """The gripper's stroke (m, the widest opening of its pads) from its model's FK, as ``config``
+    simulates it (default the RG2; in a throwaway DIRECT client)."""
+    with World(config.physics) as world:
+        return FloatingGripper(world, config.gripper, gripper).gripper.max_width
 
 
 def _smoothstep(s: np.ndarray) -> np.ndarray:

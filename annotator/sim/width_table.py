@@ -78,10 +78,6 @@ class WidthTable:
         t = (angle - a[k - 1]) / (a[k] - a[k - 1])
         return self._slopes[k - 1] + t * (self._slopes[k] - self._slopes[k - 1])
 
-    def tcp_at(self, width: np.ndarray | float) -> np.ndarray:
-        """The pad-centre midpoint (..., 3) in the base frame at opening(s) ``width`` (m)."""
-        return np.stack([np.interp(width, self._w, self._w_tcp[:, i]) for i in range(3)], axis=-1)
-
     def T_base_tcp(self, width: float) -> Transform:
         """Pad-centre midpoint frame in the gripper base frame for opening ``width`` (m).
 

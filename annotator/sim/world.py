@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import pybullet as pb
 
@@ -15,6 +16,17 @@ log = logging.getLogger(__name__)
 # Bodies are moved this far apart (m) to drop their contact pairs when a snapshot is restored:
 # far beyond any object or robot extent, small enough that float32 AABBs stay exact to ~0.1 mm.
 SCATTER_DISTANCE = 100.0
+
+
+@contextlib.contextmanager
+def private_client() -> Iterator[int]:
+    """A physics client of its own (DIRECT, PyBullet's defaults: nothing configured) to read a
+    model in, disconnected after the block."""
+    client = pb.connect(pb.DIRECT)
+    try:
+        yield client
+    finally:
+        pb.disconnect(physicsClientId=client)
 
 
 class World:
@@ -78,6 +90,14 @@ class World:
             pb.stepSimulation(physicsClientId=self.client)
         self.step_seconds += time.perf_counter() - t0
         self.steps += n
+
+    def step_while_open(self) -> bool:
+        """One step of a GUI world; False once its window is closed (the client is gone)."""
+        try:
+            pb.stepSimulation(physicsClientId=self.client)
+        except pb.error:
+            return False
+        return True
 
     def save_state(self) -> int:
         """Snapshot every body of the world; returns the id :meth:`restore_state` takes."""

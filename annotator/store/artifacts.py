@@ -14,8 +14,8 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
-from annotator.store.files import atomic_write, file_sha256, is_temp_file, output_error
-from annotator.store.names import ARTIFACTS_DIR, artifact_relpath, is_artifact_relpath, is_object_stem
+from annotator.store.files import atomic_write, file_sha256, output_error
+from annotator.store.names import artifact_relpath, is_artifact_relpath
 
 # In each ``_views/<object stem>/`` folder: the names of the files the tool wrote there, one a
 # line (hidden: never an artifact name, and skipped by pyarrow).
@@ -109,27 +109,3 @@ def artifacts_ok(record: dict[str, Any]) -> bool:
         isinstance(a, dict) and is_artifact_relpath(a.get("file")) and isinstance(a.get("sha256"), str)
         for a in artifacts.values()
     )
-
-
-def remove_artifacts(root: Path, keep: set[str]) -> int:
-    """Remove the tool's artifact files under ``root`` (``<root>/<object stem>/<file>``, listed in
-    the folder's :data:`WRITTEN_LIST`) whose path relative to the output folder is not in
-    ``keep``, with emptied folders; returns how many. A file the tool did not write there (a
-    user's), folders not named as the tool names an object's, and anything deeper down, stay."""
-    if not root.is_dir():
-        return 0
-    removed = 0
-    for folder in root.iterdir():
-        if not (folder.is_dir() and is_object_stem(folder.name)):
-            continue
-        written = written_names(folder)
-        for p in folder.iterdir():
-            relpath = f"{ARTIFACTS_DIR}/{folder.name}/{p.name}"
-            ours = p.name in written and is_artifact_relpath(relpath)
-            if p.is_file() and relpath not in keep and (ours or is_temp_file(p)):
-                p.unlink(missing_ok=True)
-                removed += 1
-        tidy(folder)
-    with contextlib.suppress(OSError):
-        root.rmdir()
-    return removed

@@ -468,10 +468,6 @@ class Manifest:
         """Every label file name the manifest vouches for."""
         return {rec["file"] for rec in self.label_records()}
 
-    def referenced_artifacts(self) -> set[str]:
-        """Every artifact (path relative to the folder) the manifest vouches for."""
-        return {a["file"] for rec in self.label_records() for a in rec.get("artifacts", {}).values()}
-
 
 def check_op(op: dict[str, Any]) -> None:
     """Invalid unless ``op`` is an operation of :data:`OP_SCHEMAS` with the fields it takes."""

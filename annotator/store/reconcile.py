@@ -234,6 +234,17 @@ def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Fol
     between writing and recording) and leftover temporary files go; every other file is left as it
     is and named. ``read_only``: the folder cannot be written: the manifest alone is corrected."""
     plan = FolderPlan()
+    dropped = _check_records(plan, listing, manifest, read_only)
+    if read_only:
+        return plan
+    kept = [rec for rec in manifest.label_records() if rec["file"] not in dropped]
+    _remove_unvouched(plan, listing, manifest, kept)
+    return plan
+
+
+def _check_records(plan: FolderPlan, listing: Listing, manifest: Manifest, read_only: bool) -> set[str]:
+    """The manifest's records checked against the files (a merge a run stopped in completed, a
+    record that cannot be trusted dropped, its labels redone); returns the dropped files' names."""
     dropped: set[str] = set()
     for oid, entry in manifest.objects_done.items():
         name, hidden = entry["file"], merging_name(entry["file"])
@@ -258,9 +269,14 @@ def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Fol
                 _distrust(plan, listing, manifest, rec, why, oid, read_only)
                 plan.ops.append({"op": "drop_chunk", "oid": oid, "key": key})
                 dropped.add(rec["file"])
-    if read_only:
-        return plan
-    kept = [rec for rec in manifest.label_records() if rec["file"] not in dropped]
+    return dropped
+
+
+def _remove_unvouched(
+    plan: FolderPlan, listing: Listing, manifest: Manifest, kept: list[dict[str, Any]]
+) -> None:
+    """This run's files and artifacts that no ``kept`` record vouches for, and the temporaries
+    (but a completed merge's), removed; other files named."""
     vouched = {rec["file"] for rec in kept}
     removing = set(plan.unlink)
     for name in listing.parquet:
@@ -281,7 +297,6 @@ def plan_resume(listing: Listing, manifest: Manifest, *, read_only: bool) -> Fol
     plan.rmdirs += listing.artifact_dirs
     if unbound:
         plan.logs.append(f"removed {len(unbound)} artifact files written but never recorded (redone)")
-    return plan
 
 
 def _distrust(

@@ -150,7 +150,23 @@ def survey(
 ) -> Listing:
     """Read what ``need`` asks about ``out_dir`` (``manifest``: the one to check, for RESUME and
     SOURCES; ``run_key``: the run's key, for REPAIR). Changes nothing."""
-    out = Path(out_dir)
+    listing = _list(Path(out_dir))
+    if need in (Need.RESUME, Need.SOURCES):
+        assert manifest is not None
+        _read_for_resume(listing, manifest, resume=need is Need.RESUME)
+        return listing
+    for name in listing.parquet:
+        _read_mark(listing, name)
+    if need is Need.OVERWRITE:
+        _read_for_overwrite(listing)
+    elif need is Need.REPAIR:
+        assert run_key is not None
+        _verify_for_repair(listing, run_key)
+    return listing
+
+
+def _list(out: Path) -> Listing:
+    """The folder's label files, temporaries, manifest files and artifacts, by name."""
     listing = Listing(out)
     entries = sorted(out.iterdir(), key=lambda p: p.name)
     listing.parquet = [p.name for p in entries if p.suffix == ".parquet"]
@@ -160,39 +176,46 @@ def survey(
     listing.merging = {name for name in listing.temp if name.endswith(".merging")}
     listing.manifest_files = [n for n in (MANIFEST_NAME, JOURNAL_NAME) if is_regular_file(out / n)]
     listing.artifacts, listing.artifact_dirs = _artifacts(out, ARTIFACTS_DIR)
-    vouched = manifest.referenced_files() if manifest is not None else set()
-    if need in (Need.RESUME, Need.SOURCES):
-        assert manifest is not None
-        if need is Need.RESUME:
-            _hash_records(listing, manifest)
-        for name in listing.parquet:
-            if name not in vouched or (name in listing.problems or name not in listing.regular):
-                _read_mark(listing, name)
-        if need is Need.RESUME:  # a recorded file whose bytes differ: whose is it?
-            for rec in manifest.label_records():
-                if rec["file"] in listing.regular and listing.check_record(rec):
-                    _read_mark(listing, rec["file"])
-        return listing
+    return listing
+
+
+def _read_for_resume(listing: Listing, manifest: Manifest, *, resume: bool) -> None:
+    """The marks of the files the manifest does not vouch for (or that are not what it says) and,
+    to ``resume``, the checksum of every file it does."""
+    vouched = manifest.referenced_files()
+    if resume:
+        _hash_records(listing, manifest)
     for name in listing.parquet:
-        _read_mark(listing, name)
-    if need is Need.OVERWRITE:
-        listing.recorded = _recorded(out)
-        stale = out / STALE_DIR
-        if stale.is_dir() and not stale.is_symlink():
-            for p in sorted(stale.iterdir()):
-                if p.suffix == ".parquet":
-                    name = f"{STALE_DIR}/{p.name}"
-                    listing.stale_parquet.append(name)
-                    if is_regular_file(p):
-                        listing.regular.add(name)
-                    _read_mark(listing, name)
-            listing.stale_artifacts, dirs = _artifacts(out, f"{STALE_DIR}/{ARTIFACTS_DIR}")
-            listing.artifact_dirs += dirs
-        return listing
-    if need is Need.MARKS:
-        return listing
-    assert run_key is not None
-    for name in listing.parquet:  # REPAIR: each marked file verified as the record its mark says
+        if name not in vouched or (name in listing.problems or name not in listing.regular):
+            _read_mark(listing, name)
+    if resume:  # a recorded file whose bytes differ: whose is it?
+        for rec in manifest.label_records():
+            if rec["file"] in listing.regular and listing.check_record(rec):
+                _read_mark(listing, rec["file"])
+
+
+def _read_for_overwrite(listing: Listing) -> None:
+    """What the manifest (readable or not) records, and the files set aside in ``_stale/``."""
+    out = listing.out_dir
+    listing.recorded = _recorded(out)
+    stale = out / STALE_DIR
+    if stale.is_dir() and not stale.is_symlink():
+        for p in sorted(stale.iterdir()):
+            if p.suffix == ".parquet":
+                name = f"{STALE_DIR}/{p.name}"
+                listing.stale_parquet.append(name)
+                if is_regular_file(p):
+                    listing.regular.add(name)
+                _read_mark(listing, name)
+        listing.stale_artifacts, dirs = _artifacts(out, f"{STALE_DIR}/{ARTIFACTS_DIR}")
+        listing.artifact_dirs += dirs
+
+
+def _verify_for_repair(listing: Listing, run_key: str) -> None:
+    """Each marked file verified as the record its mark says (of the run ``run_key``), hashed with
+    its artifacts, and a finished object's file's statistics."""
+    out = listing.out_dir
+    for name in listing.parquet:
         mark = listing.marks.get(name)
         if not mark:
             continue
@@ -211,7 +234,6 @@ def survey(
                 _hash(listing, a["file"])
         if name == object_filename(span.object_id):
             listing.stats[name] = object_stats(read_labels(out, [name]))
-    return listing
 
 
 def _read_mark(listing: Listing, name: str) -> None:

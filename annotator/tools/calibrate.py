@@ -138,7 +138,7 @@ def calibration_grasps(
     ``evaluate`` reads it (:func:`annotator.tools.evaluate.read_grasps`, ``frame``) and turned
     into the commanded grasps a run would simulate. Scene labels, where (object_id, grasp_id)
     repeats across scenes, only with ``scene`` named (its rows)."""
-    from annotator.cell.resting import resting_mode
+    from annotator.pipeline.modes import resting_grasps
     from annotator.tools.common import labelling_config, labelling_gripper, labels_resting, read_labels
     from annotator.tools.evaluate import commanded_table, read_grasps
 
@@ -160,7 +160,7 @@ def calibration_grasps(
             chosen.line(),
             hand.description,
             hand.line(),
-            resting_mode(resting) or labels_resting(labels),
+            resting_grasps(resting) or labels_resting(labels),
         )
     hand = labelling_gripper(None, gripper)
     grasps = read_grasps(labels, frame)
@@ -169,7 +169,7 @@ def calibration_grasps(
         grasps, objects_dir, chosen.config, scale, stroke, gripper=hand.description, frame=frame
     )
     return CalibrationGrasps(
-        table, chosen.config, chosen.line(), hand.description, hand.line(), resting_mode(resting)
+        table, chosen.config, chosen.line(), hand.description, hand.line(), resting_grasps(resting)
     )
 
 
@@ -240,17 +240,13 @@ def default_forces(gripper=None) -> tuple[float, ...]:
     )
 
 
-def _simulate_task(setting, base, span, force, seed, gripper, resting, k=1):
-    from annotator.tools.given import simulate_given
-
+def _setting_config(setting, base, force):
+    """The configuration ``setting`` simulates with (None: ``base``), at the trial's own ``force``."""
     if setting is not None:
-        config = setting.config(base, force)
-    elif force is not None:  # the configuration as it is, at the trial's own force
-        config = dataclasses.replace(base, gripper=dataclasses.replace(base.gripper, grip_force=float(force)))
-    else:
-        config = base
-    rows, error = simulate_given(span, config, seed, k, gripper=gripper, resting=resting)
-    return setting, span.object_id, force, rows, error
+        return setting.config(base, force)
+    if force is not None:  # the configuration as it is, at the trial's own force
+        return dataclasses.replace(base, gripper=dataclasses.replace(base.gripper, grip_force=float(force)))
+    return base
 
 
 def span_groups(trials: pd.DataFrame) -> list[tuple[str, float | None, np.ndarray]]:
@@ -282,12 +278,12 @@ def simulate_grid(
     """Simulated success of every trial (row order of ``trials``) under every setting (None: ``base``
     as it is), with ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's
     ``rest_q*``); ``k``: ``--trials`` of each simulation, ``column``: the label column returned
-    (``score``: floats; ``trial_stages``: strings)."""
-    import joblib
-
+    (``score``: floats; ``trial_stages``: strings). Every span runs through the runner's execution
+    (:func:`annotator.pipeline.in_memory.run_in_memory`) on ``workers`` processes."""
     from annotator.objects import ObjectDiscoveryError, discover_objects
+    from annotator.pipeline.in_memory import ExecutionOptions, run_in_memory
     from annotator.tools.common import ToolError
-    from annotator.tools.given import GivenSpan, replay_grasps
+    from annotator.tools.given import GivenSpan, given_rows, given_task, replay_grasps
 
     try:
         sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
@@ -320,19 +316,19 @@ def simulate_grid(
         spans.append((span, force))
     # setting after setting: a worker rebuilds its world when the configuration changes, and keeps
     # the objects it had while it does not (annotator.pipeline.worker.WorkerState)
+    grid = [(setting, span, force) for setting in settings for span, force in spans]
     tasks = [
-        joblib.delayed(_simulate_task)(setting, base, span, force, seed, gripper, resting, k)
-        for setting in settings
-        for span, force in spans
+        given_task(span, _setting_config(setting, base, force), seed, k, gripper=gripper, resting=resting)
+        for setting, span, force in grid
     ]
     kind = {"success": bool, "trial_stages": object}.get(column, np.float64)
     out = {s: np.zeros(len(trials), dtype=kind) for s in settings}
-    for setting, oid, force, rows, error in joblib.Parallel(n_jobs=workers, return_as="generator_unordered")(
-        tasks
-    ):
-        if error is not None:
-            raise ToolError(f"{oid}: {error}")
-        out[setting][where[(oid, force)]] = rows[column].to_numpy(dtype=kind)
+    results = run_in_memory(tasks, ExecutionOptions(workers))
+    for (setting, span, force), result in zip(grid, results, strict=True):
+        rows, error = given_rows(span, result)
+        if rows is None:
+            raise ToolError(f"{span.object_id}: {error}")
+        out[setting][where[(span.object_id, force)]] = rows[column].to_numpy(dtype=kind)
     return out
 
 
@@ -640,7 +636,7 @@ def _gripper_settings(config: AnnotatorConfig, gripper=None):
 
 
 def _max_width(config: AnnotatorConfig, gripper=None) -> float:
-    from annotator.pipeline.worker import max_width
+    from annotator.sim.hand import max_width
 
     return max_width(config, gripper)
 

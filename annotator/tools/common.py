@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import SchemaError, validate_labels
+from annotator.files import check_writable
 
 log = logging.getLogger(__name__)
 
@@ -57,10 +57,7 @@ def check_output_dir(path: str | Path, what: str) -> Path:
     """Before any work: the folder ``path`` exists or can be made, and a file can be written in it."""
     path = Path(path)
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=path)
-        os.close(fd)
-        os.unlink(probe)
+        check_writable(path)
     except OSError as exc:
         raise OutputToolError(f"{what} {path} cannot be written: {exc.strerror or exc}") from None
     return path
@@ -245,97 +242,71 @@ def _manifest_path(labels: Path) -> Path:
     return (labels if labels.is_dir() else labels.parent) / MANIFEST_NAME
 
 
-def read_manifest(labels: str | Path) -> dict[str, Any] | None:
-    """The run's manifest beside the labels, checked against its schema (as a dict), or None if
-    there is none; :class:`ToolError` in one line for one of any other shape."""
-    from annotator.store import Manifest, ManifestUnreadableError
+def _folder(labels: str | Path):
+    """The labels folder (:class:`annotator.store.reader.LabelsFolder`); :class:`ToolError` in one
+    line for a manifest or journal that cannot be read."""
+    from annotator.store import ManifestUnreadableError
+    from annotator.store.reader import LabelsFolder
 
-    path = _manifest_path(Path(labels))
     try:
-        manifest = Manifest.load(path.parent)
+        return LabelsFolder.open(labels)
     except ManifestUnreadableError as exc:
         raise ToolError(f"{exc}") from None
+    except FileNotFoundError:
+        raise ToolError(f"no labels at {labels}") from None
+
+
+def read_manifest(labels: str | Path) -> dict[str, Any] | None:
+    """The run's manifest beside the labels, its journal applied, checked against its schema (as a
+    dict), or None if there is none; :class:`ToolError` in one line for one of any other shape."""
+    path = _manifest_path(Path(labels))
+    if not path.parent.exists():
+        return None
+    manifest = _folder(path.parent).manifest
     return None if manifest is None else manifest.to_json()
-
-
-def _vouched_files(manifest: dict[str, Any]) -> list[str]:
-    names = [e["file"] for e in manifest["objects_done"].values()]
-    for entry in manifest["chunks_done"].values():
-        names += [r["file"] for r in entry["files"].values()]
-    return sorted(names)
-
-
-def _read_files(folder: Path, names: list[str]) -> pd.DataFrame:
-    """The named label files, concatenated; FileNotFoundError if one vanished, ToolError if one
-    cannot be read as a label table."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    from annotator.store.files import is_regular_file
-
-    tables = []
-    for name in names:
-        path = folder / name
-        if not is_regular_file(path):
-            if not path.exists():
-                raise FileNotFoundError(path)
-            raise ToolError(f"{path} is not a regular file")
-        try:
-            table = pq.read_table(path)
-            unique_columns(table.column_names, path)
-            tables.append(table)
-        except (FileNotFoundError, ToolError):
-            raise
-        except Exception as exc:  # ArrowInvalid, OSError: a truncated or foreign file
-            raise ToolError(f"{path}: not a readable label file ({type(exc).__name__}: {exc})") from None
-    if not tables:
-        return pd.DataFrame()
-    try:
-        return pa.concat_tables(tables, promote_options="permissive").to_pandas()
-    except Exception as exc:
-        raise ToolError(f"{folder}: label files of different layouts ({exc})") from None
 
 
 def open_labels(labels: str | Path) -> LabelsRun:
     """Read a labels folder or file once, validated: the labels the run's manifest vouches for
     (files of other runs or a user's in the folder are not its labels), or every Parquet file
-    when there is no manifest; one line and exit 2 for anything unreadable."""
-    from annotator.dataset import load_labels
+    when there is no manifest (:class:`annotator.store.reader.LabelsFolder`); one line and exit 2
+    for anything unreadable."""
     from annotator.store.lock import is_locked
+    from annotator.store.reader import UnreadableLabels
 
     path = Path(labels)
     if not path.exists():
         raise ToolError(f"no labels at {path}")
     for attempt in range(READ_ATTEMPTS):
-        manifest = read_manifest(path)
+        folder = _folder(path)
         try:
-            if path.is_dir() and manifest is not None:
-                df = _read_files(path, _vouched_files(manifest))
-                if df.empty:
-                    raise ToolError(f"{path}: its run has written no labels yet")
-                df = validate_labels(df).sort_values(
-                    ["object_id", "grasp_id"], kind="stable", ignore_index=True
-                )
-            else:
-                df = load_labels(path)
+            if folder.manifest is not None and folder.file is None and not folder.label_files():
+                raise ToolError(f"{path}: its run has written no labels yet")
+            df = validate_labels(folder.read()).sort_values(
+                ["object_id", "grasp_id"], kind="stable", ignore_index=True
+            )
             break
         except FileNotFoundError as exc:
+            if folder.manifest is None:
+                raise ToolError(f"{path}: {exc}") from None
             if attempt == READ_ATTEMPTS - 1:
                 raise ToolError(f"{path}: label files keep changing while being read ({exc})") from None
             time.sleep(0.05)  # a merge renamed or removed a chunk: read the folder again
+        except UnreadableLabels as exc:
+            raise ToolError(str(exc)) from None
         except SchemaError as exc:
             raise ToolError(f"{path}: not a label table ({exc})") from None
         except ToolError:
             raise
         except Exception as exc:  # unreadable, not Parquet
             raise ToolError(f"{path}: cannot read labels ({type(exc).__name__}: {exc})") from None
-    folder = path if path.is_dir() else path.parent
+    manifest = None if folder.manifest is None else folder.manifest.to_json()
     unfinished: list[str] = []
     if manifest is not None:
         planned = manifest.get("objects_planned") or []
         unfinished = sorted(set(planned) - set(manifest["objects_done"]) - set(manifest["objects_failed"]))
         unfinished += sorted(set(manifest["chunks_done"]) - set(planned))
-    return LabelsRun(path, df, manifest, unfinished, running=is_locked(folder))
+    return LabelsRun(path, df, manifest, unfinished, running=is_locked(folder.path))
 
 
 def read_labels(labels: str | Path) -> pd.DataFrame:
@@ -483,10 +454,9 @@ def labels_resting(labels: str | Path | None) -> str | None:
     grasps moved with them), ``"table"`` (the grasps stayed in the table frame) or None (floating)."""
     if labels is None or not Path(labels).exists():
         return None
-    value = (run_settings(read_manifest(labels)).get("inputs") or {}).get("resting")
-    if not value:
-        return None
-    return "object" if value is True else str(value)
+    from annotator.pipeline.modes import resting_grasps
+
+    return resting_grasps((run_settings(read_manifest(labels)).get("inputs") or {}).get("resting"))
 
 
 def object_info(manifest: dict | None, object_id: str) -> dict:

@@ -126,9 +126,9 @@ def _unit_quaternions(q: np.ndarray, path: Path, prefix: str) -> np.ndarray:
         row = int(np.argmax(bad))
         names = ", ".join(f"{prefix}q{a}" for a in "xyzw")
         raise ToolError(f"{path}: row {row}: quaternion ({names}) has norm {norm[row]:.4g}, not 1")
-    q = q / norm[:, None]
-    q[q[:, 3] < 0] *= -1.0  # w >= 0, as the labels
-    return q
+    from annotator.geometry import canonical_quat
+
+    return canonical_quat(q / norm[:, None])  # w >= 0, as the labels
 
 
 def _widths(df: pd.DataFrame, path: Path) -> np.ndarray:
@@ -424,7 +424,7 @@ def _object_grasps(
     """One object's grasps as the worker's GivenGrasps (label rows replayed, widths measured over
     the pad face ``pads``, a :class:`PadFace`)."""
     from annotator.dataset import poses_as_matrices
-    from annotator.pipeline.worker import GivenGrasps
+    from annotator.pipeline.tasks import GivenGrasps
 
     if records_commands(rows) or "outcome" in rows.columns:  # label rows: replay them
         T, width, quat = replay_grasps(rows, config, max_width)
@@ -457,7 +457,7 @@ def _mesh(oid: str, sources: dict, config, scale):
 
 def _with_rest(given, rows: pd.DataFrame):
     """``given`` with the resting orientation of each row (upright where the table gives none)."""
-    from annotator.pipeline.worker import GivenGrasps
+    from annotator.pipeline.tasks import GivenGrasps
 
     if all(c in rows.columns for c in REST_COLUMNS):
         rest = rows[list(REST_COLUMNS)].to_numpy(dtype=np.float64)

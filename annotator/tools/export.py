@@ -1,4 +1,5 @@
-"""The labels in the formats existing grasp learners read: ACRONYM-style HDF5 and GraspGen JSON.
+"""The labels of objects in the formats existing grasp learners read (:mod:`annotator.tools.formats`:
+ACRONYM-style HDF5, GraspGen JSON), and what every export shares: its folder, the base poses.
 
 Both formats give a grasp as the pose of the gripper's *base* frame in the object's mesh frame,
 not of the TCP: its description's base link (``[base] link``, the frame convention in ``[base]
@@ -25,6 +26,7 @@ Each object's mesh is written once, as the labels see it (metres, mesh frame, sc
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import logging
 from collections.abc import Sequence
@@ -40,8 +42,6 @@ from annotator.files import atomic_write_path
 from annotator.grippers import GripperDescription
 
 log = logging.getLogger(__name__)
-
-FORMATS = ("acronym", "graspgen")
 
 
 def frame_note(description: GripperDescription) -> str:
@@ -120,12 +120,7 @@ def base_poses(T_obj_tcp: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.
     return np.asarray(T_obj_tcp) @ np.linalg.inv(depth.T_base_tcp(width))
 
 
-def tcp_poses(T_obj_base: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.ndarray:
-    """The inverse of :func:`base_poses`: label poses ``T_obj_tcp`` : (n, 4, 4)."""
-    return np.asarray(T_obj_base) @ depth.T_base_tcp(width)
-
-
-def _write_atomically(path: Path, write) -> None:
+def write_atomically(path: Path, write) -> None:
     """``write(tmp_path)`` then rename over ``path``: a file appears whole or not at all."""
     atomic_write_path(path, write, make_parents=True)
 
@@ -160,19 +155,9 @@ class ExportFolder:
                 if path.is_file() and not path.is_symlink():
                     path.unlink()
             record.unlink()
-            # the folders exports make (scene exports: scenes/, dataset/, scene_contacts/, views/)
-            for sub in (
-                "grasps",
-                "splits",
-                "meshes",
-                "gripper",
-                "scenes",
-                "dataset/scenes",
-                "dataset",
-                "mesh_pose_list",
-                "scene_contacts",
-                "views",
-            ):
+            from annotator.tools.formats import folders
+
+            for sub in folders():  # the folders exports make, deepest first
                 with contextlib.suppress(OSError):
                     (out_dir / sub).rmdir()  # once empty
         return cls(out_dir, [])
@@ -197,7 +182,7 @@ class ExportFolder:
         if left_out:
             record["left_out"] = [x.to_json() for x in left_out]
         text = json.dumps(record, indent=1)
-        _write_atomically(self.path / EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
+        write_atomically(self.path / EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
 
 
 def _earlier_files(record: Path) -> list[str]:
@@ -211,7 +196,8 @@ def _earlier_files(record: Path) -> list[str]:
     ]
 
 
-def _stem(object_id: str) -> str:
+def object_stem(object_id: str) -> str:
+    """What an export names an object's files (its label file's name without ``.parquet``)."""
     from annotator.store.names import object_filename
 
     return object_filename(object_id)[: -len(".parquet")]
@@ -227,82 +213,6 @@ def _object_mass(rows: pd.DataFrame, manifest: dict | None) -> float:
     return mass
 
 
-def _write_acronym(
-    path: Path, rows: pd.DataFrame, T_obj_base: np.ndarray, mesh_file: str, extra: dict
-) -> None:
-    import h5py
-
-    def write(target: Path) -> None:
-        with h5py.File(target, "w") as f:
-            g = f.create_group("grasps")
-            g.create_dataset("transforms", data=T_obj_base)
-            g.create_dataset(
-                "qualities/flex/object_in_gripper", data=rows["success"].to_numpy().astype(np.int64)
-            )
-            g.create_dataset("width", data=rows["width"].to_numpy())
-            g.create_dataset("grasp_id", data=rows["grasp_id"].to_numpy())
-            g.create_dataset("score", data=rows["score"].to_numpy())
-            g.create_dataset("outcome", data=rows["outcome"].to_numpy(dtype=object).astype("S"))
-            if extra.get("commanded") is not None:
-                g.create_dataset("commanded_transforms", data=extra["commanded"])
-                g.create_dataset("commanded_width", data=rows["cmd_width"].to_numpy())
-            g.attrs["frame"] = extra["frame_note"]
-            o = f.create_group("object")
-            o.create_dataset("file", data=mesh_file)
-            o.create_dataset("scale", data=1.0)
-            o.create_dataset("mass", data=extra["mass"])
-            o.create_dataset("friction", data=extra["friction"])
-            o.create_dataset("id", data=extra["object_id"])
-            o.create_dataset("mesh_sha256", data=extra["mesh_sha256"])
-            o.create_dataset("label_scale", data=extra["label_scale"])
-            gr = f.create_group("gripper")
-            gr.create_dataset("type", data=extra["gripper_type"])
-            gr.create_dataset("frame", data=extra["base_frame"])
-            gr.create_dataset("force", data=extra["grip_force"])
-
-    _write_atomically(path, write)
-
-
-def _write_graspgen(
-    path: Path, rows: pd.DataFrame, T_obj_base: np.ndarray, mesh_file: str, extra: dict
-) -> None:
-
-    data = {
-        "object": {
-            "file": mesh_file,
-            "scale": 1.0,
-            "mass": extra["mass"],
-            "friction": extra["friction"],
-            "id": extra["object_id"],
-            "mesh_sha256": extra["mesh_sha256"],
-        },
-        "gripper": {
-            "name": extra["gripper_type"],
-            "frame": extra["base_frame"],
-            "force": extra["grip_force"],
-        },
-        "grasps": {
-            "transforms": T_obj_base.tolist(),
-            "object_in_gripper": rows["success"].to_numpy(dtype=bool).tolist(),
-            "width": rows["width"].to_numpy().tolist(),
-            "grasp_id": rows["grasp_id"].to_numpy().tolist(),
-            "score": rows["score"].to_numpy().tolist(),
-            "outcome": rows["outcome"].astype(str).tolist(),
-            **(
-                {
-                    "commanded_transforms": extra["commanded"].tolist(),
-                    "commanded_width": rows["cmd_width"].to_numpy().tolist(),
-                }
-                if extra.get("commanded") is not None
-                else {}
-            ),
-            "frame": extra["frame_note"],
-        },
-    }
-    text = json.dumps(data, allow_nan=True)
-    _write_atomically(path, lambda target: target.write_text(text, encoding="utf-8"))
-
-
 def export(
     labels_dir: Path,
     fmt: str,
@@ -314,33 +224,34 @@ def export(
     overwrite: bool = False,
     partial: bool = False,
 ) -> ExportResult:
-    """Write one file per object in format ``fmt`` (``acronym`` .h5 or ``graspgen`` .json) and
-    its mesh to ``out_dir``; GraspGen also gets ``splits/train.txt`` and ``splits/valid.txt``
-    (objects split 80/20 with :func:`annotator.dataset.split_by_object`, seed 0) and the gripper's
-    description in GraspGen's format (``gripper/``: :mod:`annotator.tools.export_graspgen`).
+    """Write one file per object in format ``fmt`` (an object format of
+    :mod:`annotator.tools.formats`: ``acronym`` .h5, ``graspgen`` .json) and its mesh to ``out_dir``,
+    then what the format adds once (GraspGen: the objects' split and the gripper's description).
     ``gripper``: the gripper the labels were made with (default the RG2).
 
     A folder holding an earlier export is refused unless ``overwrite`` (which removes what that
     export wrote, nothing else); labels of an unfinished run are refused unless ``partial``."""
-    from annotator.dataset import split_by_object
     from annotator.tools.common import ToolError, labelling_config, object_mesh, object_rows, open_labels
+    from annotator.tools.formats import of_unit
     from annotator.tools.given import records_commands, replay_grasps
 
-    if fmt not in FORMATS:
-        raise ToolError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
-    if fmt == "acronym":
+    formats = of_unit("object")
+    if fmt not in formats:
+        raise ToolError(f"unknown format {fmt!r}; choose from {', '.join(formats)}")
+    exporter = formats[fmt]
+    if exporter.needs is not None:
+        module, how = exporter.needs
         try:
-            import h5py  # noqa: F401
+            importlib.import_module(module)
         except ImportError:
-            raise ToolError(
-                "--format acronym writes HDF5: pip install 'rg2-annotator[export]' (h5py)"
-            ) from None
+            raise ToolError(how) from None
     run = open_labels(labels_dir)
     if not partial:
         run.require_finished("export")
     labels, manifest = run.labels, run.manifest
     if "scene_id" in labels.columns:  # a scene's grasps are numbered per scene, not per object
-        raise ToolError(f"{labels_dir} holds scenes: export them with --format vgn or contact_graspnet")
+        scene_formats = " or ".join(of_unit("scene"))
+        raise ToolError(f"{labels_dir} holds scenes: export them with --format {scene_formats}")
     ids = list(object_ids) or sorted(labels["object_id"].unique())
     config = labelling_config(labels_dir).config
     folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
@@ -350,10 +261,11 @@ def export(
     friction, grip_force = config.objects.lateral_friction, depth.grip_force
     files: list[Path] = []
     n = 0
+    assert exporter.write_object is not None  # an object format writes objects
     for oid in ids:
         rows = object_rows(labels, oid).sort_values("grasp_id", ignore_index=True)
         mesh = object_mesh(labels_dir, oid, objects_dir, rows)
-        mesh_file = f"meshes/{_stem(oid)}.obj"
+        mesh_file = f"meshes/{object_stem(oid)}.obj"
         mesh_path = folder.target(mesh_file)
         mesh_path.parent.mkdir(parents=True, exist_ok=True)
         mesh.export(mesh_path)
@@ -374,24 +286,10 @@ def export(
             "base_frame": description.base_link,
             "frame_note": frame_note(description),
         }
-        if fmt == "acronym":
-            path = folder.target(f"{_stem(oid)}.h5")
-            _write_acronym(path, rows, T_obj_base, mesh_file, extra)
-        else:
-            path = folder.target(f"grasps/{_stem(oid)}.json")
-            _write_graspgen(path, rows, T_obj_base, mesh_file, extra)
-        files.append(path)
+        files.append(exporter.write_object(folder, object_stem(oid), rows, T_obj_base, mesh_file, extra))
         n += len(rows)
-    if fmt == "graspgen":
-        from annotator.tools.export_graspgen import write_graspgen_gripper
-
-        write_graspgen_gripper(folder, depth, config.gripper)
-        train, val = split_by_object(labels[labels["object_id"].isin(ids)], val_fraction=0.2, seed=0)
-        for name, part in (("train", train), ("valid", val)):
-            lines = [f"meshes/{_stem(o)}.obj" for o in sorted(part["object_id"].unique())]
-            split = folder.target(f"splits/{name}.txt")
-            split.parent.mkdir(parents=True, exist_ok=True)
-            split.write_text("".join(f"{x}\n" for x in lines))
+    if exporter.finish is not None:
+        exporter.finish(folder, depth, config, labels, ids)
     folder.close(fmt, Path(labels_dir))
     log.info("exported %d grasps of %d objects to %s (%s)", n, len(ids), out_dir, fmt)
     return ExportResult(out_dir, files, n)

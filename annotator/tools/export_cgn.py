@@ -56,7 +56,7 @@ import numpy as np
 import trimesh
 
 from annotator.scenes.records import SceneRecord
-from annotator.tools.export import _write_atomically
+from annotator.tools.export import write_atomically
 from annotator.tools.export_vgn import SceneGrasps
 
 TABLE_TOP_Z = 0.3  # m: the top of Contact-GraspNet's table box (0.6 m tall, centred at the origin)
@@ -82,9 +82,9 @@ def T_cgn_table(record: SceneRecord) -> np.ndarray:
 
 def mesh_file(object_id: str) -> str:
     """Where an object's mesh goes, relative to the export root."""
-    from annotator.tools.export import _stem
+    from annotator.tools.export import object_stem
 
-    return f"meshes/{_stem(object_id)}.obj"
+    return f"meshes/{object_stem(object_id)}.obj"
 
 
 def write_meshes(root: Path, meshes: Mapping[str, trimesh.Trimesh]) -> dict[str, np.ndarray]:
@@ -94,7 +94,7 @@ def write_meshes(root: Path, meshes: Mapping[str, trimesh.Trimesh]) -> dict[str,
     for object_id, mesh in sorted(meshes.items()):
         path = root / mesh_file(object_id)
         text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False, digits=10)
-        _write_atomically(path, lambda target, text=text: target.write_text(text))
+        write_atomically(path, lambda target, text=text: target.write_text(text))
         means[object_id] = np.mean(np.asarray(trimesh.load(path, force="mesh").vertices), axis=0)
     return means
 
@@ -263,12 +263,12 @@ def write_cgn(
         positives += len(arrays["grasp_ids"])
         no_contact += int(np.sum(grasps.success)) - len(arrays["grasp_ids"])
         data = _npz_bytes(arrays)
-        _write_atomically(path, lambda target, data=data: target.write_bytes(data))
+        write_atomically(path, lambda target, data=data: target.write_bytes(data))
         paths.append(path)
         for view in views:
             vpath = root / "views" / f"{int(record.scene_id):06d}_{view.view_id:02d}.npz"
             vdata = _npz_bytes(view_arrays(record, view), compressed=True)
-            _write_atomically(vpath, lambda target, vdata=vdata: target.write_bytes(vdata))
+            write_atomically(vpath, lambda target, vdata=vdata: target.write_bytes(vdata))
             paths.append(vpath)
     return CgnFiles(paths, positives, no_contact)
 

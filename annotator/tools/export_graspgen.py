@@ -92,7 +92,7 @@ def collision_mesh(description: GripperDescription, width: float, config=None) -
     """The model's collision shapes (boxes, spheres, cylinders, meshes) at opening ``width`` (m),
     in its base frame, as one mesh (metres). ``config``: a GripperConfig (default the defaults)."""
     from annotator.config import GripperConfig
-    from annotator.sim import pb
+    from annotator.sim import rigid
     from annotator.sim.body import Body
     from annotator.sim.gripper import ParallelGripper
     from annotator.sim.world import World
@@ -105,35 +105,30 @@ def collision_mesh(description: GripperDescription, width: float, config=None) -
         T_base_world = gripper.base_pose().inverse()
         client, uid = world.client, body.uid
         for index in [-1, *sorted(set(body.links.values()) - {-1})]:
-            if index == -1:
-                pos, orn = pb.getBasePositionAndOrientation(uid, physicsClientId=client)
-            else:
-                pos, orn = pb.getLinkState(uid, index, computeForwardKinematics=1, physicsClientId=client)[:2]
+            pos, orn = rigid.link_pose(client, uid, index)
             T_base_com = T_base_world * Transform(pos, orn)
-            for shape in pb.getCollisionShapeData(uid, index, physicsClientId=client):
-                part = _shape_mesh(shape)
-                parts.append(part.apply_transform((T_base_com * Transform(shape[5], shape[6])).as_matrix()))
+            for shape in rigid.collision_shapes(client, uid, index):
+                T_com_shape = Transform(shape.local_position, shape.local_orientation)
+                parts.append(_shape_mesh(shape).apply_transform((T_base_com * T_com_shape).as_matrix()))
     if not parts:
         raise ValueError(f"{description.name}: its model has no collision shape")
     return trimesh.util.concatenate(parts)
 
 
 def _shape_mesh(shape) -> trimesh.Trimesh:
-    """One ``getCollisionShapeData`` entry as a mesh in its own frame."""
-    from annotator.sim import pb
-
-    geom, dims, filename = shape[2], shape[3], shape[4]
-    if geom == pb.GEOM_BOX:
+    """One collision shape (:class:`annotator.sim.rigid.Shape`) as a mesh in its own frame."""
+    kind, dims = shape.kind, shape.dimensions
+    if kind == "box":
         return trimesh.creation.box(extents=np.asarray(dims, dtype=np.float64))
-    if geom == pb.GEOM_SPHERE:
+    if kind == "sphere":
         return trimesh.creation.icosphere(subdivisions=2, radius=float(dims[0]))
-    if geom in (pb.GEOM_CYLINDER, pb.GEOM_CAPSULE):
-        make = trimesh.creation.cylinder if geom == pb.GEOM_CYLINDER else trimesh.creation.capsule
+    if kind in ("cylinder", "capsule"):
+        make = trimesh.creation.cylinder if kind == "cylinder" else trimesh.creation.capsule
         return make(radius=float(dims[1]), height=float(dims[0]))
-    if geom == pb.GEOM_MESH:
-        mesh = trimesh.load(filename.decode() if isinstance(filename, bytes) else filename, force="mesh")
+    if kind == "mesh":
+        mesh = trimesh.load(shape.file, force="mesh")
         return mesh.apply_scale(np.asarray(dims, dtype=np.float64))
-    raise ValueError(f"collision shape of type {geom} is not supported")
+    raise ValueError(f"collision shape of kind {kind} is not supported")
 
 
 def write_graspgen_gripper(folder, depth, config=None) -> list[Path]:

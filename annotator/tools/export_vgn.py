@@ -65,7 +65,7 @@ from annotator.cell.kinect import Intrinsics
 from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
 from annotator.scenes.records import SceneRecord
 from annotator.scenes.tsdf import fuse
-from annotator.tools.export import _write_atomically
+from annotator.tools.export import write_atomically
 
 RAW_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "x", "y", "z", "width", "label")
 DATASET_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "i", "j", "k", "width", "label")
@@ -262,7 +262,7 @@ def _npz_bytes(**arrays: np.ndarray) -> bytes:
 
 
 def _write(path: Path, data: bytes) -> None:
-    _write_atomically(path, lambda target: target.write_bytes(data))
+    write_atomically(path, lambda target: target.write_bytes(data))
 
 
 def write_vgn_raw(

@@ -11,15 +11,16 @@ columns existed fall back to the label pose (where the pads ended: the object ma
 during the close) with its width as the chord; a ``collision`` row's width is the open width, so
 its chord is that minus ``2 x pregrasp_clearance``.
 
-The trial itself is the job's (:mod:`annotator.pipeline.worker`, in a worker's world), so a given
-grasp and a sampled one are judged by the same code.
+The trial itself is the job's (:mod:`annotator.pipeline.worker`, in a worker's world, through the
+runner's execution: :mod:`annotator.pipeline.in_memory`), so a given grasp and a sampled one are
+judged by the same code.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-# The commanded grasp a label records (annotator.pipeline.worker.simulate).
+# The commanded grasp a label records (annotator.pipeline.simulate.simulate).
 CMD_COLUMNS = ("cmd_x", "cmd_y", "cmd_z", "cmd_qx", "cmd_qy", "cmd_qz", "cmd_qw", "cmd_width")
 
 
@@ -79,42 +80,59 @@ def replay_grasps(
     return poses_as_matrices(rows), np.maximum(width, 0.0), None
 
 
-def simulate_given(
+def given_task(
     span: GivenSpan,
     config: AnnotatorConfig,
     seed: int = 0,
     trials: int = 1,
     gripper=None,
-    resting: bool | str = False,
+    resting: bool | str | None = False,
 ):
-    """Label rows (the job's columns) for the given grasps of one object; runs in a worker.
+    """The labelling task (:class:`annotator.pipeline.tasks.SpanTask`) of the given grasps of one
+    object: grasps ``0..k-1`` of ``span.object_id`` (a grasp's position in the span keys its
+    perturbed trials' generator, :func:`annotator.rng.trial_rng`).
 
     ``gripper``: the gripper simulated (a description, name or folder; None: the RG2); ``resting``:
     the object rests on the table (:mod:`annotator.cell.resting`) in ``span.rest_quat``, the
-    grasps moving with it (True, ``"object"``) or staying in the table frame (``"table"``).
-    Returns ``(rows, error)``: rows with ``grasp_id`` from the span, or ``(None, reason)`` when the
-    object cannot be loaded. The worker's world is the job's (:mod:`annotator.pipeline.worker`).
-    """
-    from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
+    grasps moving with it (True, ``"object"``) or staying in the table frame (``"table"``)."""
+    from annotator.pipeline.modes import resting as resting_mode
+    from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
 
     k = len(span.width)
     rest = None
     if resting:
         rest = np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)) if span.rest_quat is None else np.asarray(span.rest_quat)
     given = GivenGrasps(np.asarray(span.T_obj_tcp), np.asarray(span.width, dtype=np.float64), span.quat, rest)
-    task = SpanTask(
+    return SpanTask(
         span=Span(span.object_id, span.source, span.scale, 0, k, given),
         config=config,
         seed=seed,
         n=k,
         trials=trials,
         gripper=gripper,
-        resting=resting,
+        mode=resting_mode(resting),
     )
-    result = label_span(task)
-    if result.error is not None:
-        return None, result.error
+
+
+def given_rows(span: GivenSpan, result) -> tuple[pd.DataFrame | None, str | None]:
+    """``(rows, None)`` of a given span's result (a :class:`annotator.pipeline.tasks.SpanResult`, or
+    what :func:`annotator.pipeline.in_memory.run_in_memory` says of a task that did not come back),
+    ``grasp_id`` from the span; ``(None, reason)`` when the object could not be simulated."""
+    error = getattr(result, "error", None)
+    if error is not None:
+        return None, error
     rows = result.rows
     assert rows is not None  # a span without an error has its rows
     rows["grasp_id"] = np.asarray(span.grasp_id, dtype=np.int64)
     return rows, None
+
+
+def simulate_given(span: GivenSpan, config: AnnotatorConfig, *args: Any, **kwargs: Any):
+    """Label rows (the job's columns) for the given grasps of one object (:func:`given_task`, of
+    ``span``, ``config`` and its other arguments), simulated by a worker of the runner's execution
+    (:func:`annotator.pipeline.in_memory.run_in_memory`). Returns ``(rows, error)``: rows with
+    ``grasp_id`` from the span, or ``(None, reason)`` when the object cannot be loaded."""
+    from annotator.pipeline.in_memory import run_in_memory
+
+    (result,) = run_in_memory([given_task(span, config, *args, **kwargs)])
+    return given_rows(span, result)

@@ -109,9 +109,9 @@ def check_gripper(
 
 
 def _base_mass(hand) -> float:
-    from annotator.sim import pb
+    from annotator.sim import rigid
 
-    return float(pb.getDynamicsInfo(hand.body.uid, -1, physicsClientId=hand.client)[0])
+    return float(rigid.dynamics(hand.client, hand.body.uid).mass)
 
 
 def pads_follow_fk(description: GripperDescription, config: AnnotatorConfig) -> Verdict:
@@ -157,7 +157,7 @@ def squeeze_box(description: GripperDescription, config: AnnotatorConfig) -> Squ
     """The box test: a :data:`BOX_SIZE` box of :data:`BOX_MASS` closed on from above with the grip
     force (gravity off), squeezed, then lifted and shaken as the protocol does (gravity on)."""
     from annotator.geometry import Transform
-    from annotator.sim import pb
+    from annotator.sim import rigid
     from annotator.sim.hand import FloatingGripper, ShakeMotion
     from annotator.sim.world import World
 
@@ -166,11 +166,15 @@ def squeeze_box(description: GripperDescription, config: AnnotatorConfig) -> Squ
         hand = FloatingGripper(world, config.gripper, description)
         g, force = hand.gripper, hand.grip_force
         half = [BOX_SIZE / 2] * 3
-        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=world.client)
-        box = pb.createMultiBody(BOX_MASS, shape, -1, [0.0, 0.0, 0.1], physicsClientId=world.client)
-        pb.changeDynamics(
-            box, -1, lateralFriction=BOX_FRICTION, spinningFriction=0.002, physicsClientId=world.client
+        shape = rigid.collision_shape(world.client, "box", halfExtents=half)
+        box = rigid.multibody(
+            world.client,
+            baseMass=BOX_MASS,
+            baseCollisionShapeIndex=shape,
+            baseVisualShapeIndex=-1,
+            basePosition=[0.0, 0.0, 0.1],
         )
+        rigid.change_dynamics(world.client, box, lateralFriction=BOX_FRICTION, spinningFriction=0.002)
         T_world_tcp = Transform([0.0, 0.0, 0.1], DOWN)
         hand.teleport(hand.T_world_base_for_tcp(T_world_tcp, BOX_SIZE), min(BOX_SIZE + 0.02, g.max_width))
         world.set_gravity(False)
@@ -190,7 +194,7 @@ def squeeze_box(description: GripperDescription, config: AnnotatorConfig) -> Squ
 
         hand.move(lifted, duration=p.lift_duration, force=force, on_step=watch)
         hand.shake(ShakeMotion.of(p), force=force, on_step=watch)
-        box_pos = np.asarray(pb.getBasePositionAndOrientation(box, physicsClientId=world.client)[0])
+        box_pos = np.asarray(rigid.pose(world.client, box)[0])
         in_hand = (hand.base_pose().inverse() * Transform(box_pos, [0.0, 0.0, 0.0, 1.0])).pos
         slip = float(np.linalg.norm(in_hand - g.T_base_tcp(BOX_SIZE).pos))
         forces_after = g.pad_normal_forces(box)
@@ -273,17 +277,18 @@ def held_verdict(description: GripperDescription, s: Squeeze) -> Verdict:
 
 def wider_than_stroke(description: GripperDescription, config: AnnotatorConfig) -> Verdict:
     """:data:`WIDE_CANDIDATES` candidates on a cube :data:`WIDE_MARGIN` wider than the stroke,
-    labelled by the worker (as ``annotate`` labels): none may succeed."""
+    labelled by a worker of the runner's execution (as ``annotate`` labels): none may succeed."""
     import trimesh
 
     from annotator.objects import ObjectSource
-    from annotator.pipeline import worker
-    from annotator.pipeline.worker import GivenGrasps, Span, SpanTask, label_span
+    from annotator.pipeline.in_memory import run_in_memory
+    from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
     from annotator.sampler import object_rng, sample_candidates
+    from annotator.sim.hand import max_width
 
     side = description.stroke_max + WIDE_MARGIN
     mesh = trimesh.creation.box(np.full(3, side))
-    stroke = worker.max_width(config, description)
+    stroke = max_width(config, description)
     with tempfile.TemporaryDirectory(prefix="gripper-check-") as folder:
         path = Path(folder) / "wide.obj"
         mesh.export(path)
@@ -297,7 +302,7 @@ def wider_than_stroke(description: GripperDescription, config: AnnotatorConfig) 
             n=len(c.width_expected),
             gripper=description,
         )
-        result = label_span(task)
+        (result,) = run_in_memory([task])
     name = "no success wider than the stroke"
     if result.error is not None:
         return Verdict(name, False, f"the cube could not be labelled: {result.error}", "see the error")

@@ -52,7 +52,7 @@ def replay_world(model: ObjectModel, config: AnnotatorConfig, *, gui: bool = Fal
     return World(physics_for(model, config.physics.whole_linkage()), gui=gui)
 
 
-def label_row(labels: pd.DataFrame, object_id: str, grasp_id: int) -> pd.Series:
+def find_label(labels: pd.DataFrame, object_id: str, grasp_id: int) -> pd.Series:
     """The label of ``object_id`` number ``grasp_id``; ``KeyError`` with a one-line reason if absent."""
     rows = labels[(labels["object_id"] == object_id) & (labels["grasp_id"] == grasp_id)]
     if rows.empty:

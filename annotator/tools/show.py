@@ -27,7 +27,7 @@ from annotator.grippers import GripperDescription, load_gripper
 from annotator.outcome import OUTCOME_RGB
 from annotator.render import Camera, Frame, look_at_camera, project, render_frame
 from annotator.rng import keyed_rng
-from annotator.sim import pb
+from annotator.sim import rigid
 from annotator.sim.body import Body
 from annotator.sim.gripper import ParallelGripper
 from annotator.sim.world import World
@@ -66,17 +66,25 @@ def _visual_bodies(client: int, mesh, rgba=OBJECT_RGBA) -> list[int]:
     for start in range(0, len(faces), per_body):
         sl = slice(3 * start, 3 * min(len(faces), start + per_body))
         n = sl.stop - sl.start
-        vis = pb.createVisualShape(
-            pb.GEOM_MESH,
+        vis = rigid.visual_shape(
+            client,
+            "mesh",
             vertices=verts[sl].tolist(),
             indices=list(range(n)),
             normals=normals[sl].tolist(),
             rgbaColor=list(rgba),
-            physicsClientId=client,
         )
         if vis < 0:
             raise RuntimeError("PyBullet rejected the object's visual mesh")
-        uids.append(pb.createMultiBody(0.0, -1, vis, [0, 0, 0], physicsClientId=client))
+        uids.append(
+            rigid.multibody(
+                client,
+                baseMass=0.0,
+                baseCollisionShapeIndex=-1,
+                baseVisualShapeIndex=vis,
+                basePosition=[0, 0, 0],
+            )
+        )
     return uids
 
 

@@ -22,7 +22,7 @@ from annotator.render import Camera, look_at_camera, project, render_frame
 from annotator.rng import keyed_rng
 from annotator.scenes.labels import TABLE_TCP_COLUMNS
 from annotator.scenes.records import SceneRecord
-from annotator.sim import pb
+from annotator.sim import rigid
 from annotator.sim.world import World
 from annotator.tools.show import FOV, Overview, _font, _visual_bodies, draw_glyphs, drawing_order
 
@@ -158,7 +158,7 @@ def render_scene(
             uids = _visual_bodies(world.client, meshes[inst.object_id], INSTANCE_RGBA[k % len(INSTANCE_RGBA)])
             pos, quat = record.T_world_obj(inst.instance_id).to_pybullet()
             for uid in uids:
-                pb.resetBasePositionAndOrientation(uid, pos, quat, physicsClientId=world.client)
+                rigid.reset_pose(world.client, uid, pos, quat)
             bodies[inst.instance_id] = uids
         out = Overview([], [], [], [], chosen["grasp_id"].to_numpy())
         masks = []

@@ -150,8 +150,7 @@ def _columns(T: np.ndarray, names) -> dict[str, np.ndarray]:
     """Pose columns (xyz, xyzw with w >= 0) of matrices (n, 4, 4)."""
     from annotator.geometry import matrix_to_quat
 
-    q = matrix_to_quat(T[:, :3, :3]).reshape(-1, 4)
-    q[q[:, 3] < 0] *= -1.0
+    q = matrix_to_quat(T[:, :3, :3]).reshape(-1, 4)  # w >= 0
     values = np.column_stack([T[:, :3, 3], q])
     return {name: values[:, k] for k, name in enumerate(names)}
 

@@ -34,7 +34,7 @@ from annotator.objects import (
     physics_for,
 )
 from annotator.outcome import Outcome
-from annotator.pipeline.worker import PARKED
+from annotator.pipeline.object_modes import PARKED
 from annotator.sampler import object_rng, sample_candidates
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World

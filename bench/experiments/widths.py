@@ -27,14 +27,14 @@ import os
 import time
 from pathlib import Path
 
-import joblib
 import numpy as np
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import poses_as_matrices
 from annotator.objects import discover_objects, load_object
-from annotator.pipeline.worker import Span, SpanTask, label_span
+from annotator.pipeline.in_memory import ExecutionOptions, run_in_memory
+from annotator.pipeline.tasks import Span, SpanTask
 from annotator.sampler import _first_hits, pad_opening
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
@@ -99,9 +99,7 @@ def measure(source, args: argparse.Namespace, config: AnnotatorConfig, pad_face)
         for a in range(0, args.n, 25)
     ]
     t0 = time.perf_counter()
-    rows = pd.concat(
-        [r.rows for r in joblib.Parallel(n_jobs=args.workers)(joblib.delayed(label_span)(t) for t in tasks)]
-    )
+    rows = pd.concat([r.rows for r in run_in_memory(tasks, ExecutionOptions(args.workers))])
     wins = rows[rows["success"]]
     mesh_tri = np.asarray(model.mesh.triangles)
     part_tri = np.concatenate([np.asarray(p.triangles) for p in model.parts])

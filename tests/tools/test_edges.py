@@ -65,20 +65,22 @@ def test_an_unfinished_run_is_told_apart_and_read_as_its_manifest_vouches(tmp_pa
 
 
 def test_a_chunk_removed_while_reading_is_read_again(tmp_path: Path, monkeypatch) -> None:
+    from annotator.store.reader import LabelsFolder
+
     folder = _unfinished_folder(tmp_path / "labels")
-    real = common._read_files
+    real = LabelsFolder.read
     calls = []
 
-    def vanishing(where, names):
-        calls.append(names)
+    def vanishing(self, names=None):
+        calls.append(self.label_files())
         if len(calls) == 1:  # a merge removed a chunk between listing and reading
-            raise FileNotFoundError(where / names[-1])
-        return real(where, names)
+            raise FileNotFoundError(self.path / calls[-1][-1])
+        return real(self, names)
 
-    monkeypatch.setattr(common, "_read_files", vanishing)
+    monkeypatch.setattr(LabelsFolder, "read", vanishing)
     assert len(common.open_labels(folder).labels) == 15 and len(calls) == 2
     monkeypatch.setattr(
-        common, "_read_files", lambda where, names: (_ for _ in ()).throw(FileNotFoundError())
+        LabelsFolder, "read", lambda self, names=None: (_ for _ in ()).throw(FileNotFoundError())
     )
     with pytest.raises(common.ToolError, match="keep changing"):
         common.open_labels(folder)
@@ -97,7 +99,7 @@ def test_a_corrupt_label_file_is_one_line_for_every_tool(
         "export": ["export", bad, "--format", "graspgen", "--out", tmp_path / "e"],
         "replay": ["replay", bad, "--object", "a", "--grasp", 0],
     }[command]
-    assert "cannot read labels" in _one_line_error(_run(*args, code=2))
+    assert "not a readable label file" in _one_line_error(_run(*args, code=2))
 
 
 def test_a_manifest_of_another_shape_is_one_line_for_the_tools(labelled, tmp_path: Path) -> None:
@@ -178,9 +180,9 @@ def test_an_export_into_an_earlier_one_is_refused_and_overwrite_removes_only_its
 def test_an_export_never_replaces_a_file_it_did_not_write(labelled, tmp_path: Path) -> None:
     out = tmp_path / "export"
     (out / "meshes").mkdir(parents=True)
-    from annotator.tools.export import _stem
+    from annotator.tools.export import object_stem
 
-    mine = out / "meshes" / f"{_stem('box')}.obj"
+    mine = out / "meshes" / f"{object_stem('box')}.obj"
     mine.write_text("my own mesh")
     line = _one_line_error(_run("export", labelled.labels_dir, "--format", "graspgen", "--out", out, code=2))
     assert "was not written by an export" in line and mine.read_text() == "my own mesh"

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from annotator.cli import main
 from annotator.dataset import load_labels, poses_as_matrices
-from annotator.pipeline.worker import REASON_COLUMNS
+from annotator.schema import REASON_COLUMNS
 from annotator.tools.common import ToolError
 from annotator.tools.evaluate import expected_width, read_grasps
 

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from annotator.cli import main
 from annotator.dataset import load_labels
 from annotator.geometry import matrix_to_quat
-from annotator.pipeline.worker import REASON_COLUMNS
+from annotator.schema import REASON_COLUMNS
 from annotator.tools.evaluate import PadFace, expected_width, pad_face
 
 REPO = Path(__file__).resolve().parents[2]
