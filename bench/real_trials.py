@@ -1066,6 +1066,58 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
     (args.work / "reliability.png").write_bytes(png)
     print(f"reliability diagram: {args.work / 'reliability.png'}", flush=True)
     del figures
+    causes = disagreement_causes(prepared, real, called, result, order)
+    run.table("disagreements_by_cause", causes["by_cause"], note=DISAGREEMENT_NOTE)
+    run.table("disagreements_by_object", causes["by_object"], note="the same rows, per object")
+    for row in causes["by_cause"]:
+        print(f"  {row['real']:>8} called {row['called']:>7}: {row['n']:>3} {row['cause']}")
+
+
+DISAGREEMENT_NOTE = (
+    "the trials whose cross-validated call (simulated) disagrees with the real outcome, by what the "
+    "exploration says of them at the fitted ranges: trial 0's stage and the share of perturbed "
+    "executions that held"
+)
+
+
+def disagreement_causes(prepared: Prepared, real: np.ndarray, called: np.ndarray, result, order: np.ndarray):
+    """The rows where the calls and reality disagree, sorted by cause from the exploration at the
+    ranges fitted on all trials: what trial 0 reached (a collision at the nominal pose, no contact,
+    a slip in the lift, the motion or the shake) and whether some perturbed executions held (the
+    execution decides), none did (nothing the ranges cover holds it: the physics) or all did."""
+    from annotator.outcome import Stage
+    from annotator.tools import ranges
+
+    exp, e = result.exploration, result.fit.execution.execution
+    share = np.full(len(real), np.nan)
+    stage0 = np.zeros(len(real), dtype=np.int64)
+    p = ranges.held_share(exp.ratios(), e.theta, exp.stages >= int(Stage.from_label(e.stage)))
+    share[order], stage0[order] = p, exp.stage0
+    trial0 = {0: "trial 0 never held (collision or no contact)", 1: "trial 0 slipped in the lift"}
+    trial0.update({2: "trial 0 slipped in the motion", 3: "trial 0 slipped in the shake", 4: "trial 0 held"})
+    by_cause: dict[tuple, int] = {}
+    by_object: dict[tuple, int] = {}
+    for i in np.flatnonzero(called != real):
+        if share[i] == 0:
+            executions = "no perturbed execution held"
+        elif share[i] >= 0.95:
+            executions = "every perturbed execution held"
+        else:
+            executions = f"{'most' if share[i] >= 0.5 else 'some'} perturbed executions held"
+        key = ("success" if real[i] else "failure", "success" if called[i] else "failure")
+        cause = f"{trial0[int(stage0[i])]}; {executions}"
+        by_cause[(*key, cause)] = by_cause.get((*key, cause), 0) + 1
+        obj = prepared.trials["object_id"].iloc[i]
+        by_object[(*key, obj)] = by_object.get((*key, obj), 0) + 1
+    return {
+        "by_cause": [
+            {"real": r, "called": c, "cause": cause, "n": n}
+            for (r, c, cause), n in sorted(by_cause.items(), key=lambda kv: (kv[0][0], -kv[1]))
+        ],
+        "by_object": [
+            {"real": r, "called": c, "object": o, "n": n} for (r, c, o), n in sorted(by_object.items())
+        ],
+    }
 
 
 def profile_report(run: Run, prepared: Prepared, real: np.ndarray, args, label: str) -> None:
