@@ -179,7 +179,7 @@ class GripperConfig(_Section):
     # arm and the GUI always); docs/decisions/0203-kinematic-passive-links.md.
     passive_links: str = _field("kinematic", choices=("simulated", "kinematic"))
     # The gripper's convex shapes (its box pads) with polyhedral features, as [objects] sat_features.
-    # see docs/decisions/0028-contact-and-objects-measured.md
+    # see docs/decisions/0029-contact-and-objects-measured.md
     sat_features: bool = False
     # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); 0202.
     coupling_erp: float = _field(0.8, gt=0.0, le=1.0)
@@ -227,12 +227,14 @@ class ObjectConfig(_Section):
     # lying apart from the rest (0103-cleaning).
     fragment_max_share: float = _field(0.01, ge=0.0, lt=0.5)
     lateral_friction: float = _field(1.0, ge=0.0)  # as ACRONYM; paired with the pads' 1.0
+    # m; with a pad's 0.002: the full-slip torsion of a Hertz contact 13.6 mm across (Johnson 1985).
+    # see docs/decisions/0029-contact-and-objects-measured.md
     spinning_friction: float = _field(0.002, ge=0.0)
     rolling_friction: float = _field(0.0, ge=0.0)  # see GripperConfig.pad_rolling_friction
     # Bullet's collision margin on convex meshes (bullet3 #2867): 0 keeps widths within 0.25 mm.
     collision_margin: float = _field(0.0, ge=0.0)  # m
     # Convex shapes with their polyhedral features (bullet3's SAT clipping): a whole contact patch per
-    # step, not a point; with [gripper] sat_features. docs/decisions/0028-contact-and-objects-measured.md
+    # step, not a point; with [gripper] sat_features. docs/decisions/0029-contact-and-objects-measured.md
     sat_features: bool = False
     # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
@@ -397,10 +399,10 @@ class RobustConfig(_Section):
     # see docs/decisions/0026-stages.md
     motion: bool = False
     # true: perturbed trials run even when trial 0 collides (the object may lie elsewhere)
-    # see docs/decisions/0026-stages.md
+    # see docs/decisions/0027-execution-fitted-to-real-trials.md
     perturb_collisions: bool = False
-    # Exploration (calibrate --fit-ranges): each trial scales the pose errors (object and hand) and the
-    # friction spread each by a level drawn from this list; empty: none. docs/decisions/0026-stages.md
+    # Exploration (calibrate --fit-ranges): levels drawn per trial for the pose errors and friction
+    # spread; none when empty. see docs/decisions/0027-execution-fitted-to-real-trials.md
     scale_levels: tuple[float, ...] = ()
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md

@@ -337,6 +337,11 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     )
     ap.add_argument("--no-fit", action="store_true", help="skip the fit of the execution (the longest part)")
     ap.add_argument(
+        "--no-baseline",
+        action="store_true",
+        help="skip the default ranges' confidence and the agreement table (compare fits of variants)",
+    )
+    ap.add_argument(
         "--stages-only",
         action="store_true",
         help="only trial 0's stages against the real outcomes (one evaluate at --trials 1): to compare "
@@ -435,7 +440,8 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         stage_report(run, prepared, real, args, config)
         if args.stages_only:
             return
-        report(run, prepared, real, args, config, label)
+        if not args.no_baseline:
+            report(run, prepared, real, args, config, label)
         if not args.no_fit:
             fit_report(run, prepared, real, args, config, label)
 
@@ -966,6 +972,24 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
         .to_numpy()
     )
     t0 = time.perf_counter()
+    # the exploration is most of the time: kept in the work folder, keyed by everything it depends on
+    key = exploration_key(trials, source.config, args.explore_trials)
+    saved = args.work / "exploration.npz"
+    exploration = ranges.Exploration.load(saved, key)
+    if exploration is None:
+        exploration = cal.explore(
+            trials,
+            source.config,
+            prepared.objects,
+            args.workers,
+            0,
+            source.gripper,
+            "table",
+            args.explore_trials,
+        )
+        exploration.save(saved, key)
+    else:
+        print(f"the exploration of an earlier run: {saved}", flush=True)
     result = cal.fit_ranges(
         trials,
         source.config,
@@ -976,16 +1000,18 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
         resting="table",
         m=args.explore_trials,
         folds=args.folds,
+        exploration=exploration,
     )
     print(cal.ranges_text(result, args.bootstrap), flush=True)
     run.figure("fit_seconds", time.perf_counter() - t0, "s", note="exploration and fit, wall time")
     f = result.fit
     e = f.execution.execution
     for i, g in enumerate(ranges.GROUPS):
+        own = e.theta[i] == f.exploration.own_index
         run.figure(
             f"fit_{g.name}_level",
-            f.levels[e.theta[i]],
-            note=f"the {g.name} group's scale level (x its units)",
+            0.0 if own else f.exploration.levels[e.theta[i]],
+            note=f"the {g.name} group's scale level (x its units; 0: the run's own ranges kept)",
         )
         run.figure(
             f"fit_{g.name}_identified", int(f.execution.identified[g.name]), note="1: the data identify it"
@@ -1118,6 +1144,22 @@ def disagreement_causes(prepared: Prepared, real: np.ndarray, called: np.ndarray
             {"real": r, "called": c, "object": o, "n": n} for (r, c, o), n in sorted(by_object.items())
         ],
     }
+
+
+def exploration_key(trials: pd.DataFrame, config: AnnotatorConfig, m: int) -> str:
+    """What an exploration depends on, as a digest: the trials' grasps (poses, rest orientations),
+    the configuration, the perturbed trials per grasp, the code's commit and the label libraries."""
+    import hashlib
+    import json
+
+    from annotator.versions import library_versions
+    from bench.harness import git_state
+
+    grasps = trials.drop(columns=["real_success"], errors="ignore").to_csv(index=False, float_format="%.17g")
+    text = json.dumps(
+        [grasps, config.to_dict(trials=m + 1), m, git_state().commit, library_versions()], sort_keys=True
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def profile_report(run: Run, prepared: Prepared, real: np.ndarray, args, label: str) -> None:

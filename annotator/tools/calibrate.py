@@ -401,13 +401,16 @@ def fit_ranges(
     m: int = 64,
     levels=None,
     folds: int = DEFAULT_FOLDS,
+    exploration=None,
 ) -> RangesResult:
-    """Explore the real trials (:func:`explore`), fit the execution's ranges, the stages, the
-    trial count and the score's mapping to them (:func:`annotator.tools.ranges.fit`), and
-    cross-validate the whole fit by object."""
+    """Explore the real trials (:func:`explore`; ``exploration``: one already made of them), fit
+    the execution's ranges, the stages, the trial count and the score's mapping to them
+    (:func:`annotator.tools.ranges.fit`), and cross-validate the whole fit by object."""
     from annotator.tools import ranges
 
-    exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
+    exp = exploration
+    if exp is None:
+        exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
     real = trials["real_success"].to_numpy(dtype=bool)
     objects = trials["object_id"].astype(str).to_numpy()
     held_out = None
@@ -488,14 +491,13 @@ def ranges_text(result: RangesResult, bootstrap: int = BOOTSTRAP_SAMPLES, seed: 
         + ", ".join(f"{v:g}" for v in exp.levels)
     ]
     for i, g in enumerate(ranges.GROUPS):
-        level = exp.levels[e.theta[i]]
-        sizes = ", ".join(f"{c.field} {c.unit * level:.4g}" for c in g.components)
+        sizes = ", ".join(f"{k} {v:.4g}" for k, v in exp.sizes(g, e.theta[i]).items())
         profile = f.execution.profile[g.name]
-        drop = ", ".join(f"{v - max(profile):+.1f}" for v in profile)
-        how = (
-            "identified" if f.execution.identified[g.name] else "not identified: the run's own, nearest level"
+        drop = ", ".join(f"{exp.label(j)} {v - max(profile):+.1f}" for j, v in enumerate(profile))
+        how = "identified" if f.execution.identified[g.name] else "not identified: the run's own kept"
+        lines.append(
+            f"  {g.name}: {exp.label(e.theta[i])} ({sizes}); {how}; log-likelihood by candidate {drop}"
         )
-        lines.append(f"  {g.name}: x{level:g} ({sizes}); {how}; log-likelihood by level {drop}")
     knots = ", ".join(f"{s:.2f} -> {p:.2f}" for s, p in zip(*f.scored.mapping.knots(), strict=True))
     lines.append(
         f"  perturbed trials judged after the {e.stage}; lapses: real fails {e.fail:g}, holds {e.hold:g} "
