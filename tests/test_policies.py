@@ -245,7 +245,7 @@ def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(convex_obj
     ]
     args += ["--policy", predictions, "--out", out]
     result = run_annotator(*args, check=2)
-    assert "rounds.csv exists and clutter-removal did not write it" in result.output
+    assert "rounds.csv exists and was not written by this tool; pass --overwrite" in result.output
     assert mine.read_text() == "my own notes\n"
     run_annotator(*args, "--overwrite")
     written = pd.read_csv(mine)
@@ -253,7 +253,7 @@ def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(convex_obj
     run_annotator(*args)  # its own file: replaced without asking
     assert pd.read_csv(mine).equals(written)
     mine.write_text(mine.read_text() + "0,1,0,0,edited\n")  # edited since: not its own any more
-    assert "did not write it" in run_annotator(*args, check=2).output
+    assert "rounds.csv was written by this tool" in run_annotator(*args, check=2).output
 
 
 def test_policy_names_resolve_to_their_callables():

@@ -421,14 +421,9 @@ def _pictures_section(
 # ------------------------------------------------------------------------------------ the report
 
 
-# The report's mark, near its top: a later report replaces only a file that carries it.
+# Near the page's top: says which program made it (whether a file may be replaced is its mark's
+# business: annotator.store.outputs).
 GENERATOR = '<meta name="generator" content="rg2-annotator report">'
-
-
-def written_report(path: Path) -> bool:
-    """Is ``path`` a report this tool wrote (its generator tag in the first kilobyte)?"""
-    with open(path, "rb") as f:
-        return GENERATOR.encode() in f.read(1024)
 
 
 def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
@@ -483,11 +478,20 @@ def report(
     ``gripper``: a name, folder or description to draw (default: the one recorded with the labels).
     ``overwrite``: replace an ``out`` this tool did not write (else ToolError before any work).
     """
-    from annotator import __version__
-    from annotator.tools.common import check_output_file, check_replaceable, labelling_gripper, open_labels
+    from annotator.tools.common import claim_outputs
 
-    out = check_output_file(out, "--html")
-    check_replaceable(out, "--html", written_report, overwrite)
+    with claim_outputs("annotator report", {"--html": out}, overwrite) as claimed:
+        return _write_report(claimed, labels_dir, objects_dir, picture_objects, picture_grasps, seed, gripper)
+
+
+def _write_report(
+    claimed, labels_dir, objects_dir, picture_objects, picture_grasps, seed, gripper
+) -> ReportResult:
+    """:func:`report`'s work once its page is claimed (``claimed``: the
+    :class:`annotator.tools.common.ToolOutputs`)."""
+    from annotator import __version__
+    from annotator.tools.common import labelling_gripper, open_labels
+
     run = open_labels(labels_dir)
     df, manifest = run.labels, run.manifest
     hand = labelling_gripper(labels_dir, gripper, df)
@@ -524,11 +528,6 @@ frame. Equal-area cells.</p>
 <h2>Pictures</h2>{pictures or "<p class='muted'>No pictures requested.</p>"}
 </body></html>
 """
-    try:
-        out.write_text(page, encoding="utf-8")
-    except OSError as exc:
-        from annotator.tools.common import OutputToolError
-
-        raise OutputToolError(f"--html {out} cannot be written: {exc.strerror or exc}") from None
+    out = claimed.write_text("--html", page)
     log.info("wrote %s (%d objects, %d grasps, %d pictures)", out, len(table), n, n_pictures)
     return ReportResult(out, len(table), n, n_pictures, "finished" if run.finished else run.state())
