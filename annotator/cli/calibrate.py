@@ -129,7 +129,11 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     "repeats across scenes, so scene labels need it.",
     low=0,
 )
-@overwrite_option("Replace a --write-config file this tool did not write.", dest="force_write")
+@overwrite_option(
+    "Replace output files (--write-config, --reliability, --outcomes) this tool did not write or that "
+    "were changed since.",
+    dest="force_write",
+)
 @VERBOSE_OPTION
 def calibrate_command(
     labels,
@@ -180,19 +184,20 @@ def calibrate_command(
     setup_logging(False, verbose, default=logging.WARNING)
     import os
 
-    from annotator.tools.common import check_output_file, check_replaceable
+    from annotator.tools.common import claim_outputs
 
     frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
-    check_output_file(config_out, "--write-config")  # before the simulation, not after it
-    check_replaceable(config_out, "--write-config", cal.written_by_calibrate, force_write)
     if reliability_out is None:
         reliability_out = config_out.with_suffix(".reliability.png")
-    check_output_file(reliability_out, "--reliability")
-    if outcomes_out is not None:
-        check_output_file(outcomes_out, "--outcomes")
+    outputs = {"--write-config": config_out, "--reliability": reliability_out, "--outcomes": outcomes_out}
+    claimed = claim_outputs("annotator calibrate", outputs, force_write)  # before the simulation
     resting = resting_grasps or ("object" if resting else None)
     source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file, scene)
     trials = cal.read_real_trials(real_csv, source.grasps)  # a bad file is one line, before anything else
+    if "labels_sha256" in trials.columns:  # read from a trial sheet: made from these labels?
+        from annotator.tools.trial_sheet import check_stamp
+
+        check_stamp(trials["labels_sha256"], source.grasps, real_csv, "LABELS")
     click.echo(source.config_line)
     click.echo(source.gripper_line)
     if source.resting:
@@ -244,8 +249,8 @@ def calibrate_command(
     )
     click.echo(cal.confidence_text(fit))
     title = f"{source.gripper.name}, --trials {trials_k}, by object; Brier {fit.brier.value:.3f}"
-    reliability_out.write_bytes(conf.reliability_png([("p_success", fit.bins)], title))
-    click.echo(f"wrote {reliability_out}")
+    diagram = claimed.write_bytes("--reliability", conf.reliability_png([("p_success", fit.bins)], title))
+    click.echo(f"wrote {diagram}")
     written = dataclasses.replace(result.config, confidence=fit.section(result.config.robust.shake))
     header = (
         f"annotator calibrate {labels} {real_csv}: best of {len(settings)} settings over {a.n} real trials "
@@ -257,8 +262,7 @@ def calibrate_command(
         f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --trials {trials_k} "
         "--config THIS_FILE"
     )
-    config_out.write_text(cal.config_toml(written, header), encoding="utf-8")
-    click.echo(f"wrote {config_out}")
-    if outcomes_out is not None:
-        cal.outcomes_table(trials, result.simulated).to_parquet(outcomes_out, index=False)
-        click.echo(f"wrote {outcomes_out}")
+    click.echo(f"wrote {claimed.write_text('--write-config', cal.config_toml(written, header))}")
+    if claimed.asked("--outcomes"):
+        table = cal.outcomes_table(trials, result.simulated)
+        click.echo(f"wrote {claimed.write('--outcomes', lambda tmp: table.to_parquet(tmp, index=False))}")
