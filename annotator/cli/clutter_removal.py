@@ -58,9 +58,7 @@ def claim_out(out_dir: Path, overwrite: bool):
     except OutputError as exc:
         raise OutputToolError(str(exc)) from None
     click.get_current_context().call_on_close(lock.release)
-    return claim_outputs(
-        "annotator clutter-removal", {name: out_dir / name for name in OUTPUTS}, overwrite
-    )
+    return claim_outputs("annotator clutter-removal", {name: out_dir / name for name in OUTPUTS}, overwrite)
 
 
 def _workspace(config):
@@ -184,7 +182,11 @@ def clutter_removal_command(
         raise ToolError("--policy-arg: only a vision policy takes arguments")
     try:
         if vision:
+            from annotator.learn.policy import learned, learned_model
+
             check_signature(load_callable(policy), dict(args))
+            if load_callable(policy) is learned:  # its model read before any work
+                learned_model(dict(args).get("model"))
         elif policy not in ORACLES:
             path = Path(policy)
             if not path.is_file():
