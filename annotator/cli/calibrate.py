@@ -12,6 +12,7 @@ from annotator.cli.common import (
     CONTEXT,
     LABELS,
     LABELS_GRIPPER_OPTION,
+    MAX_TRIALS,
     VERBOSE_OPTION,
     config_option,
     count_option,
@@ -76,6 +77,7 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     help="Cross-validate the choice by object in this many folds (at most one per object; 0 or 1: no "
     "cross-validation): the setting is chosen on the other objects' trials and scored on the fold's.",
     low=0,
+    high=1000,
 )
 @file_option(
     "--write-config",
@@ -89,6 +91,7 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     "trials_k",
     default=5,
     show_default=True,
+    high=MAX_TRIALS,
     help="Simulate every real trial this many times (annotate --trials K) at the best setting and map "
     "its score to the probability that the real grasp holds (isotonic, cross-validated by object): "
     "written as [confidence]; labels made with the file and the same --trials carry p_success.",

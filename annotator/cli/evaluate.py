@@ -55,7 +55,7 @@ FRAME_OPTION = click.option(
     required=True,
     help="Output folder: label files (one per object) and _manifest.json, as annotate writes.",
 )
-@workers_option()
+@workers_option(high=None)
 @seed_option("Seed of the perturbed trials.")
 @trials_option(
     "Trials per grasp: trial 0, then K-1 perturbed by [robust] (ending at the lift unless "
