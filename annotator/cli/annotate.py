@@ -197,6 +197,10 @@ def annotate_command(
     from annotator.pipeline.object_job import ObjectOptions
     from annotator.pipeline.scene_job import SceneOptions
 
+    if gripper is not None:
+        from annotator.tools.gripper_check import check_before_work
+
+        check_before_work(gripper, config)  # a user's gripper: its physics checked before any work
     own: ObjectOptions | SceneOptions = ObjectOptions(cell=cell, views=views)
     if scenes:
         own = SceneOptions(scenes, per_scene, arrangement, views=views, cell=cell)

@@ -203,6 +203,9 @@ def calibrate_command(
         check_stamp(trials["labels_sha256"], source.grasps, real_csv, "LABELS")
     click.echo(source.config_line)
     click.echo(source.gripper_line)
+    from annotator.tools.gripper_check import check_before_work
+
+    check_before_work(source.gripper, source.config)
     if source.resting:
         click.echo(f"resting: each object on the table as given, grasps in the {source.resting}'s frame")
     base = source.config

@@ -138,6 +138,9 @@ def evaluate_command(
     click.echo(chosen.line(), err=True)
     hand = labelling_gripper(grasps_file, gripper)
     click.echo(hand.line(), err=True)
+    from annotator.tools.gripper_check import check_before_work
+
+    check_before_work(hand.description, config)
     resting = resting_grasps or ("object" if resting else None)
     recorded = labels_resting(grasps_file)
     if resting is None and recorded is not None:

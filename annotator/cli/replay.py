@@ -118,6 +118,9 @@ def replay_command(
     hand = labelling_gripper(labels, gripper, table)
     click.echo(chosen.line())
     click.echo(hand.line())
+    from annotator.tools.gripper_check import check_before_work
+
+    check_before_work(hand.description, config)
     try:
         sources = {s.object_id: s for s in discover_objects(objects_dir)}
     except ObjectDiscoveryError as exc:
