@@ -151,11 +151,9 @@ def evaluate_command(
     if not Path(objects_dir).is_dir():
         raise click.UsageError(f"objects folder not found: {objects_dir}")
     stroke = max_width(config, hand.description)
-    candidates, renumbered = given_candidates(
+    candidates = given_candidates(
         grasps, objects_dir, config, scale, stroke, gripper=hand.description, frame=frame, resting=resting
     )
-    if renumbered:
-        click.echo(f"grasp ids of {len(renumbered)} object(s) renumbered 0..k-1 in file order", err=True)
     run_pipeline(
         "evaluate",
         objects_dir=objects_dir,
