@@ -438,6 +438,19 @@ def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
             "<p class='muted'>No calibration: these labels carry no p_success (annotator calibrate "
             "fits one on real trials; annotate --config with its file adds the column).</p>"
         )
+    pairs = zip(section.get("scores", ()), section.get("p_success", ()), strict=False)
+    knots = ", ".join(f"{s:.2f}&rarr;{p:.2f}" for s, p in pairs)
+    p = df["p_success"].to_numpy(dtype=float)
+    mean = (
+        f"The labels' mean p_success is {np.nanmean(p):.3f}: the share of them a real robot is "
+        "expected to hold."
+    )
+    if int(section.get("n", 0)) == 0:  # written by hand: nothing measured to show
+        return (
+            f"<p>p_success maps the score of --trials {int(section.get('trials', 0))} to the probability "
+            f"that the real grasp holds by a mapping written by hand (score {knots}): it records no real "
+            f"trials, so there is no Brier score and no reliability diagram. {mean}</p>"
+        )
     bins = [
         conf.ReliabilityBin(float("nan"), float("nan"), int(k), float(p), float(r))
         for p, r, k in zip(
@@ -449,14 +462,10 @@ def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
     ]
     brier = float(section.get("brier", float("nan")))
     png = conf.reliability_png([("p_success", bins)], f"Brier {brier:.3f}, cross-validated by object")
-    pairs = zip(section.get("scores", ()), section.get("p_success", ()), strict=False)
-    knots = ", ".join(f"{s:.2f}&rarr;{p:.2f}" for s, p in pairs)
-    p = df["p_success"].to_numpy(dtype=float)
     return (
         f"<p>p_success maps the score of --trials {int(section.get('trials', 0))} to the probability "
         f"that the real grasp holds (isotonic over {int(section.get('n', 0))} real trials; score "
-        f"{knots}). Brier score {brier:.3f}, cross-validated by object. The labels' mean p_success "
-        f"is {np.nanmean(p):.3f}: the share of them a real robot is expected to hold.</p>"
+        f"{knots}). Brier score {brier:.3f}, cross-validated by object. {mean}</p>"
         f"<img alt='reliability diagram' src='data:image/png;base64,{base64.b64encode(png).decode('ascii')}'>"
     )
 
