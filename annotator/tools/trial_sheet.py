@@ -348,8 +348,9 @@ def _check_one_row_per_trial(out: pd.DataFrame, filled: pd.DataFrame, path: Path
         same = np.flatnonzero((key == first).all(axis=1).to_numpy())
         a, b = (int(filled.index[k]) for k in same[:2])
         raise ToolError(
-            f"{path}: rows {a} and {b} are both repeat {int(first.repeat)} of object {first.object_id!r} "
-            f"grasp {int(first.grasp_id)}: one execution is one row (a row copied with a new trial_id?)"
+            f"{path}: rows {a} and {b} are both repeat {int(first['repeat'])} of object "
+            f"{first['object_id']!r} grasp {int(first['grasp_id'])}: one execution is one row (a row "
+            "copied with a new trial_id?)"
         )
 
 
