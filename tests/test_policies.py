@@ -96,6 +96,75 @@ def nonsense(observation: Observation) -> Grasps:
     return Grasps.from_rows(np.array([[100.0, 0, 0.1, 1, 0, 0, 0, 0.05, 1.0]]))
 
 
+def raises(observation: Observation) -> list[Grasp]:
+    raise RuntimeError("my model file is\nmissing")
+
+
+def exits(observation: Observation) -> list[Grasp]:
+    import sys
+
+    sys.exit(0)
+
+
+def zero_quaternion(observation: Observation) -> np.ndarray:
+    return np.array([[0.5, 0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.05, 1.0]])
+
+
+def chatty(observation: Observation) -> None:
+    print("thinking about the pile")
+    return None
+
+
+@pytest.mark.parametrize(
+    "policy, said",
+    [
+        (f"{__name__}:raises", "the policy raised RuntimeError: my model file is missing"),
+        (f"{__name__}:exits", "the policy called sys.exit(0): a policy returns grasps or None"),
+        (f"{__name__}:zero_quaternion", "grasp 0: a zero quaternion is no rotation"),
+        ("os:system", "the policy raised TypeError"),
+    ],
+)
+def test_whatever_a_policy_raises_or_exits_with_ends_the_run_in_one_line_naming_it(
+    convex_objects, policy, said
+):
+    """sys.exit(0) ended clutter-removal with exit 0 and no output; the others were tracebacks."""
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
+        "--policy", policy, check=2,
+    )  # fmt: skip
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and f"--policy {policy}: {said}" in errors[0], result.output
+    assert "Traceback" not in result.output
+
+
+def test_what_a_policy_prints_does_not_mix_with_the_command_s_output(convex_objects):
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
+        "--policy", f"{__name__}:chatty",
+    )  # fmt: skip
+    assert "thinking about the pile" not in result.output and "grasp success rate" in result.output.lower()
+
+
+def test_a_policy_module_with_a_syntax_error_is_one_line_before_any_work(
+    convex_objects, tmp_path, monkeypatch
+):
+    (tmp_path / "broken_policy.py").write_text("def grasps(observation):\n    return [\n")
+    monkeypatch.chdir(tmp_path)
+    result = run_annotator(
+        "clutter-removal",
+        "--objects",
+        convex_objects,
+        "--rounds",
+        1,
+        "--policy",
+        "broken_policy:grasps",
+        check=2,
+    )
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "broken_policy has a syntax error" in errors[0] and "line 2" in errors[0]
+    assert "Traceback" not in result.output
+
+
 def test_a_policys_nonsense_is_one_line(convex_objects):
     result = run_annotator(
         "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
