@@ -550,3 +550,40 @@ def test_an_exit_after_an_interrupt_ends_even_when_an_exit_handler_never_returns
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip() == "annotate: worker processes did not stop in time; exiting"
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_while_the_workers_start_prints_no_worker_traceback(objs, tmp_path):
+    """A terminal's Ctrl-C signals its whole foreground process group: workers still importing
+    joblib printed two KeyboardInterrupt tracebacks. Workers now start in a session of their own:
+    the signal reaches the command alone, which stops them (exit 130, one line)."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-c", "from annotator.cli import annotate_main; annotate_main()"]
+    cmd += ["--objects", str(objs), "--out", str(out), "--n", "400", "--workers", "2", "--quiet"]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a shell job's
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not _workers_of(proc.pid):  # a worker has just been started: it is importing
+            assert proc.poll() is None, f"finished before its workers started:\n{proc.communicate()}"
+            assert time.monotonic() < deadline, "no worker started"
+            time.sleep(0.005)
+        workers = _workers_of(proc.pid)
+        assert all(os.getsid(w) == w for w in workers)  # each leads a session: out of the terminal's reach
+        os.killpg(proc.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate(timeout=30)
+    assert proc.returncode == 130, (proc.returncode, stderr)
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert [line for line in stderr.splitlines() if line.strip()] == [
+        "annotate: interrupted; re-run the same command to resume"
+    ], stderr
