@@ -336,3 +336,35 @@ def test_policy_names_resolve_to_their_callables():
     assert not is_vision_policy("predictions.csv") and is_vision_policy("a.b:c")
     with pytest.raises(PolicyError, match="no such policy"):
         load_callable("no-such-policy")
+
+
+@pytest.mark.slow
+def test_the_docs_example_policy_runs_from_the_current_folder_as_the_docs_say(convex_objects, tmp_path):
+    """docs/learning.md's policy saved as my_policy.py in the current folder: the loop and its
+    workers import it without PYTHONPATH (it failed with "No module named my_policy")."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from test_docs import python_blocks
+
+    blocks = python_blocks()
+    (code,) = [
+        code
+        for where, code in blocks
+        if where.startswith("docs/learning.md:") and "def highest_point" in code
+    ]
+    (tmp_path / "my_policy.py").write_text(code)
+    shutil.copytree(convex_objects, tmp_path / "objects")
+    exe = shutil.which("annotator", path=str(Path(sys.executable).parent)) or shutil.which("annotator")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    for workers in ("1", "2"):
+        done = subprocess.run(
+            [exe, "clutter-removal", "--objects", "objects/", "--rounds", "1", "--per-scene", "2",
+             "--policy", "my_policy:highest_point", "--policy-arg", "depth=0.03", "--workers", workers],
+            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        assert "Traceback" not in done.stderr and "grasp success rate" in done.stdout.lower()
