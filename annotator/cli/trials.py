@@ -144,7 +144,9 @@ def read_command(sheet_file, out_file, labels, without_force, overwrite):
 
     Rows whose real_success is empty were not executed and are left out (counted). Exit 2 with
     one line naming the row for an outcome that is not 1/0 (true/false, yes/no, success/failure),
-    or a trial that names no grasp of --labels or another mesh.
+    a trial that names no grasp of --labels or another mesh, a sheet made from other labels than
+    --labels (its labels_sha256, its poses), a column named twice, a trial_id two rows share or
+    one execution on two rows.
     """
     from annotator.tools.common import claim_outputs, read_labels
     from annotator.tools.trial_sheet import read_sheet
