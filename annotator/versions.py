@@ -100,8 +100,10 @@ def _libm_variant(flags: set[str]) -> str:
 
 def _numpy_simd() -> str:
     """The widest SIMD target NumPy's dispatched kernels use here (``AVX512_SKX``, ``AVX2``, ...)."""
-    try:
-        from numpy._core._multiarray_umath import __cpu_features__ as features
+    import importlib
+
+    try:  # NumPy's own record of the CPU features its dispatch found (not a public name)
+        features = getattr(importlib.import_module("numpy._core._multiarray_umath"), "__cpu_features__", {})
     except ImportError:
         return "unknown"
     for name in ("AVX512_SPR", "AVX512_ICL", "AVX512_SKX", "AVX512F", "AVX2", "AVX", "SSE42", "ASIMD", "VSX"):

@@ -66,15 +66,11 @@ def existing_file(text: str) -> Path:
 
 def writable_folder(text: str) -> Path:
     """An argparse type: a folder that exists or can be made, and takes a file."""
-    import os
-    import tempfile
+    from annotator.files import probe_writable
 
     path = Path(text)
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=path)
-        os.close(fd)
-        os.unlink(probe)
+        probe_writable(path)
     except OSError as exc:
         raise argparse.ArgumentTypeError(f"{text}: cannot be written ({exc.strerror or exc})") from None
     return path

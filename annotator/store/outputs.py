@@ -32,10 +32,10 @@ import json
 import logging
 import os
 import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 from annotator import files
 from annotator.store.errors import StoreError
@@ -113,6 +113,9 @@ class _Claimed:
     found: str | None  # the SHA-256 of the file at claim time (None: there was none)
 
 
+_Outputs = TypeVar("_Outputs", bound="Outputs")
+
+
 @dataclass
 class Outputs:
     """The output files of one command, claimed (module docstring); :meth:`write` each, then
@@ -123,13 +126,13 @@ class Outputs:
 
     @classmethod
     def claim(
-        cls,
+        cls: type[_Outputs],
         command: str,
         paths: dict[str, Path | str | None],
         *,
         overwrite: bool = False,
         overwrite_option: str = "--overwrite",
-    ) -> Outputs:
+    ) -> _Outputs:
         """Claim ``paths`` (option -> file; None: not asked for) for ``command``: refused with
         :class:`OutputRefusedError` or :class:`annotator.store.LockedError` (usage, one line) or
         :class:`OutputError` (a folder that cannot take the file); nothing is written."""
@@ -203,7 +206,7 @@ class Outputs:
         for claimed in self.claimed.values():
             claimed.lock.release()
 
-    def __enter__(self) -> Outputs:
+    def __enter__(self: _Outputs) -> _Outputs:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -222,10 +225,7 @@ def _claim_one(option: str, path: Path, overwrite: bool, overwrite_option: str) 
         raise OutputError(21, f"{name} is a folder; give a file name")
     folder = path.parent if str(path.parent) else Path(".")
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
+        files.probe_writable(folder)
     except OSError as exc:
         raise OutputError(
             exc.errno or 5, f"{option} {folder} cannot be written: {exc.strerror or exc}"

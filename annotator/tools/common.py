@@ -9,19 +9,16 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import click
 import pandas as pd
 
 from annotator.dataset import SchemaError, validate_labels
-
-if TYPE_CHECKING:
-    from annotator.store.outputs import Outputs
+from annotator.store.outputs import Outputs
 
 log = logging.getLogger(__name__)
 
@@ -47,53 +44,33 @@ class OutputToolError(ToolError):
 
 def check_output_dir(path: str | Path, what: str) -> Path:
     """Before any work: the folder ``path`` exists or can be made, and a file can be written in it."""
+    from annotator.files import probe_writable
+
     path = Path(path)
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=path)
-        os.close(fd)
-        os.unlink(probe)
+        probe_writable(path)
     except OSError as exc:
         raise OutputToolError(f"{what} {path} cannot be written: {exc.strerror or exc}") from None
     return path
 
 
-class ToolOutputs:
-    """The output files of one tool's command, claimed through the one
-    :class:`annotator.store.outputs.Outputs` (atomic, marked, locked; never replacing a file the
-    tool did not write, or one changed since, unless told); a failure to write is one line,
-    :class:`OutputToolError` (exit 3). A context manager: the claims end with it."""
-
-    def __init__(self, outputs: Outputs) -> None:
-        self.outputs = outputs
+class ToolOutputs(Outputs):
+    """The output files of one tool's command (:class:`annotator.store.outputs.Outputs`: atomic,
+    marked, locked; never replacing a file the tool did not write, or one changed since, unless
+    told), whose failure to write is one line, :class:`OutputToolError` (exit 3)."""
 
     def asked(self, option: str) -> bool:
         """Was a file given for ``option``?"""
-        return option in self.outputs.claimed
+        return option in self.claimed
 
     def write(self, option: str, fill: Any) -> Path:
         """:meth:`annotator.store.outputs.Outputs.write`: ``fill(tmp)`` fills the file; where it went."""
         from annotator.store import OutputError
 
         try:
-            return self.outputs.write(option, fill)
+            return super().write(option, fill)
         except OutputError as exc:
             raise OutputToolError(str(exc)) from None
-
-    def write_bytes(self, option: str, data: bytes) -> Path:
-        return self.write(option, lambda tmp: tmp.write_bytes(data))
-
-    def write_text(self, option: str, text: str) -> Path:
-        return self.write(option, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-    def release(self) -> None:
-        self.outputs.release()
-
-    def __enter__(self) -> ToolOutputs:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
 
 
 def claim_outputs(
@@ -109,15 +86,13 @@ def claim_outputs(
     :class:`OutputToolError` (exit 3) for one whose folder cannot take it. Inside a click command
     the claims end with the command; elsewhere use the result as a context manager."""
     from annotator.store import OutputError, StoreError
-    from annotator.store.outputs import Outputs
 
     try:
-        outputs = Outputs.claim(command, paths, overwrite=overwrite, overwrite_option=overwrite_option)
+        claimed = ToolOutputs.claim(command, paths, overwrite=overwrite, overwrite_option=overwrite_option)
     except StoreError as exc:
         raise ToolError(str(exc)) from None
     except OutputError as exc:
         raise OutputToolError(str(exc)) from None
-    claimed = ToolOutputs(outputs)
     context = click.get_current_context(silent=True)
     if context is not None:
         context.call_on_close(claimed.release)
