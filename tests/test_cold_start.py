@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import trimesh
-from helpers import run_annotate, write_l
+from helpers import mount_tmpfs, run_annotate, umount, write_l
 
 import annotator.objects
 import annotator.objects.decomposition
@@ -454,10 +454,7 @@ def test_a_read_only_cache_is_read_and_what_it_lacks_is_made_aside(tmp_path):
     labelled as with a writable cache, the cache left as it was."""
     objs = _objects(tmp_path / "objs")
     disk = tmp_path / "cache"
-    disk.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=16m", "tmpfs", str(disk)], capture_output=True)
-    if done.returncode:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip()!r})")
+    mount_tmpfs(disk, "16m")
     try:
         args = ["--n", 10, "--workers", 1, "--quiet", "--cache", disk]
         first = _annotate_process("--objects", objs, "--out", tmp_path / "first", *args)
@@ -484,4 +481,4 @@ def test_a_read_only_cache_is_read_and_what_it_lacks_is_made_aside(tmp_path):
             _read_labels(tmp_path / "lacking"), _read_labels(tmp_path / "reference")
         )
     finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+        umount(disk)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from helpers import run_annotate
+from helpers import mount_tmpfs, run_annotate, umount
 from scene_helpers import REPO
 
 from annotator.cli import main
@@ -189,17 +189,6 @@ def test_a_damaged_model_is_one_line_before_any_work(tmp_path, convex_objects):
     assert "Traceback" not in result.output
 
 
-def _mount_tmpfs(where: Path, size: str) -> None:
-    import subprocess
-
-    where.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True
-    )
-    if done.returncode:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.decode().strip()})")
-
-
 @pytest.mark.slow
 @pytest.mark.root
 def test_a_model_on_a_full_disk_or_a_read_only_folder_is_one_line_and_leaves_nothing(tiny_run, tmp_path):
@@ -208,7 +197,7 @@ def test_a_model_on_a_full_disk_or_a_read_only_folder_is_one_line_and_leaves_not
     import subprocess
 
     disk = tmp_path / "disk"
-    _mount_tmpfs(disk, "64k")
+    mount_tmpfs(disk, "64k")
     try:
         (disk / "filler").write_bytes(b"\0" * (60 * 1024))  # leaves a few kB: less than a model
         out = disk / "model.npz"
@@ -227,4 +216,4 @@ def test_a_model_on_a_full_disk_or_a_read_only_folder_is_one_line_and_leaves_not
         errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
         assert result.exit_code == 3 and len(errors) == 1 and "Read-only file system" in errors[0]
     finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+        umount(disk)

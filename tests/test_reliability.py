@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import trimesh
-from helpers import run_annotate
+from helpers import mount_tmpfs, run_annotate, umount
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
@@ -358,24 +358,11 @@ def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_
     assert all(r.error is None and r.prepared is not None for r in results if isinstance(r.span, Prepare))
 
 
-def _mount_tmpfs(where: Path, size: str) -> None:
-    where.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True
-    )
-    if done.returncode:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.decode().strip()})")
-
-
-def _umount(where: Path) -> None:
-    subprocess.run(["umount", "-l", str(where)], capture_output=True)
-
-
 @pytest.mark.slow
 @pytest.mark.root
 def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, reference, tmp_path):
     disk = tmp_path / "disk"
-    _mount_tmpfs(disk, "24k")
+    mount_tmpfs(disk, "24k")
     try:
         out = disk / "labels"
         args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out]
@@ -386,14 +373,14 @@ def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, ref
         run_annotate(*args, "--quiet")
         pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
     finally:
-        _umount(disk)
+        umount(disk)
 
 
 @pytest.mark.slow
 @pytest.mark.root
 def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_path):
     disk = tmp_path / "disk"
-    _mount_tmpfs(disk, "16m")
+    mount_tmpfs(disk, "16m")
     try:
         out = disk / "labels"
         args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
@@ -405,7 +392,7 @@ def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_pat
         assert "Read-only file system" in r.output or "read-only" in r.output
         assert "Traceback" not in r.output
     finally:
-        _umount(disk)
+        umount(disk)
 
 
 @pytest.mark.slow
