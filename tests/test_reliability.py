@@ -539,10 +539,16 @@ def test_an_exit_after_an_interrupt_ends_even_when_an_exit_handler_never_returns
     assert proc.stderr.strip() == "annotate: worker processes did not stop in time; exiting"
 
 
+def _job() -> None:
+    """In the child before it runs: a process group of its own, SIGINT at its default."""
+    os.setpgrp()
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.slow
 def test_a_ctrl_c_while_the_workers_start_prints_no_worker_traceback(objs, tmp_path):
     """A terminal's Ctrl-C signals its whole foreground process group: workers still importing
-    joblib printed two KeyboardInterrupt tracebacks. Workers now start in a session of their own:
+    joblib printed two KeyboardInterrupt tracebacks. Workers now start in a process group of their own:
     the signal reaches the command alone, which stops them (exit 130, one line)."""
     out = tmp_path / "out"
     cmd = [sys.executable, "-c", "from annotator.cli import annotate_main; annotate_main()"]
@@ -552,8 +558,7 @@ def test_a_ctrl_c_while_the_workers_start_prints_no_worker_traceback(objs, tmp_p
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        start_new_session=True,  # its own process group, as a shell job's
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        preexec_fn=_job,  # its own process group, as a shell's job, SIGINT as in a terminal
     )
     try:
         deadline = time.monotonic() + 120
@@ -562,7 +567,7 @@ def test_a_ctrl_c_while_the_workers_start_prints_no_worker_traceback(objs, tmp_p
             assert time.monotonic() < deadline, "no worker started"
             time.sleep(0.005)
         workers = _workers_of(proc.pid)
-        assert all(os.getsid(w) == w for w in workers)  # each leads a session: out of the terminal's reach
+        assert all(os.getpgid(w) == w for w in workers)  # each leads its group: out of the terminal's reach
         os.killpg(proc.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
         stdout, stderr = proc.communicate(timeout=60)
     finally:
