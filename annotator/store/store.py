@@ -188,7 +188,10 @@ class Store:
         recorded = versions.get("machine")
         here = machine_kind()
         kinds = recorded.split(MACHINES_SEPARATOR) if recorded else []
-        if recorded is None or here in kinds:
+        if recorded is None:  # a folder of a version that did not record it: from now on
+            versions["machine"] = here
+            return
+        if here in kinds:
             return
         self._note(
             f"labelled so far on another kind of machine ({recorded}); this one is {here}: the same seed "
