@@ -350,9 +350,10 @@ class RobustConfig(_Section):
     is unperturbed). Each models one way a real execution of the grasp differs from the simulated
     one; the ranges and their sources: docs/decisions/0018-execution-uncertainty.md.
 
-    Every range has an upper bound: an error of execution, not another task. A TCP 2 cm off (200 x
-    the arm's repeatability, a fifth of the RG2's stroke) is another grasp, and 20 deg of rotation
-    is beyond any arm's or camera's error; an object placed 5 cm off (10 x Dex-Net's sigma, the size
+    Every range has an upper bound: an error of execution, not another task. A TCP off by more
+    than 10 cm (the widest stroke of the shipped grippers, the RG2's 11 cm; 1,000 x the arm's
+    repeatability) misses whatever the gripper could close on, and 20 deg of rotation is beyond any
+    arm's or camera's error; an object placed 5 cm off (10 x Dex-Net's sigma, the size
     of a small object) or turned 30 deg is not the placement that was planned, and tilted 20 deg it
     no longer rests on its support; a friction delta of 1 spans every material from ice to rubber
     (coefficients 0.05 .. 1.2) around any object's.
@@ -360,8 +361,8 @@ class RobustConfig(_Section):
 
     # The robot's TCP, Gaussian per axis in the TCP frame: the UR3's (and the Panda's) repeatability
     # +-0.1 mm (their datasheets); no datasheet gives an orientation repeatability: 0.
-    position_sigma: float = _field(0.0001, ge=0.0, le=0.02)  # m, across the approach (TCP x and y)
-    approach_sigma: float = _field(0.0001, ge=0.0, le=0.02)  # m, along the approach (TCP z)
+    position_sigma: float = _field(0.0001, ge=0.0, le=0.1)  # m, across the approach (TCP x and y)
+    approach_sigma: float = _field(0.0001, ge=0.0, le=0.1)  # m, along the approach (TCP z)
     rotation_sigma: float = _field(0.0, ge=0.0, le=0.35)  # rad, TCP rotation (Gaussian rotation vector)
     # Where the object is against where it was planned (world frame, turned about its centre of
     # mass): "a few mm", placed by hand on printed footprints (GRASPA); Dex-Net 2.0: sigma 5 mm.

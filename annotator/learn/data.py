@@ -36,7 +36,9 @@ class MeshMismatchError(ValueError):
     """An object of ``--objects`` is not the mesh the labels were made on (its SHA-256 differs)."""
 
 
-def check_meshes(models: dict, labels: pd.DataFrame, labels_dir: str | Path, objects: str | Path) -> None:
+def check_meshes(
+    models: dict, labels: pd.DataFrame, labels_dir: str | Path, objects: str | Path | None
+) -> None:
     """Every object ``labels`` name is in ``models`` and is the mesh they were labelled on (its
     ``mesh_sha256``): the policy's candidates must be simulated on the shapes the labels saw.
     :class:`MeshMismatchError` (one line) naming the object otherwise."""

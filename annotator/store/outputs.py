@@ -32,7 +32,7 @@ import json
 import logging
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
@@ -128,7 +128,7 @@ class Outputs:
     def claim(
         cls: type[_Outputs],
         command: str,
-        paths: dict[str, Path | str | None],
+        paths: Mapping[str, Path | str | None],
         *,
         overwrite: bool = False,
         overwrite_option: str = "--overwrite",

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -75,7 +76,7 @@ class ToolOutputs(Outputs):
 
 def claim_outputs(
     command: str,
-    paths: dict[str, Path | str | None],
+    paths: Mapping[str, Path | str | None],
     overwrite: bool = False,
     overwrite_option: str = "--overwrite",
 ) -> ToolOutputs:
