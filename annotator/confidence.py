@@ -143,13 +143,59 @@ def brier(real: np.ndarray, p: np.ndarray) -> float:
     return float(np.mean((np.asarray(p, dtype=np.float64) - real) ** 2)) if len(real) else float("nan")
 
 
+def rank_shares(predicted: np.ndarray, groups: int) -> np.ndarray:
+    """(n, groups): how much of each trial falls in each of ``groups`` equal shares of the trials
+    ranked by ``predicted``, highest first. Ties share their places: a group of tied trials that
+    straddles a boundary counts in each share by the part of its places that falls there, the
+    average over every order of the ties (so no rule of row order decides a share)."""
+    x = np.asarray(predicted, dtype=np.float64)
+    n = len(x)
+    out = np.zeros((n, groups))
+    if n == 0:
+        return out
+    values, inverse = np.unique(-x, return_inverse=True)  # highest prediction first
+    counts = np.bincount(inverse, minlength=len(values)).astype(np.float64)
+    starts = np.concatenate([[0.0], np.cumsum(counts)[:-1]])
+    edges = np.linspace(0.0, n, groups + 1)
+    for v in range(len(values)):
+        lo, hi = starts[v], starts[v] + counts[v]  # the tied group's places [lo, hi)
+        overlap = np.clip(np.minimum(hi, edges[1:]) - np.maximum(lo, edges[:-1]), 0.0, None)
+        out[inverse == v] = overlap / counts[v]
+    return out
+
+
 def top_fraction_precision(real: np.ndarray, predicted: np.ndarray, fraction: float = 0.2) -> float:
-    """The real success rate of the ``fraction`` of trials ranked highest by ``predicted`` (ties
-    broken by order: a stable sort on the negated prediction)."""
-    real = np.asarray(real, dtype=bool)
-    k = max(1, int(round(fraction * len(real))))
-    order = np.argsort(-np.asarray(predicted, dtype=np.float64), kind="mergesort")
-    return float(real[order[:k]].mean()) if len(real) else float("nan")
+    """The real success rate of the ``fraction`` of trials ranked highest by ``predicted``; tied
+    trials at the boundary count by the share of their places inside it (:func:`rank_shares`)."""
+    real = np.asarray(real, dtype=np.float64)
+    n = len(real)
+    if n == 0:
+        return float("nan")
+    k = max(1, int(round(fraction * n)))
+    x = np.asarray(predicted, dtype=np.float64)
+    values, inverse = np.unique(-x, return_inverse=True)
+    counts = np.bincount(inverse, minlength=len(values)).astype(np.float64)
+    starts = np.concatenate([[0.0], np.cumsum(counts)[:-1]])
+    inside = np.clip(np.minimum(starts + counts, k) - starts, 0.0, None) / counts  # per tied group
+    weight = inside[inverse]
+    return float((weight * real).sum() / weight.sum())
+
+
+def fifths(real: np.ndarray, p: np.ndarray, groups: int = 5) -> list[ReliabilityBin]:
+    """The trials in ``groups`` equal shares ranked by ``p`` (highest first; ties shared,
+    :func:`rank_shares`): each share's mean ``p`` and real rate, its trials counted fractionally."""
+    real = np.asarray(real, dtype=np.float64)
+    p = np.asarray(p, dtype=np.float64)
+    shares = rank_shares(p, groups)
+    out = []
+    for g in range(groups):
+        w = shares[:, g]
+        total = float(w.sum())
+        mean_p = float((w * p).sum() / total) if total else float("nan")
+        rate = float((w * real).sum() / total) if total else float("nan")
+        lo, hi = (float(np.min(p[w > 0])), float(np.max(p[w > 0]))) if total else (float("nan"),) * 2
+        out.append(ReliabilityBin(lo, hi, int(round(total)), mean_p, rate))
+    return out
 
 
 @dataclass(frozen=True)

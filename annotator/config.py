@@ -178,6 +178,9 @@ class GripperConfig(_Section):
     # Passive links only posed for the kinematic checks, or coupled and colliding ("simulated": the
     # arm and the GUI always); docs/decisions/0203-kinematic-passive-links.md.
     passive_links: str = _field("kinematic", choices=("simulated", "kinematic"))
+    # The gripper's convex shapes (its box pads) with polyhedral features, as [objects] sat_features.
+    # see docs/decisions/0028-contact-and-objects-measured.md
+    sat_features: bool = False
     # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); 0202.
     coupling_erp: float = _field(0.8, gt=0.0, le=1.0)
     coupling_max_force: float = _field(1000.0, gt=0.0)  # N or N m; far above any squeeze it resists
@@ -228,6 +231,9 @@ class ObjectConfig(_Section):
     rolling_friction: float = _field(0.0, ge=0.0)  # see GripperConfig.pad_rolling_friction
     # Bullet's collision margin on convex meshes (bullet3 #2867): 0 keeps widths within 0.25 mm.
     collision_margin: float = _field(0.0, ge=0.0)  # m
+    # Convex shapes with their polyhedral features (bullet3's SAT clipping): a whole contact patch per
+    # step, not a point; with [gripper] sat_features. docs/decisions/0028-contact-and-objects-measured.md
+    sat_features: bool = False
     # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
     # CoACD concavity thresholds, the first down to the last, x 0.6 each to one significant digit
@@ -325,9 +331,17 @@ class ProtocolConfig(_Section):
     # GraspDataGen closes for 1 s; the close ends earlier as soon as the fingers stall.
     close_timeout: float = _field(1.0, gt=0.0)  # s
     lift_height: float = _field(0.10, ge=0.0)  # m, a 10 cm lift
-    # s: 0.5 m/s on average, 0.75 m/s at peak (the UR3's tool speed is ~1 m/s).
-    # see docs/decisions/0004-short-paired-shake.md
-    lift_duration: float = _field(0.2, gt=0.0)
+    # s: peak 0.3 m/s and 2.4 m/s^2, near a UR's movel defaults (0.25 m/s, 1.2 m/s^2), not 1.5 g.
+    # see docs/decisions/0028-stages-chosen-on-real-trials.md
+    lift_duration: float = _field(0.5, gt=0.0)
+    # Benchmark motion after the lift (GRASPA's S5): +a, -a, 0 about the approach, then +b, -b, 0 about
+    # the closing axis, in motion_duration; both 0: no motion stage. docs/decisions/0026-stages.md
+    motion_approach_angle: float = _field(0.0, ge=0.0, le=math.pi)  # rad
+    motion_closing_angle: float = _field(0.0, ge=0.0, le=math.pi / 2)  # rad
+    motion_duration: float = _field(1.5, gt=0.0, le=60.0)  # s, all six moves
+    # The stage trial 0 must hold through for success: "close", "lift", "motion" or "shake"
+    # (every stage still runs); see docs/decisions/0026-stages.md
+    gate: str = _field("shake", choices=("close", "lift", "motion", "shake"))
     # The shake: one 0.2 s sine period per paired motion, peak 3 g and 345 rad/s^2.
     # see docs/decisions/0004-short-paired-shake.md
     shake_amplitude: float = _field(0.03, ge=0.0)  # m, "a shake of a few centimetres"
@@ -342,6 +356,11 @@ class ProtocolConfig(_Section):
     max_slip: float = _field(0.02, gt=0.0)
     lost_distance: float = _field(0.03, gt=0.0)  # m: early exit once the object is this far from its grasp
     check_every: int = _field(6, ge=1)  # steps between loss checks during lift and shake (25 ms)
+
+
+# The largest factor an exploration may scale a range by (RobustConfig.scale_levels): ranges are
+# explored up to a few times what they are set to, not orders of magnitude beyond.
+SCALE_LEVEL_MAX = 10.0
 
 
 @dataclass(frozen=True)
@@ -382,6 +401,15 @@ class RobustConfig(_Section):
     # false: a perturbed trial ends after the lift, judged there as after a shake; true: shaken as trial 0
     # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md
     shake: bool = False
+    # true: a perturbed trial also runs the benchmark motion and is judged after it (shake implies it)
+    # see docs/decisions/0026-stages.md
+    motion: bool = False
+    # true: perturbed trials run even when trial 0 collides (the object may lie elsewhere)
+    # see docs/decisions/0026-stages.md
+    perturb_collisions: bool = False
+    # Exploration (calibrate --fit-ranges): each trial scales the pose errors (object and hand) and the
+    # friction spread each by a level drawn from this list; empty: none. docs/decisions/0026-stages.md
+    scale_levels: tuple[float, ...] = ()
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
     approach_from_contact: bool = True
@@ -391,6 +419,14 @@ class RobustConfig(_Section):
     # true: after that approach from the contact, the fingers start near what they touch if the object
     # is at rest (docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md)
     fingers_from_contact: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if any(not 0.0 < level <= SCALE_LEVEL_MAX for level in self.scale_levels):
+            raise ConfigError(
+                f"[robust] scale_levels: each level must be > 0 and <= {SCALE_LEVEL_MAX:g}, "
+                f"got {list(self.scale_levels)}"
+            )
 
     def over(self, gripper: Mapping[str, float]) -> RobustConfig:
         """These ranges over a gripper's own (its description's ``[robust]`` table): a field a
@@ -433,6 +469,12 @@ class ConfidenceConfig(_Section):
     # The perturbed trials of the scores it was fitted on shook ([robust] shake); a file written
     # before the perturbed trials could end at the lift was fitted on shaken ones.
     perturbed_shake: bool = True
+    # The p_success at and above which the calibration calls a grasp a success, chosen by balanced
+    # accuracy on the real trials (calibrate --fit-ranges); 0.5 where none was chosen.
+    threshold: float = _field(0.5, ge=0.0, le=1.0)
+    # The real success rate of the trials it was fitted on (0: not recorded): what always answering
+    # it scores, the baseline a mapping applied to other trials must beat.
+    base_rate: float = _field(0.0, ge=0.0, le=1.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -743,6 +785,7 @@ class AnnotatorConfig:
         ``fingers_from_contact``, one whose fingers closed from where the approach left them. A
         ``[physics]`` without ``light_hold_mass`` is one whose light objects were simulated at their
         finer step throughout (``light_hold_mass = light_object_mass``)."""
+        data = _before_stages(data)
         physics = data.get("physics") if isinstance(data, dict) else None
         if isinstance(physics, dict) and "light_hold_mass" not in physics:
             before = physics.get("light_object_mass", PhysicsConfig.light_object_mass)
@@ -792,6 +835,26 @@ class AnnotatorConfig:
             except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
                 raise ConfigError(f"not a TOML file ({exc})") from exc
         return cls.from_dict(data)
+
+
+# What a folder made before the stages existed simulated, for each field it lacks: no benchmark
+# motion, success through the shake, perturbed trials after the lift only and none after a trial 0
+# that collided, every perturbed trial at the ranges themselves.
+_BEFORE_STAGES: dict[str, dict[str, Any]] = {
+    "protocol": {"motion_approach_angle": 0.0, "motion_closing_angle": 0.0, "gate": "shake"},
+    "robust": {"motion": False, "perturb_collisions": False, "scale_levels": ()},
+}
+
+
+def _before_stages(data: Any) -> Any:
+    """``data`` (a run's bound configuration) with :data:`_BEFORE_STAGES` for the fields it lacks."""
+    if not isinstance(data, dict):
+        return data
+    out = dict(data)
+    for section, values in _BEFORE_STAGES.items():
+        if isinstance(out.get(section), dict):
+            out[section] = {**values, **out[section]}
+    return out
 
 
 _SECTION_NAMES = {

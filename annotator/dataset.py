@@ -30,7 +30,7 @@ from annotator.label_table import (  # noqa: F401  (re-exported)
     mode_errors,
     validate_labels,
 )
-from annotator.outcome import OUTCOMES, Outcome  # noqa: F401  (re-exported: the schema's outcomes)
+from annotator.outcome import OUTCOMES, STAGES, Outcome, Stage  # noqa: F401  (re-exported: the schema's)
 from annotator.rng import keyed_rng
 
 if TYPE_CHECKING:
@@ -135,6 +135,22 @@ def balance_outcomes(df: pd.DataFrame, seed: int = 0, per_object: bool = True) -
         return df.iloc[:0].copy()
     out = pd.concat(kept)
     return out.sort_values(["object_id", "grasp_id"], kind="stable").reset_index(drop=True)
+
+
+def held_through(df: pd.DataFrame, stage: str) -> pd.Series:
+    """Did trial 0 hold through ``stage`` (a :class:`Stage` name, ``"lifted"``, or its gate,
+    ``"lift"``)? A bool per row from the ``stage`` column: labels by any stage of the protocol
+    (docs/protocol.md, "Stages"), e.g. ``df[held_through(df, "lift")]``. Labels written before
+    stages were recorded have no ``stage`` column: ValueError."""
+    if "stage" not in df.columns:
+        raise ValueError("these labels record no stage (written before stages were recorded)")
+    wanted = Stage.from_label(stage)
+    order = {s.label: int(s) for s in Stage}
+    reached = df["stage"].astype(str).map(order)
+    if reached.isna().any():
+        bad = sorted(set(df["stage"].astype(str)) - set(order))
+        raise ValueError(f"unknown stage value(s) {bad}; expected one of {list(order)}")
+    return (reached >= int(wanted)).rename(f"held_{wanted.label}")
 
 
 def filter_by_score(df: pd.DataFrame, min_score: float) -> pd.DataFrame:

@@ -1,5 +1,6 @@
 """The K trials of one candidate (``--trials K``): trial 0 unperturbed, then ``K - 1`` perturbed
-ones drawn from the candidate's own Generator, none after a trial 0 that collides.
+ones drawn from the candidate's own Generator, none after a trial 0 that collides unless
+``[robust] perturb_collisions``.
 
 The one loop every labelling path runs (the object workers, annotator.pipeline.simulate; the
 scene labels, annotator.scenes.labels): what a path adds around a trial (a resting pose, the
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from annotator.config import RobustConfig
-from annotator.outcome import Outcome
+from annotator.outcome import Outcome, Stage
 from annotator.rng import trial_rng
 from annotator.trial import Perturbation, TrialResult
 
@@ -25,11 +26,16 @@ R = TypeVar("R")
 @dataclass(frozen=True)
 class KTrials(Generic[R]):
     """What the K trials of one candidate gave: trial 0's own result ``first`` (whatever ``run``
-    returns), how many of the K ``held`` (succeeded) and the physics ``steps`` of all K."""
+    returns), how many of the K ``held`` (trial 0 through the gate, a perturbed trial through its
+    last stage), the physics ``steps`` of all K, whether trial 0 held through the gate
+    (``success``) and how far each trial that ran held (``stages``: one digit per trial, trial 0
+    first, :class:`annotator.outcome.Stage` values)."""
 
     first: R
     held: int
     steps: int
+    success: bool = False
+    stages: str = ""
 
 
 def run_k_trials(
@@ -40,18 +46,23 @@ def run_k_trials(
     seed: int,
     unit: str,
     grasp_id: int,
+    gate: Stage = Stage.SHAKEN,
 ) -> KTrials[R]:
-    """Run trial 0 (``run(None)``), then, unless it collided, ``k - 1`` trials ``run(p)`` with
-    ``p`` drawn from ``robust``'s ranges by the Generator of (``seed``, ``unit``, ``grasp_id``);
-    ``result_of`` reads a :class:`TrialResult` from what ``run`` returns. Exceptions propagate
-    (the caller's row says ``error``)."""
+    """Run trial 0 (``run(None)``), then, unless it collided (and ``robust.perturb_collisions`` is
+    off), ``k - 1`` trials ``run(p)`` with ``p`` drawn from ``robust``'s ranges by the Generator of
+    (``seed``, ``unit``, ``grasp_id``); ``result_of`` reads a :class:`TrialResult` from what
+    ``run`` returns. Trial 0 holds when it held through ``gate`` or through every stage it ran;
+    a perturbed trial when it held through its last stage. Exceptions propagate (the caller's row
+    says ``error``)."""
     first = run(None)
     r = result_of(first)
-    held, steps = int(r.outcome == Outcome.SUCCESS), r.steps
-    if r.outcome != Outcome.COLLISION and k > 1:
+    success = r.outcome == Outcome.SUCCESS or r.stage >= gate
+    held, steps, stages = int(success), r.steps, [r.stage]
+    if k > 1 and (r.outcome != Outcome.COLLISION or robust.perturb_collisions):
         rng = trial_rng(seed, unit, grasp_id)
         for _ in range(k - 1):
             p = result_of(run(Perturbation.sample(rng, robust)))
             held += int(p.outcome == Outcome.SUCCESS)
             steps += p.steps
-    return KTrials(first, held, steps)
+            stages.append(p.stage)
+    return KTrials(first, held, steps, bool(success), "".join(str(int(s)) for s in stages))

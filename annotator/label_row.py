@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from annotator.geometry import Transform
-from annotator.outcome import Outcome
+from annotator.outcome import Outcome, Stage
 from annotator.schema import MODES, REASON_COLUMNS
 
 
@@ -33,7 +33,8 @@ class TrialsResult:
     slip: float
     held: int
     check: Any = None
-
+    success: bool | None = None  # trial 0 held through the gate; None: outcome is success
+    stages: str = ""  # how far each trial held, one Stage digit per trial (KTrials.stages)
 
 
 class LabelledObject(Protocol):
@@ -88,9 +89,11 @@ def label_row(
         **dict(zip(("x", "y", "z"), result.T_label.pos.tolist(), strict=True)),
         **dict(zip(("qx", "qy", "qz", "qw"), canonical(result.T_label.quat).tolist(), strict=True)),
         "width": result.width,
-        "success": result.outcome == Outcome.SUCCESS,
+        "success": result.outcome == Outcome.SUCCESS if result.success is None else bool(result.success),
         "outcome": result.outcome.label,
         "score": result.held / trials,
+        "stage": Stage(int(result.stages[0])).label if result.stages else Stage.NONE.label,
+        "trial_stages": result.stages,
         "object_scale": model.scale,
         "mesh_sha256": model.mesh_sha256,
         "seed": seed,

@@ -100,15 +100,22 @@ OBJECT_GROUPS: tuple[ColumnGroup, ...] = (
         "simulated)",
         True,
     ),
-    ColumnGroup(("success",), BOOL, "", "", '`outcome == "success"`', True),
+    ColumnGroup(
+        ("success",),
+        BOOL,
+        "",
+        "",
+        'trial 0 held through `[protocol] gate` (the default gate, the shake: `outcome == "success"`)',
+        True,
+    ),
     ColumnGroup(("outcome",), STRING, "", "", "how the trial ended: see [Outcomes](#outcomes)", True),
     ColumnGroup(
         ("score",),
         FLOAT64,
         "0 … 1",
         "",
-        "fraction of the `--trials K` trials that held: trial 0 through the shake, the K − 1 "
-        "perturbed ones through the lift unless `[robust] shake` (0 or 1 with K = 1)",
+        "fraction of the `--trials K` trials that held: trial 0 through the gate, the K − 1 "
+        "perturbed ones through the lift unless `[robust] motion` or `shake` (0 or 1 with K = 1)",
         True,
     ),
     ColumnGroup(
@@ -137,6 +144,22 @@ OBJECT_GROUPS: tuple[ColumnGroup, ...] = (
         "reached the end of the shake",
     ),
     ColumnGroup(("object_mass",), FLOAT64, "kg", "", "mass the object was simulated with"),
+    ColumnGroup(
+        ("stage",),
+        STRING,
+        "",
+        "",
+        "how far trial 0 held: `none`, `closed`, `lifted`, `moved` (the benchmark motion), `shaken` "
+        "([Stages](protocol.md#stages)); label by any stage with `annotator.dataset.held_through`",
+    ),
+    ColumnGroup(
+        ("trial_stages",),
+        STRING,
+        "",
+        "",
+        "how far each trial held, one digit per trial, trial 0 first: 0 none, 1 closed, 2 lifted, 3 "
+        "moved, 4 shaken; a perturbed trial stops at its last stage",
+    ),
     ColumnGroup(
         _xyz("cmd_"),
         FLOAT64,

@@ -9,11 +9,15 @@ The protocol (docs/protocol.md), with an early exit at each stage:
    resting on a support (``annotate --cell``), until the fingers stall.
 3. ``no_contact``: not both pads touch the object.
 4. ``slipped_lift``: gravity on, lift; the object lost a pad or moved in the hand.
-5. ``slipped_shake``: translations and rotations; the object lost a pad or moved in the hand.
-6. ``success``.
+5. ``slipped_motion``: the benchmark's slow motion (when the protocol has one); the object lost a
+   pad or moved in the hand.
+6. ``slipped_shake``: translations and rotations; the object lost a pad or moved in the hand.
+7. ``success``.
 
-The perturbed trials of ``--trials K`` stop after stage 4 and are judged there as after a shake,
-unless their ranges say ``shake`` (``RobustConfig.shake``; docs/decisions/0021).
+Every trial records how far it held (:class:`annotator.outcome.Stage`); the row's ``success`` is
+trial 0 held through ``[protocol] gate``. The perturbed trials of ``--trials K`` stop after stage 4
+(or 5 with ``RobustConfig.motion``) and are judged there as after a shake, unless their ranges say
+``shake`` (``RobustConfig.shake``; docs/decisions/0021).
 """
 
 from __future__ import annotations
@@ -26,11 +30,11 @@ import numpy as np
 
 from annotator.config import AnnotatorConfig, PhysicsConfig, RobustConfig
 from annotator.geometry import Transform, axis_angle_to_matrix
-from annotator.outcome import Outcome
+from annotator.outcome import Outcome, Stage
 from annotator.rng import trial_rng  # noqa: F401  (re-exported)
 from annotator.sim import pb
 from annotator.sim.contacts import closest_points, touching
-from annotator.sim.hand import FloatingGripper, ShakeMotion
+from annotator.sim.hand import BenchmarkMotion, FloatingGripper, ShakeMotion
 from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -93,6 +97,12 @@ class Perturbation:
         # drawn last and only when set: the other draws, and so the scores of runs made without
         # it, stay what they were
         com = rng.normal(0.0, robust.com_offset_sigma, 3) if robust.com_offset_sigma > 0 else np.zeros(3)
+        if robust.scale_levels:  # exploring the ranges: a level for the pose, one for friction, drawn last
+            pose, rub = (
+                float(v)
+                for v in np.asarray(robust.scale_levels)[rng.integers(0, len(robust.scale_levels), 2)]
+            )
+            shift, yaw, pos, friction = shift * pose, yaw * pose, pos * pose, friction * rub
         return cls(
             Transform.from_rotation(_rotation(rotvec), pos),
             float(friction),
@@ -148,6 +158,7 @@ class TrialResult:
     steps: int  # simulated steps used
     slip: float  # m, object displacement in the hand from grasp to end (nan if not held)
     check: CollisionCheck | None = None  # the kinematic check the trial began with
+    stage: Stage = Stage.NONE  # how far it held (every stage of its plan: Stage.SHAKEN or its last)
 
 
 @dataclass(frozen=True)
@@ -155,7 +166,8 @@ class TrialPlan:
     """Which stages one trial runs and how: trial 0's protocol, or a perturbed trial's
     (:meth:`perturbed`, from ``RobustConfig``; docs/protocol.md, "Robust labels")."""
 
-    shake: bool  # shaken after the lift (False: judged after the lift)
+    shake: bool  # shaken after the lift (False: judged after the lift, or after the motion)
+    motion: bool = True  # the benchmark motion after the lift, when the protocol has one
     approach_from_contact: bool = False  # a simulated approach starts near the first contact
     stall_by_travel: bool = False  # the close also ends by the drive's travel (FloatingGripper.close)
     fingers_from_contact: bool = False  # then the fingers start near an object at rest (_preclose)
@@ -168,6 +180,7 @@ class TrialPlan:
         from_contact = lift_only and robust.approach_from_contact
         return cls(
             shake=shake and robust.shake,
+            motion=shake and (robust.shake or robust.motion),
             approach_from_contact=from_contact,
             stall_by_travel=lift_only and robust.stall_by_travel,
             fingers_from_contact=from_contact and robust.fingers_from_contact,
@@ -213,6 +226,8 @@ class GraspTrial:
         self._T_com_obj = Transform(info[3], info[4]).inverse()  # mesh frame in the COM frame
         # the perturbed trials' ranges: the run's [robust] over the gripper's own (RobustConfig.over)
         self.robust = config.robust.over(dict(hand.gripper.description.robust))
+        # the stage trial 0 must hold through for the row's success ([protocol] gate)
+        self.gate = Stage.from_label(config.protocol.gate)
         self.state = world.save_state()
 
     def close(self) -> None:
@@ -420,7 +435,7 @@ class GraspTrial:
     ) -> TrialResult:
         """:meth:`run` with the perturbation applied (its dynamics left as they were set), the
         stages ``plan`` says (None: trial 0's)."""
-        plan = TrialPlan(self.shake) if plan is None else plan
+        plan = TrialPlan(self.shake, motion=self.shake) if plan is None else plan
         self.world.restore_state(self.state)
         self._apply(perturbation)
         com_world = pb.getBasePositionAndOrientation(self.obj, physicsClientId=self.client)[0]
@@ -457,12 +472,13 @@ class GraspTrial:
             self._T_world_obj().inverse() * self.hand.base_pose() * self.hand.gripper.T_base_tcp(width)
         )
 
-        def result(outcome: Outcome, slip: float = float("nan")) -> TrialResult:
-            return TrialResult(outcome, T_obj_tcp_closed, width, self.world.steps - steps0, slip, check)
+        def result(outcome: Outcome, stage: Stage, slip: float = float("nan")) -> TrialResult:
+            steps = self.world.steps - steps0
+            return TrialResult(outcome, T_obj_tcp_closed, width, steps, slip, check, stage)
 
         # 3. both pads on the object?
         if not self._both_pads_touch():
-            return result(Outcome.NO_CONTACT)
+            return result(Outcome.NO_CONTACT, Stage.NONE)
 
         # 4. lift with gravity on; a light floating object, closed on at its finer step, is held at
         # the run's time step from here (docs/decisions/0025-light-objects-held-at-the-time-step.md)
@@ -476,22 +492,42 @@ class GraspTrial:
         lost = self._loss_monitor(grasped_at)
         self.hand.move(lifted, duration=cfg.lift_duration, force=force, on_step=lost)
         if lost.lost:
-            return result(Outcome.SLIPPED_LIFT)
-
-        # 5. shake
-        lost = self._loss_monitor(grasped_at)
+            return result(Outcome.SLIPPED_LIFT, Stage.CLOSED)
+        # the stages after the lift, each judged as it ends (the last one after the settle)
+        motion = BenchmarkMotion.of(cfg)
+        # without a motion stage in the protocol, holding through the lift passes it (Stage)
+        stages: list[tuple[Outcome, Stage, str | None]] = [
+            (Outcome.SLIPPED_LIFT, Stage.LIFTED if motion.active else Stage.MOVED, None)
+        ]
+        if plan.motion and motion.active:
+            stages.append((Outcome.SLIPPED_MOTION, Stage.MOVED, "motion"))
         if plan.shake:
-            self.hand.shake(ShakeMotion.of(cfg), force=force, on_step=lost)
-        if lost.lost:  # the object left the pads: no settling can bring it back
-            return result(Outcome.SLIPPED_SHAKE, self._slip(grasped_at))
-        # let the last motion settle, then judge
-        for _ in range(round(cfg.settle_time / self.world.dt)):
-            self.hand.gripper.squeeze(force)
-            self.world.step()
-        slip = self._slip(grasped_at)
-        if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
-            return result(Outcome.SLIPPED_SHAKE if plan.shake else Outcome.SLIPPED_LIFT, slip)
-        return result(Outcome.SUCCESS, slip)
+            stages.append((Outcome.SLIPPED_SHAKE, Stage.SHAKEN, "shake"))
+        reached = Stage.CLOSED
+        for k, (failed, stage, what) in enumerate(stages):
+            if what is not None:
+                lost = self._loss_monitor(grasped_at)
+                if what == "motion":
+                    self.hand.benchmark_motion(motion, force=force, on_step=lost)
+                else:
+                    self.hand.shake(ShakeMotion.of(cfg), force=force, on_step=lost)
+                if lost.lost:  # the object left the pads: no settling can bring it back
+                    return result(failed, reached, self._slip(grasped_at))
+            if k + 1 < len(stages):
+                # a stage followed by another: judged as it ends (pads on, slipped less than max_slip)
+                if self._both_pads_touch() and self._slip(grasped_at) <= cfg.max_slip:
+                    reached = stage
+                    continue
+                return result(failed, reached, self._slip(grasped_at))
+            # the last stage: let it settle, then judge
+            for _ in range(round(cfg.settle_time / self.world.dt)):
+                self.hand.gripper.squeeze(force)
+                self.world.step()
+            slip = self._slip(grasped_at)
+            if lost.lost or not self._both_pads_touch() or slip > cfg.max_slip:
+                return result(failed, reached, slip)
+            return result(Outcome.SUCCESS, stage, slip)
+        raise AssertionError("unreachable: the stages always end in a verdict")
 
     def _held_physics(self) -> PhysicsConfig | None:
         """The settings this trial lifts and shakes with once closed (``PhysicsConfig.held``): a

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from bench.harness import RESULTS, ROOT, newest, read_records
+from bench.harness import RESULTS, ROOT, newest, read_records, record_key
 
 OUT = ROOT / "docs" / "performance.md"
 COMMAND = "python -m bench.docs"
@@ -128,7 +128,7 @@ def provenance(record: Mapping[str, Any]) -> list[str]:
 
 def section(record: Mapping[str, Any], level: int = 2) -> list[str]:
     """One benchmark's part of the page: provenance, ratios, figures, tables."""
-    lines = [f"{'#' * level} {record['benchmark']}", ""]
+    lines = [f"{'#' * level} {record_key(record)}", ""]
     if record["about"]:
         lines += [record["about"], ""]
     lines += [*provenance(record), ""]
@@ -154,14 +154,19 @@ def section(record: Mapping[str, Any], level: int = 2) -> list[str]:
 
 
 def ordered(records: Mapping[str, Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    known = [records[name] for name in ORDER if name in records]
-    return known + [records[name] for name in sorted(records) if name not in ORDER]
+    """Records in the page's order: :data:`ORDER`'s benchmarks first, then the others by name; a
+    benchmark's tagged records after its own, by tag."""
+    rank = {name: i for i, name in enumerate(ORDER)}
+    return sorted(
+        records.values(),
+        key=lambda r: (rank.get(r["benchmark"], len(ORDER)), r["benchmark"], r.get("tag") or ""),
+    )
 
 
 def _overview(records: list[Mapping[str, Any]]) -> list[list[Any]]:
     return [
         [
-            f"[{r['benchmark']}](#{r['benchmark']})",
+            f"[{record_key(r)}](#{record_key(r)})",
             r["about"],
             r["date"][:10],
             f"`{r['commit'][:7]}`" + (" (changed)" if r["dirty"] else ""),

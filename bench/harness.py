@@ -58,6 +58,7 @@ SCHEMA = 1
 LIBRARIES = ("rg2-annotator", "pybullet", "numpy", "trimesh", "coacd", "scipy", "manifold3d", "pandas")
 # files the bench writes itself: they do not make the measured tree "dirty"
 GENERATED = ("bench/results/", "docs/performance.md")
+TAG = re.compile(r"^[a-z0-9][a-z0-9-]*$")
 NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -206,7 +207,9 @@ class Run:
     configuration measured (default ``AnnotatorConfig()``). ``about``: one line on what is
     measured (default: the first paragraph of the ``__main__`` module's docstring). ``command``: how it
     was run (default: from ``sys.argv``). ``results``: the folder of records (default
-    ``$RG2_BENCH_RESULTS`` or ``bench/results``).
+    ``$RG2_BENCH_RESULTS`` or ``bench/results``). ``tag``: what sets this run apart from the
+    benchmark's other runs on the same day and commit (its data set's digest, say); it ends the
+    record's file name, and the newest record of each tag is kept apart from the others'.
     """
 
     def __init__(
@@ -218,10 +221,14 @@ class Run:
         about: str | None = None,
         command: str | None = None,
         results: Path | None = None,
+        tag: str | None = None,
     ) -> None:
         if not NAME.match(name):
             raise ValueError(f"benchmark name {name!r}: lower case letters, digits and _")
+        if tag is not None and not TAG.match(tag):
+            raise ValueError(f"record tag {tag!r}: lower case letters, digits and -")
         self.name = name
+        self.tag = tag
         self.arguments = _plain(dict(config or {}))
         self.annotator = annotator or AnnotatorConfig()
         self.about = _about() if about is None else about
@@ -307,6 +314,7 @@ class Run:
             {
                 "schema": SCHEMA,
                 "benchmark": self.name,
+                **({"tag": self.tag} if self.tag else {}),
                 "about": self.about,
                 "command": self.command,
                 "commit": git.commit,
@@ -335,8 +343,14 @@ class Run:
 
 
 def record_path(record: Mapping[str, Any], results: Path) -> Path:
-    """``results/<benchmark>/<UTC date>-<short commit>.json``."""
-    return results / record["benchmark"] / f"{record['date'][:10]}-{record['commit'][:7]}.json"
+    """``results/<benchmark>/<UTC date>-<short commit>[-<tag>].json``."""
+    tag = f"-{record['tag']}" if record.get("tag") else ""
+    return results / record["benchmark"] / f"{record['date'][:10]}-{record['commit'][:7]}{tag}.json"
+
+
+def record_key(record: Mapping[str, Any]) -> str:
+    """What a record is the newest of: its benchmark, with its tag where it has one."""
+    return f"{record['benchmark']}-{record['tag']}" if record.get("tag") else str(record["benchmark"])
 
 
 def dumps(record: Mapping[str, Any]) -> str:
@@ -369,8 +383,9 @@ def read_records(results: Path = RESULTS) -> list[dict[str, Any]]:
 
 
 def newest(records: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
-    """The newest record of each benchmark (by start time, then commit): {benchmark: record}."""
+    """The newest record of each benchmark and tag (by start time, then commit): {key: record}
+    (:func:`record_key`)."""
     out: dict[str, dict[str, Any]] = {}
     for record in sorted(records, key=lambda r: (r["date"], r["commit"])):
-        out[record["benchmark"]] = dict(record)
+        out[record_key(record)] = dict(record)
     return out

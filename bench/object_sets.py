@@ -619,9 +619,7 @@ def targets(rows: list[Load], factor: float) -> list[str]:
     if ycb:
         met = "met" if sum(ycb) <= YCB_COLD_CPU else "NOT met"
         minutes = sum(ycb) / 60
-        out.append(
-            f"  YCB cold in <= 16 reference CPU-minutes: {met} ({minutes:.1f}, {len(ycb)} meshes)"
-        )
+        out.append(f"  YCB cold in <= 16 reference CPU-minutes: {met} ({minutes:.1f}, {len(ycb)} meshes)")
     beyond = [r for r in cold if r.beyond]
     out.append(f"  every collision shape within 2 mm, or why not: {len(beyond)} beyond")
     for r in beyond:

@@ -50,6 +50,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import math
+import os
 import re
 import resource
 import shutil
@@ -58,6 +59,7 @@ import sys
 import tempfile
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -299,26 +301,70 @@ def friction_cone_baseline(prepared: Prepared, tcp: np.ndarray, stroke: float, m
     return out
 
 
+def data_digest(data: Path) -> str:
+    """SHA-256 of what the data folder says about the trials (``trials.csv`` and the layouts), the
+    first 8 hex digits: the tag of its records, so two data sets never share a record."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for path in [data / "trials.csv", *sorted((data / "layouts").glob("*.xml"))]:
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:8]
+
+
 def main() -> None:  # noqa: C901 - a script: one pass from the data to the record
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=None, help="the trials' folder [default: see above]")
     ap.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "rg2-real-trials")
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="the decomposition cache of the bench's runs [default: WORK/cache, never the user's]",
+    )
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--bootstrap", type=int, default=2000)
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument(
+        "--profile",
+        type=Path,
+        default=None,
+        help="apply this frozen profile (a calibrate --fit-ranges file) to the trials, without fitting "
+        "anything: its ranges, gate, --trials and p_success mapping and threshold, as a user applies it",
+    )
+    ap.add_argument(
+        "--explore-trials", type=int, default=64, help="perturbed trials per grasp in the fit's exploration"
+    )
+    ap.add_argument("--no-fit", action="store_true", help="skip the fit of the execution (the longest part)")
+    ap.add_argument(
+        "--stages-only",
+        action="store_true",
+        help="only trial 0's stages against the real outcomes (one evaluate at --trials 1): to compare "
+        "protocols (--set) quickly",
+    )
+    ap.add_argument(
+        "--trials", type=int, default=5, help="--trials of the default ranges' baseline (score, p_success)"
+    )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="a configuration change for every simulation (repeatable), "
+        "e.g. gripper.pad_spinning_friction=0.0049",
+    )
+    ap.add_argument(
+        "--grid", action="store_true", help="also run calibrate's grid of friction, force, severity"
+    )
     ap.add_argument("--friction", default="0.5,1.0,2.0", help="pad friction coefficients of the grid")
     ap.add_argument("--force", default="25,70,140", help="grip forces of the grid, N")
     ap.add_argument("--severity", default="0,0.5,1", help="shake severities of the grid (0: lift only)")
-    ap.add_argument("--folds", type=int, default=5)
-    ap.add_argument(
-        "--trials", type=int, default=5, help="--trials of the Panda's evaluate: its score and p_success"
-    )
+    ap.add_argument("--rg2", action="store_true", help="also simulate the RG2 at the same TCP poses")
     ap.add_argument(
         "--perturbed-shake",
         action="store_true",
-        help="shake the perturbed trials as trial 0 ([robust] shake = true) [default: they end at the lift]",
+        help="shake the default ranges' perturbed trials as trial 0 ([robust] shake = true)",
     )
-    ap.add_argument("--no-grid", action="store_true", help="skip calibrate's grid (the longest part)")
-    ap.add_argument("--no-rg2", action="store_true", help="skip the RG2 at the same TCP poses")
     ap.add_argument(
         "--cost",
         action="store_true",
@@ -340,23 +386,58 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         help="GRASPA's TCP along the Franka hand frame's z, m [default: the data's 0.105]",
     )
     args = ap.parse_args()
+    for name in ("workers", "bootstrap", "folds", "explore_trials", "trials"):
+        if getattr(args, name) < (0 if name == "folds" else 1):
+            sys.exit(f"bench.real_trials: --{name.replace('_', '-')} must be a positive number")
+    if args.profile is not None and not args.profile.is_file():
+        sys.exit(f"bench.real_trials: no profile at {args.profile}")
     data = args.data or default_data()
     if data is None or not (data / "trials.csv").is_file():
         sys.exit(f"bench.real_trials: no trials.csv in {data or 'the default places'}; pass --data FOLDER")
     args.work.mkdir(parents=True, exist_ok=True)
+    args.cache = (args.cache or args.work / "cache").resolve()
+    os.environ["RG2_CACHE_DIR"] = str(args.cache)  # this process's workers and every command it runs
+    digest = data_digest(data)
     prepared = prepare(data, args.work, args.tcp_depth)
     real = prepared.trials["grasped"].to_numpy(dtype=bool)
     print(
-        f"{len(real)} real trials on {prepared.trials.object_id.nunique()} objects, {real.mean():.1%} grasped"
+        f"{len(real)} real trials on {prepared.trials.object_id.nunique()} objects, "
+        f"{real.mean():.1%} grasped "
+        f"(data {data.name}, digest {digest})"
     )
-    arguments = {k: (v if k not in ("data", "work") else None) for k, v in vars(args).items()}
+    arguments = {
+        k: (v if k not in ("data", "work", "cache", "profile") else None) for k, v in vars(args).items()
+    }
     arguments["data"] = data.name
-    config = execution_config(args.work, args.pad_spinning_friction, args.perturbed_shake)
+    arguments["data_digest"] = digest
+    arguments["profile"] = None if args.profile is None else args.profile.name
+    config = execution_config(args.work, args.pad_spinning_friction, args.perturbed_shake, args.set)
     annotator_config = AnnotatorConfig.from_toml(config)
+    tag = f"data-{digest}"
+    if args.set or args.pad_spinning_friction is not None or args.tcp_depth != GRASPA_TCP_DEPTH:
+        import hashlib
+
+        changes = repr((sorted(args.set), args.pad_spinning_friction, args.tcp_depth)).encode()
+        tag += "-set-" + hashlib.sha256(changes).hexdigest()[:6]  # a variant's record beside the default's
+    if args.stages_only:
+        tag += "-stages"
     with Run(
-        "real_trials", config=arguments, annotator=annotator_config, command="python -m bench.real_trials"
+        "real_trials",
+        config=arguments,
+        annotator=annotator_config,
+        command="python -m bench.real_trials",
+        tag=tag,
     ) as run:
-        report(run, prepared, real, args, config)
+        label = f"{data.name} ({digest})"
+        if args.profile is not None:
+            profile_report(run, prepared, real, args, label)
+            return
+        stage_report(run, prepared, real, args, config)
+        if args.stages_only:
+            return
+        report(run, prepared, real, args, config, label)
+        if not args.no_fit:
+            fit_report(run, prepared, real, args, config, label)
 
 
 def chord_check(prepared: Prepared) -> dict[str, float]:
@@ -377,30 +458,43 @@ def chord_check(prepared: Prepared) -> dict[str, float]:
 
 
 def execution_config(
-    work: Path, pad_spinning_friction: float | None = None, perturbed_shake: bool = False
+    work: Path,
+    pad_spinning_friction: float | None = None,
+    perturbed_shake: bool = False,
+    changes: Sequence[str] = (),
 ) -> Path:
     """The trial as GRASPA's robot executed it, written for ``--config`` (docs/real_trials.md);
     ``pad_spinning_friction`` (m) overrides the gripper description's when given;
-    ``perturbed_shake``: the perturbed trials shake too ([robust] shake)."""
+    ``perturbed_shake``: the perturbed trials shake too ([robust] shake); ``changes``:
+    ``section.field=value`` for every simulation (``--set``)."""
+    from annotator.tools.calibrate import config_toml
+    from bench._variants import parse_variant
+
     path = work / "execution.toml"
-    text = (
-        "# GRASPA's execution (hsp-panda/panda_grasp_server@0b0d184): the arm moves to the grasp in a\n"
-        "# straight line whatever it meets (the object is not in its planning scene), then lifts slowly\n"
-        "[protocol]\n"
-        'approach = "simulated"\n'
-        f"approach_speed = {EXECUTION['approach_speed']}\n"
-        f"lift_duration = {EXECUTION['lift_duration']}\n"
+    spec = ",".join(
+        [
+            f"protocol.{k}={v!r}" if isinstance(v, float) else f'protocol.{k}="{v}"'
+            for k, v in EXECUTION.items()
+        ]
+        + (
+            [f"gripper.pad_spinning_friction={pad_spinning_friction!r}"]
+            if pad_spinning_friction is not None
+            else []
+        )
+        + (["robust.shake=true"] if perturbed_shake else [])
+        + list(changes)
     )
-    if pad_spinning_friction is not None:
-        text += f"[gripper]\npad_spinning_friction = {pad_spinning_friction!r}\n"
-    if perturbed_shake:
-        text += "[robust]\nshake = true\n"
-    path.write_text(text)
+    _, config = parse_variant(spec)
+    header = (
+        "GRASPA's execution (hsp-panda/panda_grasp_server@0b0d184): the arm moves to the grasp in a\n"
+        "straight line whatever it meets (the object is not in its planning scene), then lifts slowly"
+    )
+    path.write_text(config_toml(config, header))
     return path
 
 
 # The execution settings of docs/real_trials.md: a simulated approach at 0.1 m/s, a 10 cm lift in 0.5 s.
-EXECUTION = {"approach_speed": 0.1, "lift_duration": 0.5}
+EXECUTION = {"approach": "simulated", "approach_speed": 0.1, "lift_duration": 0.5}
 
 
 # --cost's runs at --trials K with the perturbed trials' shortcuts off: (name, [robust] lines, note)
@@ -450,7 +544,7 @@ def evaluate_cost(
         print(f"evaluate, {name}: {seconds:.1f} CPU-s ({seconds / cpu['k1']:.2f} x --trials 1)", flush=True)
 
 
-def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -> None:  # noqa: C901
+def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path, label: str) -> None:  # noqa: C901
     from annotator.tools import calibrate as cal
 
     work, boot = args.work, args.bootstrap
@@ -477,18 +571,18 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
     always = np.ones(len(real), dtype=bool)
     T_tcp = prepared.T_obj_graspa @ _rot(R_HAND_BASE) @ _tz(_panda_tcp_depth() - args.tcp_depth)
     cone = friction_cone_baseline(prepared, T_tcp, 0.080, CONE_FRICTION)
-    confidence_report(run, trials, real, panda, cone, args)
+    confidence_report(run, trials, real, panda, cone, args, label)
 
     # the RG2 at the same TCP poses, closing on the chord the Panda's pads found there
     sim_rg2 = rg2 = None
-    if not args.no_rg2:
+    if args.rg2:
         tcp = pd.read_csv(prepared.grasps_tcp)
         closed = panda["outcome"].ne("collision") & panda["width"].gt(0.001)
         tcp["width"] = np.where(closed, panda["width"], np.nan)
         tcp.to_csv(prepared.grasps_tcp, index=False, float_format="%.17g")
         rg2 = evaluate(prepared, work / "ev_rg2", "rg2", "tcp", args.workers, config)
         sim_rg2 = rg2["success"].to_numpy(dtype=bool)
-    if args.no_grid:
+    if not args.grid:
         rows.append(stat_row("always success", stats(real, always, boot)))
         rows.append(stat_row(f"friction cone (mu {CONE_FRICTION:g})", stats(real, cone, boot)))
         if sim_rg2 is not None:
@@ -601,7 +695,7 @@ def report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -
 
 
 def confidence_report(
-    run: Run, trials: pd.DataFrame, real: np.ndarray, panda: pd.DataFrame, cone: np.ndarray, args
+    run: Run, trials: pd.DataFrame, real: np.ndarray, panda: pd.DataFrame, cone: np.ndarray, args, label: str
 ) -> None:
     """The label's confidence against the real outcomes: AUC of ``score`` and of ``p_success``
     (isotonic, cross-validated by object), balanced accuracy and precision at the threshold chosen
@@ -663,10 +757,402 @@ def confidence_report(
             ("score as a probability", conf.reliability(real, score)),
             ("p_success (CV by object)", conf.reliability(real, p_cv)),
         ],
-        title=f"GRASPA calibration split, --trials {args.trials}",
+        title=f"{label}: the default ranges, --trials {args.trials}",
+    )
+    (args.work / "reliability_default.png").write_bytes(png)
+    print(f"reliability diagram: {args.work / 'reliability_default.png'}", flush=True)
+
+
+# --- the stages, the fitted execution, a frozen profile ------------------------------------------
+
+
+def stage_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path) -> None:
+    """Trial 0 of the Panda's grasps (``--trials 1``) held through each stage against real
+    ``grasped``, through ``annotator evaluate --real`` (as a user compares their own trials)."""
+    from annotator.agreement import agreement
+    from annotator.dataset import held_through
+    from annotator.outcome import GATES
+
+    table = pd.read_csv(prepared.grasps_base).merge(pd.read_csv(prepared.real), on=["object_id", "grasp_id"])
+    path = args.work / "grasps_real.csv"
+    table.to_csv(path, index=False, float_format="%.17g")
+    out = args.work / "ev_stages"
+    args_ = ["evaluate", path, "--objects", prepared.objects, "--out", out, "--gripper", "panda"]
+    args_ += ["--frame", "base", "--resting-grasps", "table", "--workers", args.workers, "--quiet"]
+    annotator(*args_, "--overwrite", "--real", "real_success", "--config", config)
+    rows = prepared.trials[["object_id", "grasp_id"]].merge(
+        pd.read_parquet(out), on=["object_id", "grasp_id"]
+    )
+    stages = []
+    for gate in GATES:
+        held = held_through(rows, gate).to_numpy(dtype=bool)
+        a = agreement(real, held, args.bootstrap)
+        stages.append(stat_row(f"held through the {gate}", a, held=int(held.sum())))
+        for name in ("balanced", "precision"):
+            run.figure(
+                f"stage_{gate}_{name}",
+                a.value(name),
+                note=f"trial 0 held through the {gate} against real grasped: {name}, 95 % CI "
+                f"{a.interval(name)[0]:.3f}..{a.interval(name)[1]:.3f}",
+            )
+    run.table("stages", stages, note="trial 0 (--trials 1) held through each stage against real grasped")
+    counts = rows["outcome"].value_counts()
+    run.table(
+        "stage_outcomes",
+        [{"outcome": o, "n": int(counts.get(o, 0))} for o in OUTCOME_ORDER],
+        note="trial 0's outcomes",
+    )
+
+
+# The outcomes in the protocol's order, for tables.
+OUTCOME_ORDER = (
+    "collision",
+    "no_contact",
+    "slipped_lift",
+    "slipped_motion",
+    "slipped_shake",
+    "success",
+    "error",
+)
+
+
+def probability_figures(
+    run: Run,
+    prefix: str,
+    real: np.ndarray,
+    p: np.ndarray,
+    called: np.ndarray,
+    args,
+    base_rate: float,
+    what: str,
+) -> dict:
+    """The figures of a probability of real success and its calls against real outcomes: AUC,
+    Brier score (and always answering ``base_rate``, and the difference, paired), each fifth's mean
+    p against its real rate (ties share their places), balanced accuracy, precision and recall of
+    the calls, with 95 % bootstrap intervals; recorded under ``prefix`` and returned."""
+    from annotator import confidence as conf
+    from annotator.agreement import agreement, agreement_text
+
+    boot = args.bootstrap
+    auc = conf.bootstrap(conf.auc, real, p, boot)
+    brier = conf.bootstrap(conf.brier, real, p, boot)
+    base = np.full(len(real), base_rate)
+    both = np.column_stack([p, base])
+    diff = conf.bootstrap(lambda r, q: conf.brier(r, q[:, 0]) - conf.brier(r, q[:, 1]), real, both, boot)
+    calls = agreement(real, called, boot)
+    bins = conf.fifths(real, p)
+    gaps = [b.mean_p - b.real_rate for b in bins]
+    print(
+        f"{what}: AUC {auc.text()}, Brier {brier.text()} "
+        f"(always {base_rate:.3f}: {conf.brier(real, base):.3f}; "
+        f"difference {diff.text()}), mean p {np.mean(p):.3f} against {np.mean(real):.3f} real; "
+        f"{agreement_text(calls, ('balanced', 'precision', 'recall'))}",
+        flush=True,
+    )
+    for k, b in enumerate(bins):
+        print(f"  fifth {k + 1} (p {b.low:.2f}..{b.high:.2f}): mean p {b.mean_p:.3f}, real {b.real_rate:.3f}")
+    out = {
+        "auc": auc,
+        "brier": brier,
+        "brier_minus_base": diff,
+        "base_brier": conf.brier(real, base),
+        "mean_p": float(np.mean(p)),
+        "real_rate": float(np.mean(real)),
+        "worst_fifth_gap": float(max(abs(g) for g in gaps)),
+        "calls": calls,
+    }
+    for key in ("auc", "brier", "brier_minus_base"):
+        m = out[key]
+        run.figure(f"{prefix}_{key}", m.value, note=f"{what}; 95 % CI {m.low:.3f}..{m.high:.3f}")
+    run.figure(f"{prefix}_base_brier", out["base_brier"], note=f"{what}: always answering {base_rate:.3f}")
+    run.figure(
+        f"{prefix}_mean_p", out["mean_p"], note=f"{what}: mean p_success (real rate {out['real_rate']:.3f})"
+    )
+    run.figure(
+        f"{prefix}_worst_fifth_gap",
+        out["worst_fifth_gap"],
+        note=f"{what}: largest |mean p - real rate| of a fifth",
+    )
+    for name in ("balanced", "precision", "recall"):
+        lo, hi = calls.interval(name)
+        run.figure(
+            f"{prefix}_{name}",
+            calls.value(name),
+            note=f"{what}: calls at the threshold; 95 % CI {lo:.3f}..{hi:.3f}",
+        )
+    run.table(
+        f"{prefix}_fifths",
+        [
+            {
+                "fifth": k + 1,
+                "p_low": b.low,
+                "p_high": b.high,
+                "n": b.n,
+                "mean_p": b.mean_p,
+                "real_rate": b.real_rate,
+            }
+            for k, b in enumerate(bins)
+        ],
+        note=f"{what}: the trials in five equal shares by p (ties share their places)",
+    )
+    return out
+
+
+def _evaluate_rows(
+    prepared: Prepared,
+    work: Path,
+    name: str,
+    objects: Sequence[str] | None,
+    config: Path,
+    k: int,
+    workers: int,
+) -> pd.DataFrame:
+    """``annotator evaluate`` of the Panda's grasps (of ``objects`` only, when given) with
+    ``config`` at ``--trials k``; the rows in the trials' order (those evaluated)."""
+    table = pd.read_csv(prepared.grasps_base)
+    if objects is not None:
+        table = table[table["object_id"].isin(list(objects))]
+    path = work / f"grasps_{name}.csv"
+    table.to_csv(path, index=False, float_format="%.17g")
+    out = work / f"ev_{name}"
+    args_ = [
+        "evaluate",
+        path,
+        "--objects",
+        prepared.objects,
+        "--out",
+        out,
+        "--gripper",
+        "panda",
+        "--frame",
+        "base",
+    ]
+    annotator(
+        *args_,
+        "--resting-grasps",
+        "table",
+        "--workers",
+        workers,
+        "--quiet",
+        "--overwrite",
+        "--trials",
+        k,
+        "--config",
+        config,
+    )
+    return prepared.trials[["object_id", "grasp_id"]].merge(
+        pd.read_parquet(out), on=["object_id", "grasp_id"], how="inner"
+    )
+
+
+def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Path, label: str) -> None:
+    """``calibrate --fit-ranges`` on the trials, then its cross-validation simulated for real: each
+    fold's profile (fitted on the other objects) written and applied to its own objects' grasps by
+    ``annotator evaluate``, their p_success and calls pooled; the profile fitted on every trial is
+    written to ``WORK/profile.toml`` for ``--profile``."""
+    from annotator import confidence as conf
+    from annotator.tools import calibrate as cal
+    from annotator.tools import ranges
+
+    source = cal.calibration_grasps(
+        prepared.grasps_base, prepared.objects, "panda", "base", "table", None, config
+    )
+    trials = cal.read_real_trials(prepared.real, source.grasps)
+    order = (
+        trials[["object_id", "grasp_id"]]
+        .merge(prepared.trials[["object_id", "grasp_id"]].reset_index(), on=["object_id", "grasp_id"])[
+            "index"
+        ]
+        .to_numpy()
+    )
+    t0 = time.perf_counter()
+    result = cal.fit_ranges(
+        trials,
+        source.config,
+        prepared.objects,
+        args.workers,
+        0,
+        gripper=source.gripper,
+        resting="table",
+        m=args.explore_trials,
+        folds=args.folds,
+    )
+    print(cal.ranges_text(result, args.bootstrap), flush=True)
+    run.figure("fit_seconds", time.perf_counter() - t0, "s", note="exploration and fit, wall time")
+    f = result.fit
+    e = f.execution.execution
+    for i, g in enumerate(ranges.GROUPS):
+        run.figure(
+            f"fit_{g.name}_level",
+            f.levels[e.theta[i]],
+            note=f"the {g.name} group's scale level (x its units)",
+        )
+        run.figure(
+            f"fit_{g.name}_identified", int(f.execution.identified[g.name]), note="1: the data identify it"
+        )
+    run.figure("fit_trials", f.k, note="the profile's --trials")
+    run.figure("fit_threshold", f.threshold, note="the profile's p_success threshold")
+    run.figure("fit_lapse_fail", e.fail, note="real fails whatever the simulation says")
+    run.figure("fit_lapse_hold", e.hold, note="real holds whatever the simulation says")
+    run.table(
+        "fit_choices",
+        [{"gate": f.gate, "perturbed_stage": e.stage, "k": f.k, **f.ranges()}],
+        note="the profile fitted on every trial",
+    )
+    held = result.held_out
+    profile = cal.profile_config(source.config, f, result.real, None if held is None else held.p)
+    header = (
+        f"the execution fitted to {label}: {len(trials)} real trials, "
+        f"{args.explore_trials} perturbed trials each\n"
+        f"use: annotate --objects DIR --n N --gripper panda --trials {f.k} --config THIS_FILE"
+    )
+    (args.work / "profile.toml").write_text(cal.config_toml(profile, header, cal.PROFILE_KEEP))
+    print(f"the profile fitted on every trial: {args.work / 'profile.toml'}", flush=True)
+    if held is None:
+        return
+    expected = np.full(len(real), np.nan)
+    expected[order] = held.p
+    probability_figures(
+        run,
+        "cv_expected",
+        real,
+        expected,
+        np.isin(np.arange(len(real)), order[held.called >= 0.5]),
+        args,
+        float(real.mean()),
+        "p_success cross-validated by object, expected over the scores (the fit's own estimate)",
+    )
+    # the same cross-validation, simulated: each fold's frozen profile applied to its objects
+    p_sim = np.full(len(real), np.nan)
+    called = np.zeros(len(real), dtype=bool)
+    folds = []
+    for i, (objects, fold) in enumerate(held.folds):
+        path = args.work / f"profile_fold{i + 1}.toml"
+        path.write_text(cal.config_toml(cal.profile_config(source.config, fold), "", cal.PROFILE_KEEP))
+        rows = _evaluate_rows(prepared, args.work, f"fold{i + 1}", objects, path, fold.k, args.workers)
+        idx = prepared.trials.reset_index().merge(
+            rows[["object_id", "grasp_id"]], on=["object_id", "grasp_id"]
+        )["index"]
+        p_sim[idx.to_numpy()] = rows["p_success"].to_numpy()
+        called[idx.to_numpy()] = rows["p_success"].to_numpy() >= fold.threshold - 1e-12
+        fe = fold.execution.execution
+        folds.append(
+            {
+                "fold": i + 1,
+                "held_out": " ".join(objects),
+                "pose": fold.exploration.label(fe.theta[0]),
+                "friction": fold.exploration.label(fe.theta[1]),
+                "perturbed_stage": fe.stage,
+                "gate": fold.gate,
+                "k": fold.k,
+                "threshold": fold.threshold,
+            }
+        )
+    run.table("cv_folds", folds, note="each fold's profile, fitted on the other objects' trials")
+    figures = probability_figures(
+        run,
+        "cv",
+        real,
+        p_sim,
+        called,
+        args,
+        float(real.mean()),
+        "p_success cross-validated by object, each fold's profile simulated on its own objects",
+    )
+    png = conf.reliability_png(
+        [("p_success, CV by object (simulated)", conf.reliability(real, p_sim))],
+        title=f"{label}: the fitted execution, CV by object",
     )
     (args.work / "reliability.png").write_bytes(png)
     print(f"reliability diagram: {args.work / 'reliability.png'}", flush=True)
+    del figures
+    causes = disagreement_causes(prepared, real, called, result, order)
+    run.table("disagreements_by_cause", causes["by_cause"], note=DISAGREEMENT_NOTE)
+    run.table("disagreements_by_object", causes["by_object"], note="the same rows, per object")
+    for row in causes["by_cause"]:
+        print(f"  {row['real']:>8} called {row['called']:>7}: {row['n']:>3} {row['cause']}")
+
+
+DISAGREEMENT_NOTE = (
+    "the trials whose cross-validated call (simulated) disagrees with the real outcome, by what the "
+    "exploration says of them at the fitted ranges: trial 0's stage and the share of perturbed "
+    "executions that held"
+)
+
+
+def disagreement_causes(prepared: Prepared, real: np.ndarray, called: np.ndarray, result, order: np.ndarray):
+    """The rows where the calls and reality disagree, sorted by cause from the exploration at the
+    ranges fitted on all trials: what trial 0 reached (a collision at the nominal pose, no contact,
+    a slip in the lift, the motion or the shake) and whether some perturbed executions held (the
+    execution decides), none did (nothing the ranges cover holds it: the physics) or all did."""
+    from annotator.outcome import Stage
+    from annotator.tools import ranges
+
+    exp, e = result.exploration, result.fit.execution.execution
+    share = np.full(len(real), np.nan)
+    stage0 = np.zeros(len(real), dtype=np.int64)
+    p = ranges.held_share(exp.ratios(), e.theta, exp.stages >= int(Stage.from_label(e.stage)))
+    share[order], stage0[order] = p, exp.stage0
+    trial0 = {0: "trial 0 never held (collision or no contact)", 1: "trial 0 slipped in the lift"}
+    trial0.update({2: "trial 0 slipped in the motion", 3: "trial 0 slipped in the shake", 4: "trial 0 held"})
+    by_cause: dict[tuple, int] = {}
+    by_object: dict[tuple, int] = {}
+    for i in np.flatnonzero(called != real):
+        if share[i] == 0:
+            executions = "no perturbed execution held"
+        elif share[i] >= 0.95:
+            executions = "every perturbed execution held"
+        else:
+            executions = f"{'most' if share[i] >= 0.5 else 'some'} perturbed executions held"
+        key = ("success" if real[i] else "failure", "success" if called[i] else "failure")
+        cause = f"{trial0[int(stage0[i])]}; {executions}"
+        by_cause[(*key, cause)] = by_cause.get((*key, cause), 0) + 1
+        obj = prepared.trials["object_id"].iloc[i]
+        by_object[(*key, obj)] = by_object.get((*key, obj), 0) + 1
+    return {
+        "by_cause": [
+            {"real": r, "called": c, "cause": cause, "n": n}
+            for (r, c, cause), n in sorted(by_cause.items(), key=lambda kv: (kv[0][0], -kv[1]))
+        ],
+        "by_object": [
+            {"real": r, "called": c, "object": o, "n": n} for (r, c, o), n in sorted(by_object.items())
+        ],
+    }
+
+
+def profile_report(run: Run, prepared: Prepared, real: np.ndarray, args, label: str) -> None:
+    """A frozen profile applied to the trials, as a user applies a calibration to new grasps: its
+    configuration and ``--trials``, its p_success mapping and its threshold; nothing fitted."""
+    from annotator import confidence as conf
+
+    profile = AnnotatorConfig.from_toml(args.profile)
+    if profile.confidence.method == "none":
+        sys.exit(f"bench.real_trials: {args.profile} has no [confidence] mapping")
+    k = profile.confidence.trials
+    rows = _evaluate_rows(prepared, args.work, "profile", None, args.profile, k, args.workers)
+    if len(rows) != len(real):
+        sys.exit(f"bench.real_trials: evaluate gave {len(rows)} rows for {len(real)} trials")
+    p = rows["p_success"].to_numpy(dtype=np.float64)
+    called = p >= profile.confidence.threshold - 1e-12
+    base_rate = profile.confidence.base_rate or float(real.mean())
+    run.figure("profile_trials", k, note=f"--trials of the profile {args.profile.name}")
+    run.figure("profile_threshold", profile.confidence.threshold, note="its p_success threshold")
+    probability_figures(
+        run,
+        "profile",
+        real,
+        p,
+        called,
+        args,
+        base_rate,
+        f"the frozen profile {args.profile.name} applied (nothing refitted)",
+    )
+    png = conf.reliability_png(
+        [("p_success, frozen profile", conf.reliability(real, p))],
+        title=f"{label}: profile {args.profile.name}, frozen",
+    )
+    (args.work / "reliability_profile.png").write_bytes(png)
+    print(f"reliability diagram: {args.work / 'reliability_profile.png'}", flush=True)
 
 
 def _outcome_counts(panda: pd.DataFrame, rg2: pd.DataFrame) -> list[dict]:

@@ -3,6 +3,7 @@
     python -m bench.trials_cost                    # the sample objects, 30 candidates each, K = 5
     python -m bench.trials_cost --n 50 --trials 3 --repeat 2
     python -m bench.trials_cost --config execution.toml   # e.g. a simulated approach
+    python -m bench.trials_cost --config execution.toml --profile profile.toml  # a fitted execution's price
 
 In one process (one worker's world, as a worker labels spans), every sample object's first N
 candidates are labelled with ``--trials 1`` and with ``--trials K``, alternately, ``--repeat``
@@ -17,8 +18,10 @@ it): its cost, and how its scores differ from the default's on the same candidat
 perturbed closes stalled by the drive's speed alone (``[robust] stall_by_travel = false``). With a
 simulated approach (``--config`` setting ``[protocol] approach = "simulated"``), the same K is also
 run with the perturbed trials' approaches in full as well (``[robust] approach_from_contact =
-false``; its cost, and the scores against it). Prints figures and writes a record (bench/harness.py); asserts
-nothing.
+false``; its cost, and the scores against it). With ``--profile``, the profile's K with the profile
+against the same K with the model before (``--before``), in the same run: what labels made with a
+fitted execution cost per candidate. Prints figures and writes a record (bench/harness.py);
+asserts nothing.
 """
 
 from __future__ import annotations
@@ -66,7 +69,23 @@ def main() -> None:
         "--no-shaken", action="store_true", help="skip the K trials with the perturbed ones shaken too"
     )
     ap.add_argument("--config", type=Path, default=None, help="a TOML of overrides (annotate --config)")
+    ap.add_argument(
+        "--profile",
+        type=Path,
+        default=None,
+        help="also label at this profile's --trials with the profile (calibrate --fit-ranges), against the "
+        "model before (--before) at the same K, in the same run: the price of a fitted execution",
+    )
+    ap.add_argument(
+        "--before",
+        type=Path,
+        default=ROOT / "bench" / "before_stages.toml",
+        help="the model before, for --profile's comparison: its changes over --config "
+        "[default: bench/before_stages.toml]",
+    )
     args = ap.parse_args()
+    if args.n < 1 or args.trials < 2 or args.repeat < 1:
+        raise SystemExit("bench.trials_cost: --n and --repeat must be at least 1, --trials at least 2")
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     sources = discover_objects(args.objects)
     label(sources, 1, 1, config)  # load (and decompose, cold) every object first
@@ -84,6 +103,12 @@ def main() -> None:
             by_speed, robust=dataclasses.replace(by_speed.robust, approach_from_contact=False)
         )
         variants.append((k, in_full, f"{k}_in_full", " (perturbed approach in full, stalled by speed)"))
+    if args.profile is not None:
+        profile = AnnotatorConfig.from_toml(args.profile)
+        pk = profile.confidence.trials or k
+        before = _overlaid(config, args.before)  # --config with the model before's changes
+        variants.append((pk, profile, f"{pk}_profile", f" (the profile {args.profile.name})"))
+        variants.append((pk, before, f"{pk}_before", f" (the model before, {args.before.name})"))
     rates: dict[str, list[float]] = {name: [] for _, _, name, _ in variants}
     rows: dict[str, pd.DataFrame] = {}
     settings = vars(args) | {"objects": args.objects.name, "config": config.to_dict(trials=args.trials)}
@@ -129,6 +154,31 @@ def main() -> None:
         if simulated:
             what = "with the perturbed trials' approaches in full and closes stalled by speed"
             compare(run, rows, rates, args.trials, "in_full", what)
+        if args.profile is not None:
+            ratio = np.median(rates[f"{pk}_before"]) / np.median(rates[f"{pk}_profile"])
+            steps = int(rows[f"{pk}_profile"]["sim_steps"].sum()) / int(
+                rows[f"{pk}_before"]["sim_steps"].sum()
+            )
+            note = (
+                f"CPU per candidate at --trials {pk}, the profile over the model before ({args.before.name})"
+            )
+            run.ratio(f"profile_k{pk}_cpu_over_before", ratio, note=note)
+            run.ratio(f"profile_k{pk}_steps_over_before", steps, note="physics steps, the same candidates")
+            print(
+                f"the profile at --trials {pk}: {ratio:.3f} x the CPU per candidate of the model before "
+                f"({steps:.3f} x the steps)"
+            )
+
+
+def _overlaid(config: AnnotatorConfig, path: Path) -> AnnotatorConfig:
+    """``config`` with the fields the TOML file ``path`` sets, section by section."""
+    import tomllib
+
+    data = config.to_dict()
+    with open(path, "rb") as fh:
+        for section, values in tomllib.load(fh).items():
+            data.setdefault(section, {}).update(values)
+    return AnnotatorConfig.from_dict(data)
 
 
 def compare(

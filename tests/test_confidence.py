@@ -169,3 +169,22 @@ def test_annotate_refuses_a_calibration_fitted_at_another_number_of_trials(tmp_p
     result = CliRunner().invoke(annotate_command, [*args, "--trials", "5"])
     assert result.exit_code == 2 and "set [robust] shake = true, or calibrate again" in result.output
     assert "Traceback" not in result.output
+
+
+def test_ties_share_their_places_in_a_top_share_and_in_the_fifths():
+    """241 of 425 rows scoring 1.0 must not be ranked by their row order: a tied group straddling
+    a boundary counts in each share by the part of its places there, whatever the order."""
+    rng = np.random.default_rng(2)
+    real = rng.random(425) < 0.65
+    score = np.where(np.arange(425) < 241, 1.0, rng.integers(0, 5, 425) / 5)
+    top = conf.top_fraction_precision(real, score)
+    assert top == pytest.approx(real[:241].mean())  # the top 85 places all lie in the tied group
+    for order in (rng.permutation(425), np.arange(425)[::-1]):
+        assert conf.top_fraction_precision(real[order], score[order]) == pytest.approx(top)
+        bins = conf.fifths(real[order], score[order])
+        assert [b.n for b in bins] == [85] * 5
+        assert bins[0].mean_p == 1.0 and bins[0].real_rate == pytest.approx(real[:241].mean())
+        assert bins[2].real_rate == pytest.approx(conf.fifths(real, score)[2].real_rate)
+    shares = conf.rank_shares(np.array([3.0, 2.0, 2.0, 2.0, 1.0]), 5)
+    assert np.allclose(shares.sum(axis=1), 1.0) and np.allclose(shares.sum(axis=0), 1.0)
+    assert np.allclose(shares[1], [0, 1 / 3, 1 / 3, 1 / 3, 0])  # the tie spreads over fifths 2-4

@@ -6,6 +6,7 @@ published code (the sources in docs/scenes.md), never imported."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -41,9 +42,24 @@ def vgn_dataset_items(root: Path) -> list[tuple[str, np.ndarray]]:
     return out
 
 
+def palm_voxels(scenes: SceneLabels, scene_id: int, T_table_tcp: np.ndarray) -> np.ndarray:
+    """(n, 3) int: the voxel VGN's Dataset reads for each grasp of the scene: its origin (the
+    palm, finger_depth = 0.05 m behind the gripper's fingertips along the approach, from the
+    labels' TCPs ``T_table_tcp`` (n, 4, 4) and widths) in the task frame, in voxels, float32, rounded."""
+    from annotator.tools.export_vgn import fingertip_reach
+
+    rows = scenes.rows(scene_id)
+    back = fingertip_reach(scenes.gripper)(rows["width"].to_numpy()) - 0.05
+    palm = T_table_tcp[:, :3, 3] + back[:, None] * T_table_tcp[:, :3, 2]
+    T_task_table = scenes.records[scene_id].workspace.T_table_task.inverse().as_matrix()
+    in_task = palm @ T_task_table[:3, :3].T + T_task_table[:3, 3]
+    return np.round((in_task / (0.3 / 40)).astype(np.float32)).astype(np.int64)
+
+
 def test_vgn_export_leaves_out_grasps_outside_the_workspace(convex_scene_run, tmp_path, monkeypatch):
     """A grasp placed 2 cm outside the workspace cube is left out of both layouts and reported
-    (the command's output and _export.json); every row VGN's Dataset reads has its voxel in the grid."""
+    (the command's output and _export.json), with every grasp whose origin (VGN's palm) lies
+    outside the grid; every row VGN's Dataset reads has its voxel in the grid."""
     scenes = open_scene_labels(convex_scene_run, "test")
     record = scenes.records[0]
     moved = 7  # grasp id moved outside: below the cube's lower x side
@@ -56,21 +72,28 @@ def test_vgn_export_leaves_out_grasps_outside_the_workspace(convex_scene_run, tm
         return g
 
     monkeypatch.setattr(SceneLabels, "grasps", grasps)
+    inside = {
+        s: np.all((palm_voxels(scenes, s, scenes.grasps(s).T_table_tcp) >= 0), axis=1)
+        & np.all(palm_voxels(scenes, s, scenes.grasps(s).T_table_tcp) < 40, axis=1)
+        for s in (0, 1)
+    }
+    assert not inside[0][moved]
+    outside = sum(int((~m).sum()) for m in inside.values())
     out = tmp_path / "vgn"
     result = run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
-    assert "left out 1 grasps: outside the 0.3 m workspace cube" in result.output
-    assert "wrote" in result.output and f"({2 * N - 1} grasps)" in result.output
+    assert f"left out {outside} grasps: outside the 0.3 m workspace cube" in result.output
+    assert "wrote" in result.output and f"({2 * N - outside} grasps)" in result.output
     recorded = json.loads((out / "_export.json").read_text())["left_out"]
-    assert len(recorded) == 1 and recorded[0]["grasps"] == 1 and "workspace" in recorded[0]["reason"]
+    assert len(recorded) == 1 and recorded[0]["grasps"] == outside and "workspace" in recorded[0]["reason"]
     raw = pd.read_csv(out / "grasps.csv")
-    assert len(raw) == 2 * N - 1
-    # the raw layout without the moved grasp: its other rows are the labels' own, in order
+    assert len(raw) == 2 * N - outside
+    # the raw layout without the grasps outside: its other rows are the labels' own, in order
     rows0 = scenes.rows(0)
-    kept_widths = np.delete(rows0["width"].to_numpy(), moved)
+    kept_widths = rows0["width"].to_numpy()[inside[0]]
     np.testing.assert_array_equal(raw.loc[raw.scene_id == "scene_000000", "width"].to_numpy(), kept_widths)
     assert (raw[["x", "y", "z"]].to_numpy() >= -0.5 * 0.3 / 40).all()
     items = vgn_dataset_items(out / "dataset")
-    assert len(items) == 2 * N - 1
+    assert len(items) == 2 * N - outside
     index = np.array([i for _, i in items])
     assert (index >= 0).all() and (index < 40).all()
     # construct_dataset.py's grasps from the raw layout index the same voxels
@@ -99,6 +122,204 @@ def test_vgn_dataset_csv_is_construct_datasets_with_round_trip_parsing(convex_sc
     for line in text[:20]:
         for value in line.split(",")[1:9]:
             assert repr(float(value)) == value
+
+
+def vgn_rows(root: Path) -> list[dict]:
+    """Every row of a VGN raw layout as VGN's ``read_grasp`` takes it (the quaternion by the
+    column slice qx..qw, the position x..z) and its ``Dataset`` would label it: the grasp frame
+    (4, 4) in the task frame, its width and its integer label."""
+    from annotator.geometry import quat_to_matrix
+
+    df = pd.read_csv(root / "grasps.csv")
+    out = []
+    for i in range(len(df.index)):
+        T = np.eye(4)
+        T[:3, :3] = quat_to_matrix(df.loc[i, "qx":"qw"].to_numpy(np.double))
+        T[:3, 3] = df.loc[i, "x":"z"].to_numpy(np.double)
+        out.append(
+            {
+                "scene_id": df.loc[i, "scene_id"],
+                "T": T,
+                "width": df.loc[i, "width"],
+                "label": df.loc[i, "label"],
+            }
+        )
+    return out
+
+
+def test_vgn_grasp_origin_is_the_palm_finger_depth_behind_the_fingertips(convex_scene_run, tmp_path):
+    """VGN's grasp frame has its origin at the palm, its fingertips finger_depth (setup.json) ahead
+    along its z, closing along its y. Read back as VGN reads a row: the origin moved finger_depth
+    along z is where the labelling gripper's fingertips end at the label's width (its collision
+    model), on our TCP's approach line; VGN's y is our closing x."""
+    from annotator.geometry import quat_to_matrix
+    from annotator.tools.export_vgn import fingertip_reach, scene_name, tcp_in_table
+
+    out = tmp_path / "vgn"
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
+    scenes = open_scene_labels(convex_scene_run, "test")
+    finger_depth = json.loads((out / "setup.json").read_text())["finger_depth"]
+    assert finger_depth == pytest.approx(0.05)
+    reach = fingertip_reach(scenes.gripper)
+    rows = vgn_rows(out)
+    offsets = []
+    for scene_id in (0, 1):
+        record = scenes.records[scene_id]
+        index = palm_voxels(scenes, scene_id, scenes.grasps(scene_id).T_table_tcp)
+        labels = scenes.rows(scene_id)[np.all((index >= 0) & (index < 40), axis=1)].reset_index(drop=True)
+        mine = [r for r in rows if r["scene_id"] == scene_name(scene_id)]
+        assert len(mine) == len(labels) > N // 2
+        T_table_task = record.workspace.T_table_task.as_matrix()
+        for k, row in enumerate(mine):
+            T_table_vgn = T_table_task @ row["T"]
+            tcp = labels.loc[k, [f"table_tcp_{c}" for c in "xyz"]].to_numpy(float)
+            q = labels.loc[k, [f"table_tcp_q{c}" for c in "xyzw"]].to_numpy(float)
+            R = quat_to_matrix(q)
+            tips = T_table_vgn[:3, 3] + finger_depth * T_table_vgn[:3, 2]
+            want = tcp + reach(np.array([row["width"]]))[0] * R[:, 2]
+            np.testing.assert_allclose(tips, want, atol=1e-9)
+            np.testing.assert_allclose(T_table_vgn[:3, 1], R[:, 0], atol=1e-9)  # VGN's y: our closing x
+            np.testing.assert_allclose(T_table_vgn[:3, 2], R[:, 2], atol=1e-9)  # the same approach
+            offset = reach(np.array([row["width"]]))[0] - finger_depth
+            offsets.append(offset)
+            back = tcp_in_table(row["T"], record, offset)
+            np.testing.assert_allclose(back[:3, 3], tcp, atol=1e-12)
+    # the RG2's fingertips end a few mm beyond its TCP: VGN's origin lies 4 to 5 cm behind it
+    assert -0.05 < min(offsets) and max(offsets) < -0.035
+
+
+def vgn_detectable(grid: np.ndarray) -> np.ndarray:
+    """(40, 40, 40) bool: the voxels VGN's detection may pick a grasp at, as its documented rule
+    reads: voxels whose TSDF value is above 0.5 (outside the surface), grown by two voxels into
+    voxels that are not inside (value in (0.001, 0.5)); the quality elsewhere is set to zero."""
+    from scipy import ndimage
+
+    tsdf = grid.reshape(40, 40, 40)
+    inside = (tsdf > 1e-3) & (tsdf < 0.5)
+    return ndimage.binary_dilation(tsdf > 0.5, iterations=2, mask=~inside)
+
+
+def test_vgn_labels_lie_in_the_voxels_vgn_detects_from(convex_scene_run, tmp_path):
+    """VGN trains the quality of the voxel at a grasp's origin, and detects only in voxels
+    outside the observed surface or near it. Read as its Dataset reads the dataset layout (index
+    = round of the float32 position in voxels, the scene's grid): the held grasps' voxels lie
+    where VGN's detection looks; our TCP's own voxels (between the pads, inside what they hold)
+    mostly do not."""
+    from annotator.tools.export_vgn import VgnSetup, task_poses
+
+    out = tmp_path / "vgn"
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--out", out)
+    df = pd.read_csv(out / "dataset" / "grasps.csv")
+    held = df[df["label"] == 1].reset_index(drop=True)
+    assert len(held) >= 5
+    valid = []
+    for i in range(len(held)):
+        grid = np.load(out / "dataset" / "scenes" / (held.loc[i, "scene_id"] + ".npz"))["grid"]
+        index = np.round(held.loc[i, "i":"k"].to_numpy(np.single)).astype(np.int64)
+        valid.append(bool(vgn_detectable(grid)[tuple(index)]))
+    scenes = open_scene_labels(convex_scene_run, "test")
+    at_tcp = []
+    setup = VgnSetup(0.3, scenes.views(0)[0].depth_K, 0.11)  # no fingertip: the TCP itself
+    for scene_id in (0, 1):
+        grasps = scenes.grasps(scene_id)
+        grasps = grasps.take(np.asarray(grasps.success, dtype=bool))
+        grid = np.load(out / "dataset" / "scenes" / f"scene_{scene_id:06d}.npz")["grid"]
+        detectable = vgn_detectable(grid)
+        for p in task_poses(scenes.records[scene_id], grasps, setup.offset(grasps.width))[:, :3, 3]:
+            index = np.round((p / (0.3 / 40)).astype(np.float32)).astype(np.int64)
+            at_tcp.append(bool(np.all((index >= 0) & (index < 40)) and detectable[tuple(index)]))
+    assert np.mean(valid) >= 0.75, f"{np.mean(valid):.2f} of the held grasps' voxels are detectable"
+    assert np.mean(at_tcp) < np.mean(valid) - 0.3, (
+        f"at the TCP {np.mean(at_tcp):.2f}, at the palm {np.mean(valid):.2f}"
+    )
+
+
+def test_vgn_clean_drops_grasps_near_the_sides_and_balances():
+    """VGN's data notebook: positions within 2 cm of the cube's sides go, then negatives at random
+    until as many as the positives remain; the same seed, the same choice."""
+    from annotator.tools.export_vgn import vgn_clean
+
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(0.0, 0.3, size=(400, 3))
+    labels = rng.uniform(size=400) < 0.2
+    side, dropped = vgn_clean(positions, labels, 0.3)
+    near = np.any((positions < 0.02) | (positions > 0.28), axis=1)
+    np.testing.assert_array_equal(side, near)
+    kept = ~side & ~dropped
+    assert not (dropped & labels).any() and not (dropped & side).any()
+    assert labels[kept].sum() == (~labels[kept]).sum() == labels[~near].sum()
+    again = vgn_clean(positions, labels, 0.3)[1]
+    np.testing.assert_array_equal(again, dropped)
+    assert not vgn_clean(positions, labels, 0.3, balance=False)[1].any()
+    # more positives than negatives: nothing to drop
+    assert not vgn_clean(positions, rng.uniform(size=400) < 0.8, 0.3)[1].any()
+
+
+def test_vgn_balance_reads_back_as_vgn_trains_on_it(convex_scene_run, tmp_path, monkeypatch):
+    """``--balance``: both layouts hold the same rows, none within 2 cm of the cube's sides, as
+    many negatives as positives, every positive kept; read as VGN's Dataset reads them (labels
+    cast to int, widths and positions in voxels as float32, the grid float32 (1, 40, 40, 40)); the
+    counts of what was left out in _export.json; a second export writes the same bytes. (Two of
+    every three held grasps are read as failures here, so that the negatives outnumber the
+    positives as in a pile's labels.)"""
+    real_grasps = SceneLabels.grasps
+
+    def grasps(self, scene_id):
+        g = real_grasps(self, scene_id)
+        keep = np.zeros(len(g.success), dtype=bool)
+        keep[np.flatnonzero(g.success)[::3]] = True
+        return dataclasses.replace(g, success=keep)
+
+    monkeypatch.setattr(SceneLabels, "grasps", grasps)
+    plain = tmp_path / "plain"
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--out", plain)
+    before = pd.read_csv(plain / "grasps.csv")
+    near = np.any((before[["x", "y", "z"]] < 0.02) | (before[["x", "y", "z"]] > 0.28), axis=1).to_numpy()
+    positives = before[(before["label"] == 1).to_numpy() & ~near]
+    assert ((before["label"] == 0).to_numpy() & ~near).sum() > len(positives) > 0
+    out = tmp_path / "vgn"
+    result = run_annotator("export", convex_scene_run, "--format", "vgn", "--balance", "--out", out)
+    assert "VGN's balance" in result.output
+    raw = pd.read_csv(out / "grasps.csv")
+    pd.testing.assert_frame_equal(
+        raw[raw["label"] == 1].reset_index(drop=True), positives.reset_index(drop=True)
+    )
+    dataset = pd.read_csv(out / "dataset" / "grasps.csv")
+    assert len(raw) == len(dataset) > 0
+    voxel = 0.3 / 40
+    labels = dataset["label"].to_numpy().astype(np.int64)  # Dataset: .astype(np.long)
+    assert set(np.unique(labels)) <= {0, 1} and labels.sum() == (labels == 0).sum()
+    position = raw[["x", "y", "z"]].to_numpy()
+    assert (position >= 0.02).all() and (position <= 0.28).all()
+    np.testing.assert_allclose(dataset[["i", "j", "k"]].to_numpy() * voxel, position, rtol=1e-12)
+    width = dataset["width"].to_numpy(np.single)  # Dataset: .astype(np.single), in voxels
+    np.testing.assert_allclose(width * voxel, raw["width"].to_numpy(), rtol=1e-6)
+    for scene_id, index in vgn_dataset_items(out / "dataset"):
+        assert scene_id.startswith("scene_") and ((index >= 0) & (index < 40)).all()
+    grid = np.load(out / "dataset" / "scenes" / (dataset.loc[0, "scene_id"] + ".npz"))["grid"]
+    assert grid.dtype == np.float32 and grid.shape == (1, 40, 40, 40)
+    recorded = {x["reason"]: x["grasps"] for x in json.loads((out / "_export.json").read_text())["left_out"]}
+    everything = sum(len(open_scene_labels(convex_scene_run, "test").rows(s)) for s in (0, 1))
+    assert sum(recorded.values()) + len(raw) == everything
+    assert any("balance" in reason for reason in recorded)
+    assert recorded[next(r for r in recorded if "balance" in r)] > 0
+    again = tmp_path / "again"
+    run_annotator("export", convex_scene_run, "--format", "vgn", "--balance", "--out", again)
+    assert (again / "grasps.csv").read_bytes() == (out / "grasps.csv").read_bytes()
+
+
+def test_balance_is_refused_for_formats_that_are_not_vgn(convex_scene_run, tmp_path):
+    result = run_annotator(
+        "export",
+        convex_scene_run,
+        "--format",
+        "contact_graspnet",
+        "--balance",
+        "--out",
+        tmp_path / "c",
+        check=2,
+    )
+    assert "--balance" in result.output and "vgn" in result.output
 
 
 # --- GIGA -------------------------------------------------------------------------------------------

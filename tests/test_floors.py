@@ -18,7 +18,7 @@ PACKAGE = REPO / "annotator"
 # is "annotator"). The same table is docs/architecture.md's.
 FLOORS: dict[int, tuple[str, ...]] = {
     0: ("annotator", "config", "files", "geometry", "outcome", "paths", "rng", "schema", "versions"),
-    1: ("confidence", "grippers", "label_table", "sampler"),
+    1: ("agreement", "confidence", "grippers", "label_table", "sampler"),
     2: ("sim",),
     3: ("objects", "render", "trial"),
     4: ("k_trials", "store"),

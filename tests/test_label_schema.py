@@ -40,7 +40,7 @@ def test_every_mode_column_is_declared_once_and_every_declared_column_is_used():
         assert [c.name for c in schema.columns_of(mode)] == list(names)
         assert set(LEGACY_REQUIRED) <= set(names), mode
     assert schema.MODES["capture"] == schema.MODES["object"] == schema.MODES["evaluate"]
-    assert len(schema.MODES["object"]) == 30
+    assert len(schema.MODES["object"]) == 32
     with pytest.raises(KeyError, match="unknown label mode"):
         schema.columns_of("nope")
 

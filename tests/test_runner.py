@@ -57,8 +57,9 @@ def test_each_job_checks_its_own_options():
         ObjectJob(CONFIG, ObjectOptions(views=2)).check(options)
     with pytest.raises(UsageError, match="--n must be between"):
         ObjectJob(CONFIG).check(RunOptions(SAMPLES, 0))
-    with pytest.raises(UsageError, match="RG2 only"):
-        SceneJob(CONFIG, SceneOptions(2)).check(RunOptions(SAMPLES, 10, gripper="panda"))
+    with pytest.raises(UsageError, match="--gripper"):
+        SceneJob(CONFIG, SceneOptions(2)).check(RunOptions(SAMPLES, 10, gripper="no_such_gripper"))
+    SceneJob(CONFIG, SceneOptions(2)).check(RunOptions(SAMPLES, 10, gripper="panda"))
     with pytest.raises(UsageError, match="--arrangement"):
         SceneJob(CONFIG, SceneOptions(2, arrangement="heap")).check(options)
     ObjectJob(CONFIG, ObjectOptions(cell=True, views=2)).check(options)

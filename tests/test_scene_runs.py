@@ -95,10 +95,30 @@ def test_bad_scene_options_are_one_line(concave, tmp_path):
     result = run_annotate("--objects", concave, "--out", tmp_path / "o", check=2)
     assert "--n" in result.output
     result = run_annotate(
-        "--objects", concave, "--scenes", 1, "--gripper", "panda", "--out", tmp_path / "p", check=2
+        "--objects", concave, "--scenes", 1, "--gripper", "no_such_gripper", "--out", tmp_path / "p", check=2
     )
-    assert "--scenes simulates the RG2 only; --gripper panda" in result.output
+    assert "--gripper" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "p").exists()
+
+
+def test_scenes_with_another_gripper_label_with_it_and_bind_it(convex_objects, tmp_path):
+    """``--scenes --gripper panda``: every row is the Panda's (widths within its 80 mm stroke), the
+    manifest binds it, a re-run resumes, and the same folder refuses another gripper; an RG2 scene
+    run binds no gripper, as before grippers were data."""
+    out = tmp_path / "panda"
+    args = ["--objects", convex_objects, "--scenes", 1, "--per-scene", 2, "--n", 20, "--workers", 1]
+    run_annotate(*args, "--gripper", "panda", "--out", out)
+    labels = pd.read_parquet(out)
+    assert len(labels) == 20 and set(labels["gripper"]) == {"panda"} and labels["width"].max() <= 0.0801
+    manifest = json.loads((out / "_manifest.json").read_text())
+    assert manifest["run"]["gripper"]["name"] == "panda"
+    again = run_annotate(*args, "--gripper", "panda", "--out", out)
+    assert "1 done earlier" in again.output
+    other = run_annotate(*args, "--out", out, check=2)
+    assert "gripper panda" in other.output
+    rg2 = tmp_path / "rg2"
+    run_annotate(*args, "--out", rg2)
+    assert "gripper" not in json.loads((rg2 / "_manifest.json").read_text())["run"]
 
 
 @pytest.mark.slow

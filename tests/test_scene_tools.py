@@ -32,15 +32,19 @@ def test_vgn_export_reads_back_as_vgn_reads_it(convex_scene_run, tmp_path):
     assert setup["intrinsic"] == views[0].depth_K
     assert setup["max_opening_width"] == pytest.approx(TcpDepth("rg2").max_width)
     df = export_vgn.read_grasps(out)
-    assert list(df.columns) == list(export_vgn.RAW_COLUMNS) and len(df) == 2 * N
+    reach = export_vgn.fingertip_reach(scenes.gripper)
+    assert list(df.columns) == list(export_vgn.RAW_COLUMNS) and N < len(df) <= 2 * N
     for scene_id in (0, 1):
         record, rows = scenes.records[scene_id], scenes.rows(scene_id)
+        offset = reach(rows["width"].to_numpy()) - setup["finger_depth"]  # VGN's palm on our TCP's z
+        inside = export_vgn.inside_grid(record, scenes.grasps(scene_id), setup["size"], offset=offset)
+        rows, offset = rows[inside].reset_index(drop=True), offset[inside]
         part = df[df["scene_id"] == export_vgn.scene_name(scene_id)].reset_index(drop=True)
         assert part["label"].tolist() == rows["success"].astype(int).tolist()
         np.testing.assert_array_equal(part["width"].to_numpy(), rows["width"].to_numpy())
         for k in range(len(part)):
             T_task_vgn, _, _ = export_vgn.grasp_in_task(part.loc[k])
-            T_table_tcp = export_vgn.tcp_in_table(T_task_vgn.as_matrix(), record)
+            T_table_tcp = export_vgn.tcp_in_table(T_task_vgn.as_matrix(), record, offset[k])
             want = rows.loc[k, [f"table_tcp_{c}" for c in "xyz"]].to_numpy(float)
             np.testing.assert_allclose(T_table_tcp[:3, 3], want, atol=1e-12)
         depth, extrinsics = export_vgn.read_sensor_data(out, export_vgn.scene_name(scene_id))

@@ -110,6 +110,31 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     help="Also write every simulated outcome of the grid here (Parquet: object_id, grasp_id, "
     "real_success, friction, force, severity, sim_success), for analyses of your own.",
 )
+@click.option(
+    "--fit-ranges",
+    is_flag=True,
+    help="Instead of the grid: fit the execution's uncertainty to the real trials ([robust] ranges of "
+    "the object's placement and yaw, the hand across and along the approach, the friction spread; the "
+    "stage the perturbed trials are judged at, trial 0's gate and --trials K) by the likelihood of the "
+    "real outcomes, cross-validated by object, and write it with its [confidence] mapping as the robot "
+    "cell's profile (--write-config) [docs/tools.md, calibrate].",
+)
+@count_option(
+    "--explore-trials",
+    "explore_m",
+    default=64,
+    show_default=True,
+    help="With --fit-ranges: perturbed trials per real trial in the exploration.",
+    low=4,
+    high=4096,
+)
+@click.option(
+    "--levels",
+    default=None,
+    help="With --fit-ranges: the scale levels each group of ranges is explored at, comma-separated "
+    "[default: 0.5,1,2,4,8 x the object's 2 mm and 2 deg, the hand's 1 mm across and 2 mm along, "
+    "friction +-0.1].",
+)
 @LABELS_GRIPPER_OPTION
 @FRAME_OPTION
 @click.option(
@@ -151,6 +176,9 @@ def calibrate_command(
     trials_k,
     reliability_out,
     outcomes_out,
+    fit_ranges,
+    explore_m,
+    levels,
     gripper,
     frame,
     resting,
@@ -209,6 +237,21 @@ def calibrate_command(
     if source.resting:
         click.echo(f"resting: each object on the table as given, grasps in the {source.resting}'s frame")
     base = source.config
+    if fit_ranges:
+        _fit_ranges(
+            labels,
+            real_csv,
+            trials,
+            source,
+            objects_dir,
+            explore_m,
+            levels,
+            folds,
+            workers,
+            seed,
+            claimed,
+        )
+        return
     forces = _floats(force) if force is not None else cal.default_forces(source.gripper)
     settings = cal.grid(frictions, forces, severities, real_force="grip_force" in trials.columns)
     click.echo(
@@ -271,4 +314,89 @@ def calibrate_command(
     click.echo(f"wrote {claimed.write_text('--write-config', cal.config_toml(written, header))}")
     if claimed.asked("--outcomes"):
         table = cal.outcomes_table(trials, result.simulated)
+        click.echo(f"wrote {claimed.write('--outcomes', lambda tmp: table.to_parquet(tmp, index=False))}")
+
+
+def _check_levels(levels, config) -> None:
+    """Every range the exploration reaches (each group's sizes at the highest level) within its
+    [robust] bound; one line naming the field otherwise, before any simulation."""
+    import dataclasses
+
+    from annotator.config import ConfigError
+    from annotator.tools import ranges
+    from annotator.tools.common import ToolError
+
+    top = max(levels)
+    for group in ranges.GROUPS:
+        try:
+            dataclasses.replace(config.robust, **group.at(top))
+        except ConfigError as exc:
+            raise ToolError(f"--levels up to {top:g}: {exc}") from None
+
+
+def _fit_ranges(
+    labels,
+    real_csv,
+    trials,
+    source,
+    objects_dir,
+    m,
+    levels,
+    folds,
+    workers,
+    seed,
+    claimed,
+) -> None:
+    """``calibrate --fit-ranges``: explore, fit, cross-validate, write the profile (``claimed``: the
+    command's outputs, :class:`annotator.tools.common.ToolOutputs`)."""
+    import os
+
+    from annotator import confidence as conf
+    from annotator.tools import ranges
+
+    level_values = _floats(levels) if levels is not None else ranges.LEVELS
+    _check_levels(level_values, source.config)
+    click.echo(
+        f"{len(trials)} real trials ({int(trials.real_success.sum())} held) on {trials.object_id.nunique()} "
+        f"objects; exploring each with {m} perturbed trials"
+    )
+    result = cal.fit_ranges(
+        trials,
+        source.config,
+        objects_dir,
+        workers or os.cpu_count() or 1,
+        seed,
+        gripper=source.gripper,
+        resting=source.resting,
+        m=m,
+        levels=level_values,
+        folds=folds,
+    )
+    click.echo(cal.ranges_text(result, seed=seed))
+    held_p = None if result.held_out is None else result.held_out.p
+    profile = cal.profile_config(source.config, result.fit, result.real, held_p)
+    f = result.fit
+    if result.held_out is not None:
+        bins = conf.reliability(result.real, result.held_out.p)
+        title = (
+            f"{source.gripper.name}, profile --trials {f.k}, by object; Brier {profile.confidence.brier:.3f}"
+        )
+        diagram = conf.reliability_png([("p_success (cross-validated)", bins)], title)
+        click.echo(f"wrote {claimed.write_bytes('--reliability', diagram)}")
+    header = (
+        f"annotator calibrate --fit-ranges {labels} {real_csv}: the execution fitted to {len(trials)} real "
+        f"trials ({source.gripper.name}); the robot cell's profile\n"
+        f"[confidence]: p_success of the score of --trials {f.k}, Brier {profile.confidence.brier:.3f} "
+        "cross-validated by object; call a grasp a success at p_success >= "
+        f"{profile.confidence.threshold:.3f}\n"
+        f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --trials {f.k} --config THIS_FILE"
+    )
+    text = cal.config_toml(profile, header, cal.PROFILE_KEEP)
+    click.echo(f"wrote {claimed.write_text('--write-config', text)}")
+    if claimed.asked("--outcomes"):
+        table = trials[["object_id", "grasp_id", "real_success"]].reset_index(drop=True).copy()
+        exp = result.exploration
+        table["trial_stages"] = [
+            str(a) + "".join(map(str, row)) for a, row in zip(exp.stage0, exp.stages, strict=True)
+        ]
         click.echo(f"wrote {claimed.write('--outcomes', lambda tmp: table.to_parquet(tmp, index=False))}")

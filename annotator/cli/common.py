@@ -25,9 +25,8 @@ EXIT_TERMINATED = 143  # 128 + SIGTERM
 SEED = click.IntRange(0, 2**63 - 1)
 
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
-# annotator.dataset.OUTCOMES, spelled out so that `annotator --help` does not import pandas
-# (tests/tools/test_show.py checks they are the same)
-OUTCOMES = ("success", "collision", "no_contact", "slipped_lift", "slipped_shake", "error")
+# the outcomes, from annotator.outcome (no pandas: `annotator --help` stays fast)
+from annotator.outcome import OUTCOMES  # noqa: E402, F401  (for the commands' choices)
 
 LABELS = click.argument("labels", type=click.Path(path_type=Path))
 VERBOSE_OPTION = click.option("--verbose", "-v", is_flag=True, help="Debug logging.")
@@ -209,11 +208,20 @@ def _exit_soon(command: str, code: int) -> NoReturn:
     sys.exit(code)
 
 
-def run_pipeline(command: str, *, config: Any, own: Any = None, workers: int | None, **options: Any) -> None:
+def run_pipeline(
+    command: str,
+    *,
+    config: Any,
+    own: Any = None,
+    workers: int | None,
+    on_done: Callable[[], None] | None = None,
+    **options: Any,
+) -> None:
     """Run a labelling job with the run's ``options`` (:class:`annotator.pipeline.options.
     RunOptions`) and the job's ``own`` options, which choose the job (``annotate``: None or
     ``ObjectOptions``; ``evaluate``: ``EvaluateOptions``; ``annotate --scenes``: ``SceneOptions``),
-    and exit with the documented code; problems are one line prefixed with ``command``."""
+    and exit with the documented code; problems are one line prefixed with ``command``.
+    ``on_done()`` runs once the run has finished (all objects done or some failed), before the exit."""
     from annotator.pipeline.run import RunOptions, SchedulerLost, Terminated, UsageError, run
     from annotator.store import OutputError
 
@@ -236,4 +244,6 @@ def run_pipeline(command: str, *, config: Any, own: Any = None, workers: int | N
     except Terminated:
         click.echo(f"{command}: terminated; re-run the same command to resume", err=True)
         _exit_soon(command, EXIT_TERMINATED)
+    if on_done is not None:
+        on_done()
     sys.exit(EXIT_OK if not summary.failed else EXIT_SOME_FAILED)

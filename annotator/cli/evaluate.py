@@ -78,6 +78,15 @@ FRAME_OPTION = click.option(
     "the grasps move with it; the gripper closes with gravity on [default: floating, gravity off].",
 )
 @RESTING_GRASPS_OPTION
+@click.option(
+    "--real",
+    "real_column",
+    default=None,
+    metavar="COLUMN",
+    help="A column of GRASPS with each grasp's real outcome (1/0, true/false): after the run, trial "
+    "0 held through each stage (close, lift, motion, shake) is compared with it: balanced accuracy, "
+    "precision and recall with 95 % intervals [default: real_success, when GRASPS has it].",
+)
 @CACHE_OPTION
 @QUIET_OPTION
 @VERBOSE_OPTION
@@ -96,6 +105,7 @@ def evaluate_command(
     frame,
     resting,
     resting_grasps,
+    real_column,
     cache_dir,
     quiet,
     verbose,
@@ -109,7 +119,9 @@ def evaluate_command(
     base link's (ACRONYM's and GraspGen's convention). The output is what annotate writes (same
     columns, resume, determinism, workers), plus why a collision is one (collided_with: object or
     table; collision_stage: approach, closed or pregrasp); with --resting also rest_q*, the settled
-    object pose obj_x .. obj_qw and settle_drift. Grasps keep their grasp_id when those are 0..k-1
+    object pose obj_x .. obj_qw and settle_drift. With real outcomes (--real COLUMN, or a
+    real_success column), each stage trial 0 held through is compared with them at the end.
+    Grasps keep their grasp_id when those are 0..k-1
     per object, else they are numbered in the order of the file. Grasps a real robot executed
     (off-centre, on misplaced objects) want [protocol] approach = "simulated" (docs/tools.md).
 
@@ -129,6 +141,7 @@ def evaluate_command(
     from annotator.tools.evaluate import given_candidates, read_grasps
 
     grasps = read_grasps(grasps_file, frame)
+    real = _real_outcomes(grasps_file, real_column, grasps)
     chosen = labelling_config(grasps_file, config_file)
     config = chosen.config
     from annotator.confidence import trials_mismatch
@@ -171,4 +184,29 @@ def evaluate_command(
         cache_dir=cache_dir,
         config=config,
         own=EvaluateOptions(candidates, resting=resting or False),
+        on_done=None if real is None else lambda: _compare_stages(out_dir, real, real_column, config),
     )
+
+
+def _real_outcomes(grasps_file: Path, column: str | None, grasps):
+    """The grasps' real outcomes (``--real COLUMN``, or ``real_success`` when the table has it), or
+    None: nothing to compare with."""
+    from annotator.tools.common import read_table
+    from annotator.tools.evaluate import REAL_COLUMN, real_outcomes
+
+    if column is None:
+        if Path(grasps_file).is_dir() or REAL_COLUMN not in read_table(grasps_file, "grasps file").columns:
+            return None
+        column = REAL_COLUMN
+    return real_outcomes(grasps_file, column, grasps)
+
+
+def _compare_stages(out_dir: Path, real, column: str | None, config) -> None:
+    """Print each stage of the evaluated grasps against their real outcomes."""
+    from annotator.tools.common import read_labels
+    from annotator.tools.evaluate import REAL_COLUMN, stage_agreement, stage_agreement_text
+
+    rows = read_labels(out_dir)
+    stages = stage_agreement(rows, real)
+    rate = float(real["real_success"].mean())
+    click.echo(stage_agreement_text(stages, column or REAL_COLUMN, config.protocol.gate, rate), err=True)

@@ -42,9 +42,18 @@ from annotator.cli.common import (
     is_flag=True,
     help="Export the labels of a run that has not finished, or of a scene run in which a scene failed.",
 )
+@click.option(
+    "--balance",
+    is_flag=True,
+    help="vgn: clean the grasps as VGN's data notebook does before its construct_dataset.py: leave out "
+    "those within 2 cm of the workspace cube's sides, then negatives at random until they are as many "
+    "as the positives (both layouts; counted in _export.json).",
+)
 @LABELS_GRIPPER_OPTION
 @VERBOSE_OPTION
-def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, partial, gripper, verbose):
+def export_command(
+    labels, fmt, out_dir, objects_dir, object_ids, overwrite, partial, balance, gripper, verbose
+):
     """The labels in the formats existing grasp learners read, with each object's mesh.
 
     Both formats store the pose of the gripper's base frame (the RG2's rg2_base_link: on the
@@ -60,6 +69,7 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
       annotator export labels/ --format acronym --objects objects/ --out acronym/
       annotator export labels/ --format graspgen --objects objects/ --out graspgen/
       annotator export scene_labels/ --format vgn --out vgn_raw/
+      annotator export scene_labels/ --format vgn --balance --out vgn_train/
       annotator export scene_labels/ --format contact_graspnet --objects objects/ --out cgn/
     """
     setup_logging(False, verbose, default=logging.WARNING)
@@ -69,13 +79,18 @@ def export_command(labels, fmt, out_dir, objects_dir, object_ids, overwrite, par
 
         if object_ids:
             raise ToolError(f"--object selects objects; --format {fmt} exports whole scenes")
-        result = export_scenes(labels, fmt, out_dir, objects_dir, overwrite=overwrite, partial=partial)
+        result = export_scenes(
+            labels, fmt, out_dir, objects_dir, overwrite=overwrite, partial=partial, balance=balance
+        )
         click.echo(f"wrote {len(result.files)} {fmt} files ({result.n_grasps} grasps) to {out_dir}")
         if result.summary():
             click.echo(f"{result.summary()} (recorded in {out_dir}/_export.json)")
         return
-    from annotator.tools.common import labelling_gripper
+    from annotator.tools.common import ToolError, labelling_gripper
     from annotator.tools.export import export
+
+    if balance:
+        raise ToolError("--balance is VGN's data cleanup: it applies to --format vgn only")
 
     hand = labelling_gripper(labels, gripper)
     click.echo(hand.line(), err=True)

@@ -84,6 +84,8 @@ def create_body(
     """
     config = config or model.config
     T_world_obj = T_world_obj or Transform.identity()
+    if config.sat_features:
+        return _create_body_with_sat(client, model, T_world_obj, config)
     with quiet_c_output(model.object_id):
         if len(model.parts) <= 1:
             hull = model.parts[0] if model.parts else model.mesh.convex_hull
@@ -129,6 +131,80 @@ def create_body(
         physicsClientId=client,
     )
     return body
+
+
+def _create_body_with_sat(
+    client: int, model: ObjectModel, T_world_obj: Transform, config: ObjectConfig
+) -> int:
+    """:func:`create_body` with the convex shapes' polyhedral features (``[objects]
+    sat_features``): a face against a flat pad then gives its whole contact patch at once (Bullet
+    clips the two hulls) instead of a point per step. PyBullet builds them only for shapes a URDF
+    brings (``URDF_INITIALIZE_SAT_FEATURES``), so the body is loaded from a URDF written for it:
+    the same collision shape (the hull, or the parts file), mass, centre of mass and principal
+    inertia, the mesh (or its hull) as the visual."""
+    import trimesh
+
+    moments, R = principal_axes(model.inertia)
+    T_obj_com = Transform.from_rotation(R, model.center_mass)
+    rpy = _rpy(T_obj_com.rotation)
+    with tempfile.TemporaryDirectory(prefix="rg2-body-") as folder:
+        if len(model.parts) <= 1:
+            hull = model.parts[0] if model.parts else model.mesh.convex_hull
+            collision = os.path.join(folder, "collision.obj")
+            trimesh.Trimesh(hull.vertices, hull.faces, process=False).export(collision)
+        else:
+            if model.collision_file is None or not model.collision_file.is_file():
+                raise ObjectError(f"{model.object_id}: collision parts file missing: {model.collision_file}")
+            collision = str(model.collision_file)
+        small = 3 * len(model.mesh.faces) <= MAX_VISUAL_INDICES
+        visual_mesh = model.mesh if small else model.mesh.convex_hull
+        visual = os.path.join(folder, "visual.obj")
+        visual_mesh.export(visual)
+        ixx, iyy, izz = (float(v) for v in moments)
+        xyz = " ".join(repr(float(v)) for v in T_obj_com.pos)
+        urdf = os.path.join(folder, "object.urdf")
+        with open(urdf, "w", encoding="utf-8") as fh:
+            fh.write(
+                f'<robot name="object"><link name="base"><inertial><origin xyz="{xyz}" '
+                f'rpy="{" ".join(repr(v) for v in rpy)}"/><mass value="{model.mass!r}"/>'
+                f'<inertia ixx="{ixx!r}" iyy="{iyy!r}" izz="{izz!r}" ixy="0" ixz="0" iyz="0"/></inertial>'
+                f'<visual><geometry><mesh filename="{visual}"/></geometry>'
+                f'<material name="m"><color rgba="{" ".join(map(str, OBJECT_RGBA))}"/></material></visual>'
+                f'<collision><geometry><mesh filename="{collision}"/></geometry></collision></link></robot>'
+            )
+        pos, quat = T_world_obj.to_pybullet()
+        with quiet_c_output(model.object_id):
+            body = pb.loadURDF(
+                urdf,
+                pos,
+                quat,
+                flags=pb.URDF_INITIALIZE_SAT_FEATURES | pb.URDF_USE_INERTIA_FROM_FILE,
+                physicsClientId=client,
+            )
+    if body < 0:
+        raise ObjectError(f"{model.object_id}: PyBullet rejected the collision shape")
+    # loadURDF places the link frame: the mesh frame at T_world_obj, as createMultiBody's base pose
+    pb.changeDynamics(
+        body,
+        -1,
+        lateralFriction=model.friction,
+        spinningFriction=config.spinning_friction,
+        rollingFriction=config.rolling_friction,
+        collisionMargin=config.collision_margin,
+        physicsClientId=client,
+    )
+    return body
+
+
+def _rpy(R: np.ndarray) -> tuple[float, float, float]:
+    """URDF's fixed-axis roll, pitch, yaw (rad) of the rotation ``R`` (3, 3)."""
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    if abs(R[2, 0]) < 1.0 - 1e-12:
+        roll = float(np.arctan2(R[2, 1], R[2, 2]))
+        yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+    else:  # gimbal lock: yaw carries the rotation about z
+        roll, yaw = 0.0, float(np.arctan2(-R[0, 1], R[1, 1]))
+    return roll, pitch, yaw
 
 
 def _T_com_obj(client: int, body: int) -> Transform:

@@ -115,7 +115,9 @@ class ObjectSpan:
             seed=task.seed,
             trials=task.trials,
             gripper=self.mode.hand.description.name,
-            reasons=span.given is not None,
+            # why a collision is one: for given grasps, and wherever a collision's perturbed trials
+            # run (its score need not be 0)
+            reasons=span.given is not None or (task.trials > 1 and task.config.robust.perturb_collisions),
         )
         rows = simulate(loaded, grasps=self.grasps, run=run)
         artifacts = None

@@ -25,6 +25,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 from annotator.config import AnnotatorConfig
+from annotator.grippers import GripperDescription, GripperFiles, gripper_record, is_shipped
 from annotator.objects import ObjectDiscoveryError, ObjectError, discover_objects, source_digest
 from annotator.pipeline.execution import UsageError
 from annotator.pipeline.lifecycle import Collector, TaskContext, WorkPlan, loaded_gripper, merged, resumed
@@ -116,6 +117,11 @@ def plan_scene_spans(
                 yield SceneSpan(scenes[i][0], *rng)
 
 
+def _is_rg2(gripper: GripperDescription) -> bool:
+    """The shipped RG2: the default, which a scene run binds as it did before grippers were data."""
+    return gripper.name == "rg2" and is_shipped(gripper)
+
+
 class SceneJob:
     """``annotate --scenes N``: the scenes are the units of work (a job of
     :mod:`annotator.pipeline.lifecycle`); the worker of a scene's first span builds it and returns
@@ -137,11 +143,11 @@ class SceneJob:
         # objects a worker could not load: object id -> (reason, the scenes that draw it)
         self.unusable: dict[str, tuple[str, list[str]]] = {}
         self.failed_scenes: set[str] = set()
+        self.gripper: GripperDescription | None = None  # the run's, from check()
+        self._sent: GripperDescription | GripperFiles | None = None  # what the tasks carry
 
     def check(self, options: RunOptions) -> None:
-        named = loaded_gripper(options.gripper).name
-        if named != "rg2":
-            raise UsageError(f"--scenes simulates the RG2 only; --gripper {named} labels objects one by one")
+        self.gripper = loaded_gripper(options.gripper)
         check_scene_options(options, self.own)
 
     def bind(self, options: RunOptions, summary: Summary) -> tuple[RunSpec, dict[str, str]]:
@@ -183,6 +189,8 @@ class SceneJob:
             scene_chunk_size(options.n),
             self.config.to_dict(scenes=True, trials=options.trials),
             inputs={"scenes": job.to_json()},
+            # the RG2 is bound as before grippers were data, so folders made then still resume
+            gripper=None if self.gripper is None or _is_rg2(self.gripper) else gripper_record(self.gripper),
         )
         self.units = {scene_unit(s): pool_digest(digests) for s in range(own.scenes)}
         return spec, self.units
@@ -240,6 +248,9 @@ class SceneJob:
 
     def make_task(self, span: SceneSpan, context: TaskContext) -> SceneTask:
         assert self.request is not None
+        if self._sent is None and self.gripper is not None and not _is_rg2(self.gripper):
+            # a cluster's workers may not see the gripper's folder: they get its files
+            self._sent = self.gripper if context.local else GripperFiles.of(self.gripper)
         return SceneTask(
             span=span,
             request=self.request,
@@ -249,6 +260,7 @@ class SceneJob:
             parent_pid=context.parent_pid,
             status_dir=context.status_dir,
             cache_dir=context.cache_dir,
+            gripper=self._sent,
         )
 
     def take(self, result: SpanResult, collector: Collector) -> None:

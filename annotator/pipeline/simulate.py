@@ -67,7 +67,8 @@ def simulate(loaded: LoadedObject, *, grasps: SpanGrasps, run: TrialSettings) ->
     pose; trials 1..K-1 are perturbed from the candidate's own Generator (``trial_rng``) and
     ``score`` is the fraction of all K trials that held. A candidate whose unperturbed pose
     collides is never simulated: its score is 0 and no perturbed trial runs (the pose as given
-    cannot be executed).
+    cannot be executed), unless ``[robust] perturb_collisions``: then its perturbed trials run, as
+    a real execution of it may miss the object where it really lies.
     """
     config, seed, trials, gripper = run.config, run.seed, run.trials, run.gripper
     object_id, first_id, T_obj_tcp, widths = grasps.object_id, grasps.first_id, grasps.T_obj_tcp, grasps.width
@@ -143,9 +144,12 @@ def _run_trials(
             seed,
             object_id,
             grasp_id,
+            trial.gate,
         )
         r = k.first
-        return TrialsResult(r.outcome, r.T_obj_tcp, r.width, k.steps, r.slip, k.held, r.check)
+        return TrialsResult(
+            r.outcome, r.T_obj_tcp, r.width, k.steps, r.slip, k.held, r.check, k.success, k.stages
+        )
     except Exception as exc:  # a physics failure on one candidate must not lose the others
         log.warning("%s grasp %d: %s: %s", object_id, grasp_id, type(exc).__name__, exc)
         return TrialsResult(Outcome.ERROR, T, width_expected, 0, np.nan, 0)

@@ -190,10 +190,15 @@ def grasps_from_pairs(
 
 
 def clear_of_observed(
-    surface: ObservedSurface, T_table_tcp: np.ndarray, width: np.ndarray, protocol: ProtocolConfig
+    surface: ObservedSurface,
+    T_table_tcp: np.ndarray,
+    width: np.ndarray,
+    protocol: ProtocolConfig,
+    gripper: str | None = None,
 ) -> np.ndarray:
-    """Step 4 of the module docstring: (m,) bool, the grasps whose open gripper clears."""
-    boxes_of = gripper_boxes()
+    """Step 4 of the module docstring: (m,) bool, the grasps whose open gripper clears;
+    ``gripper``: whose collision boxes (a shipped name or folder; default the RG2)."""
+    boxes_of = gripper_boxes(gripper)
     back = protocol.approach_distance
     keep = np.zeros(len(width), dtype=bool)
     for k in range(len(width)):
@@ -235,7 +240,8 @@ def sample_grasps(
     kept: list[int] = []
     for start in range(0, len(width), 32):
         part = slice(start, start + 32)
-        kept.extend(start + np.flatnonzero(clear_of_observed(surface, T[part], width[part], protocol)))
+        clear = clear_of_observed(surface, T[part], width[part], protocol, observation.gripper)
+        kept.extend(start + np.flatnonzero(clear))
         if limit is not None and len(kept) >= limit:
             kept = kept[:limit]
             break

@@ -363,10 +363,13 @@ def _try(
         def run(p: Perturbation | None) -> NeighbourTrial:
             return trials.run(instance_id, T, width, p)
 
-        ran = run_k_trials(run, lambda t: t.result, k, robust, seed, unit, grasp_id)
+        gate = trials.trials[instance_id].gate
+        ran = run_k_trials(run, lambda t: t.result, k, robust, seed, unit, grasp_id, gate)
         first, r = ran.first, ran.first.result
         return _Labelled(
-            TrialsResult(r.outcome, r.T_obj_tcp, r.width, ran.steps, r.slip, ran.held),
+            TrialsResult(
+                r.outcome, r.T_obj_tcp, r.width, ran.steps, r.slip, ran.held, None, ran.success, ran.stages
+            ),
             trials.hit_of(first.check, instance_id),
             first.check.stage or "",
             first.disturbance,

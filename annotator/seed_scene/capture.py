@@ -27,7 +27,7 @@ from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.label_row import TrialsResult, label_row
 from annotator.objects import ObjectModel, create_body, get_object_pose, load_object, physics_for
-from annotator.outcome import Outcome
+from annotator.outcome import Outcome, Stage
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
@@ -129,13 +129,19 @@ class Capturer:
     def row(self, result: TrialResult, grasp_id: int, candidate: Candidate) -> pd.DataFrame:
         """The label row of ``candidate``'s trial ``result``: the columns the batch job writes
         (:func:`annotator.label_row.label_row`, mode ``capture``), its commanded grasp included."""
+        held = result.outcome == Outcome.SUCCESS or result.stage >= Stage.from_label(
+            self.config.protocol.gate
+        )
         trials = TrialsResult(
             result.outcome,
             result.T_obj_tcp,
             result.width,
             result.steps,
             result.slip,
-            int(result.outcome == Outcome.SUCCESS),
+            int(held),
+            None,
+            held,
+            str(int(result.stage)),
         )
         data = label_row(
             "capture",

@@ -51,6 +51,45 @@ class ShakeMotion:
         )
 
 
+@dataclass(frozen=True)
+class BenchmarkMotion:
+    """A benchmark's slow motion after the lift (docs/protocol.md, "Stages"): turns about the
+    closed TCP, to ``+approach_angle``, ``-approach_angle`` and back to 0 (rad) about the approach
+    axis, then the same with ``closing_angle`` about the closing axis, in ``duration`` s; each move
+    a smoothstep whose time grows with the square root of its angle, so that every move has the
+    same peak angular acceleration, ``6 (sum of sqrt(angle))^2 / duration^2``.
+    """
+
+    approach_angle: float
+    closing_angle: float
+    duration: float
+
+    @classmethod
+    def of(cls, protocol: ProtocolConfig) -> BenchmarkMotion:
+        """The protocol's (``motion_approach_angle``, ``motion_closing_angle``, ``motion_duration``)."""
+        return cls(protocol.motion_approach_angle, protocol.motion_closing_angle, protocol.motion_duration)
+
+    @property
+    def active(self) -> bool:
+        """Does it turn at all (a zero motion is no stage)?"""
+        return self.approach_angle > 0 or self.closing_angle > 0
+
+    def moves(self) -> list[tuple[int, float, float]]:
+        """``(axis, from, to)`` of each move that turns: axis 2 (the approach, TCP z) or 0 (the
+        closing axis, TCP x), angles in rad about it."""
+        out = []
+        for axis, angle in ((2, self.approach_angle), (0, self.closing_angle)):
+            if angle > 0:
+                out += [(axis, 0.0, angle), (axis, angle, -angle), (axis, -angle, 0.0)]
+        return out
+
+    @property
+    def peak_angular_acceleration(self) -> float:
+        """rad/s^2, the same in every move (0 without moves)."""
+        roots = sum(abs(b - a) ** 0.5 for _, a, b in self.moves())
+        return 6.0 * roots**2 / self.duration**2 if roots else 0.0
+
+
 class FloatingGripper:
     """A gripper body in ``world`` whose base link follows a movable fixed constraint.
 
@@ -67,7 +106,8 @@ class FloatingGripper:
         self.client = world.client
         self.config = config or GripperConfig()
         self.description = load_gripper(gripper)
-        self.body = Body.load(self.client, self.description.urdf, flags=GRIPPER_LOAD_FLAGS)
+        sat = pb.URDF_INITIALIZE_SAT_FEATURES if self.config.sat_features else 0
+        self.body = Body.load(self.client, self.description.urdf, flags=GRIPPER_LOAD_FLAGS | sat)
         self.gripper = ParallelGripper(
             self.body, self.description, self.config, passive_links=self.config.passive_links
         )
@@ -280,6 +320,32 @@ class FloatingGripper:
         )
         positions = pivot + np.einsum("nij,nj->ni", R_deltas, p - pivot)
         steps = self._follow(positions, matrix_to_quat(R_deltas @ R), force, on_step)
+        self.set_target(centre)
+        return steps
+
+    def benchmark_motion(
+        self, motion: BenchmarkMotion, *, force: float, on_step: StepCallback | None = None
+    ) -> int:
+        """Turn about the closed TCP as ``motion`` says (:class:`BenchmarkMotion`), squeezing with
+        ``force`` (N per pad), and come back to the current target. Returns the steps simulated;
+        ``on_step(i)`` returning True stops early."""
+        moves = motion.moves()
+        if not moves:
+            return 0
+        centre = self.target
+        T_world_tcp = centre * self.gripper.T_base_tcp(self.gripper.measured_width())
+        pivot, R_tcp = T_world_tcp.pos, T_world_tcp.rotation
+        roots = np.array([abs(b - a) ** 0.5 for _, a, b in moves])
+        rotations, offsets = [], []
+        for (axis, a, b), root in zip(moves, roots, strict=True):
+            n = max(1, round(motion.duration * root / roots.sum() / self.world.dt))
+            angles = a + (b - a) * _smoothstep(np.arange(1, n + 1) / n)
+            R = axis_angle_to_matrix(R_tcp[:, axis], angles)  # (n, 3, 3)
+            rotations.append(R)
+            offsets.append(np.einsum("nij,j->ni", R, centre.pos - pivot))
+        R_all = np.concatenate(rotations)
+        positions = pivot + np.concatenate(offsets)
+        steps = self._follow(positions, matrix_to_quat(R_all @ centre.rotation), force, on_step)
         self.set_target(centre)
         return steps
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from annotator.config import AnnotatorConfig
+from annotator.config import AnnotatorConfig, ConfidenceConfig
 
 if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` stays fast
     import pandas as pd
@@ -41,8 +41,15 @@ DEFAULT_FRICTIONS = (0.3, 0.45, 0.6, 0.8, 1.0)  # pad friction; OnRobot's own mo
 DEFAULT_FORCE_SHARES = (0.5, 0.75, 1.0)
 DEFAULT_FORCES = (20.0, 30.0, 40.0)  # N: the RG2's (DEFAULT_FORCE_SHARES of its 40 N)
 DEFAULT_SEVERITIES = (0.5, 1.0, 1.5)  # x the shake's amplitude and angle
-BOOTSTRAP_SAMPLES = 2000
-CONFIDENCE = 0.95
+from annotator.agreement import (  # noqa: E402, F401  (the statistics calibrate reports, re-exported)
+    BOOTSTRAP_SAMPLES,
+    CONFIDENCE,
+    STATISTICS,
+    Agreement,
+    agreement,
+    agreement_text,
+)
+
 REAL_COLUMNS = ("object_id", "grasp_id", "real_success")
 OBJECTIVES = ("balanced", "accuracy")  # what the best setting maximises
 DEFAULT_FOLDS = 5  # object-wise cross-validation folds (at most one per object)
@@ -70,80 +77,6 @@ class Setting:
             shake_angle=base.protocol.shake_angle * self.severity,
         )
         return dataclasses.replace(base, gripper=gripper, protocol=protocol)
-
-
-@dataclass(frozen=True)
-class Agreement:
-    """Agreement of simulated with real outcomes; each statistic with its (low, high) interval.
-
-    Positive is "success". ``nan`` where undefined (no simulated successes for precision, no real
-    ones for recall, neither for F1). ``balanced``: the mean of recall and specificity.
-    """
-
-    n: int
-    accuracy: float
-    precision: float
-    recall: float
-    balanced: float
-    accuracy_ci: tuple[float, float]
-    precision_ci: tuple[float, float]
-    recall_ci: tuple[float, float]
-    balanced_ci: tuple[float, float] = (float("nan"), float("nan"))
-    f1: float = float("nan")
-    f1_ci: tuple[float, float] = (float("nan"), float("nan"))
-
-    def value(self, name: str) -> float:
-        """A statistic by name (``accuracy``, ``balanced``, ``precision``, ``recall``, ``f1``)."""
-        return float(getattr(self, name))
-
-    def interval(self, name: str) -> tuple[float, float]:
-        return getattr(self, f"{name}_ci")
-
-
-STATISTICS = ("accuracy", "precision", "recall", "balanced", "f1")  # the columns of _rates
-
-
-def _rates(real: np.ndarray, sim: np.ndarray) -> np.ndarray:
-    """(..., 5) accuracy, precision, recall, balanced accuracy, F1 over the last axis of bool arrays."""
-    tp = np.sum(real & sim, axis=-1)
-    tn = np.sum(~real & ~sim, axis=-1)
-    fp = np.sum(~real & sim, axis=-1)
-    fn = np.sum(real & ~sim, axis=-1)
-    n = real.shape[-1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        acc = (tp + tn) / n
-        prec = tp / (tp + fp)
-        rec = tp / (tp + fn)
-        spec = tn / (tn + fp)
-        bal = np.where(np.isnan(spec), rec, np.where(np.isnan(rec), spec, (rec + spec) / 2))
-        f1 = 2 * tp / (2 * tp + fp + fn)
-    return np.stack(np.broadcast_arrays(acc, prec, rec, bal, f1), axis=-1)
-
-
-def agreement(
-    real: np.ndarray, sim: np.ndarray, samples: int = BOOTSTRAP_SAMPLES, seed: int = 0
-) -> Agreement:
-    """Statistics of ``sim`` against ``real`` (bool (n,)) with percentile bootstrap intervals.
-
-    The resampling indices depend only on ``seed`` and ``n`` (the same for every setting, so
-    settings are compared on the same resamples).
-    """
-    real, sim = np.asarray(real, bool), np.asarray(sim, bool)
-    n = len(real)
-    k = len(STATISTICS)
-    point = _rates(real, sim)
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), n, 0x43414C])))
-    idx = rng.integers(0, n, size=(samples, n))
-    boot = _rates(real[idx], sim[idx])
-    alpha = (1 - CONFIDENCE) / 2
-    lo, hi = np.full(k, np.nan), np.full(k, np.nan)
-    defined = ~np.all(np.isnan(boot), axis=0) if n else np.zeros(k, bool)  # e.g. precision, no successes
-    if defined.any():
-        lo[defined] = np.nanquantile(boot[:, defined], alpha, axis=0)
-        hi[defined] = np.nanquantile(boot[:, defined], 1 - alpha, axis=0)
-    ci = [(float(lo[i]), float(hi[i])) for i in range(k)]
-    acc, prec, rec, bal, f1 = (float(v) for v in point)
-    return Agreement(n, acc, prec, rec, bal, ci[0], ci[1], ci[2], ci[3], f1, ci[4])
 
 
 @dataclass
@@ -244,7 +177,7 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
     """REAL.csv joined with the labels (pose, width, outcome); one-line errors for bad input."""
     import pandas as pd
 
-    from annotator.tools.common import ToolError, csv_header, unique_columns
+    from annotator.tools.common import ToolError, csv_header, truth_column, unique_columns
 
     try:
         unique_columns(csv_header(path), path)  # a column named twice: which one is meant?
@@ -258,14 +191,7 @@ def read_real_trials(path: Path, labels: pd.DataFrame) -> pd.DataFrame:
         raise ToolError(f"{path}: missing column(s) {missing}; need {', '.join(REAL_COLUMNS)} [, grip_force]")
     if real.empty:
         raise ToolError(f"{path}: no trials")
-    success = real["real_success"]
-    if success.dtype != bool:
-        text = success.astype(str).str.strip().str.lower()
-        mapping = {"1": True, "0": False, "true": True, "false": False, "yes": True, "no": False}
-        if not text.isin(list(mapping)).all():
-            bad = success[~text.isin(list(mapping))].iloc[0]
-            raise ToolError(f"{path}: real_success must be 1/0 or true/false, got {bad!r}")
-        real["real_success"] = text.map(mapping).astype(bool)
+    real["real_success"] = truth_column(real["real_success"], path, "real_success")
     real["object_id"] = real["object_id"].astype(str)
     ids = pd.to_numeric(real["grasp_id"], errors="coerce")
     bad = ids.isna() | (ids != ids.round()) | (ids < 0) | (ids > 2**62)
@@ -317,13 +243,33 @@ def default_forces(gripper=None) -> tuple[float, ...]:
 def _simulate_task(setting, base, span, force, seed, gripper, resting, k=1):
     from annotator.tools.given import simulate_given
 
-    rows, error = simulate_given(span, setting.config(base, force), seed, k, gripper=gripper, resting=resting)
+    if setting is not None:
+        config = setting.config(base, force)
+    elif force is not None:  # the configuration as it is, at the trial's own force
+        config = dataclasses.replace(base, gripper=dataclasses.replace(base.gripper, grip_force=float(force)))
+    else:
+        config = base
+    rows, error = simulate_given(span, config, seed, k, gripper=gripper, resting=resting)
     return setting, span.object_id, force, rows, error
+
+
+def span_groups(trials: pd.DataFrame) -> list[tuple[str, float | None, np.ndarray]]:
+    """How :func:`simulate_grid` splits real trials into spans: ``(object_id, force, rows)`` per
+    object (and per recorded ``grip_force``), ``rows`` the trials' positions in span order. A
+    grasp's index in its span is the key of its perturbed trials' generator
+    (:func:`annotator.rng.trial_rng` of the object and that index)."""
+    has_force = "grip_force" in trials.columns
+    groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
+    out = []
+    for key, idx in groups.indices.items():
+        key = key if isinstance(key, tuple) else (key,)
+        out.append((str(key[0]), float(key[1]) if has_force else None, np.asarray(idx)))
+    return out
 
 
 def simulate_grid(
     trials: pd.DataFrame,
-    settings: list[Setting],
+    settings: list[Setting | None],
     base: AnnotatorConfig,
     objects_dir: Path,
     workers: int = 1,
@@ -332,11 +278,11 @@ def simulate_grid(
     resting: bool | str | None = False,
     k: int = 1,
     column: str = "success",
-) -> dict[Setting, np.ndarray]:
-    """Simulated success of every trial (row order of ``trials``) under every setting, with
-    ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's ``rest_q*``);
-    ``k``: ``--trials`` of each simulation, ``column``: the label column returned (``score``:
-    floats)."""
+) -> dict[Setting | None, np.ndarray]:
+    """Simulated success of every trial (row order of ``trials``) under every setting (None: ``base``
+    as it is), with ``gripper`` (None: the RG2), floating or ``resting`` on the table (each trial's
+    ``rest_q*``); ``k``: ``--trials`` of each simulation, ``column``: the label column returned
+    (``score``: floats; ``trial_stages``: strings)."""
     import joblib
 
     from annotator.objects import ObjectDiscoveryError, discover_objects
@@ -353,14 +299,10 @@ def simulate_grid(
     missing = sorted(set(trials["object_id"]) - set(sources))
     if missing:
         raise ToolError(f"object(s) {missing} are not in {objects_dir}")
-    has_force = "grip_force" in trials.columns
-    groups = trials.groupby(["object_id", "grip_force"] if has_force else ["object_id"], sort=True)
     stroke = _max_width(base, gripper)
     rest_columns = ["rest_qx", "rest_qy", "rest_qz", "rest_qw"]
     spans, where = [], {}
-    for key, idx in groups.indices.items():
-        key = key if isinstance(key, tuple) else (key,)
-        oid, force = str(key[0]), (float(key[1]) if has_force else None)
+    for oid, force, idx in span_groups(trials):
         rows = trials.iloc[idx]
         scale = float(rows["object_scale"].iloc[0])
         T, width, quat = replay_grasps(rows, base, stroke)
@@ -386,7 +328,7 @@ def simulate_grid(
         for setting in settings
         for span, force in spans
     ]
-    kind = bool if column == "success" else np.float64
+    kind = {"success": bool, "trial_stages": object}.get(column, np.float64)
     out = {s: np.zeros(len(trials), dtype=kind) for s in settings}
     for setting, oid, force, rows, error in joblib.Parallel(n_jobs=workers, return_as="generator_unordered")(
         tasks
@@ -395,6 +337,198 @@ def simulate_grid(
             raise ToolError(f"{oid}: {error}")
         out[setting][where[(oid, force)]] = rows[column].to_numpy(dtype=kind)
     return out
+
+
+def explore(
+    trials: pd.DataFrame,
+    base: AnnotatorConfig,
+    objects_dir: Path,
+    workers: int = 1,
+    seed: int = 0,
+    gripper=None,
+    resting: bool | str | None = False,
+    m: int = 24,
+    levels=None,
+):
+    """The exploration of :mod:`annotator.tools.ranges` on the real trials: each grasp simulated
+    once (a grasp executed several times is one grasp) with ``m`` perturbed trials from the
+    proposal over ``levels`` (default :data:`annotator.tools.ranges.LEVELS`), their stages read
+    back and their draws drawn again, as an :class:`annotator.tools.ranges.Exploration` in the
+    row order of ``trials``."""
+    from annotator.grippers import load_gripper
+    from annotator.tools import ranges
+
+    levels = ranges.LEVELS if levels is None else tuple(levels)
+    config = ranges.exploration_config(dataclasses.replace(base, confidence=ConfidenceConfig()), levels)
+    key = ["object_id", "grasp_id"] + (["grip_force"] if "grip_force" in trials.columns else [])
+    first = ~trials.duplicated(key).to_numpy()
+    grasps = trials[first].reset_index(drop=True)
+    stages = simulate_grid(
+        grasps, [None], config, objects_dir, workers, seed, gripper, resting, m + 1, "trial_stages"
+    )
+    keys: list[tuple[str, int]] = [("", 0)] * len(grasps)
+    for oid, _, idx in span_groups(grasps):
+        for position, row in enumerate(idx):
+            keys[int(row)] = (oid, position)
+    robust = config.robust.over(dict(load_gripper(gripper).robust))  # what GraspTrial draws with
+    draws = ranges.draws_of(robust, seed, keys, m)
+    explored = ranges.Exploration.of(
+        list(stages[None]), draws, levels, base.robust.over(dict(load_gripper(gripper).robust))
+    )
+    which = grasps.reset_index().merge(trials[key], on=key, how="right")["index"].to_numpy()
+    return explored.take(which)  # every trial its grasp's exploration
+
+
+@dataclass(frozen=True)
+class RangesResult:
+    """``calibrate --fit-ranges``: the exploration of the real trials, the fit on all of them
+    (:class:`annotator.tools.ranges.Fit`), its object-wise cross-validation (None with fewer than
+    two folds or objects), the real outcomes and each trial's object."""
+
+    exploration: object  # annotator.tools.ranges.Exploration
+    fit: object  # annotator.tools.ranges.Fit
+    held_out: object | None  # annotator.tools.ranges.HeldOut
+    real: np.ndarray
+    objects: np.ndarray
+
+
+def fit_ranges(
+    trials: pd.DataFrame,
+    base: AnnotatorConfig,
+    objects_dir: Path,
+    workers: int = 1,
+    seed: int = 0,
+    *,
+    gripper=None,
+    resting: bool | str | None = False,
+    m: int = 64,
+    levels=None,
+    folds: int = DEFAULT_FOLDS,
+) -> RangesResult:
+    """Explore the real trials (:func:`explore`), fit the execution's ranges, the stages, the
+    trial count and the score's mapping to them (:func:`annotator.tools.ranges.fit`), and
+    cross-validate the whole fit by object."""
+    from annotator.tools import ranges
+
+    exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
+    real = trials["real_success"].to_numpy(dtype=bool)
+    objects = trials["object_id"].astype(str).to_numpy()
+    held_out = None
+    if folds >= 2 and len(set(objects)) >= 2:
+        held_out = ranges.cross_validate(exp, real, objects, folds, seed)
+    return RangesResult(exp, ranges.fit(exp, real), held_out, real, objects)
+
+
+def profile_config(
+    base: AnnotatorConfig, fit, real: np.ndarray | None = None, held_out_p: np.ndarray | None = None
+) -> AnnotatorConfig:
+    """The robot cell's profile: ``base`` with the fitted ranges (``fit``, an
+    :class:`annotator.tools.ranges.Fit`: perturbed trials after a colliding trial 0, judged at the
+    fitted stage), trial 0's gate and the ``[confidence]`` mapping of the score of the fitted K
+    with its threshold; its Brier score and reliability those of ``held_out_p`` (the cross-validated
+    P(success) of the ``real`` outcomes) where given, else of the fit on its own trials."""
+    from annotator import confidence as conf
+
+    execution = fit.execution.execution
+    robust = dataclasses.replace(
+        base.robust,
+        **fit.ranges(),
+        perturb_collisions=True,
+        motion=execution.stage == "motion",
+        shake=False,
+        scale_levels=(),
+    )
+    protocol = dataclasses.replace(base.protocol, gate=fit.gate)
+    scores, p = fit.scored.mapping.knots()
+    if held_out_p is not None and real is not None:
+        brier = conf.brier(real, held_out_p)
+        bins = [b for b in conf.reliability(real, held_out_p) if b.n > 0]
+    else:
+        brier, bins = fit.scored.brier, []
+    confidence = ConfidenceConfig(
+        method="isotonic",
+        trials=fit.k,
+        scores=scores,
+        p_success=p,
+        n=len(fit.scored.p),
+        brier=float(min(1.0, max(0.0, brier))),
+        reliability_p=tuple(b.mean_p for b in bins),
+        reliability_rate=tuple(b.real_rate for b in bins),
+        reliability_n=tuple(float(b.n) for b in bins),
+        perturbed_shake=False,
+        threshold=fit.threshold,
+        base_rate=float(fit.base_rate),
+    )
+    return dataclasses.replace(base, robust=robust, protocol=protocol, confidence=confidence)
+
+
+# The [robust] fields a profile writes even at their defaults: a gripper's own [robust] table
+# must not replace a fitted range (RobustConfig.over).
+PROFILE_KEEP = {
+    "robust": {
+        "object_position_sigma",
+        "object_yaw_sigma",
+        "position_sigma",
+        "approach_sigma",
+        "friction_delta",
+        "perturb_collisions",
+        "motion",
+    }
+}
+
+
+def ranges_text(result: RangesResult, bootstrap: int = BOOTSTRAP_SAMPLES, seed: int = 0) -> str:
+    """What the fit found: the exploration, each group's level and whether the data identify it,
+    the stages, lapses, K and mapping; then the cross-validated figures."""
+    from annotator import confidence as conf
+    from annotator.tools import ranges
+
+    f, exp = result.fit, result.exploration
+    e = f.execution.execution
+    n, m = exp.stages.shape
+    lines = [
+        f"exploration: {n} real trials x {m} perturbed trials, levels "
+        + ", ".join(f"{v:g}" for v in exp.levels)
+    ]
+    for i, g in enumerate(ranges.GROUPS):
+        level = exp.levels[e.theta[i]]
+        sizes = ", ".join(f"{c.field} {c.unit * level:.4g}" for c in g.components)
+        profile = f.execution.profile[g.name]
+        drop = ", ".join(f"{v - max(profile):+.1f}" for v in profile)
+        how = (
+            "identified" if f.execution.identified[g.name] else "not identified: the run's own, nearest level"
+        )
+        lines.append(f"  {g.name}: x{level:g} ({sizes}); {how}; log-likelihood by level {drop}")
+    knots = ", ".join(f"{s:.2f} -> {p:.2f}" for s, p in zip(*f.scored.mapping.knots(), strict=True))
+    lines.append(
+        f"  perturbed trials judged after the {e.stage}; lapses: real fails {e.fail:g}, holds {e.hold:g} "
+        "whatever the simulation says"
+    )
+    lines.append(
+        f"  trial 0's gate: {f.gate}; --trials {f.k}; score -> p_success: {knots}; "
+        f"threshold p_success >= {f.threshold:.3f}"
+    )
+    h = result.held_out
+    if h is None:
+        return "\n".join(lines)
+    real = result.real
+    called = h.called >= 0.5
+    auc = conf.bootstrap(conf.auc, real, h.p, bootstrap, seed)
+    brier = conf.bootstrap(conf.brier, real, h.p, bootstrap, seed)
+    base = conf.brier(real, np.full(len(real), real.mean()))
+    calls = agreement(real, called, bootstrap, seed)
+    lines.append(
+        f"cross-validated by object ({len(h.folds)} folds; each fold's fit on the other objects), expected "
+        f"over the trials' scores: AUC {auc.text()}, Brier {brier.text()} (always the success rate: "
+        f"{base:.3f}); at each fold's threshold {agreement_text(calls, ('balanced', 'precision', 'recall'))}"
+    )
+    for b in conf.reliability(real, h.p):
+        if b.n:
+            lines.append(
+                f"  p_success {b.low:.1f}-{b.high:.1f}: {b.n} trials, "
+                f"mean {b.mean_p:.3f}, real {b.real_rate:.3f}"
+            )
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------ confidence
@@ -463,9 +597,9 @@ def fit_confidence(
     from annotator.config import ConfidenceConfig
 
     base = dataclasses.replace(base, confidence=ConfidenceConfig())  # no p_success while fitting it
-    score = simulate_grid(
-        trials, [setting], base, objects_dir, workers, seed, gripper, resting, k, "score"
-    )[setting]
+    score = simulate_grid(trials, [setting], base, objects_dir, workers, seed, gripper, resting, k, "score")[
+        setting
+    ]
     real = trials["real_success"].to_numpy(dtype=bool)
     objects = trials["object_id"].astype(str).to_numpy()
     mapping = conf.fit_isotonic(score, real, k)
@@ -702,12 +836,16 @@ def _toml_value(v) -> str:
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
 
-def config_toml(config: AnnotatorConfig, header: str = "") -> str:
-    """The fields of ``config`` that differ from the defaults, as TOML for ``--config``."""
+def config_toml(config: AnnotatorConfig, header: str = "", keep=None) -> str:
+    """The fields of ``config`` that differ from the defaults, and those ``keep`` names per
+    section (``{"robust": {"position_sigma"}}``: written even at the default, so that a gripper's
+    own ``[robust]`` cannot replace them), as TOML for ``--config``."""
     defaults = AnnotatorConfig().to_dict()
+    keep = keep or {}
     lines = [f"# {line}" for line in header.splitlines()]
     for section, values in config.to_dict().items():
-        changed = {k: v for k, v in values.items() if defaults.get(section, {}).get(k) != v}
+        wanted = keep.get(section, ())
+        changed = {k: v for k, v in values.items() if k in wanted or defaults.get(section, {}).get(k) != v}
         if changed:
             lines.append(f"\n[{section}]")
             lines += [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
@@ -750,21 +888,6 @@ def setting_text(s: Setting) -> str:
     """``pad friction 0.6, 70 N, shake x1``."""
     force = "each trial's own force" if s.force is None else f"{s.force:g} N"
     return f"pad friction {s.friction:g}, {force}, shake x{s.severity:g}"
-
-
-def agreement_text(
-    a: Agreement, names: tuple[str, ...] = ("accuracy", "balanced", "precision", "recall")
-) -> str:
-    """``accuracy 80.0 % [70, 88], balanced 75.1 % [..]`` over the named statistics."""
-    parts = []
-    for name in names:
-        v, (lo, hi) = a.value(name), a.interval(name)
-        parts.append(
-            f"{name} n/a"
-            if not np.isfinite(v)
-            else f"{name} {100 * v:.1f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
-        )
-    return ", ".join(parts)
 
 
 def format_folds(cv: CrossValidation) -> str:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 import pandas as pd
 
 from annotator.dataset import SchemaError, validate_labels
@@ -164,6 +165,22 @@ def read_table(path: str | Path, what: str) -> pd.DataFrame:
     except Exception as exc:  # OSError, ValueError, ArrowInvalid, ParserError: not a table we can read
         kind = "a CSV file" if is_csv else "a Parquet or .csv file"
         raise ToolError(f"{path}: cannot read {what} ({type(exc).__name__}: {exc}); give {kind}") from None
+
+
+_TRUTH = {"1": True, "0": False, "true": True, "false": False, "yes": True, "no": False}
+
+
+def truth_column(values: pd.Series, where: str | Path, column: str) -> np.ndarray:
+    """A column of real outcomes as bool (n,): 1/0, true/false, yes/no (any case; 1.0 and 0.0 as
+    a spreadsheet writes them); :class:`ToolError` naming the first row that is none of those."""
+    if values.dtype == bool:
+        return values.to_numpy(dtype=bool)
+    text = values.astype(str).str.strip().str.lower().str.replace(r"\.0$", "", regex=True)
+    bad = ~text.isin(list(_TRUTH))
+    if bad.any():
+        row = int(np.argmax(bad.to_numpy()))
+        raise ToolError(f"{where}: row {row}: {column} must be 1/0 or true/false, got {values.iloc[row]!r}")
+    return text.map(_TRUTH).to_numpy(dtype=bool)
 
 
 def one_row_per_grasp(

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from annotator.agreement import Agreement
 from annotator.dataset import POSE_COLUMNS
 from annotator.tools.given import CMD_COLUMNS, records_commands, replay_grasps
 
@@ -515,3 +516,70 @@ def commanded_table(
             part[list(REST_COLUMNS)] = rows[list(REST_COLUMNS)].to_numpy(dtype=np.float64)
         parts.append(part)
     return pd.concat(parts, ignore_index=True)
+
+
+# ------------------------------------------------------------------------------ real outcomes
+
+# The grasp table's column of real outcomes evaluate compares every stage with, when it has one.
+REAL_COLUMN = "real_success"
+
+
+def real_outcomes(path: str | Path, column: str, grasps: pd.DataFrame) -> pd.DataFrame:
+    """The real outcome of each grasp of ``grasps`` (as :func:`read_grasps` read ``path``, same
+    row order): ``object_id``, ``grasp_id``, ``real_success`` (bool) from the table's ``column``
+    (1/0, true/false, yes/no). :class:`annotator.tools.common.ToolError` naming the first row
+    that is none of those."""
+    from annotator.tools.common import ToolError, truth_column
+
+    df = _read_table(Path(path))
+    if column not in df.columns:
+        raise ToolError(f"{path}: no column {column!r} of real outcomes (--real)")
+    return pd.DataFrame(
+        {
+            "object_id": grasps["object_id"].to_numpy(),
+            "grasp_id": grasps["grasp_id"].to_numpy(),
+            "real_success": truth_column(df[column], path, column),
+        }
+    )
+
+
+@dataclass(frozen=True)
+class StageAgreement:
+    """Simulated "held through ``gate``" against the real outcomes: the :class:`annotator.tools.
+    calibrate.Agreement` of the calls (balanced accuracy, precision, recall with intervals)."""
+
+    gate: str
+    held: int
+    agreement: Agreement
+
+
+def stage_agreement(rows: pd.DataFrame, real: pd.DataFrame, samples: int = 2000) -> list[StageAgreement]:
+    """Each stage of the protocol (``close``, ``lift``, ``motion``, ``shake``) read as the label
+    (:func:`annotator.dataset.held_through` on the rows' ``stage``) against ``real`` (from
+    :func:`real_outcomes`), on the grasps both have."""
+    from annotator.agreement import agreement
+    from annotator.dataset import held_through
+    from annotator.outcome import GATES
+
+    both = real.merge(rows, on=["object_id", "grasp_id"], how="inner")
+    truth = both["real_success"].to_numpy(dtype=bool)
+    out = []
+    for gate in GATES:
+        held = held_through(both, gate).to_numpy(dtype=bool)
+        out.append(StageAgreement(gate, int(held.sum()), agreement(truth, held, samples)))
+    return out
+
+
+def stage_agreement_text(stages: list[StageAgreement], column: str, gate: str, real_rate: float) -> str:
+    """The comparison as a few lines: the real rate, then each stage (the run's gate marked)."""
+    from annotator.agreement import agreement_text
+
+    if not stages:
+        return ""
+    n = stages[0].agreement.n
+    lines = [f"against the real outcomes ({column}: {n} grasps, {real_rate:.1%} held), trial 0 held through:"]
+    for s in stages:
+        mark = "  <- [protocol] gate" if s.gate == gate else ""
+        text = agreement_text(s.agreement, ("balanced", "precision", "recall"))
+        lines.append(f"  {s.gate:>6}: {s.held:>5} held; {text}{mark}")
+    return "\n".join(lines)

@@ -42,9 +42,13 @@ def export_scenes(
     *,
     overwrite: bool = False,
     partial: bool = False,
+    balance: bool = False,
 ) -> ExportResult:
     """Write the scene run in ``labels_dir`` to ``out_dir`` in ``fmt`` (module docstring). A run
-    that is unfinished or in which a scene failed is refused unless ``partial``."""
+    that is unfinished or in which a scene failed is refused unless ``partial``. ``balance``
+    (VGN only): VGN's data notebook's cleanup (:func:`annotator.tools.export_vgn.vgn_clean`)."""
+    if balance and fmt != "vgn":
+        raise ToolError("--balance is VGN's data cleanup: it applies to --format vgn only")
     if fmt not in SCENE_FORMATS:
         raise ToolError(f"unknown scene format {fmt!r}; choose from {', '.join(SCENE_FORMATS)}")
     scenes = open_scene_labels(labels_dir, f"export --format {fmt}")
@@ -56,7 +60,7 @@ def export_scenes(
     ids = scenes.scene_ids()
     items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
     if fmt == "vgn":
-        files, left_out = _vgn(scenes, items, folder, depth, objects_dir)
+        files, left_out = _vgn(scenes, items, folder, depth, objects_dir, balance)
     else:
         files, left_out = _cgn(scenes, items, folder, depth, objects_dir)
     folder.close(fmt, Path(labels_dir), left_out)
@@ -93,15 +97,19 @@ def _meshes(scenes: SceneLabels, items, objects_dir) -> dict:
 
 
 def _vgn(
-    scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir
+    scenes: SceneLabels, items, folder: ExportFolder, depth: TcpDepth, objects_dir, balance: bool = False
 ) -> tuple[list[Path], list[LeftOut]]:
     from annotator.tools.export_cgn import mesh_file, write_meshes
     from annotator.tools.export_giga import MESH_POSE_LIST, write_mesh_pose_lists
     from annotator.tools.export_vgn import (
+        CLEAN_MARGIN,
         DATASET_RESOLUTION,
         VgnSetup,
+        fingertip_reach,
         inside_grid,
         scene_name,
+        task_poses,
+        vgn_clean,
         write_vgn_dataset,
         write_vgn_raw,
     )
@@ -115,7 +123,20 @@ def _vgn(
     if not items:
         raise ToolError(f"{scenes.path}: no scene to export")
     size = items[0][0].workspace.size
-    setup = VgnSetup(size, items[0][1][0].depth_K, depth.max_width)
+    setup = VgnSetup(
+        size, items[0][1][0].depth_K, depth.max_width, fingertip=fingertip_reach(depth.description)
+    )
+    inside = [inside_grid(r, g, size, offset=setup.offset(g.width)) for r, _, g in items]
+    outside = sum(int(np.sum(~m)) for m in inside)
+    items = [(r, v, g.take(m)) for (r, v, g), m in zip(items, inside, strict=True)]
+    near_side = dropped = 0
+    if balance:
+        positions = [task_poses(r, g, setup.offset(g.width))[:, :3, 3] for r, _, g in items]
+        labels = [np.asarray(g.success, dtype=bool) for _, _, g in items]
+        side, drop = vgn_clean(np.concatenate(positions), np.concatenate(labels), size)
+        near_side, dropped = int(side.sum()), int(drop.sum())
+        keep = np.split(~side & ~drop, np.cumsum([len(p) for p in positions])[:-1])
+        items = [(r, v, g.take(k)) for (r, v, g), k in zip(items, keep, strict=True)]
     meshes = _meshes(scenes, items, objects_dir)
     names = ["setup.json", "grasps.csv", "dataset/grasps.csv", *(mesh_file(oid) for oid in meshes)]
     for record, _, _ in items:
@@ -132,12 +153,19 @@ def _vgn(
     paths += [folder.path / mesh_file(oid) for oid in meshes]
     mesh_paths = {oid: str((folder.path / mesh_file(oid)).resolve()) for oid in meshes}
     paths += write_mesh_pose_lists(folder.path, [record for record, _, _ in items], mesh_paths)
-    outside = sum(int(np.sum(~inside_grid(record, grasps, size))) for record, _, grasps in items)
     reason = (
         f"outside the {size:g} m workspace cube (voxel index outside [0, {DATASET_RESOLUTION}), "
         "where VGN's training cannot read a label)"
     )
-    return paths, [LeftOut(outside, reason)]
+    left_out = [LeftOut(outside, reason)]
+    if balance:
+        left_out += [
+            LeftOut(
+                near_side, f"within {CLEAN_MARGIN:g} m of the workspace cube's sides (VGN's data cleanup)"
+            ),
+            LeftOut(dropped, "negatives dropped at random to leave as many as the positives (VGN's balance)"),
+        ]
+    return paths, left_out
 
 
 def _cgn(

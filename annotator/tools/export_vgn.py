@@ -19,10 +19,22 @@ Two layouts, both as VGN's own scripts write them:
 
 Frames. VGN's *task frame* is the workspace cube's lower corner (the table top s/6 above it, axes
 of the table): :attr:`annotator.scenes.Workspace.T_table_task`. VGN's grasp frame has its fingers
-closing along **y** and approaching along z; ours closes along x. A grasp is written as our TCP
-(midpoint of the pads) in the task frame, turned -90 degrees about its z so that VGN's y is our
-closing axis: ``T_task_vgn = T_task_table T_table_tcp Rz(-90 deg)``. ``width`` is the opening (m);
-``label`` 1 for a success, 0 otherwise.
+closing along **y** and approaching along z, and its origin at the **palm**: the fingertips reach
+``finger_depth`` (0.05 m) beyond it along z (its simulated hand is placed so, its grasp sampler
+puts the origin 0 to 5 cm out of the surface, its markers draw the fingers from the origin to
+``finger_depth``). Ours closes along x and sits between the pads. A grasp is written as our TCP
+moved along its approach to where VGN's palm would be, the fingertips ``finger_depth`` behind
+the gripper's own fingertips at the grasp's opening (:attr:`VgnSetup.fingertip`, from the
+gripper's collision model), turned -90 degrees about its z so that VGN's y is our closing axis:
+``T_task_vgn = T_task_table T_table_tcp Tz(reach(width) - finger_depth) Rz(-90 deg)``. For the
+shipped Panda the reach is 9.25 mm, so VGN's origin is 40.75 mm behind our TCP. ``width`` is the
+opening (m); ``label`` 1 for a success, 0 otherwise.
+
+Cleaning (:func:`vgn_clean`, ``annotator export --format vgn --balance``): VGN's data notebook
+(``notebooks/data.ipynb``) cleans the raw grasps before ``construct_dataset.py``: it drops grasps
+whose position lies within 0.02 m of the workspace cube's sides, then drops negatives at random
+until they are as many as the positives. Without it VGN's network trains on the raw balance (a
+pile's labels are mostly failures) and rates few voxels above its detection threshold of 0.9.
 
 Workspace. VGN's grids have ``DATASET_RESOLUTION`` = 40 voxels a side over the cube, and its
 ``Dataset`` indexes them at ``round(i, j, k)`` (float32): a grasp whose index falls outside
@@ -42,6 +54,7 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,6 +70,7 @@ from annotator.tools.export import _write_atomically
 RAW_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "x", "y", "z", "width", "label")
 DATASET_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "i", "j", "k", "width", "label")
 DATASET_RESOLUTION = 40  # construct_dataset.py's RESOLUTION
+CLEAN_MARGIN = 0.02  # m: VGN's data notebook drops positions within this of the cube's sides
 # Our TCP frame (x closing, z approach) -> VGN's grasp frame (y closing, z approach): Rz(-90 deg).
 T_TCP_VGN = np.eye(4)
 T_TCP_VGN[:3, :3] = axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), -math.pi / 2)
@@ -70,12 +84,31 @@ def scene_name(scene_id: int) -> str:
 @dataclass(frozen=True)
 class VgnSetup:
     """``setup.json``: workspace ``size`` (m), the depth camera's intrinsics, the gripper's
-    ``max_opening_width`` (m) and ``finger_depth`` (m; VGN asserts size == 6 x finger_depth)."""
+    ``max_opening_width`` (m) and ``finger_depth`` (m; VGN asserts size == 6 x finger_depth).
+
+    ``fingertip``: how far the gripper's fingertips reach beyond our TCP along its approach (+z)
+    at each opening, ``fingertip(width (n,) m) -> (n,) m`` (:func:`fingertip_reach`); VGN's grasp
+    origin is ``finger_depth`` behind them. None: the grasps are written at our TCP unmoved (a
+    gripper whose TCP already is VGN's palm)."""
 
     size: float
     intrinsic: Intrinsics
     max_opening_width: float
     finger_depth: float | None = None
+    fingertip: Callable[[np.ndarray], np.ndarray] | None = None
+
+    @property
+    def depth(self) -> float:
+        """VGN's finger depth (m): ``finger_depth``, else size / 6."""
+        return float(self.size / 6 if self.finger_depth is None else self.finger_depth)
+
+    def offset(self, width: np.ndarray) -> np.ndarray:
+        """(n,) m: where VGN's grasp origin lies on our TCP's z axis for openings ``width`` (n,) m:
+        the fingertips' reach less VGN's finger depth (negative: behind the TCP)."""
+        width = np.asarray(width, dtype=np.float64).reshape(-1)
+        if self.fingertip is None:
+            return np.zeros(len(width))
+        return np.asarray(self.fingertip(width), dtype=np.float64).reshape(-1) - self.depth
 
     def to_json(self) -> dict:
         K = self.intrinsic
@@ -87,7 +120,7 @@ class VgnSetup:
                 "K": [float(v) for v in K.K.reshape(-1)],
             },
             "max_opening_width": float(self.max_opening_width),
-            "finger_depth": float(self.size / 6 if self.finger_depth is None else self.finger_depth),
+            "finger_depth": self.depth,
         }
 
 
@@ -117,33 +150,75 @@ class SceneGrasps:
         )
 
 
-def task_poses(record: SceneRecord, grasps: SceneGrasps) -> np.ndarray:
-    """VGN grasp frames (n, 4, 4) in the task frame of ``record``'s workspace."""
+def tcp_to_vgn(offset: np.ndarray | float) -> np.ndarray:
+    """(n, 4, 4) ``T_tcp_vgn``: VGN's grasp frame in our TCP frame, its origin ``offset`` (n,) m
+    along our z (:meth:`VgnSetup.offset`), its y our closing x."""
+    offset = np.atleast_1d(np.asarray(offset, dtype=np.float64))
+    T = np.tile(T_TCP_VGN, (len(offset), 1, 1))
+    T[:, 2, 3] = offset
+    return T
+
+
+def task_poses(record: SceneRecord, grasps: SceneGrasps, offset: np.ndarray | None = None) -> np.ndarray:
+    """VGN grasp frames (n, 4, 4) in the task frame of ``record``'s workspace; ``offset`` (n,) m
+    where VGN's origin lies on our TCP's z (:meth:`VgnSetup.offset`; None: at the TCP)."""
     T_task_table = record.workspace.T_table_task.inverse().as_matrix()
-    return T_task_table @ np.asarray(grasps.T_table_tcp, dtype=np.float64).reshape(-1, 4, 4) @ T_TCP_VGN
+    T_table_tcp = np.asarray(grasps.T_table_tcp, dtype=np.float64).reshape(-1, 4, 4)
+    offset = np.zeros(len(T_table_tcp)) if offset is None else np.asarray(offset, dtype=np.float64)
+    return T_task_table @ T_table_tcp @ tcp_to_vgn(offset).reshape(-1, 4, 4)
 
 
 def voxel_indices(
-    record: SceneRecord, grasps: SceneGrasps, size: float, resolution: int = DATASET_RESOLUTION
+    record: SceneRecord,
+    grasps: SceneGrasps,
+    size: float,
+    resolution: int = DATASET_RESOLUTION,
+    offset: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n, 3) int: each grasp's voxel as VGN's ``Dataset`` computes it from the dataset layout
     (the position in voxels of ``size / resolution``, read as float32, rounded)."""
-    position = task_poses(record, grasps)[:, :3, 3] / (size / resolution)
+    position = task_poses(record, grasps, offset)[:, :3, 3] / (size / resolution)
     return np.round(position.astype(np.float32)).astype(np.int64)
 
 
 def inside_grid(
-    record: SceneRecord, grasps: SceneGrasps, size: float, resolution: int = DATASET_RESOLUTION
+    record: SceneRecord,
+    grasps: SceneGrasps,
+    size: float,
+    resolution: int = DATASET_RESOLUTION,
+    offset: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n,) bool: the grasp's voxel index (:func:`voxel_indices`) lies in [0, resolution) on
     every axis, i.e. VGN's training can read its label from the grid."""
-    index = voxel_indices(record, grasps, size, resolution)
+    index = voxel_indices(record, grasps, size, resolution, offset)
     return np.all((index >= 0) & (index < resolution), axis=1)
 
 
-def grasp_rows(record: SceneRecord, grasps: SceneGrasps) -> pd.DataFrame:
-    """The scene's lines of the raw ``grasps.csv`` (RAW_COLUMNS)."""
-    T = task_poses(record, grasps)
+def vgn_clean(
+    positions: np.ndarray, labels: np.ndarray, size: float, *, balance: bool = True, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """VGN's data notebook's cleanup of the raw grasps (module docstring): ``positions`` (n, 3) m
+    in the task frame (VGN's grasp origins), ``labels`` (n,) 0/1. Returns (``near_side``, ``dropped``),
+    (n,) bool each: the grasps within CLEAN_MARGIN of the cube's sides, and the negatives of the
+    rest dropped at random (a generator keyed on ``seed``) to leave as many as the positives
+    (none when ``balance`` is false or the negatives are fewer)."""
+    from annotator.rng import keyed_rng
+
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    labels = np.asarray(labels).astype(bool).reshape(-1)
+    near_side = np.any((positions < CLEAN_MARGIN) | (positions > size - CLEAN_MARGIN), axis=1)
+    dropped = np.zeros(len(labels), dtype=bool)
+    if balance:
+        negatives = np.flatnonzero(~near_side & ~labels)
+        excess = len(negatives) - int(np.sum(~near_side & labels))
+        if excess > 0:
+            dropped[keyed_rng("vgn-balance", int(seed)).choice(negatives, excess, replace=False)] = True
+    return near_side, dropped
+
+
+def grasp_rows(record: SceneRecord, grasps: SceneGrasps, offset: np.ndarray | None = None) -> pd.DataFrame:
+    """The scene's lines of the raw ``grasps.csv`` (RAW_COLUMNS); ``offset`` as :func:`task_poses`."""
+    T = task_poses(record, grasps, offset)
     q = matrix_to_quat(T[:, :3, :3]).reshape(-1, 4)
     df = pd.DataFrame(
         {
@@ -209,7 +284,8 @@ def write_vgn_raw(
         path = root / "scenes" / f"{scene_name(record.scene_id)}.npz"
         _write(path, _npz_bytes(depth_imgs=depth.astype(np.float32), extrinsics=extrinsics(record, views)))
         paths.append(path)
-        rows.append(grasp_rows(record, grasps.take(inside_grid(record, grasps, setup.size))))
+        kept = grasps.take(inside_grid(record, grasps, setup.size, offset=setup.offset(grasps.width)))
+        rows.append(grasp_rows(record, kept, setup.offset(kept.width)))
     table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(RAW_COLUMNS))
     _write(paths[1], _csv_text(table).encode())
     return paths
@@ -233,7 +309,9 @@ def write_vgn_dataset(
         path = root / "scenes" / f"{scene_name(record.scene_id)}.npz"
         _write(path, _npz_bytes(grid=volume.vgn_grid()[None].astype(np.float32)))
         paths.append(path)
-        df = grasp_rows(record, grasps.take(inside_grid(record, grasps, setup.size, resolution)))
+        inside = inside_grid(record, grasps, setup.size, resolution, setup.offset(grasps.width))
+        kept = grasps.take(inside)
+        df = grasp_rows(record, kept, setup.offset(kept.width))
         for c in ("x", "y", "z", "width"):
             df[c] = df[c] / voxel
         rows.append(df.rename(columns={"x": "i", "y": "j", "z": "k"}))
@@ -283,6 +361,27 @@ def grasp_in_task(row: pd.Series) -> tuple[Transform, float, int]:
     return Transform(p, q), float(row["width"]), int(row["label"])
 
 
-def tcp_in_table(T_task_vgn: np.ndarray, record: SceneRecord) -> np.ndarray:
-    """Our TCP pose (4, 4) in the table frame from a VGN grasp frame in the task frame."""
-    return record.workspace.T_table_task.as_matrix() @ np.asarray(T_task_vgn) @ np.linalg.inv(T_TCP_VGN)
+def tcp_in_table(T_task_vgn: np.ndarray, record: SceneRecord, offset: float = 0.0) -> np.ndarray:
+    """Our TCP pose (4, 4) in the table frame from a VGN grasp frame in the task frame, VGN's
+    origin ``offset`` m along our TCP's z (:meth:`VgnSetup.offset` at the grasp's width)."""
+    T_tcp_vgn = tcp_to_vgn(offset)[0]
+    return record.workspace.T_table_task.as_matrix() @ np.asarray(T_task_vgn) @ np.linalg.inv(T_tcp_vgn)
+
+
+def fingertip_reach(gripper=None) -> Callable[[np.ndarray], np.ndarray]:
+    """``reach(width (n,) m) -> (n,) m``: how far ``gripper``'s fingertips (the farthest point of
+    its collision boxes) lie beyond its TCP along the approach (+z) at each opening, from the
+    model's own kinematics (:mod:`annotator.policies.gripper_boxes`); default the RG2."""
+    from annotator.policies.gripper_boxes import box_corners, gripper_boxes
+
+    boxes = gripper_boxes(gripper)
+
+    def reach(width: np.ndarray) -> np.ndarray:
+        width = np.asarray(width, dtype=np.float64).reshape(-1)
+        out = np.empty(len(width))
+        for k, w in enumerate(width):
+            w = min(max(float(w), 0.0), boxes.max_width)
+            out[k] = box_corners(boxes.at(w, w))[:, 2].max()
+        return out
+
+    return reach

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import OUTCOMES, poses_as_matrices
+from annotator.outcome import OUTCOME_RGB
 
 log = logging.getLogger(__name__)
 
@@ -28,14 +29,8 @@ log = logging.getLogger(__name__)
 # table: mass (kg) and the mean distance (m) between the collision shape and the mesh surface.
 MASS_COLUMNS = ("mass",)
 COLLISION_ERROR_COLUMNS = ("collision_error_mean",)
-OUTCOME_HEX = {
-    "success": "#009e73",
-    "collision": "#999999",
-    "no_contact": "#e69f00",
-    "slipped_lift": "#d55e00",
-    "slipped_shake": "#cc79a7",
-    "error": "#000000",
-}
+# each outcome's colour as the pictures draw it (annotator.outcome.OUTCOME_RGB), in hex
+OUTCOME_HEX = {o: "#" + "".join(f"{c:02x}" for c in rgb) for o, rgb in OUTCOME_RGB.items()}
 NA = '<span class="na">n/a</span>'
 
 CSS = """

@@ -24,6 +24,7 @@ from annotator.config import GripperConfig
 from annotator.dataset import OUTCOMES, poses_as_matrices
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
+from annotator.outcome import OUTCOME_RGB
 from annotator.render import Camera, Frame, look_at_camera, project, render_frame
 from annotator.rng import keyed_rng
 from annotator.sim import pb
@@ -33,15 +34,7 @@ from annotator.sim.world import World
 
 log = logging.getLogger(__name__)
 
-# Outcome colours (Okabe-Ito, readable with colour-blindness), RGB 0..255.
-OUTCOME_COLORS: dict[str, tuple[int, int, int]] = {
-    "success": (0, 158, 115),
-    "collision": (153, 153, 153),
-    "no_contact": (230, 159, 0),
-    "slipped_lift": (213, 94, 0),
-    "slipped_shake": (204, 121, 167),
-    "error": (0, 0, 0),
-}
+OUTCOME_COLORS = OUTCOME_RGB  # outcome -> RGB 0..255 (annotator.outcome)
 OBJECT_RGBA = (0.55, 0.68, 0.85, 1.0)  # light blue: apart from the grey gripper and the glyphs
 BACKGROUND = (255, 255, 255)
 # PyBullet refuses visual meshes with more indices than this in one shape (objects.py's limit);

@@ -24,11 +24,14 @@ def _not_blank(path: Path) -> np.ndarray:
     return img
 
 
-def test_command_line_outcomes_are_the_schema_s() -> None:
-    from annotator.cli.common import OUTCOMES as CLI_OUTCOMES
+def test_every_outcome_has_one_colour_in_pictures_and_pages() -> None:
     from annotator.dataset import OUTCOMES
+    from annotator.tools.report import OUTCOME_HEX
 
-    assert CLI_OUTCOMES == OUTCOMES
+    assert set(sh.OUTCOME_COLORS) == set(OUTCOME_HEX) == set(OUTCOMES)
+    for outcome, (r, g, b) in sh.OUTCOME_COLORS.items():
+        assert OUTCOME_HEX[outcome] == f"#{r:02x}{g:02x}{b:02x}"
+    assert len(set(sh.OUTCOME_COLORS.values())) == len(OUTCOMES)  # no two outcomes look alike
 
 
 def test_show_command_writes_pictures(labelled, tmp_path: Path) -> None:

@@ -1,0 +1,163 @@
+"""The pieces of ``bench.peer_network`` that need no VGN checkout: the hand written for VGN's
+simulation from our Panda, the training objects, VGN's data cleanup of a raw folder, and the
+frames of ``bench.vgn_policy`` (VGN's grasps back to our TCP). The bench itself runs VGN's code
+from a checkout given on its command line; these tests do not."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pybullet as pb
+import pytest
+
+from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
+from annotator.tools.export_vgn import fingertip_reach, tcp_to_vgn
+from bench import peer_network, vgn_policy
+
+
+def test_the_hand_for_vgn_has_its_palm_22_mm_ahead_of_its_centre_of_mass(tmp_path):
+    """VGN's gripper loads data/urdfs/panda/hand.urdf, places the base's centre of mass 22 mm
+    behind its TCP (the palm) along z, expects the fingertips finger_depth (50 mm) ahead of the
+    palm, closes along its y, and drives panda_finger_joint1/2 (couples panda_leftfinger and
+    panda_rightfinger). Loaded in PyBullet with the base's centre of mass at the origin: so it is."""
+    urdf = tmp_path / "hand.urdf"
+    peer_network.write_hand(urdf)
+    client = pb.connect(pb.DIRECT)
+    try:
+        uid = pb.loadURDF(str(urdf), physicsClientId=client)
+        pb.resetBasePositionAndOrientation(uid, [0, 0, 0], [0, 0, 0, 1], physicsClientId=client)
+        joints = {
+            pb.getJointInfo(uid, i, physicsClientId=client)[1].decode(): i
+            for i in range(pb.getNumJoints(uid, physicsClientId=client))
+        }
+        links = {pb.getJointInfo(uid, i, physicsClientId=client)[12].decode(): i for i in joints.values()}
+        assert {"panda_finger_joint1", "panda_finger_joint2"} <= set(joints)
+        assert {"panda_leftfinger", "panda_rightfinger"} <= set(links)
+        for name in ("panda_finger_joint1", "panda_finger_joint2"):
+            info = pb.getJointInfo(uid, joints[name], physicsClientId=client)
+            assert info[10] == pytest.approx(20.0) and info[9] == pytest.approx(0.04)  # effort, upper limit
+            pb.resetJointState(uid, joints[name], 0.03, physicsClientId=client)  # 60 mm open
+        tips, centres = [], []
+        for pad in ("panda_leftfinger_pad", "panda_rightfinger_pad"):
+            lo, hi = pb.getAABB(uid, links[pad], physicsClientId=client)
+            tips.append(hi[2])
+            centres.append((np.asarray(lo) + np.asarray(hi)) / 2)
+        palm = 0.022
+        assert max(tips) == pytest.approx(palm + 0.05, abs=1e-4)
+        gap = centres[1] - centres[0]
+        assert abs(gap[0]) < 1e-6 and abs(gap[1]) == pytest.approx(0.06 + 0.0152, abs=1e-4)  # along y
+    finally:
+        pb.disconnect(client)
+
+
+def test_training_objects_are_closed_and_graspable_by_both_grippers():
+    """Every generated training object is a closed solid standing on z = 0 with a part narrower
+    than the Panda's 80 mm (its smallest extent, or a rim or handle); the same seed, the same shapes."""
+    meshes = peer_network.training_meshes(2, seed=5)
+    assert len(meshes) == 2 * len(peer_network.FAMILIES)
+    for name, mesh in meshes.items():
+        assert mesh.is_watertight, name
+        assert mesh.bounds[0, 2] == pytest.approx(0.0, abs=1e-9)
+        assert np.sort(mesh.extents)[0] < 0.08, name
+    again = peer_network.training_meshes(2, seed=5)
+    for name, mesh in meshes.items():
+        np.testing.assert_array_equal(mesh.vertices, again[name].vertices)
+
+
+def test_vgn_raw_cleanup_keeps_referenced_scenes_and_balances(tmp_path):
+    """The bench cleans VGN's own raw folder as the data notebook does: rows near the sides and
+    excess negatives go, then scenes no row refers to."""
+    raw = tmp_path / "raw"
+    (raw / "scenes").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    rows = []
+    for scene, inside in (("a", True), ("b", False)):
+        np.savez_compressed(raw / "scenes" / f"{scene}.npz", depth_imgs=np.zeros((1, 2, 2), np.float32))
+        for k in range(10):
+            p = rng.uniform(0.05, 0.25, 3) if inside else np.array([0.01, 0.1, 0.1])
+            rows.append({"scene_id": scene, "qx": 0.0, "qy": 0.0, "qz": 0.0, "qw": 1.0,
+                         "x": p[0], "y": p[1], "z": p[2], "width": 0.05, "label": int(k < 3)})  # fmt: skip
+    pd.DataFrame(rows).to_csv(raw / "grasps.csv", index=False)
+    counts = peer_network.clean_vgn_raw(raw, 0.3)
+    df = pd.read_csv(raw / "grasps.csv")
+    assert counts == {
+        "grasps": 20,
+        "positives": 6,
+        "near_side": 10,
+        "dropped": 4,
+        "kept": 6,
+        "kept_positives": 3,
+    }
+    assert len(df) == 6 and df["label"].sum() == 3 and set(df["scene_id"]) == {"a"}
+    assert sorted(p.name for p in (raw / "scenes").iterdir()) == ["a.npz"]
+
+
+def test_vgn_policy_returns_the_grasp_the_export_wrote(tmp_path):
+    """A grasp written as VGN writes it (the export's frame: palm origin, closing along y, in the
+    task frame; position and width in voxels, as VGN's detection answers) comes back from the
+    policy's conversion as our TCP in the table frame, with its width."""
+    voxel = 0.3 / 40
+    T_table_task = Transform(np.array([0.3, -0.1, -0.05]), np.array([0.0, 0.0, 0.0, 1.0]))
+    R = axis_angle_to_matrix(np.array([1.0, 0.2, -0.3]) / np.linalg.norm([1.0, 0.2, -0.3]), 2.5)
+    T_table_tcp = np.eye(4)
+    T_table_tcp[:3, :3], T_table_tcp[:3, 3] = R, [0.42, -0.02, 0.07]
+    width = np.array([0.046])
+    offset = fingertip_reach("panda")(width) - 0.05
+    assert offset[0] == pytest.approx(
+        0.00925 - 0.05, abs=1e-6
+    )  # the Panda's fingertips: 9.25 mm beyond its TCP
+    T_task_vgn = T_table_task.inverse().as_matrix() @ T_table_tcp @ tcp_to_vgn(offset)[0]
+    row = np.r_[T_task_vgn[:3, 3] / voxel, matrix_to_quat(T_task_vgn[:3, :3]), width / voxel, 0.97]
+    observation = SimpleNamespace(
+        voxel_size=voxel, T_table_volume=T_table_task, gripper="panda", max_width=0.08
+    )
+    grasps = vgn_policy.to_tcp(row[None], observation)
+    np.testing.assert_allclose(grasps.T_table_tcp[0], T_table_tcp, atol=1e-9)
+    assert grasps.width[0] == pytest.approx(0.046) and grasps.score[0] == pytest.approx(0.97)
+    assert len(vgn_policy.to_tcp(np.zeros((0, 9)), observation)) == 0
+
+
+def test_the_bench_records_the_checkouts_commit_and_licence(tmp_path):
+    """vgn_provenance reads a checkout's commit and its licence's first line (no VGN needed: a
+    git repository made here)."""
+    import subprocess
+
+    repo = tmp_path / "checkout"
+    repo.mkdir()
+    (repo / "LICENSE").write_text("BSD 3-Clause License\n\nCopyright (c) someone\n")
+    git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "LICENSE"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "x"], check=True)
+    info = peer_network.vgn_provenance(Path(repo))
+    assert len(info["commit"]) == 40 and info["licence"] == "BSD 3-Clause License" and not info["dirty"]
+
+
+def test_steps_keep_each_commands_cpu_and_are_not_run_again(tmp_path):
+    """Commands run side by side, each with its own CPU (from its own resource usage); a step
+    that finished is not run again by a later run of the same folder (its row is kept); a failing
+    command stops the bench with the end of its log."""
+    import sys
+    from types import SimpleNamespace as NS
+
+    steps = peer_network.Steps(NS(nice=0), tmp_path)
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass\nprint('ran')"
+    cpu = steps.run_many(
+        [
+            ("burn", [sys.executable, "-c", burn], None, None, None),
+            ("idle", [sys.executable, "-c", "0"], None, None, None),
+        ]
+    )
+    assert cpu[0] >= 0.3 and cpu[1] < 0.3
+    assert (tmp_path / "logs" / "burn.log").read_text().strip() == "ran"
+    again = peer_network.Steps(NS(nice=0), tmp_path)
+    marker = tmp_path / "ran-again"
+    assert again.run("burn", [sys.executable, "-c", f"open({str(marker)!r}, 'w')"]) == pytest.approx(
+        cpu[0], abs=0.05
+    )
+    assert not marker.exists() and again.rows[0]["resumed"]
+    with pytest.raises(SystemExit, match="exit 3"):
+        again.run("fails", [sys.executable, "-c", "import sys; print('why'); sys.exit(3)"])
