@@ -24,7 +24,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_path", "atomic_write_text"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_path", "atomic_write_text", "probe_writable"]
 
 
 def _current_umask() -> int:
@@ -108,3 +108,13 @@ def atomic_write_text(
 ) -> None:
     """``text`` (UTF-8) at ``path``, whole or not at all."""
     atomic_write_bytes(path, text.encode("utf-8"), durable=durable, make_parents=make_parents)
+
+
+def probe_writable(folder: Path | str) -> None:
+    """Make ``folder`` (and its parents) if it is missing and check that a file can be created in
+    it, leaving nothing behind; OSError (with the system's reason) otherwise."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=folder)
+    os.close(fd)
+    os.unlink(probe)

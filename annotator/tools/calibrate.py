@@ -286,8 +286,11 @@ def simulate_grid(
     import joblib
 
     from annotator.objects import ObjectDiscoveryError, discover_objects
+    from annotator.pipeline.worker_spawn import detach_local_workers
     from annotator.tools.common import ToolError
     from annotator.tools.given import GivenSpan, replay_grasps
+
+    detach_local_workers()  # a Ctrl-C reaches this process only
 
     try:
         sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
@@ -833,15 +836,6 @@ def _toml_value(v) -> str:
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-CONFIG_MARK = "# annotator calibrate "
-
-
-def written_by_calibrate(path: Path) -> bool:
-    """Does ``path`` begin with the header :func:`config_toml` writes (``# annotator calibrate``)?"""
-    with open(path, "rb") as f:
-        return f.read(len(CONFIG_MARK)) == CONFIG_MARK.encode()
 
 
 def config_toml(config: AnnotatorConfig, header: str = "", keep=None) -> str:
