@@ -23,7 +23,8 @@ import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +34,7 @@ if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` sta
     import pandas as pd
 
     from annotator.confidence import Mapping, Measure
+    from annotator.tools.ranges import Exploration, Fit, HeldOut
 
 log = logging.getLogger(__name__)
 
@@ -66,11 +68,9 @@ class Setting:
     def config(self, base: AnnotatorConfig, force: float | None = None) -> AnnotatorConfig:
         """``base`` with this setting (``force`` overrides the setting's, e.g. a trial's own)."""
         grip = force if force is not None else self.force
-        gripper = dataclasses.replace(
-            base.gripper,
-            pad_lateral_friction=float(self.friction),
-            **({"grip_force": float(grip)} if grip is not None else {}),
-        )
+        gripper = dataclasses.replace(base.gripper, pad_lateral_friction=float(self.friction))
+        if grip is not None:
+            gripper = dataclasses.replace(gripper, grip_force=float(grip))
         protocol = dataclasses.replace(
             base.protocol,
             shake_amplitude=base.protocol.shake_amplitude * self.severity,
@@ -269,7 +269,7 @@ def span_groups(trials: pd.DataFrame) -> list[tuple[str, float | None, np.ndarra
 
 def simulate_grid(
     trials: pd.DataFrame,
-    settings: list[Setting | None],
+    settings: Sequence[Setting | None],
     base: AnnotatorConfig,
     objects_dir: Path,
     workers: int = 1,
@@ -385,9 +385,9 @@ class RangesResult:
     (:class:`annotator.tools.ranges.Fit`), its object-wise cross-validation (None with fewer than
     two folds or objects), the real outcomes and each trial's object."""
 
-    exploration: object  # annotator.tools.ranges.Exploration
-    fit: object  # annotator.tools.ranges.Fit
-    held_out: object | None  # annotator.tools.ranges.HeldOut
+    exploration: Exploration
+    fit: Fit
+    held_out: HeldOut | None
     real: np.ndarray
     objects: np.ndarray
 
@@ -667,8 +667,8 @@ def rank(table: pd.DataFrame, objective: str = "balanced") -> pd.DataFrame:
     return table.sort_values([objective, other, "_near"], ascending=[False, False, True], kind="stable")
 
 
-def _record(s: Setting, sim: np.ndarray, a: Agreement, near: float) -> dict:
-    record = {
+def _record(s: Setting, sim: np.ndarray, a: Agreement, near: float) -> dict[str, Any]:
+    record: dict[str, Any] = {
         "friction": s.friction,
         "force": np.nan if s.force is None else s.force,
         "severity": s.severity,
@@ -719,7 +719,8 @@ def calibrate(
     """Simulate ``trials`` (from :func:`read_real_trials`) under every setting and rank them by
     ``objective``; ``simulated``: outcomes already simulated (as :func:`simulate_grid` gives)."""
     if simulated is None:
-        simulated = simulate_grid(trials, settings, base, objects_dir, workers, seed, gripper, resting)
+        grid = simulate_grid(trials, settings, base, objects_dir, workers, seed, gripper, resting)
+        simulated = {s: grid[s] for s in settings}
     real = trials["real_success"].to_numpy(dtype=bool)
     table = score_settings(real, simulated, settings, _gripper_settings(base, gripper), bootstrap, seed)
     best_row = rank(table, objective).iloc[0]

@@ -203,6 +203,7 @@ def pad_face(gripper=None, config=None) -> PadFace:
     from annotator.sim.world import World
 
     description = load_gripper(gripper)
+    extents: tuple[float, float, float] | np.ndarray
     if description.pad_size is not None:
         extents = description.pad_size
     else:

@@ -37,6 +37,7 @@ import itertools
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -230,14 +231,13 @@ class Exploration:
         """Write it to ``path`` (NumPy's .npz, through a temporary file and a rename) under ``key``:
         what it was explored from, so that :meth:`load` never returns another exploration's."""
         import json
-        import os
 
-        arrays = {f"draw_{k}": v for k, v in self.draws.values.items()}
+        from annotator.files import atomic_write
+
+        arrays: dict[str, Any] = {f"draw_{k}": v for k, v in self.draws.values.items()}
         meta = json.dumps({"key": key, "levels": list(self.levels), "own": dict(self.own)})
-        tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, stage0=self.stage0, stages=self.stages, meta=np.array(meta), **arrays)
-        os.replace(tmp, path)
+        arrays.update(stage0=self.stage0, stages=self.stages, meta=np.array(meta))
+        atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
     @classmethod
     def load(cls, path: Path, key: str) -> Exploration | None:
