@@ -426,6 +426,8 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         tag += "-set-" + hashlib.sha256(changes).hexdigest()[:6]  # a variant's record beside the default's
     if args.stages_only:
         tag += "-stages"
+    if args.profile is not None:
+        tag += f"-profile-{args.profile.stem}"  # a frozen profile's record beside the fitted run's
     with Run(
         "real_trials",
         config=arguments,

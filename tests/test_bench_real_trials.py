@@ -122,6 +122,7 @@ def test_a_frozen_profile_is_applied_unchanged(tmp_path, data_folder):
     assert done.returncode == 0, done.stdout + done.stderr
     records = list((results / "real_trials").glob("*.json"))
     assert len(records) == 1 and "-data-" in records[0].name
+    assert records[0].name.endswith("-profile-profile.json")  # beside, never over, the fitted run's
     record = json.loads(records[0].read_text())
     figures = {f["name"]: f["value"] for f in record["figures"]}
     assert figures["profile_trials"] == 3 and figures["profile_threshold"] == 0.7
@@ -144,6 +145,19 @@ def test_a_frozen_profile_is_applied_unchanged(tmp_path, data_folder):
         assert figures["profile_precision"] == pytest.approx(precision)
     assert (work / "reliability_profile.png").is_file()
     assert not (work / "profile.toml").exists()  # nothing was fitted
+
+
+def test_the_shipped_profile_is_a_profile():
+    """bench/profiles' frozen profile reads as a --config: a mapping of --trials' scores rising to
+    P(real success), its threshold inside it, the fitted ranges bounded and the collisions perturbed."""
+    config = AnnotatorConfig.from_toml(REPO / "bench" / "profiles" / "graspa_panda_calibration.toml")
+    c = config.confidence
+    assert c.method == "isotonic" and c.trials == 5 and c.n == 200
+    assert np.allclose(np.asarray(c.scores) * c.trials, np.round(np.asarray(c.scores) * c.trials))
+    assert np.all(np.diff(c.p_success) >= 0) and 0 < c.p_success[0] < c.p_success[-1] < 1
+    assert c.p_success[0] <= c.threshold <= c.p_success[-1] and 0 < c.base_rate < 1
+    assert config.robust.perturb_collisions and config.protocol.approach == "simulated"
+    assert 0 < config.robust.object_position_sigma <= 0.01 and 0 < config.robust.position_sigma <= 0.01
 
 
 def _env() -> dict[str, str]:
