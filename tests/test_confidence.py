@@ -120,9 +120,12 @@ def test_labels_made_with_a_calibration_carry_p_success(tmp_path):
     with pytest.raises(ValueError, match="shake = true"):
         label_span(SpanTask(span=Span("brick", source, None, 0, 6), config=shaken, seed=0, n=6, trials=2))
     both = AnnotatorConfig.from_dict({"confidence": fit, "robust": {"shake": True}})
-    assert "p_success" in label_span(
-        SpanTask(span=Span("brick", source, None, 0, 6), config=both, seed=0, n=6, trials=2)
-    ).rows
+    assert (
+        "p_success"
+        in label_span(
+            SpanTask(span=Span("brick", source, None, 0, 6), config=both, seed=0, n=6, trials=2)
+        ).rows
+    )
 
 
 def test_the_report_shows_the_calibration_s_reliability_and_brier():

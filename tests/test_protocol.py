@@ -64,7 +64,9 @@ def label(
 PAD_HALF_Y, PAD_HALF_Z = 0.0101, 0.0149
 
 
-def closing_chord(mesh: trimesh.Trimesh, row: pd.Series, half_y: float = 0.0, half_z: float = 0.0) -> float | None:
+def closing_chord(
+    mesh: trimesh.Trimesh, row: pd.Series, half_y: float = 0.0, half_z: float = 0.0
+) -> float | None:
     """The convex object's extent along the TCP's closing axis (m) over the lines parallel to it
     through a ``2 half_y x 2 half_z`` rectangle about the TCP (0, 0: the one line through the TCP);
     None when a line misses the object. Flat parallel pads stop on the object's supporting planes

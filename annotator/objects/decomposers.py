@@ -266,4 +266,3 @@ def run_vhacd(
     src.write_text("\n".join(lines) + "\n")
     pb.vhacd(str(src), str(out), str(job / "vhacd.log"), resolution=int(config.vhacd_resolution))
     return read_vhacd_parts(out) if out.is_file() else []
-

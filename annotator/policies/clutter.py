@@ -435,8 +435,15 @@ def play_round(
             aimed = record.instance(done.target).object_id if done.target >= 0 else ""
             result.attempts.append(
                 Attempt(
-                    round_id, len(result.attempts), proposal, held, instance, oid,
-                    target=done.target, target_object=aimed, failure=done.why,
+                    round_id,
+                    len(result.attempts),
+                    proposal,
+                    held,
+                    instance,
+                    oid,
+                    target=done.target,
+                    target_object=aimed,
+                    failure=done.why,
                 )  # fmt: skip
             )
             failures = 0 if held else failures + 1

@@ -37,9 +37,9 @@ import itertools
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
