@@ -183,7 +183,7 @@ class GripperConfig(_Section):
     # arm and the GUI always); docs/decisions/0203-kinematic-passive-links.md.
     passive_links: str = _field("kinematic", choices=("simulated", "kinematic"))
     # The gripper's convex shapes (its box pads) with polyhedral features, as [objects] sat_features.
-    # see docs/decisions/0028-contact-and-objects-measured.md
+    # see docs/decisions/0029-contact-and-objects-measured.md
     sat_features: bool = False
     # Gear-constraint error reduction (bullet3 #2791: erp > 0 removes drift); 0202.
     coupling_erp: float = _field(0.8, gt=0.0, le=1.0)
@@ -234,12 +234,14 @@ class ObjectConfig(_Section):
     # lying apart from the rest (0103-cleaning).
     fragment_max_share: float = _field(0.01, ge=0.0, lt=0.5)
     lateral_friction: float = _field(1.0, ge=0.0)  # as ACRONYM; paired with the pads' 1.0
+    # m; with a pad's 0.002: the full-slip torsion of a Hertz contact 13.6 mm across (Johnson 1985).
+    # see docs/decisions/0029-contact-and-objects-measured.md
     spinning_friction: float = _field(0.002, ge=0.0)
     rolling_friction: float = _field(0.0, ge=0.0)  # see GripperConfig.pad_rolling_friction
     # Bullet's collision margin on convex meshes (bullet3 #2867): 0 keeps widths within 0.25 mm.
     collision_margin: float = _field(0.0, ge=0.0)  # m
     # Convex shapes with their polyhedral features (bullet3's SAT clipping): a whole contact patch per
-    # step, not a point; with [gripper] sat_features. docs/decisions/0028-contact-and-objects-measured.md
+    # step, not a point; with [gripper] sat_features. docs/decisions/0029-contact-and-objects-measured.md
     sat_features: bool = False
     # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
     convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
@@ -381,20 +383,28 @@ class RobustConfig(_Section):
     """Execution uncertainty: the perturbations of the K - 1 extra trials of ``--trials K`` (trial 0
     is unperturbed). Each models one way a real execution of the grasp differs from the simulated
     one; the ranges and their sources: docs/decisions/0018-execution-uncertainty.md.
+
+    Every range has an upper bound: an error of execution, not another task. A TCP off by more
+    than 10 cm (the widest stroke of the shipped grippers, the RG2's 11 cm; 1,000 x the arm's
+    repeatability) misses whatever the gripper could close on, and 20 deg of rotation is beyond any
+    arm's or camera's error; an object placed 5 cm off (10 x Dex-Net's sigma, the size
+    of a small object) or turned 30 deg is not the placement that was planned, and tilted 20 deg it
+    no longer rests on its support; a friction delta of 1 spans every material from ice to rubber
+    (coefficients 0.05 .. 1.2) around any object's.
     """
 
     # The robot's TCP, Gaussian per axis in the TCP frame: the UR3's (and the Panda's) repeatability
     # +-0.1 mm (their datasheets); no datasheet gives an orientation repeatability: 0.
-    position_sigma: float = _field(0.0001, ge=0.0)  # m, across the approach (TCP x and y)
-    approach_sigma: float = _field(0.0001, ge=0.0)  # m, along the approach (TCP z)
-    rotation_sigma: float = _field(0.0, ge=0.0)  # rad, TCP rotation (Gaussian rotation vector)
+    position_sigma: float = _field(0.0001, ge=0.0, le=0.1)  # m, across the approach (TCP x and y)
+    approach_sigma: float = _field(0.0001, ge=0.0, le=0.1)  # m, along the approach (TCP z)
+    rotation_sigma: float = _field(0.0, ge=0.0, le=0.35)  # rad, TCP rotation (Gaussian rotation vector)
     # Where the object is against where it was planned (world frame, turned about its centre of
     # mass): "a few mm", placed by hand on printed footprints (GRASPA); Dex-Net 2.0: sigma 5 mm.
-    object_position_sigma: float = _field(0.002, ge=0.0)  # m, per horizontal axis
-    object_yaw_sigma: float = _field(0.035, ge=0.0)  # rad (2 deg)
-    object_tilt_sigma: float = _field(0.0, ge=0.0)  # rad; 0: a resting object sits on its support
+    object_position_sigma: float = _field(0.002, ge=0.0, le=0.05)  # m, per horizontal axis
+    object_yaw_sigma: float = _field(0.035, ge=0.0, le=0.52)  # rad (2 deg)
+    object_tilt_sigma: float = _field(0.0, ge=0.0, le=0.35)  # rad; 0: a resting object sits on its support
     # Object friction coefficient + uniform(-d, d): sigma 0.115, as Dex-Net 2.0's sigma 0.1.
-    friction_delta: float = _field(0.2, ge=0.0)
+    friction_delta: float = _field(0.2, ge=0.0, le=1.0)
     # Object mass x uniform(1 - d, 1 + d), inertia with it: a mass from a density guess (chosen;
     # 0 for weighed objects).
     mass_delta: float = _field(0.3, ge=0.0, lt=1.0)
@@ -410,10 +420,10 @@ class RobustConfig(_Section):
     # see docs/decisions/0026-stages.md
     motion: bool = False
     # true: perturbed trials run even when trial 0 collides (the object may lie elsewhere)
-    # see docs/decisions/0026-stages.md
+    # see docs/decisions/0027-execution-fitted-to-real-trials.md
     perturb_collisions: bool = False
-    # Exploration (calibrate --fit-ranges): each trial scales the pose errors (object and hand) and the
-    # friction spread each by a level drawn from this list; empty: none. docs/decisions/0026-stages.md
+    # Exploration (calibrate --fit-ranges): levels drawn per trial for the pose errors and friction
+    # spread; none when empty. see docs/decisions/0027-execution-fitted-to-real-trials.md
     scale_levels: tuple[float, ...] = ()
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
@@ -468,10 +478,10 @@ class ConfidenceConfig(_Section):
     """
 
     method: str = _field("none", choices=("none", "isotonic"))  # none: no p_success column
-    trials: int = _field(0, ge=0)  # the --trials K of the scores it was fitted on (a run must match)
+    trials: int = _field(0, ge=0, le=100)  # the --trials K of the scores it was fitted on (a run must match)
     scores: tuple[float, ...] = ()  # knots, increasing in [0, 1]
     p_success: tuple[float, ...] = ()  # P(real success) at each knot, not decreasing; linear between
-    n: int = _field(0, ge=0)  # real trials it was fitted on
+    n: int = _field(0, ge=0, le=1_000_000_000)  # real trials it was fitted on (0: a mapping written by hand)
     brier: float = _field(0.0, ge=0.0, le=1.0)  # its Brier score on them, cross-validated by object
     # The reliability diagram of the fit (annotator report draws it): per bin of P, its trials' mean
     # P, real success rate and count, cross-validated by object.
@@ -501,6 +511,37 @@ class ConfidenceConfig(_Section):
             raise ConfigError(f"[confidence] p_success: non-decreasing values in [0, 1], got {list(p)}")
         if self.trials < 1:
             raise ConfigError("[confidence] trials: the --trials K the mapping was fitted on (>= 1)")
+        self._check_reliability()
+
+    def _check_reliability(self) -> None:
+        """The reliability table: three lists of one length, rates and mean probabilities in
+        [0, 1], counts whole and >= 0 that add up to at most ``n``; a table (and a Brier score)
+        only with the real trials it was measured on (``n`` >= 1)."""
+        lists = {"reliability_p": self.reliability_p, "reliability_rate": self.reliability_rate}
+        lists["reliability_n"] = self.reliability_n
+        lengths = {len(v) for v in lists.values()}
+        if len(lengths) > 1:
+            shown = ", ".join(f"{k} {len(v)}" for k, v in lists.items())
+            raise ConfigError(
+                f"[confidence] reliability_p, reliability_rate, reliability_n: one value per bin ({shown})"
+            )
+        for name in ("reliability_p", "reliability_rate"):
+            bad = [x for x in lists[name] if not 0.0 <= x <= 1.0]
+            if bad:
+                raise ConfigError(f"[confidence] {name}: a share of trials, in [0, 1], got {bad[0]:g}")
+        counts = self.reliability_n
+        if any(k < 0 or k != round(k) for k in counts):
+            bad_count = next(k for k in counts if k < 0 or k != round(k))
+            raise ConfigError(f"[confidence] reliability_n: whole numbers of trials >= 0, got {bad_count:g}")
+        if self.n == 0 and (counts or self.brier):
+            raise ConfigError(
+                "[confidence] n = 0: a reliability table and a Brier score are measured on real trials; "
+                "a mapping written by hand has neither"
+            )
+        if sum(counts) > self.n:
+            raise ConfigError(
+                f"[confidence] reliability_n: {sum(counts):g} trials in the bins, more than n = {self.n}"
+            )
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_path", "atomic_write_text"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_path", "atomic_write_text", "probe_writable"]
 
 
 def _current_umask() -> int:
@@ -44,14 +44,6 @@ def _fsync_dir(folder: Path) -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
-
-
-def check_writable(folder: Path) -> None:
-    """Make ``folder`` (and its parents) and write and remove a file in it (``.rg2-write-check-*``):
-    OSError when it cannot be written, before any work depends on it."""
-    folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile(dir=folder, prefix=".rg2-write-check-"):
-        pass
 
 
 def atomic_write_path(
@@ -116,3 +108,13 @@ def atomic_write_text(
 ) -> None:
     """``text`` (UTF-8) at ``path``, whole or not at all."""
     atomic_write_bytes(path, text.encode("utf-8"), durable=durable, make_parents=make_parents)
+
+
+def probe_writable(folder: Path | str) -> None:
+    """Make ``folder`` (and its parents) if it is missing and check that a file can be created in
+    it, leaving nothing behind; OSError (with the system's reason) otherwise."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, probe = tempfile.mkstemp(prefix=".rg2-write-check-", dir=folder)
+    os.close(fd)
+    os.unlink(probe)

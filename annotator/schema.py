@@ -289,7 +289,7 @@ SCENE_GROUPS: tuple[ColumnGroup, ...] = (
         STRING,
         "",
         "",
-        '`approach` (open, at or behind the grasp), `closed` (on the chord) or `pregrasp` (evaluate: the '
+        "`approach` (open, at or behind the grasp), `closed` (on the chord) or `pregrasp` (evaluate: the "
         'pose before the approach); `""` otherwise',
     ),
     ColumnGroup(

@@ -30,7 +30,6 @@ each; the labels oracle an upper bound, the learned policy within 20 points of i
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import subprocess
@@ -42,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.config import AnnotatorConfig
+from bench.arguments import Parser, count, existing_file, existing_folder, seed, writable_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -224,45 +224,69 @@ def targets(rows: list[dict]) -> list[str]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--train-objects", type=Path, required=True, help="objects whose scenes are labelled to train on"
+        "--train-objects",
+        type=existing_folder,
+        required=True,
+        help="objects whose scenes are labelled to train on",
     )
     parser.add_argument(
-        "--train-labels", type=Path, nargs="+", help="annotate --scenes --views runs of them made already"
+        "--train-labels",
+        type=existing_folder,
+        nargs="+",
+        help="annotate --scenes --views runs of them made already",
     )
-    parser.add_argument("--test-objects", type=Path, required=True, help="other objects: the piles to clear")
-    parser.add_argument("--scenes", type=int, default=100, help="training pile scenes (with --train-objects)")
-    parser.add_argument("--packed-scenes", type=int, default=40, help="training packed scenes")
-    parser.add_argument("--n", type=int, default=120, help="grasps per training scene")
-    parser.add_argument("--train-seed", type=int, default=1000, help="the training scenes' seed")
-    parser.add_argument("--views", type=int, default=3, help="depth views of training scenes and policies")
     parser.add_argument(
-        "--rounds", type=int, default=40, help="clutter rounds per policy and arrangement (0: train only)"
+        "--test-objects", type=existing_folder, required=True, help="other objects: the piles to clear"
+    )
+    parser.add_argument(
+        "--scenes", type=count(1, 1_000_000), default=100, help="training pile scenes (with --train-objects)"
+    )
+    parser.add_argument(
+        "--packed-scenes", type=count(0, 1_000_000), default=40, help="training packed scenes (0: none)"
+    )
+    parser.add_argument("--n", type=count(1, 1_000_000), default=120, help="grasps per training scene")
+    parser.add_argument("--train-seed", type=seed, default=1000, help="the training scenes' seed")
+    parser.add_argument(
+        "--views", type=count(1, 100), default=3, help="depth views of training scenes and policies"
+    )
+    parser.add_argument(
+        "--rounds",
+        type=count(0, 100_000),
+        default=40,
+        help="clutter rounds per policy and arrangement (0: train only)",
     )
     parser.add_argument(
         "--oracle-rounds",
-        type=int,
+        type=count(0, 100_000),
         default=None,
         help="the labels oracle's rounds (its first ones; default --rounds)",
     )
     parser.add_argument("--arrangements", nargs="+", default=["pile", "packed"], choices=["pile", "packed"])
     parser.add_argument("--policies", nargs="+", default=list(POLICIES), choices=list(POLICIES))
-    parser.add_argument("--seed", type=int, default=0, help="the clutter rounds' seed")
-    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--seed", type=seed, default=0, help="the clutter rounds' seed")
+    parser.add_argument("--workers", type=count(1, 1024), default=None)
     parser.add_argument(
         "--keep",
-        type=Path,
+        type=writable_folder,
         default=None,
         help="keep the labels, the model and each policy's rounds.csv and grasps.csv here",
     )
     parser.add_argument(
         "--model",
-        type=Path,
+        type=existing_file,
         default=None,
         help="a model trained already (--keep of a --rounds 0 run): no training",
     )
     args = parser.parse_args()
+    if args.model is not None:
+        from annotator.learn.model import load_model
+
+        try:
+            load_model(str(args.model))
+        except ValueError as exc:
+            parser.error(f"--model: {exc}")
     recorded = {k: str(v) for k, v in vars(args).items()}
     with Run("learning", config=recorded) as record, tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)

@@ -337,6 +337,11 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     )
     ap.add_argument("--no-fit", action="store_true", help="skip the fit of the execution (the longest part)")
     ap.add_argument(
+        "--no-baseline",
+        action="store_true",
+        help="skip the default ranges' confidence and the agreement table (compare fits of variants)",
+    )
+    ap.add_argument(
         "--stages-only",
         action="store_true",
         help="only trial 0's stages against the real outcomes (one evaluate at --trials 1): to compare "
@@ -421,6 +426,8 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         tag += "-set-" + hashlib.sha256(changes).hexdigest()[:6]  # a variant's record beside the default's
     if args.stages_only:
         tag += "-stages"
+    if args.profile is not None:
+        tag += f"-profile-{args.profile.stem}"  # a frozen profile's record beside the fitted run's
     with Run(
         "real_trials",
         config=arguments,
@@ -435,7 +442,8 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         stage_report(run, prepared, real, args, config)
         if args.stages_only:
             return
-        report(run, prepared, real, args, config, label)
+        if not args.no_baseline:
+            report(run, prepared, real, args, config, label)
         if not args.no_fit:
             fit_report(run, prepared, real, args, config, label)
 
@@ -966,6 +974,24 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
         .to_numpy()
     )
     t0 = time.perf_counter()
+    # the exploration is most of the time: kept in the work folder, keyed by everything it depends on
+    key = exploration_key(trials, source.config, args.explore_trials)
+    saved = args.work / "exploration.npz"
+    exploration = ranges.Exploration.load(saved, key)
+    if exploration is None:
+        exploration = cal.explore(
+            trials,
+            source.config,
+            prepared.objects,
+            args.workers,
+            0,
+            source.gripper,
+            "table",
+            args.explore_trials,
+        )
+        exploration.save(saved, key)
+    else:
+        print(f"the exploration of an earlier run: {saved}", flush=True)
     result = cal.fit_ranges(
         trials,
         source.config,
@@ -976,16 +1002,18 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
         resting="table",
         m=args.explore_trials,
         folds=args.folds,
+        exploration=exploration,
     )
     print(cal.ranges_text(result, args.bootstrap), flush=True)
     run.figure("fit_seconds", time.perf_counter() - t0, "s", note="exploration and fit, wall time")
     f = result.fit
     e = f.execution.execution
     for i, g in enumerate(ranges.GROUPS):
+        own = e.theta[i] == f.exploration.own_index
         run.figure(
             f"fit_{g.name}_level",
-            f.levels[e.theta[i]],
-            note=f"the {g.name} group's scale level (x its units)",
+            0.0 if own else f.exploration.levels[e.theta[i]],
+            note=f"the {g.name} group's scale level (x its units; 0: the run's own ranges kept)",
         )
         run.figure(
             f"fit_{g.name}_identified", int(f.execution.identified[g.name]), note="1: the data identify it"
@@ -1066,6 +1094,74 @@ def fit_report(run: Run, prepared: Prepared, real: np.ndarray, args, config: Pat
     (args.work / "reliability.png").write_bytes(png)
     print(f"reliability diagram: {args.work / 'reliability.png'}", flush=True)
     del figures
+    causes = disagreement_causes(prepared, real, called, result, order)
+    run.table("disagreements_by_cause", causes["by_cause"], note=DISAGREEMENT_NOTE)
+    run.table("disagreements_by_object", causes["by_object"], note="the same rows, per object")
+    for row in causes["by_cause"]:
+        print(f"  {row['real']:>8} called {row['called']:>7}: {row['n']:>3} {row['cause']}")
+
+
+DISAGREEMENT_NOTE = (
+    "the trials whose cross-validated call (simulated) disagrees with the real outcome, by what the "
+    "exploration says of them at the fitted ranges: trial 0's stage and the share of perturbed "
+    "executions that held"
+)
+
+
+def disagreement_causes(prepared: Prepared, real: np.ndarray, called: np.ndarray, result, order: np.ndarray):
+    """The rows where the calls and reality disagree, sorted by cause from the exploration at the
+    ranges fitted on all trials: what trial 0 reached (a collision at the nominal pose, no contact,
+    a slip in the lift, the motion or the shake) and whether some perturbed executions held (the
+    execution decides), none did (nothing the ranges cover holds it: the physics) or all did."""
+    from annotator.outcome import Stage
+    from annotator.tools import ranges
+
+    exp, e = result.exploration, result.fit.execution.execution
+    share = np.full(len(real), np.nan)
+    stage0 = np.zeros(len(real), dtype=np.int64)
+    p = ranges.held_share(exp.ratios(), e.theta, exp.stages >= int(Stage.from_label(e.stage)))
+    share[order], stage0[order] = p, exp.stage0
+    trial0 = {0: "trial 0 never held (collision or no contact)", 1: "trial 0 slipped in the lift"}
+    trial0.update({2: "trial 0 slipped in the motion", 3: "trial 0 slipped in the shake", 4: "trial 0 held"})
+    by_cause: dict[tuple, int] = {}
+    by_object: dict[tuple, int] = {}
+    for i in np.flatnonzero(called != real):
+        if share[i] == 0:
+            executions = "no perturbed execution held"
+        elif share[i] >= 0.95:
+            executions = "every perturbed execution held"
+        else:
+            executions = f"{'most' if share[i] >= 0.5 else 'some'} perturbed executions held"
+        key = ("success" if real[i] else "failure", "success" if called[i] else "failure")
+        cause = f"{trial0[int(stage0[i])]}; {executions}"
+        by_cause[(*key, cause)] = by_cause.get((*key, cause), 0) + 1
+        obj = prepared.trials["object_id"].iloc[i]
+        by_object[(*key, obj)] = by_object.get((*key, obj), 0) + 1
+    return {
+        "by_cause": [
+            {"real": r, "called": c, "cause": cause, "n": n}
+            for (r, c, cause), n in sorted(by_cause.items(), key=lambda kv: (kv[0][0], -kv[1]))
+        ],
+        "by_object": [
+            {"real": r, "called": c, "object": o, "n": n} for (r, c, o), n in sorted(by_object.items())
+        ],
+    }
+
+
+def exploration_key(trials: pd.DataFrame, config: AnnotatorConfig, m: int) -> str:
+    """What an exploration depends on, as a digest: the trials' grasps (poses, rest orientations),
+    the configuration, the perturbed trials per grasp, the code's commit and the label libraries."""
+    import hashlib
+    import json
+
+    from annotator.versions import library_versions
+    from bench.harness import git_state
+
+    grasps = trials.drop(columns=["real_success"], errors="ignore").to_csv(index=False, float_format="%.17g")
+    text = json.dumps(
+        [grasps, config.to_dict(trials=m + 1), m, git_state().commit, library_versions()], sort_keys=True
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def profile_report(run: Run, prepared: Prepared, real: np.ndarray, args, label: str) -> None:

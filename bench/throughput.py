@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -225,7 +226,13 @@ def main() -> None:
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     if args.modes_only:
         args.n = args.scaling_n = args.main_n = 0
-    with Run("throughput", config=vars(args), annotator=config) as record:
+    # a run with a configuration of its own keeps its record beside the default's
+    tag = (
+        None
+        if args.config is None
+        else "config-" + re.sub(r"[^a-z0-9]+", "-", args.config.stem.lower()).strip("-")
+    )
+    with Run("throughput", config=vars(args), annotator=config, tag=tag) as record:
         references = [free_step(config)]
         if args.n:
             in_process(args, config, record, references)

@@ -81,3 +81,24 @@ def dimpled(mesh: trimesh.Trimesh, depth: float = 1e-4) -> trimesh.Trimesh:
     pick = on_top[np.argmin(np.linalg.norm(vertices[on_top, :2] - middle, axis=1))]
     vertices[pick, 2] -= depth
     return trimesh.Trimesh(vertices, out.faces, process=False)
+
+
+def mount_tmpfs(where: Path, size: str) -> None:
+    """A tmpfs of ``size`` mounted at ``where`` (root only: the test is skipped where it cannot be)."""
+    import subprocess
+
+    import pytest
+
+    where.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True
+    )
+    if done.returncode:
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.decode().strip()})")
+
+
+def umount(where: Path) -> None:
+    """Unmount ``where`` (lazily: a process still in it does not keep it)."""
+    import subprocess
+
+    subprocess.run(["umount", "-l", str(where)], capture_output=True)

@@ -5,8 +5,11 @@ from __future__ import annotations
 import collections
 import dataclasses
 import re
+import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from annotator.config import AnnotatorConfig
 from annotator.sim.world import World
@@ -102,3 +105,42 @@ def test_variant_documented_in_the_module_parses_to_what_it_says():
     assert config.physics.solver_iterations == 100
     assert config.protocol.shake_paired is False
     assert config.to_dict() != AnnotatorConfig().to_dict()
+
+
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (
+            ["--train-objects", "no/such/folder", "--test-objects", "objects"],
+            "--train-objects: no/such/folder: no such folder",
+        ),
+        (
+            ["--train-objects", "objects", "--test-objects", "README.md"],
+            "--test-objects: README.md: not a folder",
+        ),
+        (
+            ["--train-objects", "objects", "--test-objects", "objects", "--rounds", "-1"],
+            "--rounds: -1 is not in 0 .. 100,000",
+        ),
+        (
+            ["--train-objects", "objects", "--test-objects", "objects", "--scenes", "0"],
+            "--scenes: 0 is not in 1 .. 1,000,000",
+        ),
+        (
+            ["--train-objects", "objects", "--test-objects", "objects", "--model", "no.npz"],
+            "--model: no.npz: no such file",
+        ),
+        (
+            ["--train-objects", "objects", "--test-objects", "objects", "--model", "README.md"],
+            "is not a model of annotator learn train",
+        ),
+    ],
+)
+def test_bench_learning_checks_its_arguments_in_one_line(args, said):
+    """Bad paths were tracebacks; --rounds -1 and --scenes 0 were accepted."""
+    repo = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, "-m", "bench.learning", *args], capture_output=True, text=True, cwd=repo
+    )
+    assert done.returncode == 2 and done.stdout == ""
+    assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "bench"
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
 # bench modules that are not benchmarks
-HELPERS = {"__init__", "__main__", "_variants", "harness", "docs", "reference", "vgn_policy"}
+HELPERS = {"__init__", "__main__", "_variants", "arguments", "harness", "docs", "reference", "vgn_policy"}
 
 
 def run_demo(results: Path, **kwargs) -> dict:

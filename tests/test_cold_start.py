@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import trimesh
-from helpers import run_annotate, write_l
+from helpers import mount_tmpfs, run_annotate, umount, write_l
 
 import annotator.objects
 import annotator.objects.decomposition
@@ -436,3 +436,50 @@ def test_cache_reaches_the_dask_workers(tmp_path, monkeypatch):
         )  # fmt: skip
     assert len(list((tmp_path / "shared").glob("*.npz"))) == 2  # the concave blocks (the box: none)
     assert not (tmp_path / "default").exists()
+
+
+def _annotate_process(*args) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-c", "from annotator.cli import annotate_main; annotate_main()", *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+
+
+def _read_labels(out: Path) -> pd.DataFrame:
+    return pd.read_parquet(out).sort_values(["object_id", "grasp_id"], kind="stable", ignore_index=True)
+
+
+@pytest.mark.slow
+@pytest.mark.root
+def test_a_read_only_cache_is_read_and_what_it_lacks_is_made_aside(tmp_path):
+    """A cluster's shared cache is often read-only: one holding every entry failed every run
+    before any work ("cannot be written"). It is read; an object it lacks is decomposed and
+    labelled as with a writable cache, the cache left as it was."""
+    objs = _objects(tmp_path / "objs")
+    disk = tmp_path / "cache"
+    mount_tmpfs(disk, "16m")
+    try:
+        args = ["--n", 10, "--workers", 1, "--quiet", "--cache", disk]
+        first = _annotate_process("--objects", objs, "--out", tmp_path / "first", *args)
+        assert first.returncode == 0, first.stderr
+        entries = sorted(p.name for p in disk.iterdir())
+        subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+        again = _annotate_process("--objects", objs, "--out", tmp_path / "again", *args)
+        assert again.returncode == 0, again.stderr
+        assert (
+            f"the decomposition cache {disk} cannot be written" in again.stderr
+            and "Traceback" not in again.stderr
+        )
+        pd.testing.assert_frame_equal(_read_labels(tmp_path / "again"), _read_labels(tmp_path / "first"))
+        # an object the read-only cache lacks: decomposed aside, the same labels as a writable cache gives
+        write_l(objs / "wide_corner.obj", size=1.6)
+        lacking = _annotate_process("--objects", objs, "--out", tmp_path / "lacking", *args)
+        assert lacking.returncode == 0, lacking.stderr
+        assert sorted(p.name for p in disk.iterdir()) == entries
+        writable = ["--n", 10, "--workers", 1, "--quiet", "--cache", tmp_path / "writable"]
+        assert (
+            _annotate_process("--objects", objs, "--out", tmp_path / "reference", *writable).returncode == 0
+        )
+        pd.testing.assert_frame_equal(
+            _read_labels(tmp_path / "lacking"), _read_labels(tmp_path / "reference")
+        )
+    finally:
+        umount(disk)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -226,3 +227,106 @@ def test_a_run_binds_stall_by_travel_only_where_it_changes_the_scores():
     for config in (lift, simulated, by_speed, shaken):
         assert AnnotatorConfig.from_run(config.to_dict(trials=5), 5) == config
     assert AnnotatorConfig.from_run(before(lift, 5)["config"], 5) == by_speed
+
+
+# --- physical bounds of [robust] and [confidence] -------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "field, value, bound",
+    [
+        ("position_sigma", 1000.0, "<= 0.1"),  # a 1 km sigma scored 0.27 where the labels scored 0.8
+        ("approach_sigma", 0.5, "<= 0.1"),
+        ("rotation_sigma", 3.0, "<= 0.35"),
+        ("object_position_sigma", 0.5, "<= 0.05"),
+        ("object_yaw_sigma", 6.3, "<= 0.52"),
+        ("object_tilt_sigma", 1.0, "<= 0.35"),
+        ("friction_delta", 5.0, "<= 1"),
+    ],
+)
+def test_robust_ranges_are_execution_errors_not_another_task(field, value, bound):
+    with pytest.raises(ConfigError, match=rf"\[robust\] {field}: must be >= 0 and {bound}") as info:
+        AnnotatorConfig.from_dict({"robust": {field: value}})
+    assert bound in str(info.value)
+
+
+MAPPING = {"method": "isotonic", "trials": 5, "scores": [0.0, 1.0], "p_success": [0.2, 0.9], "n": 20}
+BINS = {"reliability_p": [0.2, 0.9], "reliability_rate": [0.25, 0.8], "reliability_n": [10, 10]}
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (
+            {"reliability_rate": [2.0, 0.8]},
+            "[confidence] reliability_rate: a share of trials, in [0, 1], got 2",
+        ),
+        ({"reliability_rate": [-1.0, 0.8]}, "reliability_rate: a share of trials, in [0, 1], got -1"),
+        ({"reliability_p": [0.2, 1.5]}, "reliability_p: a share of trials, in [0, 1], got 1.5"),
+        ({"n": -5}, "[confidence] n: must be >= 0"),
+        (
+            {"reliability_rate": [0.25]},
+            "one value per bin (reliability_p 2, reliability_rate 1, reliability_n 2)",
+        ),
+        ({"reliability_n": [10, 2.5]}, "reliability_n: whole numbers of trials >= 0, got 2.5"),
+        ({"reliability_n": [15, 15]}, "30 trials in the bins, more than n = 20"),
+        ({"n": 0}, "n = 0: a reliability table and a Brier score are measured on real trials"),
+        ({"trials": 1000}, "[confidence] trials: must be >= 0 and <= 100"),
+    ],
+)
+def test_a_confidence_table_no_calibration_makes_is_refused(change, message):
+    with pytest.raises(ConfigError) as info:
+        AnnotatorConfig.from_dict({"confidence": {**MAPPING, **BINS, **change}})
+    assert message in str(info.value)
+    AnnotatorConfig.from_dict({"confidence": {**MAPPING, **BINS}})  # the table itself is fine
+
+
+def test_a_sigma_of_a_kilometre_is_one_line_from_the_config_and_from_the_gripper(tmp_path, my_rg2):
+    import shutil
+
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    shutil.copy(Path(__file__).resolve().parents[1] / "objects" / "box.obj", objects)
+    config = tmp_path / "far.toml"
+    config.write_text("[robust]\nposition_sigma = 1000.0\n")
+    runner = CliRunner()
+    base = ["--objects", str(objects), "--n", "4", "--trials", "3", "--workers", "1"]
+    result = runner.invoke(annotate_command, [*base, "--config", str(config), "--out", str(tmp_path / "a")])
+    assert (
+        result.exit_code == 2
+        and "[robust] position_sigma: must be >= 0 and <= 0.1, got 1000.0" in result.output
+    )
+    with (my_rg2 / "gripper.toml").open("a") as f:
+        f.write("\n[robust]\nposition_sigma = 1e9\n")
+    result = runner.invoke(annotate_command, [*base, "--gripper", str(my_rg2), "--out", str(tmp_path / "b")])
+    assert result.exit_code == 2 and "position_sigma" in result.output and "<= 0.1" in result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_the_report_of_a_hand_written_mapping_claims_no_measurement(tmp_path):
+    """It showed "Brier 0.000 ... over 0 real trials" for a mapping that measured nothing."""
+    import shutil
+
+    from annotator.cli import main
+
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    shutil.copy(Path(__file__).resolve().parents[1] / "objects" / "box.obj", objects)
+    config = tmp_path / "mine.toml"
+    mapping = 'method = "isotonic"\ntrials = 1\nscores = [0.0, 1.0]\np_success = [0.1, 0.7]\n'
+    mapping += "perturbed_shake = false\n"
+    config.write_text("[confidence]\n" + mapping)
+    out = tmp_path / "labels"
+    runner = CliRunner()
+    made = runner.invoke(
+        annotate_command,
+        ["--objects", str(objects), "--n", "4", "--config", str(config), "--out", str(out), "-q"],
+    )
+    assert made.exit_code == 0, made.output
+    page = tmp_path / "r.html"
+    result = runner.invoke(main, ["report", str(out), "--pictures", "0", "--html", str(page)])
+    assert result.exit_code == 0, result.output
+    html = page.read_text()
+    assert "by a mapping written by hand" in html and "no Brier score and no reliability diagram" in html
+    assert "Brier score 0.000" not in html and "over 0 real trials" not in html

@@ -17,7 +17,13 @@ from annotator.geometry import Transform
 
 def test_outcomes_and_enum() -> None:
     assert ds.OUTCOMES == (
-        "success", "collision", "no_contact", "slipped_lift", "slipped_shake", "error", "slipped_motion"
+        "success",
+        "collision",
+        "no_contact",
+        "slipped_lift",
+        "slipped_shake",
+        "error",
+        "slipped_motion",
     )
     assert ds.Outcome.SLIPPED_LIFT.label == "slipped_lift"
     assert ds.Outcome.from_label("no_contact") is ds.Outcome.NO_CONTACT

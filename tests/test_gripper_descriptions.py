@@ -176,7 +176,7 @@ def test_a_gripper_s_robust_table_sits_between_the_defaults_and_the_run_s_config
     "table, fragment",
     [
         ("mass_delta = 1.5", "[robust] mass_delta: must be >= 0 and < 1, got 1.5"),
-        ("object_yaw_sigma = -0.1", "[robust] object_yaw_sigma: must be >= 0, got -0.1"),
+        ("object_yaw_sigma = -0.1", "[robust] object_yaw_sigma: must be >= 0 and <= 0.52, got -0.1"),
         ("wobble = 0.1", "unknown key [robust] wobble"),
         ('friction_delta = "a lot"', "[robust] friction_delta: expected a finite number"),
         # the perturbed trials' protocol is the run's, not a gripper's range

@@ -57,6 +57,61 @@ def test_a_nan_in_the_urdf_is_one_line(my_rg2):
     assert "expected 3 finite numbers" in description_error(my_rg2)
 
 
+# --- masses, inertias and inertial origins: a body's ----------------------------------------------------
+
+HOUSING_MASS = '<mass value="0.631500"/>'
+INERTIAL_BREAKS = [
+    (HOUSING_MASS, '<mass value="-1"/>', "link 'rg2_base_link': mass -1 kg: must be a finite number > 0"),
+    ('<mass value="0.015000"/>', '<mass value="-1"/>', "link 'gripper_finger1_knuckle_link': mass -1 kg"),
+    (HOUSING_MASS, '<mass value="nan"/>', "link 'rg2_base_link': mass nan kg"),
+    (HOUSING_MASS, '<mass value="0"/>', "link 'rg2_base_link': mass 0 kg"),
+    ('ixx="1.1785e-03"', 'ixx="nan"', "link 'rg2_base_link': inertia ixx nan"),
+    ('izz="2.8760e-04"', 'izz="-1e-4"', "principal moments must all be > 0"),
+    ('izz="2.8760e-04"', 'izz="5e-3"', "exceeds the sum of the other two"),
+    (
+        '<inertial><origin xyz="0.000000 0.000000 0.053795"/>',
+        '<inertial><origin xyz="0.000000 inf 0.053795"/>',
+        "link 'rg2_base_link': inertial origin xyz 0 inf 0.053795: must be finite numbers",
+    ),
+]
+
+
+@pytest.mark.parametrize("old, new, fragment", INERTIAL_BREAKS)
+def test_a_mass_inertia_or_inertial_origin_no_body_has_is_one_line(my_rg2, old, new, fragment):
+    edit(my_rg2 / "rg2.urdf", old, new)
+    assert fragment in description_error(my_rg2)
+
+
+def _objects(tmp_path: Path) -> Path:
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    shutil.copy(REPO / "objects" / "box.obj", objects)
+    return objects
+
+
+def test_annotate_refuses_a_gripper_of_negative_mass_before_any_work(my_rg2, tmp_path):
+    """It labelled every grasp a failure (0 % against 80 %) and said nothing."""
+    edit(my_rg2 / "rg2.urdf", HOUSING_MASS, '<mass value="-1"/>')
+    out = tmp_path / "out"
+    args = ("--objects", _objects(tmp_path), "--n", 2, "--out", out, "--gripper", my_rg2)
+    result = run_annotate(*args, check=2)
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "link 'rg2_base_link': mass -1 kg" in errors[0]
+    assert "Traceback" not in result.output and not out.exists()
+
+
+def test_a_gripper_that_fails_its_physics_checks_is_refused_before_a_run(my_rg2, tmp_path):
+    """A user's gripper whose pads cannot hold the check's box (4 N, friction 0.1): annotate runs
+    annotator gripper check's physics first and refuses it in one line naming the verdict."""
+    edit(my_rg2 / "gripper.toml", "default = 40.0", "default = 4.0")
+    edit(my_rg2 / "gripper.toml", "lateral_friction = 1.0", "lateral_friction = 0.1")
+    out = tmp_path / "out"
+    args = ("--objects", _objects(tmp_path), "--n", 2, "--out", out, "--gripper", my_rg2)
+    result = run_annotate(*args, check=2)
+    assert "fails annotator gripper check: FAIL box held through lift and shake" in result.output
+    assert "Traceback" not in result.output and not out.exists()
+
+
 # --- shapes PyBullet loads, of the stated size ---------------------------------------------------------
 
 

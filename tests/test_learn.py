@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from helpers import run_annotate
+from helpers import mount_tmpfs, run_annotate, umount
 from scene_helpers import REPO
 
 from annotator.cli import main
@@ -80,7 +80,14 @@ def test_the_learner_trains_on_a_tiny_run_and_scores_vision_candidates(tiny_run,
     )
     np.testing.assert_allclose(load_model(str(out)).coef, model.coef, rtol=1e-6, atol=1e-9)
     result = runner.invoke(main, ["learn", "train", str(tiny_run), "--out", str(out)])
-    assert result.exit_code == 2 and "exists" in result.output
+    assert result.exit_code == 0, result.output  # its own model, unchanged: replaced
+    out.write_bytes(out.read_bytes() + b"edited")
+    result = runner.invoke(main, ["learn", "train", str(tiny_run), "--out", str(out)])
+    assert (
+        result.exit_code == 2
+        and "was written by this tool" in result.output
+        and "--overwrite" in result.output
+    )
 
 
 @pytest.mark.slow
@@ -129,3 +136,84 @@ def test_the_learner_is_also_shown_the_policys_own_candidates_tried_in_simulatio
     )
     assert result.exit_code == 0, result.output
     assert f"{len(data.y)} grasps of 2 scenes ({int(data.vision.sum())} vision candidates)" in result.output
+
+
+@pytest.mark.slow
+def test_learn_train_refuses_objects_whose_mesh_is_not_the_labels(tiny_run, tmp_path):
+    """The policy's candidates would be simulated on the wrong shape."""
+    import trimesh
+
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    shutil.copy(REPO / "objects" / "can.stl", objects)
+    trimesh.load(REPO / "objects" / "box.obj").apply_scale(1.2).export(objects / "box.obj")
+    out = tmp_path / "model.npz"
+    result = CliRunner().invoke(
+        main, ["learn", "train", str(tiny_run), "--objects", str(objects), "--out", str(out)]
+    )
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 2 and len(errors) == 1, result.output
+    assert "box's mesh" in errors[0] and "is not the one" in errors[0] and not out.exists()
+
+
+@pytest.mark.slow
+def test_a_holdout_that_leaves_no_figure_says_so(tiny_run, tmp_path):
+    out = tmp_path / "model.npz"
+    result = CliRunner().invoke(
+        main, ["learn", "train", str(tiny_run), "--holdout", "0.9", "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "no held-out figure: --holdout 0.9 of 2 scenes keeps every scene out" in result.output
+    assert "held-out 2 scenes" not in result.output and out.exists()
+
+
+def test_a_damaged_model_is_one_line_before_any_work(tmp_path, convex_objects):
+    """A model cut short by a full disk crashed --policy learned with BadZipFile."""
+    from annotator.learn.model import Model
+
+    model = Model(np.zeros(3), np.ones(3), np.ones(3), 0.0, ("a", "b", "c"))
+    whole = tmp_path / "model.npz"
+    model.save(whole)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(whole.read_bytes()[:300])
+    with pytest.raises(ValueError, match="is not a model of annotator learn train"):
+        load_model(str(cut))
+    result = CliRunner().invoke(
+        main,
+        ["clutter-removal", "--objects", str(convex_objects), "--rounds", "1", "--policy", "learned",
+         "--policy-arg", f"model={cut}", "--workers", "1"],
+    )  # fmt: skip
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 2 and len(errors) == 1, result.output
+    assert f"{cut} is not a model of annotator learn train" in errors[0]
+    assert "Traceback" not in result.output
+
+
+@pytest.mark.slow
+@pytest.mark.root
+def test_a_model_on_a_full_disk_or_a_read_only_folder_is_one_line_and_leaves_nothing(tiny_run, tmp_path):
+    """np.savez wrote in place: a full disk left a truncated model, which the re-run called
+    existing and the learned policy could not read."""
+    import subprocess
+
+    disk = tmp_path / "disk"
+    mount_tmpfs(disk, "64k")
+    try:
+        (disk / "filler").write_bytes(b"\0" * (60 * 1024))  # leaves a few kB: less than a model
+        out = disk / "model.npz"
+        result = CliRunner().invoke(main, ["learn", "train", str(tiny_run), "--out", str(out)])
+        errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+        assert result.exit_code == 3 and len(errors) == 1, result.output
+        assert "No space left on device" in errors[0] and "Traceback" not in result.output
+        assert sorted(p.name for p in disk.iterdir()) == ["filler"]  # no model, no temporary file
+        (disk / "filler").unlink()
+        result = CliRunner().invoke(main, ["learn", "train", str(tiny_run), "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        load_model.cache_clear()
+        assert load_model(str(out)).coef.size > 0
+        subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+        result = CliRunner().invoke(main, ["learn", "train", str(tiny_run), "--out", str(disk / "m2.npz")])
+        errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+        assert result.exit_code == 3 and len(errors) == 1 and "Read-only file system" in errors[0]
+    finally:
+        umount(disk)

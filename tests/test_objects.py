@@ -944,3 +944,45 @@ def test_a_urdf_inertia_that_cannot_fit_its_shape_keeps_only_its_mass(tmp_path):
     np.testing.assert_allclose(model.inertia, np.eye(3) * 0.1 * 2 * 0.05**2 / 12, rtol=1e-9)
     # collected on the model (the pipeline reports it once per object), not logged at each load
     assert len(model.warnings) == 1 and "inertia cannot belong to this shape" in model.warnings[0]
+
+
+def _contact_counts(model, config: ObjectConfig, steps: int = 6) -> list[int]:
+    """Contact points between two of ``model``'s bodies, the upper dropped flat (0.5 mm above, 10 x 5
+    mm off centre) on the fixed lower, step by step (a private DIRECT client)."""
+    c = pybullet.connect(pybullet.DIRECT)
+    try:
+        pybullet.setGravity(0, 0, -9.81, physicsClientId=c)
+        lower = create_body(c, model, Transform([0, 0, 0.02], [0, 0, 0, 1]), config)
+        pybullet.changeDynamics(lower, -1, mass=0, physicsClientId=c)
+        upper = create_body(c, model, Transform([0.01, 0.005, 0.0605], [0, 0, 0, 1]), config)
+        counts = []
+        for _ in range(steps):
+            pybullet.stepSimulation(physicsClientId=c)
+            counts.append(len(pybullet.getContactPoints(lower, upper, physicsClientId=c)))
+        return counts
+    finally:
+        pybullet.disconnect(c)
+
+
+def test_sat_features_give_a_face_s_whole_patch_at_once(tmp_path):
+    """[objects] sat_features: two boxes meeting face to face touch at the overlap's four corners
+    from the step they meet (Bullet clips the hulls); without, the manifold gains a point per step."""
+    trimesh.creation.box((0.06, 0.06, 0.04)).export(tmp_path / "b.obj")
+    sat = dataclasses.replace(CONFIG, sat_features=True)
+    model = load_object(tmp_path / "b.obj", CONFIG, cache_dir=tmp_path)
+    with_sat = _contact_counts(model, sat)
+    without = _contact_counts(model, CONFIG)
+    first = next(i for i, n in enumerate(with_sat) if n > 1)
+    assert with_sat[first] == 4 and all(n == 4 for n in with_sat[first:]), with_sat
+    assert all(b - a <= 1 for a, b in zip([0, *without[:-1]], without, strict=True)), without
+    assert without[first] < 4, without
+    # the same body otherwise: mass, friction and centre of mass as create_body's own
+    c = pybullet.connect(pybullet.DIRECT)
+    try:
+        plain, urdf = create_body(c, model, None, CONFIG), create_body(c, model, None, sat)
+        for uid in (plain, urdf):
+            info = pybullet.getDynamicsInfo(uid, -1, physicsClientId=c)
+            assert info[0] == pytest.approx(model.mass) and info[1] == pytest.approx(CONFIG.lateral_friction)
+            np.testing.assert_allclose(info[3], model.center_mass, atol=1e-9)
+    finally:
+        pybullet.disconnect(c)

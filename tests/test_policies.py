@@ -96,6 +96,75 @@ def nonsense(observation: Observation) -> Grasps:
     return Grasps.from_rows(np.array([[100.0, 0, 0.1, 1, 0, 0, 0, 0.05, 1.0]]))
 
 
+def raises(observation: Observation) -> list[Grasp]:
+    raise RuntimeError("my model file is\nmissing")
+
+
+def exits(observation: Observation) -> list[Grasp]:
+    import sys
+
+    sys.exit(0)
+
+
+def zero_quaternion(observation: Observation) -> np.ndarray:
+    return np.array([[0.5, 0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.05, 1.0]])
+
+
+def chatty(observation: Observation) -> None:
+    print("thinking about the pile")
+    return None
+
+
+@pytest.mark.parametrize(
+    "policy, said",
+    [
+        (f"{__name__}:raises", "the policy raised RuntimeError: my model file is missing"),
+        (f"{__name__}:exits", "the policy called sys.exit(0): a policy returns grasps or None"),
+        (f"{__name__}:zero_quaternion", "grasp 0: a zero quaternion is no rotation"),
+        ("os:system", "the policy raised TypeError"),
+    ],
+)
+def test_whatever_a_policy_raises_or_exits_with_ends_the_run_in_one_line_naming_it(
+    convex_objects, policy, said
+):
+    """sys.exit(0) ended clutter-removal with exit 0 and no output; the others were tracebacks."""
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
+        "--policy", policy, check=2,
+    )  # fmt: skip
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and f"--policy {policy}: {said}" in errors[0], result.output
+    assert "Traceback" not in result.output
+
+
+def test_what_a_policy_prints_does_not_mix_with_the_command_s_output(convex_objects):
+    result = run_annotator(
+        "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
+        "--policy", f"{__name__}:chatty",
+    )  # fmt: skip
+    assert "thinking about the pile" not in result.output and "grasp success rate" in result.output.lower()
+
+
+def test_a_policy_module_with_a_syntax_error_is_one_line_before_any_work(
+    convex_objects, tmp_path, monkeypatch
+):
+    (tmp_path / "broken_policy.py").write_text("def grasps(observation):\n    return [\n")
+    monkeypatch.chdir(tmp_path)
+    result = run_annotator(
+        "clutter-removal",
+        "--objects",
+        convex_objects,
+        "--rounds",
+        1,
+        "--policy",
+        "broken_policy:grasps",
+        check=2,
+    )
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "broken_policy has a syntax error" in errors[0] and "line 2" in errors[0]
+    assert "Traceback" not in result.output
+
+
 def test_a_policys_nonsense_is_one_line(convex_objects):
     result = run_annotator(
         "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--per-scene", 1, "--workers", 1,
@@ -245,7 +314,7 @@ def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(convex_obj
     ]
     args += ["--policy", predictions, "--out", out]
     result = run_annotator(*args, check=2)
-    assert "rounds.csv exists and clutter-removal did not write it" in result.output
+    assert "rounds.csv exists and was not written by this tool; pass --overwrite" in result.output
     assert mine.read_text() == "my own notes\n"
     run_annotator(*args, "--overwrite")
     written = pd.read_csv(mine)
@@ -253,7 +322,7 @@ def test_clutter_removal_never_replaces_a_rounds_csv_it_did_not_write(convex_obj
     run_annotator(*args)  # its own file: replaced without asking
     assert pd.read_csv(mine).equals(written)
     mine.write_text(mine.read_text() + "0,1,0,0,edited\n")  # edited since: not its own any more
-    assert "did not write it" in run_annotator(*args, check=2).output
+    assert "rounds.csv was written by this tool" in run_annotator(*args, check=2).output
 
 
 def test_policy_names_resolve_to_their_callables():
@@ -267,3 +336,35 @@ def test_policy_names_resolve_to_their_callables():
     assert not is_vision_policy("predictions.csv") and is_vision_policy("a.b:c")
     with pytest.raises(PolicyError, match="no such policy"):
         load_callable("no-such-policy")
+
+
+@pytest.mark.slow
+def test_the_docs_example_policy_runs_from_the_current_folder_as_the_docs_say(convex_objects, tmp_path):
+    """docs/learning.md's policy saved as my_policy.py in the current folder: the loop and its
+    workers import it without PYTHONPATH (it failed with "No module named my_policy")."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from test_docs import python_blocks
+
+    blocks = python_blocks()
+    (code,) = [
+        code
+        for where, code in blocks
+        if where.startswith("docs/learning.md:") and "def highest_point" in code
+    ]
+    (tmp_path / "my_policy.py").write_text(code)
+    shutil.copytree(convex_objects, tmp_path / "objects")
+    exe = shutil.which("annotator", path=str(Path(sys.executable).parent)) or shutil.which("annotator")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    for workers in ("1", "2"):
+        done = subprocess.run(
+            [exe, "clutter-removal", "--objects", "objects/", "--rounds", "1", "--per-scene", "2",
+             "--policy", "my_policy:highest_point", "--policy-arg", "depth=0.03", "--workers", workers],
+            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        assert "Traceback" not in done.stderr and "grasp success rate" in done.stdout.lower()

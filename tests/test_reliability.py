@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import trimesh
-from helpers import run_annotate
+from helpers import mount_tmpfs, run_annotate, umount
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
@@ -359,24 +359,11 @@ def test_a_pool_that_refuses_a_submission_after_a_worker_died_costs_a_retry_not_
     assert all(r.error is None and r.prepared is not None for r in results if isinstance(r.span, Prepare))
 
 
-def _mount_tmpfs(where: Path, size: str) -> None:
-    where.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True
-    )
-    if done.returncode:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.decode().strip()})")
-
-
-def _umount(where: Path) -> None:
-    subprocess.run(["umount", "-l", str(where)], capture_output=True)
-
-
 @pytest.mark.slow
 @pytest.mark.root
 def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, reference, tmp_path):
     disk = tmp_path / "disk"
-    _mount_tmpfs(disk, "24k")
+    mount_tmpfs(disk, "24k")
     try:
         out = disk / "labels"
         args = ["--objects", objs, "--n", N, "--workers", 1, "--out", out]
@@ -387,14 +374,14 @@ def test_a_full_disk_is_one_line_with_the_summary_and_resume_completes(objs, ref
         run_annotate(*args, "--quiet")
         pd.testing.assert_frame_equal(_labels(out), reference, check_exact=True)
     finally:
-        _umount(disk)
+        umount(disk)
 
 
 @pytest.mark.slow
 @pytest.mark.root
 def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_path):
     disk = tmp_path / "disk"
-    _mount_tmpfs(disk, "16m")
+    mount_tmpfs(disk, "16m")
     try:
         out = disk / "labels"
         args = ["--objects", objs, "--n", 10, "--workers", 1, "--out", out, "--quiet"]
@@ -406,7 +393,7 @@ def test_a_read_only_out_reads_a_finished_run_and_refuses_the_rest(objs, tmp_pat
         assert "Read-only file system" in r.output or "read-only" in r.output
         assert "Traceback" not in r.output
     finally:
-        _umount(disk)
+        umount(disk)
 
 
 @pytest.mark.slow
@@ -551,3 +538,45 @@ def test_an_exit_after_an_interrupt_ends_even_when_an_exit_handler_never_returns
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip() == "annotate: worker processes did not stop in time; exiting"
+
+
+def _job() -> None:
+    """In the child before it runs: a process group of its own, SIGINT at its default."""
+    os.setpgrp()
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_while_the_workers_start_prints_no_worker_traceback(objs, tmp_path):
+    """A terminal's Ctrl-C signals its whole foreground process group: workers still importing
+    joblib printed two KeyboardInterrupt tracebacks. Workers now start in a process group of their own:
+    the signal reaches the command alone, which stops them (exit 130, one line)."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-c", "from annotator.cli import annotate_main; annotate_main()"]
+    cmd += ["--objects", str(objs), "--out", str(out), "--n", "400", "--workers", "2", "--quiet"]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_job,  # its own process group, as a shell's job, SIGINT as in a terminal
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not _workers_of(proc.pid):  # a worker has just been started: it is importing
+            assert proc.poll() is None, f"finished before its workers started:\n{proc.communicate()}"
+            assert time.monotonic() < deadline, "no worker started"
+            time.sleep(0.005)
+        workers = _workers_of(proc.pid)
+        assert all(os.getpgid(w) == w for w in workers)  # each leads its group: out of the terminal's reach
+        os.killpg(proc.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate(timeout=30)
+    assert proc.returncode == 130, (proc.returncode, stderr)
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert [line for line in stderr.splitlines() if line.strip()] == [
+        "annotate: interrupted; re-run the same command to resume"
+    ], stderr

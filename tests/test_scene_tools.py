@@ -236,3 +236,27 @@ def test_clutter_removal_rounds_are_annotates_scenes_and_clear_with_labels(
         "clutter-removal", "--objects", convex_objects, "--rounds", 1, "--policy", broken, check=2
     )
     assert "score" in result.output and "Traceback" not in result.output
+
+
+@pytest.mark.parametrize(
+    "column, value, said",
+    [
+        ("x", "abc", "has x 'abc': not a valid number"),
+        ("width", "nan", "has width 'nan': not a valid number"),
+        ("qw", "0", "a zero quaternion is no rotation"),
+    ],
+)
+def test_show_attempts_that_are_not_numbers_are_one_line(convex_scene_run, tmp_path, column, value, said):
+    """x = 'abc', NaN or a zero quaternion in a grasps.csv were tracebacks."""
+    attempt = {"round_id": 0, "attempt": 0, "x": 0.0, "y": 0.0, "z": 0.05, "qx": 1.0, "qy": 0.0, "qz": 0.0}
+    attempt |= {"qw": 0.0, "width": 0.05, "label": 0, "failure": "no_contact"}
+    if column == "qw":
+        attempt["qx"] = 0.0
+    attempt[column] = value
+    csv = tmp_path / "grasps.csv"
+    pd.DataFrame([attempt]).to_csv(csv, index=False)
+    png = tmp_path / "round.png"
+    result = run_annotator("show", convex_scene_run, "--scene", 0, "--attempts", csv, "--png", png, check=2)
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and said in errors[0] and "Traceback" not in result.output
+    assert not png.exists()

@@ -28,7 +28,7 @@ from annotator.scenes import (
     scene_table,
     scenes_from_table,
 )
-from annotator.scenes.records import KEPT, LEFT_WORKSPACE, NOT_PLACED
+from annotator.scenes.records import KEPT, LEFT_WORKSPACE, NOT_AT_REST, NOT_PLACED
 from annotator.scenes.world import load_scene
 from annotator.sim import pb
 from annotator.sim.world import World
@@ -162,17 +162,44 @@ def test_packed_objects_stand_upright(convex):
 
 
 def test_objects_that_leave_a_small_workspace_are_removed(convex):
-    """In a 12 cm workspace six objects cannot all stay: the ones whose centre of mass leaves it
-    are removed and recorded as such; the others are all inside."""
+    """VGN's rule, on a scene set up to test it: a body at rest whose centre of mass lies outside
+    the workspace is removed and recorded as having left it; one at rest inside stays."""
+    from annotator.cell.world import build_cell
+    from annotator.config import CellConfig
+    from annotator.scenes.arrange import _Build, remove_outside_and_settle, workspace_on
+
+    scenes = SceneConfig(workspace_size=0.12)
+    box = convex["box"]
+    lowest = float(box.mesh.vertices[:, 2].min())
+    with World(PhysicsConfig()) as world:
+        cell = build_cell(world, CellConfig(), robot=False, kinect=False)
+        build = _Build(world, cell, workspace_on(cell, scenes), scenes, keyed_rng("test", 0))
+        centre = build.workspace.center
+        for k, dx in enumerate((0.0, 0.06 + 0.10)):  # in the middle; 10 cm beyond the workspace's edge
+            p_table = np.array([centre[0] + dx, centre[1], 0.0005 - lowest])
+            T = Transform(build.table_to_world(p_table), build.T_world_table.quat)
+            build.add(k, "box", box, T)
+        remove_outside_and_settle(build)
+        assert [b.instance_id for b in build.bodies] == [0]
+        assert build.status == {1: LEFT_WORKSPACE}
+
+
+def test_a_pile_too_big_for_its_workspace_keeps_only_what_is_inside(convex):
+    """Six objects cannot all stay in a 12 cm workspace (the plate alone is wider): some leave it,
+    each instance says what became of it, and every one kept rests inside. How many stay is a
+    chaotic outcome of the pile (it differs between CPUs whose maths libraries differ in the last
+    bit: docs/reliability.md), so it is not asserted."""
     small = SceneConfig(workspace_size=0.12, pile_box_margin=0.0)
-    builder = SceneBuilder(convex, scenes=small)
-    record = builder.build(SceneSpec(1, arrangement="pile", min_objects=6, max_objects=6))
+    record = SceneBuilder(convex, scenes=small).build(
+        SceneSpec(1, arrangement="pile", min_objects=6, max_objects=6)
+    )
     statuses = [i.status for i in record.instances]
     assert statuses.count(LEFT_WORKSPACE) >= 1, statuses
-    assert {i.instance_id for i in record.kept} == {
-        i.instance_id for i in record.instances if i.status == KEPT
-    }
-    _check_settled(record, convex)
+    assert set(statuses) <= {KEPT, LEFT_WORKSPACE, NOT_AT_REST}, statuses
+    kept = {i.instance_id for i in record.instances if i.status == KEPT}
+    assert {i.instance_id for i in record.kept} == kept
+    if record.kept:
+        _check_settled(record, convex)
 
 
 @pytest.mark.slow

@@ -767,3 +767,33 @@ def test_a_renamed_chunk_key_and_a_deeply_nested_manifest_are_one_line(tmp_path:
     (tmp_path / MANIFEST_NAME).write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(ManifestUnreadableError, match="nested too deep|expected a JSON object"):
         _open(tmp_path)
+
+
+def test_a_resume_on_another_kind_of_machine_says_so_and_records_both(tmp_path):
+    """The same seed can settle a pile differently where the C library's maths differ (another
+    glibc, another variant of its functions): the manifest names the kind of machine that
+    labelled a folder, and a resume elsewhere says so rather than mixing two kinds silently."""
+    import shutil
+
+    from helpers import run_annotate
+
+    from annotator.versions import machine_kind
+
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    shutil.copy(Path(__file__).resolve().parents[1] / "objects" / "box.obj", objects)
+    out = tmp_path / "labels"
+    args = ["--objects", objects, "--n", 4, "--workers", 1, "--out", out]
+    run_annotate(*args)
+    manifest = json.loads((out / "_manifest.json").read_text())
+    assert manifest["versions"]["machine"] == machine_kind()
+    other = "x86_64, glibc 2.39, libm fma, numpy AVX512_SKX"
+    manifest["versions"]["machine"] = other
+    (out / "_manifest.json").write_text(json.dumps(manifest))
+    result = run_annotate(*args)
+    assert (
+        f"labelled so far on another kind of machine ({other}); this one is {machine_kind()}" in result.output
+    )
+    again = json.loads((out / "_manifest.json").read_text())
+    assert again["versions"]["machine"] == f"{other} | {machine_kind()}"
+    assert "another kind of machine" not in run_annotate(*args).output  # both kinds known now

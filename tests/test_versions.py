@@ -19,7 +19,14 @@ from annotator.store.manifest import bound_versions
 
 def test_the_manifest_and_the_cache_key_use_the_one_list(monkeypatch):
     assert set(versions.LABEL_LIBRARIES) >= {
-        "pybullet", "numpy", "trimesh", "coacd", "scipy", "fast-simplification", "pymeshfix", "manifold3d"
+        "pybullet",
+        "numpy",
+        "trimesh",
+        "coacd",
+        "scipy",
+        "fast-simplification",
+        "pymeshfix",
+        "manifold3d",
     }
     assert set(bound_versions()) == {"annotator", *versions.LABEL_LIBRARIES}
     arrays = [trimesh.creation.box().vertices]

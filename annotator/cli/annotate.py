@@ -12,6 +12,8 @@ from annotator.cli.common import (
     CONFIG_OPTION,
     CONTEXT,
     GRIPPER_OPTION,
+    MAX_SCENES,
+    MAX_VIEWS,
     QUIET_OPTION,
     VERBOSE_OPTION,
     count_option,
@@ -54,7 +56,7 @@ SCENE_GRASPS = 120
     show_default=True,
     help="Output folder: one Parquet file per object (chunk files while it runs) plus _manifest.json.",
 )
-@workers_option("Worker processes [default: all cores]. Labels do not depend on it.")
+@workers_option("Worker processes [default: all cores]. Labels do not depend on it.", high=None)
 @seed_option("Seed of every random draw.")
 @trials_option(
     "Trials per candidate: trial 0 (the label), then K-1 perturbed by [robust]'s execution "
@@ -84,6 +86,7 @@ SCENE_GRASPS = 120
 @count_option(
     "--views",
     low=0,
+    high=MAX_VIEWS,
     default=0,
     show_default=True,
     metavar="K",
@@ -94,6 +97,7 @@ SCENE_GRASPS = 120
 @count_option(
     "--scenes",
     default=None,
+    high=MAX_SCENES,
     metavar="N",
     help="Label N scenes of several objects drawn from --objects and settled on the table, each grasp "
     "tried among its neighbours (docs/scenes.md); --n grasps per scene.",
@@ -193,6 +197,10 @@ def annotate_command(
     from annotator.pipeline.object_job import ObjectOptions
     from annotator.pipeline.scene_job import SceneOptions
 
+    if gripper is not None:
+        from annotator.tools.gripper_check import check_before_work
+
+        check_before_work(gripper, config)  # a user's gripper: its physics checked before any work
     own: ObjectOptions | SceneOptions = ObjectOptions(cell=cell, views=views)
     if scenes:
         own = SceneOptions(scenes, per_scene, arrangement, views=views, cell=cell)

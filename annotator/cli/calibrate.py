@@ -12,6 +12,7 @@ from annotator.cli.common import (
     CONTEXT,
     LABELS,
     LABELS_GRIPPER_OPTION,
+    MAX_TRIALS,
     VERBOSE_OPTION,
     config_option,
     count_option,
@@ -76,6 +77,7 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     help="Cross-validate the choice by object in this many folds (at most one per object; 0 or 1: no "
     "cross-validation): the setting is chosen on the other objects' trials and scored on the fold's.",
     low=0,
+    high=1000,
 )
 @file_option(
     "--write-config",
@@ -89,6 +91,7 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     "trials_k",
     default=5,
     show_default=True,
+    high=MAX_TRIALS,
     help="Simulate every real trial this many times (annotate --trials K) at the best setting and map "
     "its score to the probability that the real grasp holds (isotonic, cross-validated by object): "
     "written as [confidence]; labels made with the file and the same --trials carry p_success.",
@@ -154,7 +157,11 @@ def _floats(text: str, allow_zero: bool = False) -> tuple[float, ...]:
     "repeats across scenes, so scene labels need it.",
     low=0,
 )
-@overwrite_option("Replace a --write-config file this tool did not write.", dest="force_write")
+@overwrite_option(
+    "Replace output files (--write-config, --reliability, --outcomes) this tool did not write or that "
+    "were changed since.",
+    dest="force_write",
+)
 @VERBOSE_OPTION
 def calibrate_command(
     labels,
@@ -208,21 +215,25 @@ def calibrate_command(
     setup_logging(False, verbose, default=logging.WARNING)
     import os
 
-    from annotator.tools.common import check_output_file, check_replaceable
+    from annotator.tools.common import claim_outputs
 
     frictions, severities = _floats(friction), _floats(severity, allow_zero=True)
-    check_output_file(config_out, "--write-config")  # before the simulation, not after it
-    check_replaceable(config_out, "--write-config", cal.written_by_calibrate, force_write)
     if reliability_out is None:
         reliability_out = config_out.with_suffix(".reliability.png")
-    check_output_file(reliability_out, "--reliability")
-    if outcomes_out is not None:
-        check_output_file(outcomes_out, "--outcomes")
+    outputs = {"--write-config": config_out, "--reliability": reliability_out, "--outcomes": outcomes_out}
+    claimed = claim_outputs("annotator calibrate", outputs, force_write)  # before the simulation
     resting = resting_grasps or ("object" if resting else None)
     source = cal.calibration_grasps(labels, objects_dir, gripper, frame, resting, scale, config_file, scene)
     trials = cal.read_real_trials(real_csv, source.grasps)  # a bad file is one line, before anything else
+    if "labels_sha256" in trials.columns:  # read from a trial sheet: made from these labels?
+        from annotator.tools.trial_sheet import check_stamp
+
+        check_stamp(trials["labels_sha256"], source.grasps, real_csv, "LABELS")
     click.echo(source.config_line)
     click.echo(source.gripper_line)
+    from annotator.tools.gripper_check import check_before_work
+
+    check_before_work(source.gripper, source.config)
     if source.resting:
         click.echo(f"resting: each object on the table as given, grasps in the {source.resting}'s frame")
     base = source.config
@@ -238,9 +249,7 @@ def calibrate_command(
             folds,
             workers,
             seed,
-            config_out,
-            reliability_out,
-            outcomes_out,
+            claimed,
         )
         return
     forces = _floats(force) if force is not None else cal.default_forces(source.gripper)
@@ -289,8 +298,8 @@ def calibrate_command(
     )
     click.echo(cal.confidence_text(fit))
     title = f"{source.gripper.name}, --trials {trials_k}, by object; Brier {fit.brier.value:.3f}"
-    reliability_out.write_bytes(conf.reliability_png([("p_success", fit.bins)], title))
-    click.echo(f"wrote {reliability_out}")
+    diagram = claimed.write_bytes("--reliability", conf.reliability_png([("p_success", fit.bins)], title))
+    click.echo(f"wrote {diagram}")
     written = dataclasses.replace(result.config, confidence=fit.section(result.config.robust.shake))
     header = (
         f"annotator calibrate {labels} {real_csv}: best of {len(settings)} settings over {a.n} real trials "
@@ -302,11 +311,27 @@ def calibrate_command(
         f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --trials {trials_k} "
         "--config THIS_FILE"
     )
-    config_out.write_text(cal.config_toml(written, header), encoding="utf-8")
-    click.echo(f"wrote {config_out}")
-    if outcomes_out is not None:
-        cal.outcomes_table(trials, result.simulated).to_parquet(outcomes_out, index=False)
-        click.echo(f"wrote {outcomes_out}")
+    click.echo(f"wrote {claimed.write_text('--write-config', cal.config_toml(written, header))}")
+    if claimed.asked("--outcomes"):
+        table = cal.outcomes_table(trials, result.simulated)
+        click.echo(f"wrote {claimed.write('--outcomes', lambda tmp: table.to_parquet(tmp, index=False))}")
+
+
+def _check_levels(levels, config) -> None:
+    """Every range the exploration reaches (each group's sizes at the highest level) within its
+    [robust] bound; one line naming the field otherwise, before any simulation."""
+    import dataclasses
+
+    from annotator.config import ConfigError
+    from annotator.tools import ranges
+    from annotator.tools.common import ToolError
+
+    top = max(levels)
+    for group in ranges.GROUPS:
+        try:
+            dataclasses.replace(config.robust, **group.at(top))
+        except ConfigError as exc:
+            raise ToolError(f"--levels up to {top:g}: {exc}") from None
 
 
 def _fit_ranges(
@@ -320,17 +345,17 @@ def _fit_ranges(
     folds,
     workers,
     seed,
-    config_out,
-    reliability_out,
-    outcomes_out,
+    claimed,
 ) -> None:
-    """``calibrate --fit-ranges``: explore, fit, cross-validate, write the profile."""
+    """``calibrate --fit-ranges``: explore, fit, cross-validate, write the profile (``claimed``: the
+    command's outputs, :class:`annotator.tools.common.ToolOutputs`)."""
     import os
 
     from annotator import confidence as conf
     from annotator.tools import ranges
 
     level_values = _floats(levels) if levels is not None else ranges.LEVELS
+    _check_levels(level_values, source.config)
     click.echo(
         f"{len(trials)} real trials ({int(trials.real_success.sum())} held) on {trials.object_id.nunique()} "
         f"objects; exploring each with {m} perturbed trials"
@@ -356,8 +381,8 @@ def _fit_ranges(
         title = (
             f"{source.gripper.name}, profile --trials {f.k}, by object; Brier {profile.confidence.brier:.3f}"
         )
-        reliability_out.write_bytes(conf.reliability_png([("p_success (cross-validated)", bins)], title))
-        click.echo(f"wrote {reliability_out}")
+        diagram = conf.reliability_png([("p_success (cross-validated)", bins)], title)
+        click.echo(f"wrote {claimed.write_bytes('--reliability', diagram)}")
     header = (
         f"annotator calibrate --fit-ranges {labels} {real_csv}: the execution fitted to {len(trials)} real "
         f"trials ({source.gripper.name}); the robot cell's profile\n"
@@ -366,13 +391,12 @@ def _fit_ranges(
         f"{profile.confidence.threshold:.3f}\n"
         f"use: annotate --objects DIR --n N --gripper {source.gripper.name} --trials {f.k} --config THIS_FILE"
     )
-    config_out.write_text(cal.config_toml(profile, header, cal.PROFILE_KEEP), encoding="utf-8")
-    click.echo(f"wrote {config_out}")
-    if outcomes_out is not None:
+    text = cal.config_toml(profile, header, cal.PROFILE_KEEP)
+    click.echo(f"wrote {claimed.write_text('--write-config', text)}")
+    if claimed.asked("--outcomes"):
         table = trials[["object_id", "grasp_id", "real_success"]].reset_index(drop=True).copy()
         exp = result.exploration
         table["trial_stages"] = [
             str(a) + "".join(map(str, row)) for a, row in zip(exp.stage0, exp.stages, strict=True)
         ]
-        table.to_parquet(outcomes_out, index=False)
-        click.echo(f"wrote {outcomes_out}")
+        click.echo(f"wrote {claimed.write('--outcomes', lambda tmp: table.to_parquet(tmp, index=False))}")

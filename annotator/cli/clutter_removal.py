@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 import os
 from pathlib import Path
@@ -25,7 +23,6 @@ from annotator.cli.common import (
 )
 
 OUTPUTS = ("rounds.csv", "grasps.csv")
-MARKER = ".clutter-removal.json"  # what this tool wrote in --out: {file name: sha256}
 
 
 def _parse_args(pairs: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
@@ -43,42 +40,25 @@ def _parse_args(pairs: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+def claim_out(out_dir: Path, overwrite: bool):
+    """``--out DIR`` held for this run with the store's lock (a second clutter-removal on it is
+    refused naming the first) and its rounds.csv and grasps.csv claimed (:func:`annotator.tools.
+    common.claim_outputs`: a file this tool did not write, or one changed since, only with
+    ``overwrite``); the claims end with the command. Returns the claimed outputs."""
+    from annotator.store import LockedError, OutputError
+    from annotator.store.lock import RunLock
+    from annotator.tools.common import OutputToolError, ToolError, check_output_dir, claim_outputs
 
-
-def check_outputs(out_dir: Path, overwrite: bool) -> None:
-    """ToolError (one line) if ``out_dir`` holds a rounds.csv or grasps.csv this tool did not write
-    (the marker's digest differs, or there is no marker), unless ``overwrite``."""
-    from annotator.tools.common import ToolError
-
-    if overwrite:
-        return
+    out_dir = check_output_dir(out_dir, "--out")
+    lock = RunLock(out_dir)
     try:
-        written = json.loads((out_dir / MARKER).read_text())
-    except (OSError, ValueError):
-        written = {}
-    for name in OUTPUTS:
-        path = out_dir / name
-        if path.exists() and (not isinstance(written, dict) or written.get(name) != _sha256(path)):
-            raise ToolError(
-                f"--out {out_dir}: {name} exists and clutter-removal did not write it; "
-                "give another folder or --overwrite"
-            )
-
-
-def write_outputs(out_dir: Path, tables: dict) -> None:
-    """Write the tables (name -> DataFrame) and the marker naming them."""
-    written = {}
-    for name, table in tables.items():
-        path = out_dir / name
-        table.to_csv(path, index=False)
-        written[name] = _sha256(path)
-    (out_dir / MARKER).write_text(json.dumps(written, indent=1) + "\n")
+        lock.acquire()
+    except LockedError as exc:
+        raise ToolError(str(exc)) from None
+    except OutputError as exc:
+        raise OutputToolError(str(exc)) from None
+    click.get_current_context().call_on_close(lock.release)
+    return claim_outputs("annotator clutter-removal", {name: out_dir / name for name in OUTPUTS}, overwrite)
 
 
 def _workspace(config):
@@ -186,18 +166,17 @@ def clutter_removal_command(
     setup_logging(False, verbose, default=logging.WARNING)
     from annotator.objects import ObjectDiscoveryError, ObjectError, default_cache_dir, discover_objects
     from annotator.pipeline.in_memory import ExecutionOptions
+    from annotator.pipeline.worker_spawn import detach_local_workers
     from annotator.policies import PolicyError
     from annotator.policies.clutter import ClutterSetup
     from annotator.policies.loop import check_signature
     from annotator.policies.predictions import check_predictions, read_predictions
     from annotator.policies.resolve import ORACLES, is_vision_policy, load_callable
     from annotator.tools.clutter_runs import run_clutter_removal
-    from annotator.tools.common import ToolError, check_output_dir
+    from annotator.tools.common import ToolError
 
     config = load_config(config_file)
-    if out_dir is not None:
-        out_dir = check_output_dir(out_dir, "--out")
-        check_outputs(out_dir, overwrite)
+    claimed = claim_out(out_dir, overwrite) if out_dir is not None else None
     args = _parse_args(policy_args)
     name = policy
     vision = policy not in ORACLES and is_vision_policy(policy)
@@ -205,7 +184,11 @@ def clutter_removal_command(
         raise ToolError("--policy-arg: only a vision policy takes arguments")
     try:
         if vision:
+            from annotator.learn.policy import learned, learned_model
+
             check_signature(load_callable(policy), dict(args))
+            if load_callable(policy) is learned:  # its model read before any work
+                learned_model(dict(args).get("model"))
         elif policy not in ORACLES:
             path = Path(policy)
             if not path.is_file():
@@ -241,6 +224,7 @@ def clutter_removal_command(
         views=views,
         arrangement=arrangement,
     )
+    detach_local_workers()  # a Ctrl-C reaches this process only
     try:
         summary = run_clutter_removal(job, rounds, ExecutionOptions(workers or os.cpu_count() or 1))
     except ObjectError as exc:
@@ -249,7 +233,10 @@ def clutter_removal_command(
         raise ToolError(f"--policy {name}: {exc}") from None
     for line in summary.lines(name):
         click.echo(line)
-    if out_dir is not None:
-        rounds_table, grasps = summary.tables()
-        write_outputs(out_dir, {"rounds.csv": rounds_table, "grasps.csv": grasps})
-        click.echo(f"wrote {out_dir / 'rounds.csv'} and {out_dir / 'grasps.csv'}")
+    if claimed is not None:
+        tables = dict(zip(OUTPUTS, summary.tables(), strict=True))
+        written = [
+            claimed.write(name, lambda tmp, t=table: t.to_csv(tmp, index=False))
+            for name, table in tables.items()
+        ]
+        click.echo(f"wrote {written[0]} and {written[1]}")

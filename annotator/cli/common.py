@@ -60,9 +60,21 @@ def objects_option(help: str, **kwargs: Any) -> Decorator:
     return folder_option("--objects", "objects_dir", help=help, **kwargs)
 
 
-def workers_option(help: str = "Worker processes [default: all cores].") -> Decorator:
-    """``--workers N``, processes (None: all cores)."""
-    return count_option("--workers", help=help, default=None)
+# Upper bounds of the counts every command takes, each a figure no real use comes near and that
+# a typo or a hostile value must not reach (a loop of 10^9 trials, 10^6 processes):
+MAX_WORKERS = 1024  # local processes; more machines: --scheduler (annotate also bounds them by memory)
+MAX_TRIALS = 100  # --trials K per grasp: a score to 1 % (the defaults are 1 and 5)
+MAX_VIEWS = 100  # depth views per placement, scene or attempt
+MAX_SCENES = 1_000_000  # scenes of one run, as --n bounds the grasps per object
+MAX_PICTURES = 400  # grasps or objects drawn on one picture or page
+
+
+def workers_option(
+    help: str = "Worker processes [default: all cores].", high: int | None = MAX_WORKERS
+) -> Decorator:
+    """``--workers N``, processes (None: all cores), at most ``high`` (None: the labelling runs,
+    which bound them by the machine's memory with the figures)."""
+    return count_option("--workers", help=help, default=None, high=high)
 
 
 def seed_option(help: str) -> Decorator:
@@ -71,8 +83,8 @@ def seed_option(help: str) -> Decorator:
 
 
 def trials_option(help: str) -> Decorator:
-    """``--trials K``, trials per grasp, 1 by default."""
-    return count_option("--trials", help=help, default=1, show_default=True)
+    """``--trials K``, trials per grasp, 1 by default, at most :data:`MAX_TRIALS`."""
+    return count_option("--trials", help=help, default=1, show_default=True, high=MAX_TRIALS)
 
 
 def scale_option(help: str) -> Decorator:

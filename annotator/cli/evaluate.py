@@ -55,7 +55,7 @@ FRAME_OPTION = click.option(
     required=True,
     help="Output folder: label files (one per object) and _manifest.json, as annotate writes.",
 )
-@workers_option()
+@workers_option(high=None)
 @seed_option("Seed of the perturbed trials.")
 @trials_option(
     "Trials per grasp: trial 0, then K-1 perturbed by [robust] (ending at the lift unless "
@@ -152,6 +152,9 @@ def evaluate_command(
     click.echo(chosen.line(), err=True)
     hand = labelling_gripper(grasps_file, gripper)
     click.echo(hand.line(), err=True)
+    from annotator.tools.gripper_check import check_before_work
+
+    check_before_work(hand.description, config)
     resting = resting_grasps or ("object" if resting else None)
     recorded = labels_resting(grasps_file)
     if resting is None and recorded is not None:
@@ -162,11 +165,9 @@ def evaluate_command(
     if not Path(objects_dir).is_dir():
         raise click.UsageError(f"objects folder not found: {objects_dir}")
     stroke = max_width(config, hand.description)
-    candidates, renumbered = given_candidates(
+    candidates = given_candidates(
         grasps, objects_dir, config, scale, stroke, gripper=hand.description, frame=frame, resting=resting
     )
-    if renumbered:
-        click.echo(f"grasp ids of {len(renumbered)} object(s) renumbered 0..k-1 in file order", err=True)
     run_pipeline(
         "evaluate",
         objects_dir=objects_dir,

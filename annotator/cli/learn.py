@@ -54,7 +54,7 @@ def learn_group() -> None:
     help="The folder the labels were made from: adds the policy's own candidates in each scene, "
     "tried in simulation (recommended; without it the model learns mostly to tell collisions).",
 )
-@overwrite_option("Replace an existing --out file.")
+@overwrite_option("Replace an --out file this tool did not write, or one changed since.")
 @VERBOSE_OPTION
 def train_command(labels, out, holdout, objects, overwrite, verbose):
     """Train on the labels of annotate --scenes ... --views K runs (LABELS: their folders).
@@ -67,20 +67,27 @@ def train_command(labels, out, holdout, objects, overwrite, verbose):
     setup_logging(False, verbose, default=logging.WARNING)
     import numpy as np
 
-    from annotator.learn.data import load_training_set
+    from annotator.learn.data import MeshMismatchError, load_training_set
     from annotator.learn.model import auc, train
-    from annotator.tools.common import ToolError
+    from annotator.tools.common import ToolError, claim_outputs
 
-    if out.exists() and not overwrite:
-        raise ToolError(f"--out {out} exists; give another path or --overwrite")
+    claimed = claim_outputs("annotator learn train", {"--out": out}, overwrite)
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         data = load_training_set(list(labels), objects)
+    except MeshMismatchError as exc:
+        raise ToolError(str(exc)) from None
     except (OSError, ValueError, KeyError) as exc:
         raise ToolError(f"the labels cannot be read for learning: {exc}") from None
     scenes = np.unique(data.scene_id)
     held_out = scenes[len(scenes) - int(round(holdout * len(scenes))) :] if holdout > 0 else scenes[:0]
     test = np.isin(data.scene_id, held_out)
+    if holdout > 0 and not (test.any() and (~test).any()):
+        kept = "every scene" if test.all() else "no scene"
+        click.echo(
+            f"no held-out figure: --holdout {holdout:g} of {len(scenes)} scenes keeps {kept} out; "
+            "give more scenes or another --holdout"
+        )
     click.echo(
         f"{len(data.y)} grasps of {len(scenes)} scenes ({int(data.vision.sum())} vision candidates), "
         f"{int(data.y.sum())} held; "
@@ -103,9 +110,8 @@ def train_command(labels, out, holdout, objects, overwrite, verbose):
         model = train(data.X, data.y)
     except ValueError as exc:
         raise ToolError(str(exc)) from None
-    out.parent.mkdir(parents=True, exist_ok=True)
-    model.save(out)
+    written = claimed.write("--out", model.save)
     click.echo(
-        f"wrote {out} ({time.perf_counter() - t0:.0f} s, "
+        f"wrote {written} ({time.perf_counter() - t0:.0f} s, "
         f"{time.process_time() - c0:.0f} CPU-s of this process)"
     )

@@ -15,6 +15,7 @@ from annotator.cli.common import (
     count_option,
     file_option,
     objects_option,
+    overwrite_option,
 )
 
 
@@ -44,7 +45,11 @@ def _fmt_q(q: np.ndarray) -> str:
     help="GUI: keep the window this many seconds after the replay [default: until it is closed].",
 )
 @click.option(
-    "--size", default=(320, 240), show_default=True, type=(int, int), help="GIF frame width height."
+    "--size",
+    default=(320, 240),
+    show_default=True,
+    type=(click.IntRange(16, 4096), click.IntRange(16, 4096)),
+    help="GIF frame width height (pixels, 16..4096 each).",
 )
 @config_option("Simulate with this TOML file [default: the configuration recorded beside the labels].")
 @count_option(
@@ -56,6 +61,7 @@ def _fmt_q(q: np.ndarray) -> str:
 )
 @LABELS_GRIPPER_OPTION
 @CACHE_OPTION
+@overwrite_option("Replace a --gif this tool did not write or that was changed since.")
 def replay_command(
     labels: Path,
     object_id: str,
@@ -69,6 +75,7 @@ def replay_command(
     scene: int | None,
     gripper: str | None,
     cache_dir: Path | None,
+    overwrite: bool,
 ) -> None:
     """Execute one label with the UR3 and the labels' gripper in the seed's cell (table, Kinect)
     and say what happened.
@@ -92,7 +99,7 @@ def replay_command(
     from annotator.pipeline.prepare import load_prepared
     from annotator.render import write_gif
     from annotator.tools.common import (
-        check_output_file,
+        claim_outputs,
         labelling_config,
         labelling_gripper,
         one_row_per_grasp,
@@ -100,8 +107,7 @@ def replay_command(
     )
     from annotator.tools.replay import default_camera, find_label, plan_replay, replay_world
 
-    if gif_path is not None:
-        check_output_file(gif_path, "--gif")
+    claimed = claim_outputs("annotator replay", {"--gif": gif_path}, overwrite)
     chosen = labelling_config(labels, config_file)
     config = chosen.config
     table = one_row_per_grasp(read_labels(labels), labels, scene)  # scene labels: --scene N
@@ -112,6 +118,9 @@ def replay_command(
     hand = labelling_gripper(labels, gripper, table)
     click.echo(chosen.line())
     click.echo(hand.line())
+    from annotator.tools.gripper_check import check_before_work
+
+    check_before_work(hand.description, config)
     try:
         sources = {s.object_id: s for s in discover_objects(objects_dir)}
     except ObjectDiscoveryError as exc:
@@ -163,8 +172,9 @@ def replay_command(
         held = result.held(config.protocol.lift_height, config.protocol.max_slip)
         click.echo(f"verdict: {'held' if held else 'not held'} (the label says {row['outcome']})")
         if gif_path:
-            write_gif(result.frames, gif_path, fps=1.0 / (every * world.dt))
-            click.echo(f"gif: {len(result.frames)} frames {size[0]}x{size[1]} -> {gif_path}")
+            fps = 1.0 / (every * world.dt)
+            written = claimed.write("--gif", lambda tmp: write_gif(result.frames, tmp, fps=fps))
+            click.echo(f"gif: {len(result.frames)} frames {size[0]}x{size[1]} -> {written}")
         if gui:
             _hold_window(world, hold)
 

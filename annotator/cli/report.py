@@ -10,6 +10,7 @@ from annotator.cli.common import (
     CONTEXT,
     LABELS,
     LABELS_GRIPPER_OPTION,
+    MAX_PICTURES,
     OBJECTS_OPTION,
     VERBOSE_OPTION,
     count_option,
@@ -35,6 +36,7 @@ from annotator.cli.common import (
     show_default=True,
     help="Objects shown with pictures (those with the most successes); 0 for none.",
     low=0,
+    high=MAX_PICTURES,
 )
 @overwrite_option("Replace an --html file this tool did not write.")
 @LABELS_GRIPPER_OPTION

@@ -11,6 +11,7 @@ from annotator.cli.common import (
     CONTEXT,
     GRIPPER_OPTION,
     file_option,
+    overwrite_option,
 )
 
 
@@ -37,10 +38,18 @@ from annotator.cli.common import (
     help="Headless: write the Kinect v2's depth at the end (512x424, 70.6 x 60 deg) as a 16-bit PNG in mm.",
 )
 @click.option(
-    "--frames", default=40, show_default=True, type=click.IntRange(min=2), help="Headless: GIF frames."
+    "--frames",
+    default=40,
+    show_default=True,
+    type=click.IntRange(min=2, max=2000),
+    help="Headless: GIF frames (2..2000).",
 )
 @click.option(
-    "--size", default=(320, 240), show_default=True, type=(int, int), help="Headless: frame width height."
+    "--size",
+    default=(320, 240),
+    show_default=True,
+    type=(click.IntRange(16, 4096), click.IntRange(16, 4096)),
+    help="Headless: frame width height (pixels, 16..4096 each).",
 )
 @click.option(
     "--fov",
@@ -76,6 +85,7 @@ from annotator.cli.common import (
     "appends the row here.",
 )
 @GRIPPER_OPTION
+@overwrite_option("Headless: replace a --gif, --png, --kinect-png or --kinect-depth this tool did not write.")
 def scene_command(
     headless: bool,
     gif_path: Path | None,
@@ -92,6 +102,7 @@ def scene_command(
     object_path: Path | None,
     capture_out: Path,
     gripper: str | None,
+    overwrite: bool,
 ) -> None:
     """The seed scene: UR3 + RG2 (or --gripper) at the origin, table, cube and a Kinect looking
     down at the table.
@@ -156,6 +167,15 @@ def scene_command(
         return
     if screenshot_path:
         raise click.UsageError("--screenshot is for the GUI; use --png with --headless")
+    from annotator.tools.common import claim_outputs
+
+    outputs = {
+        "--gif": gif_path,
+        "--png": png_path,
+        "--kinect-png": kinect_path,
+        "--kinect-depth": kinect_depth_path,
+    }
+    claimed = claim_outputs("annotator scene", outputs, overwrite)
     with open_world(config, gui=False) as world:
         scene = build_scene(world, config, scene_obj)
         camera = scene.seed_camera(*size, fov=fov) if (gif_path or png_path) else None
@@ -168,21 +188,21 @@ def scene_command(
             ) from exc
         rec = run_script(scene, script, camera, frames if gif_path else 2)
         if gif_path:
-            write_gif(rec.frames, gif_path, fps=len(rec.frames) / script.duration)
-            click.echo(f"gif: {len(rec.frames)} frames {size[0]}x{size[1]} -> {gif_path}")
+            fps = len(rec.frames) / script.duration
+            written = claimed.write("--gif", lambda tmp: write_gif(rec.frames, tmp, fps=fps))
+            click.echo(f"gif: {len(rec.frames)} frames {size[0]}x{size[1]} -> {written}")
         if png_path:
-            write_png(rec.frames[-1], png_path)
-            click.echo(f"png -> {png_path}")
+            click.echo(f"png -> {claimed.write('--png', lambda tmp: write_png(rec.frames[-1], tmp))}")
         if kinect_path or kinect_depth_path:
             view = scene.cell.render_kinect(color=kinect_path is not None)
             if kinect_path:
-                write_png(view.color, kinect_path)
-                click.echo(f"kinect colour png -> {kinect_path}")
+                written = claimed.write("--kinect-png", lambda tmp: write_png(view.color, tmp))
+                click.echo(f"kinect colour png -> {written}")
             if kinect_depth_path:
-                write_depth_png(view.depth, kinect_depth_path)
+                written = claimed.write("--kinect-depth", lambda tmp: write_depth_png(view.depth, tmp))
                 seen = view.depth[view.depth > 0]
                 click.echo(
-                    f"kinect depth png (mm) -> {kinect_depth_path}: "
+                    f"kinect depth png (mm) -> {written}: "
                     f"{seen.min():.3f} .. {seen.max():.3f} m over {seen.size} pixels"
                 )
         click.echo(

@@ -11,6 +11,7 @@ from annotator.cli.common import (
     CONTEXT,
     LABELS,
     LABELS_GRIPPER_OPTION,
+    MAX_PICTURES,
     OBJECTS_OPTION,
     OUTCOMES,
     VERBOSE_OPTION,
@@ -53,6 +54,7 @@ from annotator.cli.common import (
     "n",
     default=8,
     show_default=True,
+    high=MAX_PICTURES,
     help="Grasps on the sheet.",
 )
 @seed_option("Seed of the random choice of grasps.")

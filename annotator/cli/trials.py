@@ -59,7 +59,8 @@ def _pose(text: str | None):
 @count_option(
     "--n",
     default=None,
-    help="Grasps per object [default: every executable one].",
+    high=1_000_000,
+    help="Grasps per object (1 .. 1,000,000) [default: every executable one].",
 )
 @click.option(
     "--select",
@@ -73,7 +74,8 @@ def _pose(text: str | None):
     "--repeats",
     default=1,
     show_default=True,
-    help="Times each grasp is executed (rows repeat 0..R-1).",
+    high=1000,
+    help="Times each grasp is executed (rows repeat 0..R-1; 1 .. 1000).",
 )
 @click.option("--object", "objects", multiple=True, metavar="ID", help="Only these objects (repeatable).")
 @click.option(
@@ -85,7 +87,7 @@ def _pose(text: str | None):
     "cell and resting labels use where the object rests in the cell; floating: left empty].",
 )
 @seed_option("Seed of the selection.")
-@overwrite_option("Replace an existing sheet.")
+@overwrite_option("Replace a sheet this tool did not write, or one changed (filled) since.")
 def sheet_command(labels, out_file, n, select, repeats, objects, object_pose, seed, overwrite):
     """Write a sheet of LABELS' grasps to execute on your robot, one row per trial.
 
@@ -97,26 +99,18 @@ def sheet_command(labels, out_file, n, select, repeats, objects, object_pose, se
     and shake) or 0, optionally notes; leave real_success empty for a trial not executed. The
     format: docs/trial_records.md.
     """
-    from annotator.tools.common import (
-        ToolError,
-        check_output_file,
-        labelling_config,
-        labelling_gripper,
-        read_labels,
-    )
+    from annotator.tools.common import claim_outputs, labelling_config, labelling_gripper, read_labels
     from annotator.tools.export import TcpDepth
     from annotator.tools.trial_sheet import SheetSettings, make_sheet
 
-    if out_file.exists() and not overwrite:
-        raise ToolError(f"{out_file} exists: give --overwrite to replace it")
-    check_output_file(out_file, "--out")
+    claimed = claim_outputs("annotator trials sheet", {"--out": out_file}, overwrite)
     table = read_labels(labels)
     config = labelling_config(labels).config
     hand = labelling_gripper(labels, None, table)
     click.echo(hand.line(), err=True)
     settings = SheetSettings(n, select, repeats, seed, tuple(objects) or None, _pose(object_pose))
     sheet = make_sheet(table, settings, config=config, depth=TcpDepth(hand.description, config.gripper))
-    sheet.to_csv(out_file, index=False, float_format="%.9g")
+    out_file = claimed.write("--out", lambda tmp: sheet.to_csv(tmp, index=False, float_format="%.9g"))
     grasps = sheet.drop_duplicates(["object_id", "grasp_id"])
     located = "" if sheet["robot_tcp_x"].notna().all() else " (no robot-frame poses: give --object-pose)"
     click.echo(
@@ -144,20 +138,20 @@ def sheet_command(labels, out_file, n, select, repeats, objects, object_pose, se
     is_flag=True,
     help="Leave grip_force out, so calibrate searches the grip force (--force) too.",
 )
-@overwrite_option("Replace an existing output file.")
+@overwrite_option("Replace an output file this tool did not write, or one changed since.")
 def read_command(sheet_file, out_file, labels, without_force, overwrite):
     """Read a filled SHEET back into the real-trial file annotator calibrate reads.
 
     Rows whose real_success is empty were not executed and are left out (counted). Exit 2 with
     one line naming the row for an outcome that is not 1/0 (true/false, yes/no, success/failure),
-    or a trial that names no grasp of --labels or another mesh.
+    a trial that names no grasp of --labels or another mesh, a sheet made from other labels than
+    --labels (its labels_sha256, its poses), a column named twice, a trial_id two rows share or
+    one execution on two rows.
     """
-    from annotator.tools.common import ToolError, check_output_file, read_labels
+    from annotator.tools.common import claim_outputs, read_labels
     from annotator.tools.trial_sheet import read_sheet
 
-    if out_file.exists() and not overwrite:
-        raise ToolError(f"{out_file} exists: give --overwrite to replace it")
-    check_output_file(out_file, "--out")
+    claimed = claim_outputs("annotator trials read", {"--out": out_file}, overwrite)
     read = read_sheet(sheet_file, read_labels(labels) if labels is not None else None)
     trials = (
         read.trials.drop(columns=["grip_force"])
@@ -165,7 +159,7 @@ def read_command(sheet_file, out_file, labels, without_force, overwrite):
         else read.trials
     )
     out = trials.assign(real_success=trials["real_success"].astype(int))
-    out.to_csv(out_file, index=False, float_format="%.9g")
+    out_file = claimed.write("--out", lambda tmp: out.to_csv(tmp, index=False, float_format="%.9g"))
     skipped = f"; {read.skipped} not executed (real_success empty), left out" if read.skipped else ""
     click.echo(
         f"{len(out)} trials ({int(out.real_success.sum())} held) on {out.object_id.nunique()} objects "

@@ -69,9 +69,21 @@ def _stamp(folder: Path) -> tuple:
 @functools.lru_cache(maxsize=16)
 def _load(toml: str, stamp: tuple) -> GripperDescription:
     description = read_description(toml)
+    check_inertials(description)
     check_kinematics(description)
     _check_name(description)
     return description
+
+
+def check_inertials(description: GripperDescription) -> None:
+    """Every link's mass, inertia and inertial origin physical (:mod:`annotator.grippers.
+    inertials`); :class:`DescriptionError` naming the first link that is not, and its value."""
+    from annotator.grippers.inertials import inertial_problems
+
+    problems = inertial_problems(description_model(description))
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise DescriptionError(f"{description.urdf}: {problems[0]}{more}")
 
 
 def _check_name(description: GripperDescription) -> None:

@@ -73,6 +73,19 @@ class UrdfJoint:
 
 
 @dataclass(frozen=True)
+class Inertial:
+    """A link's ``<inertial>`` as written: ``mass`` (kg), the inertia tensor's ``ixx ixy ixz iyy
+    iyz izz`` (kg m², about the centre of mass, in the inertial frame) and that frame's origin in
+    the link frame (``xyz`` m, ``rpy`` rad). Read as numbers, not judged: ``nan`` and ``inf`` are
+    kept for :func:`annotator.grippers.inertials.inertial_problem` to name."""
+
+    mass: float
+    inertia: tuple[float, float, float, float, float, float]
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class UrdfModel:
     """A URDF's tree: ``links`` (names, document order), ``joints`` by name (document order), the
     mesh files it references (as written), the links that have ``<collision>`` elements and those
@@ -90,6 +103,7 @@ class UrdfModel:
         default_factory=dict
     )
     box_sizes: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    inertials: dict[str, Inertial] = field(default_factory=dict)  # links that have one
 
     @property
     def root(self) -> str:
@@ -242,7 +256,7 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
         if link.find("collision/geometry/box") is not None
         and link.find("collision/geometry/*") is link.find("collision/geometry/box")
     )
-    joints = {}
+    joints: dict[str, UrdfJoint] = {}
     for el in root.findall("joint"):
         joint = _read_joint(el, path.name)
         joints[joint.name] = joint
@@ -257,6 +271,7 @@ def read_urdf_bytes(data: bytes, path: Path | str) -> UrdfModel:
         boxes,
         _collision_meshes(root, path.name),
         _box_sizes(root, path.name),
+        _inertials(root, path),
     )
 
 
@@ -325,6 +340,44 @@ def _box_sizes(root: ET.Element, where: str) -> dict[str, tuple[float, float, fl
                 name = link.attrib.get("name", "")
                 raise ValueError(f"{where}: link {name!r}: box size {exc}") from None
     return box_sizes
+
+
+def _numbers(text: str | None, n: int, default: float) -> tuple[float, ...]:
+    """``n`` numbers from ``text`` as written (``nan`` and ``inf`` kept); ValueError for text
+    that is not ``n`` numbers."""
+    if text is None:
+        return (default,) * n
+    values = tuple(float(v) for v in text.split())
+    if len(values) != n:
+        raise ValueError(f"expected {n} numbers, got {text!r}")
+    return values
+
+
+def _inertials(root: ET.Element, path: Path) -> dict[str, Inertial]:
+    """Each link's ``<inertial>`` (:class:`Inertial`); ValueError (one line) for one that is not
+    numbers. A link without ``<inertial>`` is left out (PyBullet gives it its own default)."""
+    out: dict[str, Inertial] = {}
+    for link in root.findall("link"):
+        name = link.attrib.get("name", "")
+        element = link.find("inertial")
+        if element is None:
+            continue
+        try:
+            mass_el, inertia_el, origin = (
+                element.find("mass"),
+                element.find("inertia"),
+                element.find("origin"),
+            )
+            mass = _numbers(None if mass_el is None else mass_el.attrib.get("value"), 1, 0.0)[0]
+            keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+            v = [_numbers(None if inertia_el is None else inertia_el.attrib.get(k), 1, 0.0)[0] for k in keys]
+            xyz = _numbers(None if origin is None else origin.attrib.get("xyz"), 3, 0.0)
+            rpy = _numbers(None if origin is None else origin.attrib.get("rpy"), 3, 0.0)
+        except ValueError as exc:
+            raise ValueError(f"{path.name}: link {name!r}: <inertial> is malformed ({exc})") from None
+        inertia = (v[0], v[1], v[2], v[3], v[4], v[5])
+        out[name] = Inertial(mass, inertia, (xyz[0], xyz[1], xyz[2]), (rpy[0], rpy[1], rpy[2]))
+    return out
 
 
 def read_mimic_table(urdf: Path | str) -> dict[str, Mimic]:

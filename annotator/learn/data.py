@@ -31,6 +31,28 @@ from annotator.scenes.records import SceneRecord, scenes_from_table
 log = logging.getLogger(__name__)
 
 
+class MeshMismatchError(ValueError):
+    """An object of ``--objects`` is not the mesh the labels were made on (its SHA-256 differs)."""
+
+
+def check_meshes(
+    models: dict, labels: pd.DataFrame, labels_dir: str | Path, objects: str | Path | None
+) -> None:
+    """Every object ``labels`` name is in ``models`` and is the mesh they were labelled on (its
+    ``mesh_sha256``): the policy's candidates must be simulated on the shapes the labels saw.
+    :class:`MeshMismatchError` (one line) naming the object otherwise."""
+    pairs = labels[["object_id", "mesh_sha256"]].drop_duplicates().itertuples(index=False)
+    for object_id, digest in pairs:
+        model = models.get(str(object_id))
+        if model is None:
+            raise MeshMismatchError(f"{labels_dir}: object {object_id!r} is not in --objects {objects}")
+        if model.mesh_sha256 != digest:
+            raise MeshMismatchError(
+                f"--objects {objects}: {object_id}'s mesh (sha256 {model.mesh_sha256[:12]}) is not the one "
+                f"{labels_dir} was labelled on ({str(digest)[:12]}): give the labels' objects folder"
+            )
+
+
 @dataclass(frozen=True)
 class TrainingSet:
     """Features ``X`` (n, F), outcomes ``y`` (n,) bool (held), and per row its ``scene_id`` and
@@ -124,6 +146,7 @@ def load_training_set(
             )
             add(grasp_features(surface, T, width), held, scene, object_id, False)
             if models is not None:
+                check_meshes(models, labels, labels_dir, objects)
                 tried = simulated_candidates(record, observation, surface, models, config, draws=draws)
                 features = grasp_features(surface, tried.T_table_tcp, tried.width)
                 add(features, tried.held, scene, np.full(len(tried.held), "", dtype=object), True)

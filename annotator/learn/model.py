@@ -45,8 +45,13 @@ class Model:
         return 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
 
     def save(self, path: str | Path) -> None:
+        """The model at exactly ``path`` (an ``.npz`` of plain arrays; no suffix is added)."""
+        with open(path, "wb") as fh:
+            self._save(fh)
+
+    def _save(self, fh) -> None:
         np.savez(
-            Path(path),
+            fh,
             mean=self.mean,
             scale=self.scale,
             coef=self.coef,
@@ -89,15 +94,28 @@ def train(X: np.ndarray, y: np.ndarray, *, l2: float = L2) -> Model:
 
 @lru_cache(maxsize=4)
 def load_model(path: str | Path) -> Model:
-    """The model saved at ``path`` (read once per process)."""
-    with np.load(Path(path), allow_pickle=False) as data:
-        return Model(
-            data["mean"],
-            data["scale"],
-            data["coef"],
-            float(data["intercept"]),
-            tuple(str(n) for n in data["feature_names"]),
-        )
+    """The model saved at ``path`` (read once per process). ValueError (one line) for a file that
+    is not a whole model of :meth:`Model.save` (truncated, another file, arrays of other shapes)."""
+    try:
+        with np.load(Path(path), allow_pickle=False) as data:
+            model = Model(
+                np.asarray(data["mean"], dtype=np.float64),
+                np.asarray(data["scale"], dtype=np.float64),
+                np.asarray(data["coef"], dtype=np.float64),
+                float(data["intercept"]),
+                tuple(str(n) for n in data["feature_names"]),
+            )
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such model") from None
+    except Exception as exc:  # zipfile, numpy and OS errors of a damaged file: many types
+        raise ValueError(
+            f"{path} is not a model of annotator learn train (damaged or truncated? {type(exc).__name__}: "
+            f"{' '.join(str(exc).split())[:200]})"
+        ) from None
+    sizes = {len(model.mean), len(model.scale), len(model.coef)}
+    if len(sizes) != 1 or not np.isfinite(np.concatenate([model.mean, model.scale, model.coef])).all():
+        raise ValueError(f"{path} is not a model of annotator learn train (its arrays do not fit together)")
+    return model
 
 
 def auc(score: np.ndarray, y: np.ndarray) -> float:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 
 from annotator.learn.features import grasp_features
-from annotator.learn.model import load_model
+from annotator.learn.model import Model, load_model
 from annotator.policies.records import Grasps, Observation, PolicyError
 from annotator.policies.vision import observed_surface, sample_grasps
 from annotator.rng import keyed_rng
@@ -26,15 +26,22 @@ CANDIDATES = 100  # vision candidates scored per attempt at most
 SEEDS = 1800  # first contacts drawn per attempt (module docstring)
 
 
-def learned(observation: Observation, model: str | None = None, candidates: str | int = CANDIDATES) -> Grasps:
-    """Score up to ``candidates`` vision candidates with the model at ``model`` (module docstring)."""
+def learned_model(model: str | None = None) -> Model:
+    """The model the learned policy scores with: at ``model``, else at ``$RG2_LEARNED_MODEL``;
+    PolicyError (one line) when none is given or the file is not a whole model (the clutter-removal
+    command checks it before any work)."""
     path = model or os.environ.get(MODEL_ENV)
     if not path:
         raise PolicyError(f"the learned policy needs its model: --policy-arg model=PATH (or {MODEL_ENV})")
     try:
-        fitted = load_model(str(path))
-    except (OSError, ValueError, KeyError) as exc:
-        raise PolicyError(f"model {path} cannot be read ({exc})") from None
+        return load_model(str(path))
+    except ValueError as exc:
+        raise PolicyError(str(exc)) from None
+
+
+def learned(observation: Observation, model: str | None = None, candidates: str | int = CANDIDATES) -> Grasps:
+    """Score up to ``candidates`` vision candidates with the model at ``model`` (module docstring)."""
+    fitted = learned_model(model)
     rng = keyed_rng("learned", observation.seed, observation.round_id, observation.attempt)
     surface = observed_surface(observation)
     grasps = sample_grasps(observation, rng, seeds=SEEDS, limit=int(candidates), surface=surface)

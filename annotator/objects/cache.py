@@ -19,17 +19,25 @@ every shared filesystem:
 
 Where the OS offers it, :func:`advisory_lock` lets one process compute a new entry while another
 waits for it (to save the work, not for correctness); where locking fails it is skipped.
+
+A cache that cannot be written (a cluster's shared cache mounted read-only, a folder of another
+user) is read all the same: its entries are used as they are, and what it lacks (an entry, or
+the ``.obj`` of a copied entry) is written to a folder private to this process instead
+(:func:`write_here_or_aside`, :func:`private_folder`), said once in the log, and used from there:
+the same bytes, so the same labels.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import hashlib
 import json
 import logging
 import os
-from collections.abc import Iterator
+import tempfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -173,16 +181,59 @@ def load_arrays(path: Path, inputs: EntryInputs | None = None) -> dict[str, np.n
 
 
 def write_obj(folder: Path, key: str, text: str) -> Path:
-    """``text`` at ``folder/<key>.<hash of text>.obj`` unless that file already holds it."""
+    """``text`` at ``folder/<key>.<hash of text>.obj`` unless that file already holds it (in a
+    cache that cannot be written: aside, :func:`write_here_or_aside`)."""
     data = text.encode()
-    path = Path(folder) / f"{key}.{hashlib.sha256(data).hexdigest()[:16]}.obj"
+    name = f"{key}.{hashlib.sha256(data).hexdigest()[:16]}.obj"
+    path = Path(folder) / name
     try:
         if path.stat().st_size == len(data) and path.read_bytes() == data:
             return path
     except OSError:
         pass
-    write_atomic(path, data)
-    return path
+    return write_here_or_aside(path, lambda target: write_atomic(target, data))
+
+
+# errno values that mean "this folder cannot be written" (not a fault of the entry)
+UNWRITABLE = (errno.EROFS, errno.EACCES, errno.EPERM)
+_PRIVATE: list[Path] = []  # this process's folder for what a read-only cache lacks
+_SAID: set[str] = set()  # read-only caches already reported by this process
+
+
+def private_folder() -> Path:
+    """A folder of this process for entries a read-only cache lacks (made once, under the
+    system's temporary folder; removed when the process ends)."""
+    if not _PRIVATE:
+        import atexit
+        import shutil
+
+        folder = Path(tempfile.mkdtemp(prefix="rg2-annotator-cache-"))
+        atexit.register(shutil.rmtree, folder, True)
+        _PRIVATE.append(folder)
+    return _PRIVATE[0]
+
+
+def write_here_or_aside(path: Path, write: Callable[[Path], object]) -> Path:
+    """``write(path)``; where ``path``'s folder cannot be written (:data:`UNWRITABLE`), the same
+    file in :func:`private_folder` instead, said once per folder. Returns where it went."""
+    try:
+        write(path)
+        return path
+    except OSError as exc:
+        if exc.errno not in UNWRITABLE:
+            raise
+        folder = str(path.parent)
+        if folder not in _SAID:
+            _SAID.add(folder)
+            log.warning(
+                "the decomposition cache %s cannot be written (%s): its entries are read; what it lacks "
+                "is kept for this process only",
+                folder,
+                exc.strerror or exc,
+            )
+    aside = private_folder() / path.name
+    write(aside)
+    return aside
 
 
 @contextlib.contextmanager

@@ -263,4 +263,3 @@ def run_vhacd(
     src.write_text("\n".join(lines) + "\n")
     vhacd(src, out, job / "vhacd.log", int(config.vhacd_resolution))
     return read_vhacd_parts(out) if out.is_file() else []
-

@@ -148,7 +148,7 @@ def collision_geometry(
         if geometry is not None:
             return geometry
         computed = _compute(mesh, method, config, list(shells), label, progress, load_started)
-        cache.save_arrays(path, computed, inputs)
+        path = cache.write_here_or_aside(path, lambda target: cache.save_arrays(target, computed, inputs))
     geometry = read_entry(path, label, inputs)  # fresh and cached: the same float64 entry
     if geometry is None:  # pragma: no cover - removed or damaged between the write and the read
         raise OSError(f"{label}: the collision cache entry {path} vanished after it was written")

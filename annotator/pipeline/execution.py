@@ -23,6 +23,7 @@ from annotator.pipeline import status
 from annotator.pipeline.schedule import Schedule, Stream
 from annotator.pipeline.tasks import SpanResult, WorkerStats
 from annotator.pipeline.worker import label_span
+from annotator.pipeline.worker_spawn import detach_local_workers
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +103,7 @@ class Workers:
                 # their worlds and loaded objects, are kept between runs of one process
                 from joblib.executor import get_memmapping_executor
 
+                detach_local_workers()  # a Ctrl-C reaches the main process only
                 self._executor = get_memmapping_executor(self.count)
         return self._executor
 

@@ -25,9 +25,10 @@ from types import FrameType
 from typing import Any, Protocol
 
 from annotator.dataset import Outcome
-from annotator.files import check_writable
+from annotator.files import probe_writable
 from annotator.grippers import DescriptionError, GripperDescription, load_gripper
 from annotator.objects import default_cache_dir
+from annotator.objects.cache import UNWRITABLE
 from annotator.pipeline import status
 from annotator.pipeline.execution import SchedulerLost, UsageError, Workers, execute
 from annotator.pipeline.options import RunOptions
@@ -327,22 +328,40 @@ def check_cache(options: RunOptions) -> RunOptions:
     if options.cache_dir is None:
         if not options.scheduler:  # the default cache ($RG2_CACHE_DIR): checked the same way
             default = default_cache_dir()
-            try:
-                check_writable(default)
-            except OSError as exc:
+            problem = _cache_problem(default)
+            if problem:
                 raise UsageError(
-                    f"the decomposition cache {default} cannot be written ({exc.strerror or exc}); set "
+                    f"the decomposition cache {default} cannot be written ({problem}); set "
                     "RG2_CACHE_DIR or --cache to a writable folder"
-                ) from exc
+                )
         return options
     folder = Path(os.path.abspath(os.path.expanduser(options.cache_dir)))
     if options.scheduler and not folder.exists():
         return dataclasses.replace(options, cache_dir=folder)
-    try:
-        check_writable(folder)
-    except OSError as exc:
-        raise UsageError(f"--cache {options.cache_dir}: cannot write there ({exc.strerror or exc})") from exc
+    problem = _cache_problem(folder)
+    if problem:
+        raise UsageError(f"--cache {options.cache_dir}: cannot write there ({problem})")
     return dataclasses.replace(options, cache_dir=folder)
+
+
+def _cache_problem(folder: Path) -> str:
+    """Why ``folder`` cannot serve as the decomposition cache ("" when it can). A folder that
+    exists and can be read but not written (a cluster's shared cache mounted read-only) serves: its
+    entries are read and what it lacks is kept aside per process (:mod:`annotator.objects.cache`),
+    said once here; one that cannot be made or read holds nothing to read."""
+    try:
+        probe_writable(folder)
+        return ""
+    except OSError as exc:
+        if folder.is_dir() and os.access(folder, os.R_OK | os.X_OK) and exc.errno in UNWRITABLE:
+            log.warning(
+                "the decomposition cache %s cannot be written (%s): its entries are read; an object it "
+                "lacks is decomposed where it is needed and not kept",
+                folder,
+                exc.strerror or exc,
+            )
+            return ""
+        return str(exc.strerror or exc)
 
 
 def open_store(options: RunOptions, spec: RunSpec, units: dict[str, str]) -> tuple[Store, Resume]:

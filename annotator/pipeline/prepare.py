@@ -33,6 +33,9 @@ def load_prepared(
         pass
     from joblib.executor import get_memmapping_executor
 
+    from annotator.pipeline.worker_spawn import detach_local_workers
+
+    detach_local_workers()
     task = SpanTask(
         span=Prepare(source.object_id, source, scale), config=config, seed=0, n=1, cache_dir=str(cache)
     )

@@ -12,7 +12,9 @@ executed (its target instance is the object nearest its TCP). None reachable: th
 
 from __future__ import annotations
 
+import contextlib
 import inspect
+import io
 import logging
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
@@ -40,11 +42,39 @@ def vision_round_policy(policy: VisionPolicy, args: Mapping[str, str], views: in
 
     def propose(round_: Round, attempt: int, tried: set[int]) -> Proposal | None:
         observation = observe(round_, attempt, views)
-        grasps = Grasps.of(policy(observation, **args))
+        grasps = Grasps.of(call_policy(policy, observation, args))
         grasps.check(observation.workspace, observation.max_width, WORKSPACE_MARGIN)
         return best_reachable(round_, grasps)
 
     return propose
+
+
+# A policy's own error message is cut to this many characters in the one line that ends the run.
+MESSAGE_CHARS = 300
+
+
+def call_policy(policy: VisionPolicy, observation: object, args: Mapping[str, str]) -> object:
+    """``policy(observation, **args)`` behind the one guard every user's policy is called through:
+    whatever it raises (an error, ``sys.exit``) becomes :class:`PolicyError`, one line with its
+    type and message (the command adds the policy's name and exits 2); what it prints to stdout is
+    logged (logger ``annotator.policies.loop``, INFO) instead of mixing with the command's output.
+    Ctrl-C (KeyboardInterrupt) stays an interrupt."""
+    printed = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(printed):
+            return policy(observation, **args)
+    except PolicyError:
+        raise
+    except SystemExit as exc:
+        raise PolicyError(
+            f"the policy called sys.exit({exc.code!r}): a policy returns grasps or None"
+        ) from None
+    except Exception as exc:
+        text = " ".join(str(exc).split())[:MESSAGE_CHARS]
+        raise PolicyError(f"the policy raised {type(exc).__name__}: {text}") from None
+    finally:
+        for line in printed.getvalue().splitlines()[:20]:
+            log.info("the policy printed: %s", line)
 
 
 def best_reachable(round_: Round, grasps: Grasps) -> Proposal | None:

@@ -114,6 +114,12 @@ class Grasps:
     def from_rows(cls, rows: np.ndarray) -> Grasps:
         """From (n, 9) ``x y z qx qy qz qw width score`` (quaternions normalised)."""
         rows = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
+        bad = ~np.isfinite(rows).all(axis=1)
+        if bad.any():
+            raise PolicyError(f"grasp {int(np.argmax(bad))} is not finite")
+        norm = np.linalg.norm(rows[:, 3:7], axis=1)
+        if (norm < 1e-9).any():
+            raise PolicyError(f"grasp {int(np.argmax(norm < 1e-9))}: a zero quaternion is no rotation")
         T = np.tile(np.eye(4), (len(rows), 1, 1))
         if len(rows):
             T[:, :3, :3] = quat_to_matrix(rows[:, 3:7])

@@ -6,7 +6,8 @@ NAME is, in this order:
 - a name in :data:`NAMED` (``vision-random``, ``learned``) or an entry point of the group
   ``rg2_annotator.policies`` (a package's ``[project.entry-points."rg2_annotator.policies"]``
   ``name = "module:function"``): a vision policy;
-- ``module:function`` (``module.sub:object.method`` too): a vision policy, imported;
+- ``module:function`` (``module.sub:object.method`` too): a vision policy, imported with the
+  current folder first on the path (as Python does for a script), for the loop and its workers;
 - otherwise a predictions file (:mod:`annotator.policies.predictions`).
 
 A vision policy is called ``function(observation, **args)`` at every attempt
@@ -16,6 +17,8 @@ A vision policy is called ``function(observation, **args)`` at every attempt
 from __future__ import annotations
 
 import importlib
+import os
+import sys
 from collections.abc import Mapping
 from importlib import metadata
 
@@ -57,10 +60,7 @@ def load_callable(name: str) -> VisionPolicy:
     module_name, _, attribute = target.partition(":")
     if not module_name or not attribute:
         raise PolicyError(f"--policy {name}: give a vision policy as module:function")
-    try:
-        obj: object = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise PolicyError(f"--policy {name}: cannot import {module_name} ({exc})") from None
+    obj: object = _import(name, module_name, here=name not in NAMED and ":" in name)
     for part in attribute.split("."):
         try:
             obj = getattr(obj, part)
@@ -69,6 +69,37 @@ def load_callable(name: str) -> VisionPolicy:
     if not callable(obj):
         raise PolicyError(f"--policy {name}: {target} is not callable")
     return obj
+
+
+def _import(name: str, module_name: str, *, here: bool) -> object:
+    """Import a policy's module: whatever its import raises (a missing module, a syntax error, an
+    error of its own, ``sys.exit``) is one line, PolicyError. ``here``: a user's ``module:function``,
+    for which the current folder is importable (:func:`importable_here`), as ``python -c`` makes it."""
+    if here:
+        importable_here()
+    try:
+        return importlib.import_module(module_name)
+    except SyntaxError as exc:
+        where = f"{exc.filename}, line {exc.lineno}" if exc.filename else module_name
+        raise PolicyError(f"--policy {name}: {module_name} has a syntax error ({where}: {exc.msg})") from None
+    except (Exception, SystemExit) as exc:
+        text = " ".join(str(exc).split())[:300]
+        raise PolicyError(
+            f"--policy {name}: cannot import {module_name} ({type(exc).__name__}: {text})"
+        ) from None
+
+
+def importable_here() -> None:
+    """Put the current folder on ``sys.path`` (first) and in ``PYTHONPATH`` (for the worker
+    processes, which start with the environment), as ``python`` does for a script or ``-c``: a
+    policy saved beside the command (``my_policy.py``, docs/learning.md) imports as
+    ``my_policy:grasps`` in the loop and in every worker."""
+    here = os.getcwd()
+    if here not in sys.path:
+        sys.path.insert(0, here)
+    paths = os.environ.get("PYTHONPATH", "").split(os.pathsep) if os.environ.get("PYTHONPATH") else []
+    if here not in paths:
+        os.environ["PYTHONPATH"] = os.pathsep.join([here, *paths])
 
 
 def round_policy(

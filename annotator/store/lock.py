@@ -39,29 +39,49 @@ class LockLostError(OutputError):
 @dataclass
 class RunLock:
     """An exclusive ``flock`` on the output folder (or, where folders cannot be locked, on its
-    lock file); the file tells who holds it."""
+    lock file); the file tells who holds it.
+
+    ``name`` and ``whole_folder=False``: the lock of one file a tool writes in the folder (its own
+    lock file ``name``, locked itself; :mod:`annotator.store.outputs`), so that two commands
+    writing other files in one folder do not exclude each other. Such a lock file is removed when
+    the lock is released; a process that locked it after the removal sees its inode gone and locks
+    the new one instead."""
 
     out_dir: Path
     fd: int | None = None  # the locked descriptor: the folder's, or the lock file's
     on_file: bool = False  # the lock file itself is locked (no directory locks here)
     inode: tuple[int, int] | None = None  # (st_dev, st_ino) of the lock file this run wrote
+    name: str = LOCK_NAME
+    whole_folder: bool = True
+    subject: str = ""  # what the refusal names as held ("" the folder)
 
     def acquire(self) -> None:
         """Take the lock, LockedError naming the holder, or OutputError if the folder is not writable."""
-        path = self.out_dir / LOCK_NAME
-        try:
-            info_fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
-        except OSError as exc:
-            raise output_error(path, exc) from exc
-        try:
-            self.fd, self.on_file = self._lock_soon(info_fd)
-        except BlockingIOError:
-            holder = _read_holder(info_fd)
-            os.close(info_fd)
-            raise LockedError(
-                f"{self.out_dir} is in use by another run ({holder}); wait for it to finish or choose "
-                "another --out"
-            ) from None
+        path = self.out_dir / self.name
+        for _ in range(LOCK_ATTEMPTS):
+            try:
+                info_fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
+            except OSError as exc:
+                raise output_error(path, exc) from exc
+            try:
+                self.fd, self.on_file = self._lock_soon(info_fd)
+            except BlockingIOError:
+                holder = _read_holder(info_fd)
+                os.close(info_fd)
+                if self.whole_folder:
+                    raise LockedError(
+                        f"{self.out_dir} is in use by another run ({holder}); wait for it to finish or "
+                        "choose another --out"
+                    ) from None
+                raise LockedError(
+                    f"{self.subject or path} is being written by another command ({holder}); wait for "
+                    "it to finish or give another file name"
+                ) from None
+            if self.whole_folder or _same_file(path, info_fd):
+                break
+            self.release()  # the file was removed by the holder that released it: lock the new one
+        else:
+            raise LockedError(f"{path}: its lock file keeps being replaced; try again")
         info = {
             "pid": os.getpid(),
             "host": socket.gethostname(),
@@ -89,11 +109,14 @@ class RunLock:
         raise AssertionError("unreachable")
 
     def _lock(self, info_fd: int) -> tuple[int, bool]:
-        """Lock the folder (or the lock file where that is not possible); BlockingIOError if held."""
-        try:
-            dir_fd = os.open(self.out_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-        except OSError:
-            dir_fd = None
+        """Lock the folder (or the lock file where that is not possible, or where only the file is
+        to be locked); BlockingIOError if held."""
+        dir_fd = None
+        if self.whole_folder:
+            try:
+                dir_fd = os.open(self.out_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+            except OSError:
+                dir_fd = None
         if dir_fd is not None:
             try:
                 fcntl.flock(dir_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -113,24 +136,36 @@ class RunLock:
         if not self.on_file or self.fd is None:
             return
         try:
-            stat = os.stat(self.out_dir / LOCK_NAME, follow_symlinks=False)
+            stat = os.stat(self.out_dir / self.name, follow_symlinks=False)
             same = (stat.st_dev, stat.st_ino) == self.inode
         except OSError:
             same = False
         if not same:
             raise LockLostError(
                 errno.ENOLCK,
-                f"{self.out_dir / LOCK_NAME} was removed or replaced while this run held it; another run "
+                f"{self.out_dir / self.name} was removed or replaced while this run held it; another run "
                 "may be writing here, so this one stops (re-run to resume once the folder is free)",
             )
 
     def release(self) -> None:
         if self.fd is not None:
+            if not self.whole_folder and _same_file(self.out_dir / self.name, self.fd):
+                with contextlib.suppress(OSError):
+                    os.unlink(self.out_dir / self.name)  # still locked: a waiter re-checks its inode
             with contextlib.suppress(OSError):
                 fcntl.flock(self.fd, fcntl.LOCK_UN)
             with contextlib.suppress(OSError):
                 os.close(self.fd)
             self.fd = None
+
+
+def _same_file(path: Path, fd: int) -> bool:
+    """Is ``path`` (not followed) the file open as ``fd``?"""
+    try:
+        a, b = os.stat(path, follow_symlinks=False), os.fstat(fd)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
 
 
 def is_locked(out_dir: Path) -> bool:

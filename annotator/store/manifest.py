@@ -78,9 +78,16 @@ def bound_versions() -> dict[str, str]:
     return {"annotator": __version__, **label_versions.library_versions()}
 
 
+# ``versions["machine"]``: the kinds of machine (annotator.versions.machine_kind) that labelled the
+# folder, joined by this; recorded, not bound: a resume on another kind is said, not refused.
+MACHINES_SEPARATOR = " | "
+
+
 def collect_versions() -> dict[str, str]:
-    """Every version worth recording (no pybullet import): bound ones, Python, platform, others."""
+    """Every version worth recording (no pybullet import): bound ones, Python, platform, the kind
+    of machine, others."""
     versions = {"python": platform.python_version(), "platform": platform.platform()}
+    versions["machine"] = label_versions.machine_kind()
     versions.update(bound_versions())
     versions.update({k: _version(d) for k, d in OTHER_DISTRIBUTIONS.items()})
     return versions

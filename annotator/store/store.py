@@ -168,6 +168,7 @@ class Store:
                     "choose another --out"
                 )
         self.manifest = manifest
+        self._note_machine()
         self._header = (self.manifest.objects_planned, self.manifest.gripper_folder)
         if not self.read_only and state.journal_current and state.pending == 0:
             self._journal = JournalWriter(journal_path(out))  # a closed run's: appended to
@@ -176,6 +177,27 @@ class Store:
         self.apply(plan)
         if not self.read_only:
             self.save(force=True)  # without a journal to append to: a compaction
+
+    def _note_machine(self) -> None:
+        """A folder labelled so far on another kind of machine (:func:`annotator.versions.
+        machine_kind`) resumed here: said in the summary, and this kind added to its record."""
+        from annotator.store.manifest import MACHINES_SEPARATOR
+        from annotator.versions import machine_kind
+
+        versions = self.manifest.versions
+        recorded = versions.get("machine")
+        here = machine_kind()
+        kinds = recorded.split(MACHINES_SEPARATOR) if recorded else []
+        if recorded is None:  # a folder of a version that did not record it: from now on
+            versions["machine"] = here
+            return
+        if here in kinds:
+            return
+        self._note(
+            f"labelled so far on another kind of machine ({recorded}); this one is {here}: the same seed "
+            "can settle a pile differently on the two (docs/reliability.md), so scene labels may differ"
+        )
+        versions["machine"] = MACHINES_SEPARATOR.join([*kinds, here])
 
     def require_writable(self) -> None:
         if self.read_only:

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +34,7 @@ if TYPE_CHECKING:  # pandas is imported where it is used: `annotator --help` sta
     import pandas as pd
 
     from annotator.confidence import Mapping, Measure
+    from annotator.tools.ranges import Exploration, Fit, HeldOut
 
 log = logging.getLogger(__name__)
 
@@ -66,11 +68,9 @@ class Setting:
     def config(self, base: AnnotatorConfig, force: float | None = None) -> AnnotatorConfig:
         """``base`` with this setting (``force`` overrides the setting's, e.g. a trial's own)."""
         grip = force if force is not None else self.force
-        gripper = dataclasses.replace(
-            base.gripper,
-            pad_lateral_friction=float(self.friction),
-            **({"grip_force": float(grip)} if grip is not None else {}),
-        )
+        gripper = dataclasses.replace(base.gripper, pad_lateral_friction=float(self.friction))
+        if grip is not None:
+            gripper = dataclasses.replace(gripper, grip_force=float(grip))
         protocol = dataclasses.replace(
             base.protocol,
             shake_amplitude=base.protocol.shake_amplitude * self.severity,
@@ -265,7 +265,7 @@ def span_groups(trials: pd.DataFrame) -> list[tuple[str, float | None, np.ndarra
 
 def simulate_grid(
     trials: pd.DataFrame,
-    settings: list[Setting | None],
+    settings: Sequence[Setting | None],
     base: AnnotatorConfig,
     objects_dir: Path,
     workers: int = 1,
@@ -282,8 +282,11 @@ def simulate_grid(
     (:func:`annotator.pipeline.in_memory.run_in_memory`) on ``workers`` processes."""
     from annotator.objects import ObjectDiscoveryError, discover_objects
     from annotator.pipeline.in_memory import ExecutionOptions, run_in_memory
+    from annotator.pipeline.worker_spawn import detach_local_workers
     from annotator.tools.common import ToolError
     from annotator.tools.given import GivenSpan, given_rows, given_task, replay_grasps
+
+    detach_local_workers()  # a Ctrl-C reaches this process only
 
     try:
         sources = {s.object_id: s for s in discover_objects(Path(objects_dir))}
@@ -378,9 +381,9 @@ class RangesResult:
     (:class:`annotator.tools.ranges.Fit`), its object-wise cross-validation (None with fewer than
     two folds or objects), the real outcomes and each trial's object."""
 
-    exploration: object  # annotator.tools.ranges.Exploration
-    fit: object  # annotator.tools.ranges.Fit
-    held_out: object | None  # annotator.tools.ranges.HeldOut
+    exploration: Exploration
+    fit: Fit
+    held_out: HeldOut | None
     real: np.ndarray
     objects: np.ndarray
 
@@ -397,13 +400,16 @@ def fit_ranges(
     m: int = 64,
     levels=None,
     folds: int = DEFAULT_FOLDS,
+    exploration=None,
 ) -> RangesResult:
-    """Explore the real trials (:func:`explore`), fit the execution's ranges, the stages, the
-    trial count and the score's mapping to them (:func:`annotator.tools.ranges.fit`), and
-    cross-validate the whole fit by object."""
+    """Explore the real trials (:func:`explore`; ``exploration``: one already made of them), fit
+    the execution's ranges, the stages, the trial count and the score's mapping to them
+    (:func:`annotator.tools.ranges.fit`), and cross-validate the whole fit by object."""
     from annotator.tools import ranges
 
-    exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
+    exp = exploration
+    if exp is None:
+        exp = explore(trials, base, objects_dir, workers, seed, gripper, resting, m, levels)
     real = trials["real_success"].to_numpy(dtype=bool)
     objects = trials["object_id"].astype(str).to_numpy()
     held_out = None
@@ -484,14 +490,13 @@ def ranges_text(result: RangesResult, bootstrap: int = BOOTSTRAP_SAMPLES, seed: 
         + ", ".join(f"{v:g}" for v in exp.levels)
     ]
     for i, g in enumerate(ranges.GROUPS):
-        level = exp.levels[e.theta[i]]
-        sizes = ", ".join(f"{c.field} {c.unit * level:.4g}" for c in g.components)
+        sizes = ", ".join(f"{k} {v:.4g}" for k, v in exp.sizes(g, e.theta[i]).items())
         profile = f.execution.profile[g.name]
-        drop = ", ".join(f"{v - max(profile):+.1f}" for v in profile)
-        how = (
-            "identified" if f.execution.identified[g.name] else "not identified: the run's own, nearest level"
+        drop = ", ".join(f"{exp.label(j)} {v - max(profile):+.1f}" for j, v in enumerate(profile))
+        how = "identified" if f.execution.identified[g.name] else "not identified: the run's own kept"
+        lines.append(
+            f"  {g.name}: {exp.label(e.theta[i])} ({sizes}); {how}; log-likelihood by candidate {drop}"
         )
-        lines.append(f"  {g.name}: x{level:g} ({sizes}); {how}; log-likelihood by level {drop}")
     knots = ", ".join(f"{s:.2f} -> {p:.2f}" for s, p in zip(*f.scored.mapping.knots(), strict=True))
     lines.append(
         f"  perturbed trials judged after the {e.stage}; lapses: real fails {e.fail:g}, holds {e.hold:g} "
@@ -658,8 +663,8 @@ def rank(table: pd.DataFrame, objective: str = "balanced") -> pd.DataFrame:
     return table.sort_values([objective, other, "_near"], ascending=[False, False, True], kind="stable")
 
 
-def _record(s: Setting, sim: np.ndarray, a: Agreement, near: float) -> dict:
-    record = {
+def _record(s: Setting, sim: np.ndarray, a: Agreement, near: float) -> dict[str, Any]:
+    record: dict[str, Any] = {
         "friction": s.friction,
         "force": np.nan if s.force is None else s.force,
         "severity": s.severity,
@@ -710,7 +715,8 @@ def calibrate(
     """Simulate ``trials`` (from :func:`read_real_trials`) under every setting and rank them by
     ``objective``; ``simulated``: outcomes already simulated (as :func:`simulate_grid` gives)."""
     if simulated is None:
-        simulated = simulate_grid(trials, settings, base, objects_dir, workers, seed, gripper, resting)
+        grid = simulate_grid(trials, settings, base, objects_dir, workers, seed, gripper, resting)
+        simulated = {s: grid[s] for s in settings}
     real = trials["real_success"].to_numpy(dtype=bool)
     table = score_settings(real, simulated, settings, _gripper_settings(base, gripper), bootstrap, seed)
     best_row = rank(table, objective).iloc[0]
@@ -827,15 +833,6 @@ def _toml_value(v) -> str:
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-CONFIG_MARK = "# annotator calibrate "
-
-
-def written_by_calibrate(path: Path) -> bool:
-    """Does ``path`` begin with the header :func:`config_toml` writes (``# annotator calibrate``)?"""
-    with open(path, "rb") as f:
-        return f.read(len(CONFIG_MARK)) == CONFIG_MARK.encode()
 
 
 def config_toml(config: AnnotatorConfig, header: str = "", keep=None) -> str:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import SchemaError, validate_labels
-from annotator.files import check_writable
+from annotator.store.outputs import Outputs
 
 log = logging.getLogger(__name__)
 
@@ -43,64 +44,80 @@ class OutputToolError(ToolError):
 # --- outputs -------------------------------------------------------------------------------------
 
 
-def check_output_file(path: str | Path, what: str) -> Path:
-    """Before any work: ``path`` can be written (its folder exists or can be made and takes a file,
-    and ``path`` is not a folder). Returns it; :class:`OutputToolError` naming it otherwise."""
-    path = Path(path)
-    if path.is_dir():
-        raise OutputToolError(f"{what} {path} is a folder; give a file name")
-    check_output_dir(path.parent if str(path.parent) else Path("."), what)
-    return path
-
-
 def check_output_dir(path: str | Path, what: str) -> Path:
     """Before any work: the folder ``path`` exists or can be made, and a file can be written in it."""
+    from annotator.files import probe_writable
+
     path = Path(path)
     try:
-        check_writable(path)
+        probe_writable(path)
     except OSError as exc:
         raise OutputToolError(f"{what} {path} cannot be written: {exc.strerror or exc}") from None
     return path
 
 
-def check_replaceable(
-    path: str | Path, what: str, written_by: Any, force: bool = False, option: str = "--overwrite"
-) -> Path:
-    """Before any work: an existing ``path`` is replaced only if this tool wrote it
-    (``written_by(path)`` is true: its mark is in the file) or ``force``; :class:`ToolError`
-    naming the file otherwise. A user's file of the same name is never overwritten unasked."""
-    path = Path(path)
-    if force or not path.exists() or path.is_dir():
-        return path
+class ToolOutputs(Outputs):
+    """The output files of one tool's command (:class:`annotator.store.outputs.Outputs`: atomic,
+    marked, locked; never replacing a file the tool did not write, or one changed since, unless
+    told), whose failure to write is one line, :class:`OutputToolError` (exit 3)."""
+
+    def asked(self, option: str) -> bool:
+        """Was a file given for ``option``?"""
+        return option in self.claimed
+
+    def write(self, option: str, fill: Any) -> Path:
+        """:meth:`annotator.store.outputs.Outputs.write`: ``fill(tmp)`` fills the file; where it went."""
+        from annotator.store import OutputError
+
+        try:
+            return super().write(option, fill)
+        except OutputError as exc:
+            raise OutputToolError(str(exc)) from None
+
+
+def claim_outputs(
+    command: str,
+    paths: Mapping[str, Path | str | None],
+    overwrite: bool = False,
+    overwrite_option: str = "--overwrite",
+) -> ToolOutputs:
+    """Before any work: claim every file a tool's ``command`` writes (``paths``: option -> file,
+    None: not asked for); see :class:`ToolOutputs`. Refusals are one line: :class:`ToolError`
+    (exit 2) for a file that must not be replaced (a user's, one changed since the tool wrote it,
+    unless ``overwrite``), one given to two options, or one another command is writing;
+    :class:`OutputToolError` (exit 3) for one whose folder cannot take it. Inside a click command
+    the claims end with the command; elsewhere use the result as a context manager."""
+    from annotator.store import OutputError, StoreError
+
     try:
-        ours = bool(written_by(path))
-    except OSError:
-        ours = False
-    if not ours:
-        raise ToolError(f"{what} {path} exists and was not written by this tool; pass {option} to replace it")
-    return path
+        claimed = ToolOutputs.claim(command, paths, overwrite=overwrite, overwrite_option=overwrite_option)
+    except StoreError as exc:
+        raise ToolError(str(exc)) from None
+    except OutputError as exc:
+        raise OutputToolError(str(exc)) from None
+    context = click.get_current_context(silent=True)
+    if context is not None:
+        context.call_on_close(claimed.release)
+    return claimed
 
 
-# A picture the tools write carries this in a PNG tEXt chunk (key "Software"): the mark that lets
-# a later run replace it, and nothing else of the same name, without --overwrite.
+# A picture the tools write carries this in a PNG tEXt chunk (key "Software"): says which program
+# made it (whether a file may be replaced is its mark's business: annotator.store.outputs).
 PICTURE_SOFTWARE = "rg2-annotator"
 
 
-def save_png(image: Any, path: str | Path) -> None:
-    """Write ``image`` ((h, w, 3) or (h, w) uint8) to ``path`` as PNG, marked as the tool's."""
+def png_bytes(image: Any) -> bytes:
+    """``image`` ((h, w, 3) or (h, w) uint8) as PNG bytes, tagged with :data:`PICTURE_SOFTWARE`."""
+    import io
+
     from PIL import Image
     from PIL.PngImagePlugin import PngInfo
 
     info = PngInfo()
     info.add_text("Software", PICTURE_SOFTWARE)
-    Image.fromarray(image).save(path, format="PNG", pnginfo=info)
-
-
-def written_png(path: str | Path) -> bool:
-    """Is ``path`` a PNG :func:`save_png` wrote (its mark among the chunks before the pixels)?"""
-    with open(path, "rb") as f:
-        head = f.read(4096)
-    return head.startswith(b"\x89PNG") and b"tEXtSoftware\x00" + PICTURE_SOFTWARE.encode() in head
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG", pnginfo=info)
+    return buffer.getvalue()
 
 
 # --- reading tables ------------------------------------------------------------------------------

@@ -203,6 +203,7 @@ def pad_face(gripper=None, config=None) -> PadFace:
     from annotator.sim.world import World
 
     description = load_gripper(gripper)
+    extents: tuple[float, float, float] | np.ndarray
     if description.pad_size is not None:
         extents = description.pad_size
     else:
@@ -359,25 +360,25 @@ def given_candidates(
     frame: str = "tcp",
     resting: bool = False,
 ):
-    """The grasps as the pipeline's :class:`GivenCandidates`, and the renumbering applied.
+    """The grasps as the pipeline's :class:`GivenCandidates`.
 
-    Per object the grasps keep their ``grasp_id`` when those are exactly 0..k-1 (a label table, or
-    ids given so); otherwise they are numbered 0..k-1 in the order of the file. Rows of a label
+    Per object the grasps keep their ``grasp_id``, which must be exactly 0..k-1 (a label table, or
+    ids given so; :func:`read_grasps` numbers them in the file's order when the table has none):
+    other ids are a :class:`ToolError`, never renumbered, since a user joins outcomes by them. Rows of a label
     table (an ``outcome`` column) are replayed (:func:`annotator.tools.given.replay_grasps`: their
     commanded grasps bit for bit, so their outcomes are reproduced exactly). Missing widths are
     measured on the mesh (:func:`expected_width`; read, not decomposed: :func:`read_object_mesh`).
     ``frame="base"``: the poses are the gripper's base link's (``gripper``: its description), turned
     into TCP poses (:func:`tcp_from_base`).
     ``resting``: each grasp carries the orientation its object rests in (``rest_q*``, else upright).
-    Returns ``(candidates, renumbered object ids)``.
     """
     import hashlib
 
     from annotator.pipeline.source import GivenCandidates
+    from annotator.tools.common import ToolError
 
     sources = _sources(objects_dir)
     out = {}
-    renumbered: list[str] = []
     digest = hashlib.sha256()
     depth = None
     if frame == "base":
@@ -387,10 +388,15 @@ def given_candidates(
     pads = _pads_to_measure(grasps, gripper, config)
     for oid, rows in grasps.groupby("object_id", sort=True):
         ids = rows["grasp_id"].to_numpy()
-        if np.array_equal(np.sort(ids), np.arange(len(rows))):
-            rows = rows.sort_values("grasp_id", kind="stable")
-        else:
-            renumbered.append(str(oid))
+        if not np.array_equal(np.sort(ids), np.arange(len(rows))):
+            shown = ", ".join(str(int(i)) for i in np.sort(ids)[:4]) + (" ..." if len(ids) > 4 else "")
+            raise ToolError(
+                f"the grasp_ids of {oid!r} ({shown}) are not 0..{len(rows) - 1}: evaluate writes each "
+                "object's grasps as 0..k-1 and never renumbers ids a table gives; give 0..k-1 per object "
+                "(keep your own ids in a column of another name), or leave out grasp_id to number them "
+                "in the file's order"
+            )
+        rows = rows.sort_values("grasp_id", kind="stable")
         given = _object_grasps(str(oid), rows, sources, config, scale, max_width, depth, pads)
         if resting:
             given = _with_rest(given, rows)
@@ -398,7 +404,7 @@ def given_candidates(
         digest.update(str(oid).encode() + b"\0" + given.T_obj_tcp.tobytes() + given.width.tobytes())
         if given.rest_quat is not None:
             digest.update(given.rest_quat.tobytes())
-    return GivenCandidates(out, digest.hexdigest()), renumbered
+    return GivenCandidates(out, digest.hexdigest())
 
 
 def _sources(objects_dir: Path) -> dict:

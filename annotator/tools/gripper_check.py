@@ -108,6 +108,43 @@ def check_gripper(
     return verdicts
 
 
+# (gripper digest, the configuration's sections the checks read) that passed in this process
+_PASSED: set[tuple[str, str]] = set()
+
+
+def check_before_work(spec: str | Path | GripperDescription, config: AnnotatorConfig) -> None:
+    """Before a command simulates a gripper of the user's own: the checks of ``annotator gripper
+    check --fast`` (:func:`check_gripper` without the cube wider than the stroke, a second or two)
+    with the run's ``config``; the first failing verdict is one line,
+    :class:`annotator.tools.common.ToolError` (exit 2). Its masses, inertias and inertial origins
+    were checked when it was loaded (:mod:`annotator.grippers.inertials`). A shipped gripper is
+    not checked again: tests/test_grippers.py runs the same measurements on each. A description that
+    cannot be loaded is left to the command, which says why."""
+    from annotator.grippers import DescriptionError, load_gripper
+    from annotator.grippers.loading import is_shipped
+    from annotator.tools.common import ToolError
+
+    try:
+        description = load_gripper(spec)
+    except DescriptionError:
+        return
+    key = (description.digest, repr((config.physics, config.gripper, config.protocol)))
+    if is_shipped(description) or key in _PASSED:
+        return
+    try:
+        verdicts = check_gripper(description, config, wide=False)
+    except Exception as exc:  # a model the checks cannot even simulate
+        raise ToolError(
+            f"gripper {description.name} ({description.folder}): its physics checks could not run "
+            f"({type(exc).__name__}: {exc}); see annotator gripper check"
+        ) from None
+    failed = [v for v in verdicts if not v.passed]
+    if failed:
+        where = f"{description.name} ({description.folder})"
+        raise ToolError(f"gripper {where} fails annotator gripper check: {failed[0].line()}")
+    _PASSED.add(key)
+
+
 def _base_mass(hand) -> float:
     from annotator.sim import rigid
 

@@ -38,6 +38,8 @@ import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -225,6 +227,34 @@ class Exploration:
         """These grasps only."""
         return Exploration(self.stage0[rows], self.stages[rows], self.draws.take(rows), self.levels, self.own)
 
+    def save(self, path: Path, key: str) -> None:
+        """Write it to ``path`` (NumPy's .npz, through a temporary file and a rename) under ``key``:
+        what it was explored from, so that :meth:`load` never returns another exploration's."""
+        import json
+
+        from annotator.files import atomic_write
+
+        arrays: dict[str, Any] = {f"draw_{k}": v for k, v in self.draws.values.items()}
+        meta = json.dumps({"key": key, "levels": list(self.levels), "own": dict(self.own)})
+        arrays.update(stage0=self.stage0, stages=self.stages, meta=np.array(meta))
+        atomic_write(path, lambda fh: np.savez(fh, **arrays))
+
+    @classmethod
+    def load(cls, path: Path, key: str) -> Exploration | None:
+        """The exploration :meth:`save` wrote to ``path`` under ``key``; None if there is none, or
+        it was explored from anything else, or it cannot be read."""
+        import json
+
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["meta"]))
+                if meta.get("key") != key:
+                    return None
+                draws = Draws({c.field: data[f"draw_{c.field}"] for c in COMPONENTS})
+                return cls(data["stage0"], data["stages"], draws, tuple(meta["levels"]), meta["own"])
+        except (OSError, ValueError, KeyError):
+            return None
+
     def ratios(self) -> list[np.ndarray]:
         """Per group, the target-over-proposal density ratio of every trial at every candidate,
         (L + 1, n, M): the factors of the importance weights (at most L each at a level)."""
@@ -279,7 +309,7 @@ LIKELIHOOD_INTERVAL = 3.84 / 2
 
 
 @dataclass(frozen=True)
-class Execution:
+class ExecutionModel:
     """The execution's model: levels ``theta`` (index per group), the perturbed trials' last
     ``stage``, and lapse rates ``fail`` (e0) and ``hold`` (e1): the probability that the real
     grasp holds is ``e1 + (1 - e0 - e1) p_i(theta, stage)``."""
@@ -313,11 +343,11 @@ def _best_lapses(p: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
 
 @dataclass(frozen=True)
 class ExecutionFit:
-    """The fitted :class:`Execution`, its log-likelihood, per group the profile likelihood over the
+    """The fitted :class:`ExecutionModel`, its log-likelihood, per group the profile likelihood over the
     levels (the best log-likelihood with that group at each level, all trials) and whether the
     data identify it (:func:`fit_execution`)."""
 
-    execution: Execution
+    execution: ExecutionModel
     loglik: float
     profile: dict[str, list[float]]
     identified: dict[str, bool]
@@ -347,7 +377,7 @@ def fit_execution(
     stages: Sequence[str] = PERTURBED_STAGES,
 ) -> ExecutionFit:
     """The levels, perturbed stage and lapses that maximise the likelihood of ``real`` (n,) under
-    the model of :class:`Execution`, each group free only where the data identify it; the others
+    the model of :class:`ExecutionModel`, each group free only where the data identify it; the others
     keep the run's own ranges (:attr:`Exploration.own_index`).
 
     A group is identified when its best level found on one half of the perturbed trials (even and
@@ -381,7 +411,7 @@ def fit_execution(
     (theta, stage), (ll, e0, e1) = max(
         ((key, v) for key, v in table.items() if allowed(key[0])), key=lambda kv: kv[1][0]
     )
-    return ExecutionFit(Execution(theta, stage, e0, e1), ll, profile, found)
+    return ExecutionFit(ExecutionModel(theta, stage, e0, e1), ll, profile, found)
 
 
 # ------------------------------------------------------------------------ the score and its mapping

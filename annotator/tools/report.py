@@ -416,14 +416,9 @@ def _pictures_section(
 # ------------------------------------------------------------------------------------ the report
 
 
-# The report's mark, near its top: a later report replaces only a file that carries it.
+# Near the page's top: says which program made it (whether a file may be replaced is its mark's
+# business: annotator.store.outputs).
 GENERATOR = '<meta name="generator" content="rg2-annotator report">'
-
-
-def written_report(path: Path) -> bool:
-    """Is ``path`` a report this tool wrote (its generator tag in the first kilobyte)?"""
-    with open(path, "rb") as f:
-        return GENERATOR.encode() in f.read(1024)
 
 
 def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
@@ -438,6 +433,19 @@ def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
             "<p class='muted'>No calibration: these labels carry no p_success (annotator calibrate "
             "fits one on real trials; annotate --config with its file adds the column).</p>"
         )
+    pairs = zip(section.get("scores", ()), section.get("p_success", ()), strict=False)
+    knots = ", ".join(f"{s:.2f}&rarr;{p:.2f}" for s, p in pairs)
+    p = df["p_success"].to_numpy(dtype=float)
+    mean = (
+        f"The labels' mean p_success is {np.nanmean(p):.3f}: the share of them a real robot is "
+        "expected to hold."
+    )
+    if int(section.get("n", 0)) == 0:  # written by hand: nothing measured to show
+        return (
+            f"<p>p_success maps the score of --trials {int(section.get('trials', 0))} to the probability "
+            f"that the real grasp holds by a mapping written by hand (score {knots}): it records no real "
+            f"trials, so there is no Brier score and no reliability diagram. {mean}</p>"
+        )
     bins = [
         conf.ReliabilityBin(float("nan"), float("nan"), int(k), float(p), float(r))
         for p, r, k in zip(
@@ -449,14 +457,10 @@ def _confidence_section(manifest: dict | None, df: pd.DataFrame) -> str:
     ]
     brier = float(section.get("brier", float("nan")))
     png = conf.reliability_png([("p_success", bins)], f"Brier {brier:.3f}, cross-validated by object")
-    pairs = zip(section.get("scores", ()), section.get("p_success", ()), strict=False)
-    knots = ", ".join(f"{s:.2f}&rarr;{p:.2f}" for s, p in pairs)
-    p = df["p_success"].to_numpy(dtype=float)
     return (
         f"<p>p_success maps the score of --trials {int(section.get('trials', 0))} to the probability "
         f"that the real grasp holds (isotonic over {int(section.get('n', 0))} real trials; score "
-        f"{knots}). Brier score {brier:.3f}, cross-validated by object. The labels' mean p_success "
-        f"is {np.nanmean(p):.3f}: the share of them a real robot is expected to hold.</p>"
+        f"{knots}). Brier score {brier:.3f}, cross-validated by object. {mean}</p>"
         f"<img alt='reliability diagram' src='data:image/png;base64,{base64.b64encode(png).decode('ascii')}'>"
     )
 
@@ -478,11 +482,20 @@ def report(
     ``gripper``: a name, folder or description to draw (default: the one recorded with the labels).
     ``overwrite``: replace an ``out`` this tool did not write (else ToolError before any work).
     """
-    from annotator import __version__
-    from annotator.tools.common import check_output_file, check_replaceable, labelling_gripper, open_labels
+    from annotator.tools.common import claim_outputs
 
-    out = check_output_file(out, "--html")
-    check_replaceable(out, "--html", written_report, overwrite)
+    with claim_outputs("annotator report", {"--html": out}, overwrite) as claimed:
+        return _write_report(claimed, labels_dir, objects_dir, picture_objects, picture_grasps, seed, gripper)
+
+
+def _write_report(
+    claimed, labels_dir, objects_dir, picture_objects, picture_grasps, seed, gripper
+) -> ReportResult:
+    """:func:`report`'s work once its page is claimed (``claimed``: the
+    :class:`annotator.tools.common.ToolOutputs`)."""
+    from annotator import __version__
+    from annotator.tools.common import labelling_gripper, open_labels
+
     run = open_labels(labels_dir)
     df, manifest = run.labels, run.manifest
     hand = labelling_gripper(labels_dir, gripper, df)
@@ -519,11 +532,6 @@ frame. Equal-area cells.</p>
 <h2>Pictures</h2>{pictures or "<p class='muted'>No pictures requested.</p>"}
 </body></html>
 """
-    try:
-        out.write_text(page, encoding="utf-8")
-    except OSError as exc:
-        from annotator.tools.common import OutputToolError
-
-        raise OutputToolError(f"--html {out} cannot be written: {exc.strerror or exc}") from None
+    out = claimed.write_text("--html", page)
     log.info("wrote %s (%d objects, %d grasps, %d pictures)", out, len(table), n, n_pictures)
     return ReportResult(out, len(table), n, n_pictures, "finished" if run.finished else run.state())

@@ -407,22 +407,23 @@ def show(
     ``<png stem>-overview.png``). ``labels``/``mesh``: already loaded (the report passes them);
     ``gripper``: the gripper the labels were made with (default the RG2); ``overwrite``: replace
     pictures of these names that this tool did not write (else ToolError before any work)."""
-    from annotator.tools.common import (
-        ToolError,
-        check_output_file,
-        check_replaceable,
-        object_mesh,
-        object_rows,
-        read_labels,
-        save_png,
-        written_png,
-    )
+    from annotator.tools.common import claim_outputs
 
     overview_png = overview_png or png.with_name(f"{png.stem}-overview{png.suffix or '.png'}")
-    check_output_file(png, "--png")
-    check_output_file(overview_png, "--overview")
-    check_replaceable(png, "--png", written_png, overwrite)
-    check_replaceable(overview_png, "--overview", written_png, overwrite)
+    outputs = {"--png": png, "--overview": overview_png}
+    with claim_outputs("annotator show", outputs, overwrite) as claimed:
+        return _write_show(
+            claimed, labels_dir, object_id, n, seed, outcomes, grasp_ids, objects_dir, labels, mesh, gripper
+        )
+
+
+def _write_show(
+    claimed, labels_dir, object_id, n, seed, outcomes, grasp_ids, objects_dir, labels, mesh, gripper
+) -> ShowResult:
+    """:func:`show`'s work once its outputs are claimed (``claimed``: their
+    :class:`annotator.tools.common.ToolOutputs`)."""
+    from annotator.tools.common import ToolError, object_mesh, object_rows, png_bytes, read_labels
+
     labels = read_labels(labels_dir) if labels is None else labels
     rows = object_rows(labels, object_id)
     bad = sorted(set(outcomes) - set(OUTCOMES))
@@ -437,11 +438,12 @@ def show(
         raise ToolError(f"{object_id} has no {'/'.join(outcomes)} grasps ({have})")
     mesh = object_mesh(labels_dir, object_id, objects_dir, rows) if mesh is None else mesh
     with GraspRenderer(mesh, description=gripper) as renderer:
-        save_png(grasp_sheet(renderer, chosen), png)
+        sheet = png_bytes(grasp_sheet(renderer, chosen))
         pool = rows[rows["outcome"].isin(outcomes)] if outcomes else rows
         ov = overview(renderer, pool)
     counts = pool["outcome"].value_counts().to_dict()
     title = f"{object_id}: {len(pool)} grasps by outcome (faint: behind the object)"
-    save_png(ov.picture(title, counts), overview_png)
+    png = claimed.write_bytes("--png", sheet)
+    overview_png = claimed.write_bytes("--overview", png_bytes(ov.picture(title, counts)))
     log.info("wrote %s (%d grasps) and %s", png, len(chosen), overview_png)
     return ShowResult(png, overview_png, len(chosen))

@@ -115,15 +115,20 @@ def attempt_rows(path: Path, round_id: int) -> pd.DataFrame:
     if missing:
         no = ", ".join(missing)
         raise ToolError(f"--attempts {path}: not a clutter-removal grasps.csv (no column {no})")
-    rows = table[table["round_id"] == round_id].sort_values("attempt").reset_index(drop=True)
+    rows = table[pd.to_numeric(table["round_id"], errors="coerce") == round_id].reset_index(drop=True)
+    numbers = _attempt_numbers(rows, path)
+    rows = (
+        rows.assign(attempt=numbers["attempt"]).sort_values("attempt", kind="stable").reset_index(drop=True)
+    )
+    numbers = numbers.sort_values("attempt", kind="stable").reset_index(drop=True)
     if rows.empty:
         rounds = sorted(set(table["round_id"].tolist()))
         raise ToolError(f"--attempts {path}: no attempt of round {round_id} (rounds {rounds[:10]})")
     unknown = sorted(set(rows["failure"]) - set(ATTEMPT_OUTCOMES))
     if unknown:
         raise ToolError(f"--attempts {path}: unknown failure(s) {unknown}")
-    out = pd.DataFrame({c: rows[c[len("table_tcp_") :]].astype(float) for c in TABLE_TCP_COLUMNS})
-    out["width"] = rows["width"].astype(float)
+    out = pd.DataFrame({c: numbers[c[len("table_tcp_") :]] for c in TABLE_TCP_COLUMNS})
+    out["width"] = numbers["width"]
     out["outcome"] = [ATTEMPT_OUTCOMES[f] for f in rows["failure"]]
     out["grasp_id"] = rows["attempt"].astype(int)
     target = rows["target_object"] if "target_object" in rows else pd.Series([""] * len(rows))
@@ -132,6 +137,37 @@ def attempt_rows(path: Path, round_id: int) -> pd.DataFrame:
         f"{a}: {t or '?'} {'held' if ok else f}"
         for a, t, ok, f in zip(rows["attempt"], target, held, rows["failure"], strict=True)
     ]
+    return out
+
+
+def _attempt_numbers(rows: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """The numbers of a round's attempts (``x .. qw``, ``width`` float64, ``attempt`` int64),
+    checked: finite, a quaternion of non-zero length (normalised), a width >= 0, whole attempt
+    numbers; ToolError (one line) naming the row and column otherwise."""
+    from annotator.tools.common import ToolError
+
+    names = [c[len("table_tcp_") :] for c in TABLE_TCP_COLUMNS] + ["width", "attempt"]
+    out = pd.DataFrame({c: pd.to_numeric(rows[c], errors="coerce").astype(np.float64) for c in names})
+    for c in names:
+        bad = ~np.isfinite(out[c].to_numpy())
+        if c == "width":
+            bad |= out[c].to_numpy() < 0
+        if c == "attempt":
+            bad |= out[c].to_numpy() != np.round(out[c].to_numpy())
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ToolError(
+                f"--attempts {path}: an attempt of the round has {c} {rows[c].iloc[k]!r}: not a valid number"
+            )
+    q = out[["qx", "qy", "qz", "qw"]].to_numpy()
+    norm = np.linalg.norm(q, axis=1)
+    if (norm < 1e-6).any():
+        k = int(np.argmax(norm < 1e-6))
+        raise ToolError(
+            f"--attempts {path}: attempt {int(out.attempt.iloc[k])}: a zero quaternion is no rotation"
+        )
+    out[["qx", "qy", "qz", "qw"]] = q / norm[:, None]
+    out["attempt"] = out["attempt"].astype(np.int64)
     return out
 
 
@@ -229,18 +265,20 @@ def show_scene(
     ``clutter-removal --out`` ``grasps.csv`` whose round ``scene_id`` (the same scene when both ran
     with the same objects, seed, arrangement and objects per pile) is drawn instead of the labels,
     each attempt numbered, on the scene as it first settled."""
-    from annotator.tools.common import (
-        ToolError,
-        check_output_file,
-        check_replaceable,
-        object_mesh,
-        save_png,
-        written_png,
-    )
+    from annotator.tools.common import claim_outputs
+
+    with claim_outputs("annotator show --scene", {"--png": png}, overwrite) as claimed:
+        return _write_show_scene(claimed, labels_dir, scene_id, n, seed, outcomes, objects_dir, attempts)
+
+
+def _write_show_scene(
+    claimed, labels_dir, scene_id, n, seed, outcomes, objects_dir, attempts
+) -> ShowSceneResult:
+    """:func:`show_scene`'s work once its picture is claimed (``claimed``: the
+    :class:`annotator.tools.common.ToolOutputs`)."""
+    from annotator.tools.common import ToolError, object_mesh, png_bytes
     from annotator.tools.scene_labels import open_scene_labels
 
-    check_output_file(png, "--png")
-    check_replaceable(png, "--png", written_png, overwrite)
     bad = sorted(set(outcomes) - set(OUTCOMES))
     if bad:
         raise ToolError(f"unknown outcome(s) {bad}; choose from {', '.join(OUTCOMES)}")
@@ -266,5 +304,5 @@ def show_scene(
     if attempts is not None:
         title = f"round {scene_id} ({record.arrangement}, as first settled): " + ", ".join(chosen["text"])
     picture = render_scene(record, meshes, chosen, counts, title, numbered=attempts is not None)
-    save_png(picture.image, png)
+    png = claimed.write_bytes("--png", png_bytes(picture.image))
     return ShowSceneResult(png, len(chosen), len(record.kept))

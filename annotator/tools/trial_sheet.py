@@ -27,7 +27,13 @@ import pandas as pd
 
 log = logging.getLogger(__name__)
 
-FORMAT = "rg2-annotator trials 1"  # the value of every row's ``format`` column
+FORMAT = "rg2-annotator trials 2"  # the value of every row's ``format`` column
+FORMATS = ("rg2-annotator trials 1", FORMAT)  # read back: 1 had no labels_sha256
+# A sheet is executed by hand, one trial at a time (tens of seconds each): a million trials is a
+# year of a robot's time, and the sheet's arrays grow with the count (200 floats a row).
+MAX_TRIALS = 1_000_000
+MAX_REPEATS = 1000  # executions of one grasp on one sheet
+POSE_TOLERANCE = 1e-6  # m and quaternion units: a sheet's pose against its label's (written to 9 digits)
 XYZQ = ("x", "y", "z", "qx", "qy", "qz", "qw")
 OBJ_TCP_COLUMNS = XYZQ  # T_obj_tcp, the label convention
 OBJ_BASE_COLUMNS = tuple(f"base_{c}" for c in XYZQ)  # T_obj_base (GraspGen's transforms)
@@ -38,6 +44,7 @@ JOINT_COLUMNS = tuple(f"q_grasp_{i}" for i in range(6))
 FILLED_COLUMNS = ("real_success", "notes")  # what the operator writes
 SHEET_COLUMNS = (
     "format",
+    "labels_sha256",
     "trial_id",
     "object_id",
     "grasp_id",
@@ -84,6 +91,25 @@ class ReadSheet:
 
     trials: pd.DataFrame
     skipped: int
+
+
+def labels_digest(labels: pd.DataFrame) -> str:
+    """SHA-256 of what a sheet's trials stand for in ``labels``: every row's object, grasp, mesh
+    and commanded grasp (``cmd_*``, float64 bytes), in (object_id, grasp_id) order. The sheet
+    carries it (``labels_sha256``); ``trials read --labels`` refuses labels of another digest."""
+    import hashlib
+
+    from annotator.tools.given import CMD_COLUMNS
+
+    rows = labels.sort_values(["object_id", "grasp_id"], kind="stable")
+    digest = hashlib.sha256()
+    for column in ("object_id", "mesh_sha256"):
+        digest.update("\0".join(rows[column].astype(str)).encode() + b"\1")
+    digest.update(rows["grasp_id"].to_numpy(dtype="<i8").tobytes())
+    present = [c for c in CMD_COLUMNS if c in rows.columns]
+    digest.update(",".join(present).encode())
+    digest.update(np.ascontiguousarray(rows[present].to_numpy(dtype="<f8")).tobytes())
+    return digest.hexdigest()
 
 
 def _executable(labels: pd.DataFrame) -> np.ndarray:
@@ -168,7 +194,15 @@ def make_sheet(labels: pd.DataFrame, settings: SheetSettings, *, config, depth) 
         raise ToolError("scene labels: a sheet takes object labels (annotate, annotate --cell, evaluate)")
     if not records_commands(labels):
         raise ToolError("the labels do not record their commanded grasps (cmd_*): label them again")
+    if not 1 <= settings.repeats <= MAX_REPEATS:
+        raise ToolError(f"--repeats {settings.repeats}: give 1 .. {MAX_REPEATS}")
     rows = select_grasps(labels, settings)
+    if len(rows) * settings.repeats > MAX_TRIALS:
+        raise ToolError(
+            f"{len(rows)} grasps x --repeats {settings.repeats} is {len(rows) * settings.repeats:,} trials, "
+            f"more than the {MAX_TRIALS:,} a sheet may hold (a year of a robot's time); give a smaller "
+            "--n or --repeats"
+        )
     width = rows["cmd_width"].to_numpy(dtype=np.float64)
     T_obj_tcp = _poses(rows, CMD_COLUMNS[:7])
     T_base_tcp = depth.T_base_tcp(width)
@@ -205,12 +239,11 @@ def make_sheet(labels: pd.DataFrame, settings: SheetSettings, *, config, depth) 
             "grip_force": float(depth.grip_force),
         }
     )
-    if settings.repeats < 1:
-        raise ToolError(f"--repeats {settings.repeats}: must be at least 1")
     sheet = sheet.loc[sheet.index.repeat(settings.repeats)].reset_index(drop=True)
     sheet["repeat"] = np.tile(np.arange(settings.repeats, dtype=np.int64), len(rows))
     sheet["trial_id"] = np.arange(len(sheet), dtype=np.int64)
     sheet["format"] = FORMAT
+    sheet["labels_sha256"] = labels_digest(labels)
     sheet["real_success"] = ""
     sheet["notes"] = ""
     if any(c in rows.columns for c in JOINT_COLUMNS):  # the cell's arm joints at the grasp
@@ -223,12 +256,16 @@ def make_sheet(labels: pd.DataFrame, settings: SheetSettings, *, config, depth) 
 
 def read_sheet(path: str | Path, labels: pd.DataFrame | None = None) -> ReadSheet:
     """A filled sheet (CSV) read back; rows without ``real_success`` were not executed and are
-    left out. ``labels``: every trial must name one of their grasps, on the same mesh (its
-    ``mesh_sha256``). One-line :class:`ToolError` naming the row otherwise."""
-    from annotator.tools.common import ToolError
+    left out. One-line :class:`ToolError` naming the row or column for: a column named twice, a
+    ``trial_id`` that is not a whole number or that two rows share, two rows that are one trial
+    (object, grasp and repeat), an outcome that is not 1/0. ``labels``: the sheet must have been
+    made from them (its ``labels_sha256``, and each trial's pose and width are its label's
+    commanded grasp), and every trial names one of their grasps on the same mesh."""
+    from annotator.tools.common import ToolError, csv_header, unique_columns
 
     path = Path(path)
     try:
+        unique_columns(csv_header(path), path)  # a column named twice: which one was filled?
         sheet = pd.read_csv(path, dtype={"real_success": str, "notes": str}, keep_default_na=False)
     except FileNotFoundError:
         raise ToolError(f"no trial sheet at {path}") from None
@@ -237,6 +274,7 @@ def read_sheet(path: str | Path, labels: pd.DataFrame | None = None) -> ReadShee
     missing = [c for c in ("object_id", "grasp_id", "real_success") if c not in sheet.columns]
     if missing:
         raise ToolError(f"{path}: missing column(s) {missing}; is it a sheet of 'annotator trials sheet'?")
+    _check_trial_ids(sheet, path)
     text = sheet["real_success"].astype(str).str.strip().str.lower()
     done = text != ""
     bad = done & ~text.isin(list(TRUE_WORDS))
@@ -265,9 +303,103 @@ def read_sheet(path: str | Path, labels: pd.DataFrame | None = None) -> ReadShee
     for column in ("repeat", "trial_id"):
         if column in filled.columns:
             out[column] = pd.to_numeric(filled[column], errors="coerce").fillna(-1).to_numpy(dtype=np.int64)
+    _check_one_row_per_trial(out, filled, path)
     if labels is not None:
+        _check_made_from(sheet, labels, path)
         _match_labels(out, filled, labels, path)
+    if "labels_sha256" in filled.columns:
+        out["labels_sha256"] = filled["labels_sha256"].astype(str).to_numpy(dtype=object)
     return ReadSheet(out.reset_index(drop=True), int((~done).sum()))
+
+
+def _check_trial_ids(sheet: pd.DataFrame, path: Path) -> None:
+    """Every row's ``trial_id`` (when the sheet has the column) a whole number >= 0, no two alike."""
+    from annotator.tools.common import ToolError
+
+    if "trial_id" not in sheet.columns:
+        return
+    ids = pd.to_numeric(sheet["trial_id"], errors="coerce")
+    bad = (ids.isna() | (ids < 0) | (ids != ids.round())).to_numpy()
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise ToolError(
+            f"{path}: row {row}: trial_id {sheet['trial_id'].iloc[row]!r} is not a whole number >= 0"
+        )
+    twice = ids.duplicated(keep=False).to_numpy()
+    if twice.any():
+        rows = np.flatnonzero(ids.to_numpy() == ids.to_numpy()[np.argmax(twice)])
+        raise ToolError(
+            f"{path}: rows {int(rows[0])} and {int(rows[1])} both have trial_id {int(ids.iloc[rows[0]])}: "
+            "a trial is one row (a row copied or pasted twice?)"
+        )
+
+
+def _check_one_row_per_trial(out: pd.DataFrame, filled: pd.DataFrame, path: Path) -> None:
+    """No two filled rows for one execution (object, grasp, repeat) of a sheet that numbers them."""
+    from annotator.tools.common import ToolError
+
+    if "repeat" not in out.columns:
+        return
+    key = out[["object_id", "grasp_id", "repeat"]]
+    twice = key.duplicated(keep=False).to_numpy()
+    if twice.any():
+        first = key.iloc[int(np.argmax(twice))]
+        same = np.flatnonzero((key == first).all(axis=1).to_numpy())
+        a, b = (int(filled.index[k]) for k in same[:2])
+        raise ToolError(
+            f"{path}: rows {a} and {b} are both repeat {int(first['repeat'])} of object "
+            f"{first['object_id']!r} grasp {int(first['grasp_id'])}: one execution is one row (a row "
+            "copied with a new trial_id?)"
+        )
+
+
+def check_stamp(stamps: pd.Series, labels: pd.DataFrame, path: Path | str, option: str) -> None:
+    """The ``labels_sha256`` of a sheet's rows (or of a REAL.csv read from one) is the digest of
+    ``labels`` (:func:`labels_digest`); one-line :class:`ToolError` otherwise, asking ``option`` for
+    the labels the sheet was made from."""
+    from annotator.tools.common import ToolError
+
+    stamped = sorted(set(stamps.astype(str)))
+    if len(stamped) != 1:
+        raise ToolError(f"{path}: rows of {len(stamped)} sheets (labels_sha256 differs between rows)")
+    mine = labels_digest(labels)
+    if stamped[0] != mine:
+        raise ToolError(
+            f"{path} was made from other labels (labels_sha256 {stamped[0][:12]}, these labels' "
+            f"{mine[:12]}): give {option} the labels the sheet was made from"
+        )
+
+
+def _check_made_from(sheet: pd.DataFrame, labels: pd.DataFrame, path: Path) -> None:
+    """The sheet was made from ``labels``: its ``labels_sha256`` (format 2) is theirs, and each
+    row's grasp (``x .. qw``, ``width``) is its label's commanded grasp."""
+    from annotator.tools.common import ToolError
+    from annotator.tools.given import CMD_COLUMNS
+
+    if "labels_sha256" in sheet.columns:
+        check_stamp(sheet["labels_sha256"], labels, path, "--labels")
+    columns = [*OBJ_TCP_COLUMNS, "width"]
+    if not set(columns) <= set(sheet.columns) or not set(CMD_COLUMNS) <= set(labels.columns):
+        return
+    keyed = labels.astype({"object_id": str}).set_index(["object_id", "grasp_id"])[list(CMD_COLUMNS)]
+    ids = pd.to_numeric(sheet["grasp_id"], errors="coerce").fillna(-1).astype(np.int64)
+    index = pd.MultiIndex.from_arrays([sheet["object_id"].astype(str), ids])
+    want = keyed.reindex(index).to_numpy(dtype=np.float64)
+    got = sheet[columns].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+    known = np.isfinite(want).all(axis=1)
+    # a quaternion and its negation are one rotation
+    same_q = np.minimum(
+        np.abs(got[:, 3:7] - want[:, 3:7]).max(axis=1), np.abs(got[:, 3:7] + want[:, 3:7]).max(axis=1)
+    )
+    off = np.maximum(np.abs(got[:, :3] - want[:, :3]).max(axis=1), np.abs(got[:, 7] - want[:, 7]))
+    wrong = known & ~(np.maximum(off, same_q) <= POSE_TOLERANCE)
+    if wrong.any():
+        row = int(np.argmax(wrong))
+        oid, gid = sheet["object_id"].iloc[row], int(ids.iloc[row])
+        raise ToolError(
+            f"{path}: row {row}: the grasp of object {oid!r} grasp {gid} is not its label's commanded "
+            "grasp: the sheet was made from other labels"
+        )
 
 
 def _match_labels(out: pd.DataFrame, filled: pd.DataFrame, labels: pd.DataFrame, path: Path) -> None:

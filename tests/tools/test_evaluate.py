@@ -103,3 +103,28 @@ def test_bad_grasp_files_are_one_line(tmp_path: Path, text: str, message: str) -
     assert message in err.value.message
     result = _evaluate(csv, tmp_path, tmp_path / "out")
     assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1
+
+
+def test_grasp_ids_a_table_names_are_kept_or_the_table_is_refused(labelled, tmp_path: Path) -> None:
+    """Part of a user's real trials (ids 10 .. 14) were numbered 0 .. 4 in file order with one line
+    among the progress: joined by the user's own ids, every row met another grasp."""
+    pose = ["object_id", "x", "y", "z", "qx", "qy", "qz", "qw", "width"]
+    box = labelled.df[labelled.df.object_id == "box"].iloc[:5][pose].reset_index(drop=True)
+    named = tmp_path / "named.csv"
+    box.assign(grasp_id=range(10, 15)).to_csv(named, index=False)
+    result = _evaluate(named, labelled.objects_dir, tmp_path / "out")
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 2 and len(errors) == 1, result.output
+    assert "the grasp_ids of 'box' (10, 11, 12, 13 ...) are not 0..4" in errors[0]
+    assert not (tmp_path / "out").exists()
+    # ids 0 .. 4 in another order are kept: grasp k is the row the table called k
+    order = [3, 0, 4, 1, 2]
+    shuffled = tmp_path / "shuffled.csv"
+    box.assign(grasp_id=order).to_csv(shuffled, index=False)
+    result = _evaluate(shuffled, labelled.objects_dir, tmp_path / "out", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    out = load_labels(tmp_path / "out").set_index("grasp_id")
+    for row, gid in enumerate(order):
+        assert np.allclose(
+            out.loc[gid, ["cmd_x", "cmd_y", "cmd_z"]].to_numpy(float), box.loc[row, ["x", "y", "z"]]
+        )

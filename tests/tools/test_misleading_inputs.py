@@ -106,10 +106,6 @@ def test_scene_options_without_scenes_are_refused(tmp_path, objects, option):
 
 
 def test_calibrate_never_replaces_a_calibrated_toml_it_did_not_write(tmp_path, objects, monkeypatch):
-    from annotator.config import AnnotatorConfig
-    from annotator.tools import calibrate as cal
-    from annotator.tools.common import check_replaceable
-
     monkeypatch.chdir(tmp_path)
     labels = tmp_path / "labels.parquet"
     synthetic_labels("box", 5).to_parquet(labels)
@@ -120,16 +116,10 @@ def test_calibrate_never_replaces_a_calibrated_toml_it_did_not_write(tmp_path, o
     line = _run("calibrate", labels, real, "--objects", objects, code=2)
     assert "--write-config calibrated.toml exists and was not written by this tool; pass --overwrite" in line
     assert mine.read_text() == "[physics]\n# my hand-tuned friction\n"
-    # one calibrate wrote is replaced without asking; --overwrite replaces any
-    mine.write_text(cal.config_toml(AnnotatorConfig(), "annotator calibrate labels/ real.csv: best of 1"))
-    assert check_replaceable(mine, "--write-config", cal.written_by_calibrate) == mine
-    mine.write_text("# not ours\n")
-    assert check_replaceable(mine, "--write-config", cal.written_by_calibrate, force=True) == mine
 
 
 def test_show_and_report_replace_only_pictures_and_pages_they_wrote(labelled, tmp_path):
-    from annotator.tools.common import written_png
-    from annotator.tools.report import written_report
+    from annotator.store.outputs import written_here
 
     sheet, overview, page = tmp_path / "sheet.png", tmp_path / "sheet-overview.png", tmp_path / "r.html"
     show = ["show", labelled.labels_dir, "--object", "box", "--objects", labelled.objects_dir, "--png", sheet]
@@ -145,10 +135,14 @@ def test_show_and_report_replace_only_pictures_and_pages_they_wrote(labelled, tm
     assert page.read_text() == "<html>my notes</html>"
     for args in (show, report):
         CliRunner().invoke(main, [str(a) for a in [*args, "--overwrite"]], catch_exceptions=False)
-    assert written_png(sheet) and written_png(overview) and written_report(page)
+    assert written_here(sheet) and written_here(overview) and written_here(page)
     for args in (show, report):  # their own files are replaced without asking
         result = CliRunner().invoke(main, [str(a) for a in args])
         assert result.exit_code == 0, result.output
+    # a page the user edited since is theirs now
+    page.write_text(page.read_text() + "<!-- my note -->")
+    assert "--html " + str(page) + " was written by this tool" in _run(*report, code=2)
+    assert page.read_text().endswith("<!-- my note -->")
 
 
 def test_a_folder_of_parquet_files_is_read_as_one_table(tmp_path):

@@ -168,3 +168,95 @@ def test_scene_labels_and_labels_without_commands_are_refused(labelled) -> None:
     collisions = labelled.df.assign(outcome="collision", success=False)
     with pytest.raises(ToolError, match="no grasp to execute"):
         make_sheet(collisions, SheetSettings(), config=AnnotatorConfig(), depth=depth)
+
+
+def _sheet(labelled, tmp_path: Path, *args: str) -> Path:
+    sheet_csv = tmp_path / "sheet.csv"
+    made = _run("trials", "sheet", str(labelled.labels_dir), "--n", "3", *args, "--out", str(sheet_csv))
+    assert made.exit_code == 0, made.output
+    return sheet_csv
+
+
+def _filled(sheet_csv: Path) -> pd.DataFrame:
+    sheet = pd.read_csv(sheet_csv, keep_default_na=False, dtype={"real_success": str})
+    return sheet.assign(real_success=np.where(sheet.index % 2 == 0, "1", "0"))
+
+
+def _read(sheet_csv: Path, labels, tmp_path: Path):
+    out = str(tmp_path / "real.csv")
+    result = _run("trials", "read", str(sheet_csv), "--labels", str(labels), "--out", out)
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    return result, errors
+
+
+def _other_run(labelled, tmp_path: Path) -> Path:
+    """Labels of another run of the same objects: the same ids and meshes, every pose 1 mm away."""
+    other = tmp_path / "other.parquet"
+    labelled.df.assign(cmd_x=labelled.df.cmd_x + 0.001).to_parquet(other)
+    return other
+
+
+def test_a_sheet_naming_real_success_twice_is_refused(labelled, tmp_path: Path) -> None:
+    """Stale zeros first, the user's outcomes second: it read '24 trials (0 held)'."""
+    sheet_csv = _sheet(labelled, tmp_path)
+    _filled(sheet_csv).assign(real_success="1").to_csv(sheet_csv, index=False)
+    lines = sheet_csv.read_text().splitlines()
+    sheet_csv.write_text("\n".join(["real_success," + lines[0], *("0," + line for line in lines[1:])]) + "\n")
+    result, errors = _read(sheet_csv, labelled.labels_dir, tmp_path)
+    assert result.exit_code == 2 and len(errors) == 1
+    assert "column 'real_success' appears 2 times" in errors[0]
+    assert not (tmp_path / "real.csv").exists()
+
+
+def test_a_sheet_read_with_the_labels_of_another_run_is_refused(labelled, tmp_path: Path) -> None:
+    """Every pose differs: calibrate would replay grasps the robot never executed."""
+    sheet_csv = _sheet(labelled, tmp_path)
+    _filled(sheet_csv).to_csv(sheet_csv, index=False)
+    other = _other_run(labelled, tmp_path)
+    result, errors = _read(sheet_csv, other, tmp_path)
+    assert result.exit_code == 2 and len(errors) == 1 and "was made from other labels" in errors[0]
+    # a sheet of the first format (no labels_sha256): its poses are not the labels' commanded grasps
+    _filled(sheet_csv).drop(columns="labels_sha256").to_csv(sheet_csv, index=False)
+    result, errors = _read(sheet_csv, other, tmp_path)
+    assert result.exit_code == 2 and "is not its label's commanded grasp" in errors[0]
+    # read without --labels, the REAL.csv carries the digest and calibrate checks it
+    filled = _filled(_sheet(labelled, tmp_path / "b"))
+    filled.to_csv(tmp_path / "b" / "sheet.csv", index=False)
+    real = tmp_path / "b" / "real.csv"
+    assert _run("trials", "read", str(tmp_path / "b" / "sheet.csv"), "--out", str(real)).exit_code == 0
+    result = _run("calibrate", str(other), str(real), "--objects", str(labelled.objects_dir))
+    assert result.exit_code == 2 and "was made from other labels" in result.output
+    assert not (tmp_path / "calibrated.toml").exists()
+
+
+def test_duplicated_or_contradicting_trial_ids_are_refused(labelled, tmp_path: Path) -> None:
+    sheet_csv = _sheet(labelled, tmp_path)
+    filled = _filled(sheet_csv)
+    pd.concat([filled, filled.iloc[[1]]], ignore_index=True).to_csv(sheet_csv, index=False)
+    result, errors = _read(sheet_csv, labelled.labels_dir, tmp_path)
+    assert result.exit_code == 2 and f"rows 1 and {len(filled)} both have trial_id 1" in errors[0]
+    twice = filled.iloc[[1]].assign(trial_id=len(filled), real_success="0")  # the same trial, held and not
+    pd.concat([filled, twice], ignore_index=True).to_csv(sheet_csv, index=False)
+    result, errors = _read(sheet_csv, labelled.labels_dir, tmp_path)
+    assert result.exit_code == 2 and "are both repeat 0 of object" in errors[0]
+    filled.assign(trial_id=["x"] + filled.trial_id.tolist()[1:]).to_csv(sheet_csv, index=False)
+    result, errors = _read(sheet_csv, labelled.labels_dir, tmp_path)
+    assert result.exit_code == 2 and "row 0: trial_id 'x' is not a whole number" in errors[0]
+
+
+def test_every_count_of_a_sheet_is_bounded(labelled, tmp_path: Path) -> None:
+    """--repeats 1000000000 tried to build an 89 GiB array."""
+    from helpers import synthetic_labels
+
+    from annotator.config import AnnotatorConfig
+    from annotator.tools.common import ToolError
+    from annotator.tools.trial_sheet import MAX_TRIALS, SheetSettings, make_sheet
+
+    out = tmp_path / "sheet.csv"
+    result = _run("trials", "sheet", str(labelled.labels_dir), "--repeats", "1000000000", "--out", str(out))
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 2 and len(errors) == 1 and "1<=x<=1000" in errors[0] and not out.exists()
+    many = synthetic_labels("box", 2000).assign(outcome="success", success=True)
+    many[list(CMD_COLUMNS)] = many[["x", "y", "z", "qx", "qy", "qz", "qw", "width"]].to_numpy()
+    with pytest.raises(ToolError, match=f"more than the {MAX_TRIALS:,} a sheet may hold"):
+        make_sheet(many, SheetSettings(repeats=1000), config=AnnotatorConfig(), depth=TcpDepth("rg2"))
