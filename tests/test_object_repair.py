@@ -120,7 +120,9 @@ def test_a_repair_that_would_lose_half_the_object_is_refused():
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     verts = np.vstack([box.vertices, [[0.0, 0.0, 0.0]]])
     faces = np.vstack([box.faces, [box.faces[0][:2].tolist() + [8]]])
-    mended = repair.mend(trimesh.Trimesh(verts, faces, process=False), CONFIG.min_volume)
+    mended = repair.mend(
+        trimesh.Trimesh(verts, faces, process=False), CONFIG.min_volume, CONFIG.mend_area_tolerance
+    )
     assert mended is not None and mended.volume == pytest.approx(0.05**3, rel=1e-6)
 
 
