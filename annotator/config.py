@@ -273,6 +273,9 @@ class ObjectConfig(_Section):
     decomposition_max_faces: int = _field(5_000, ge=4)
     decomposition_copy_max_faces: int = _field(20_000, ge=4)
     decomposition_copy_tolerance: float = _field(0.001, gt=0.0)  # m
+    # Surface points per side (seeded) measuring how far a simplified copy strays from the mesh: the
+    # copy chosen, and so the collision shape, follows from this measure (0101-collision-ladder).
+    decomposition_copy_samples: int = _field(4_000, ge=100, le=1_000_000, implicit=True)
     # CPU seconds (see budget_basis) per object for its whole load: reading, repair and the ladder
     # (CoACD, V-HACD, hull), 1-3600; CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
     # see docs/decisions/0101-collision-ladder.md

@@ -123,6 +123,90 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     assert AnnotatorConfig.from_run(old, 5) == shaken
 
 
+IMPLICIT = (
+    ("objects", "mend_area_tolerance", 0.2),
+    ("objects", "coacd_refine_iterations", 300),
+    ("objects", "decomposition_copy_samples", 8_000),
+    ("protocol", "approach_hold", 0.2),
+    ("robust", "approach_lead", 0.02),
+    ("robust", "rest_speed", 2e-3),
+    ("robust", "rest_spin", 2e-2),
+    ("cell", "touch_search", 0.1),
+)
+
+
+def test_the_implicit_fields_are_the_ones_named_here():
+    """Every field declared implicit (a number every run had before it became a field) is listed
+    above, so the tests below cover each."""
+    config = AnnotatorConfig()
+    declared = {
+        (section.name, f.name)
+        for section in dataclasses.fields(config)
+        for f in dataclasses.fields(getattr(config, section.name))
+        if f.metadata.get("implicit")
+    }
+    assert declared == {(section, name) for section, name, _ in IMPLICIT}
+
+
+@pytest.mark.parametrize(("section", "name", "other"), IMPLICIT)
+def test_an_implicit_field_is_bound_only_where_it_differs_from_the_value_every_run_had(section, name, other):
+    """At its default an implicit field is not in a run's manifest, so a folder made before it was a
+    field resumes (no difference) and reads back as the default; set to another value it is bound,
+    the older folder refuses the run naming the field, and it reads back as set."""
+    from annotator.store.manifest import RunSpec
+
+    default = AnnotatorConfig()
+    changed = dataclasses.replace(
+        default, **{section: dataclasses.replace(getattr(default, section), **{name: other})}
+    )
+    for trials in (1, 5):
+        bound = default.to_dict(trials=trials)
+        assert name not in bound[section]
+        before = RunSpec(0, 5, trials, None, 5, bound).to_json()  # a folder of an earlier version
+        assert _spec(default, trials).differences(before) == []
+        assert AnnotatorConfig.from_run(bound, trials) == default
+        assert changed.to_dict(trials=trials)[section][name] == other
+        assert any(f"[{section}] {name}" in d for d in _spec(changed, trials).differences(before))
+        assert AnnotatorConfig.from_run(changed.to_dict(trials=trials), trials) == changed
+
+
+def test_the_collision_shape_key_is_the_one_the_constants_made():
+    """The decomposition settings that key a cached shape (annotator.objects.decomposition.settings)
+    are, at the defaults, the tuple the constants made before they were implicit fields: shapes
+    cached before keep their keys. A changed implicit field keys another shape."""
+    import trimesh
+
+    from annotator.objects.decomposers import METHOD, copy_sizes, thresholds
+    from annotator.objects.decomposition import settings
+
+    objects = AnnotatorConfig().objects
+    dense = trimesh.creation.icosphere(subdivisions=5)  # 20,480 faces: above decomposition_max_faces
+    assert len(dense.faces) > objects.decomposition_max_faces
+    made_before = (
+        objects.collision_error_samples,
+        thresholds(objects),
+        objects.coacd_search_iterations,
+        objects.coacd_retry_margin,
+        objects.coacd_first_cut_share,
+        objects.coacd_remesh_resolution,
+        objects.coacd_remesh_search_iterations,
+        objects.collision_mean_limit,
+        objects.collision_max_limit,
+        objects.decomposition_budget,
+        objects.budget_basis,
+        objects.vhacd_reserve,
+        objects.vhacd_resolution,
+        copy_sizes(objects),
+        objects.decomposition_copy_tolerance,
+        4_000,  # COPY_SAMPLES; CoACD's own 150 iterations were not part of the key
+    )
+    assert settings(METHOD, dense, objects) == made_before
+    more_samples = dataclasses.replace(objects, decomposition_copy_samples=8_000)
+    assert settings(METHOD, dense, more_samples)[-1] == 8_000
+    own = dataclasses.replace(objects, coacd_refine_iterations=300)
+    assert settings(METHOD, dense, own) == (*made_before, ("coacd_refine_iterations", 300))
+
+
 def test_a_folder_made_before_light_objects_were_held_at_the_time_step_reads_back_as_it_simulated():
     """A folder made before ``[physics] light_hold_mass`` simulated its light objects at their finer
     step throughout: it reads back so (a tool that simulates its labels again does what the run

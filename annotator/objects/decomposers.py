@@ -21,8 +21,6 @@ from annotator.objects.fidelity import CollisionError, collision_error, surface_
 METHOD = "coacd"  # what load_object asks for a concave object: the ladder, CoACD first
 REMESHED = "coacd-remeshed"  # the second rung: CoACD on the mesh remeshed by its preprocessing
 VHACD = "vhacd"  # the third rung: V-HACD
-# Surface points per side measuring how far a simplified copy strays from the mesh (seeded).
-COPY_SAMPLES = 4_000
 
 
 def thresholds(config: ObjectConfig) -> tuple[float, ...]:
@@ -91,7 +89,9 @@ def decomposition_copy(vertices: np.ndarray, faces: np.ndarray, config: ObjectCo
         return copy
     for size in copy_sizes(config):
         v, f = decomposition_input(vertices, faces, size)
-        deviation = surface_deviation(mesh, trimesh.Trimesh(v, f, process=False), COPY_SAMPLES)
+        deviation = surface_deviation(
+            mesh, trimesh.Trimesh(v, f, process=False), config.decomposition_copy_samples
+        )
         copy = Copy(v, f, deviation)
         if deviation <= config.decomposition_copy_tolerance:
             break

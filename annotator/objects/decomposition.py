@@ -20,7 +20,7 @@ from annotator.objects import cache
 from annotator.objects.cache import default_cache_dir
 from annotator.objects.collision_entry import CollisionGeometry, Rung, entry_arrays, read_entry
 from annotator.objects.collision_ladder import Progress, run_ladder, say
-from annotator.objects.decomposers import COPY_SAMPLES, METHOD, copy_sizes, thresholds
+from annotator.objects.decomposers import METHOD, copy_sizes, thresholds
 from annotator.objects.errors import NotDecomposed
 from annotator.objects.fidelity import collision_error
 from annotator.objects.own_hull import own_hull_geometry
@@ -48,8 +48,8 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple[
         config.vhacd_resolution,
     )
     if len(mesh.faces) > config.decomposition_max_faces:
-        # shape only what is simplified
-        ladder += (copy_sizes(config), config.decomposition_copy_tolerance, COPY_SAMPLES)
+        # shape only what is simplified (the samples in the place their constant had: the same key)
+        ladder += (copy_sizes(config), config.decomposition_copy_tolerance, config.decomposition_copy_samples)
     # an implicit setting (every decomposition had its default before it was one) keys a shape only
     # where it differs from that, so the shapes cached before keep their keys
     if config.coacd_refine_iterations != ObjectConfig.coacd_refine_iterations:
