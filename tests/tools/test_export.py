@@ -23,10 +23,10 @@ def depth() -> TcpDepth:
     return TcpDepth()
 
 
-
 def tcp_poses(T_obj_base: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.ndarray:
     """The inverse of :func:`annotator.tools.export.base_poses`: label poses ``T_obj_tcp`` (n, 4, 4)."""
     return np.asarray(T_obj_base) @ depth.T_base_tcp(width)
+
 
 def _export(labelled, fmt: str, out: Path) -> None:
     args = ["export", str(labelled.labels_dir), "--format", fmt, "--out", str(out)]
