@@ -150,8 +150,8 @@ def test_bench_learning_checks_its_arguments_in_one_line(args, said):
 
 REPO = Path(__file__).resolve().parents[1]
 BENCHES = sorted(
-    path.stem
-    for path in (REPO / "bench").glob("*.py")
+    ".".join(path.relative_to(REPO / "bench").with_suffix("").parts)
+    for path in [*(REPO / "bench").glob("*.py"), *(REPO / "bench" / "experiments").glob("*.py")]
     if "add_argument" in path.read_text() and path.stem != "arguments"
 )
 
@@ -239,6 +239,14 @@ BAD_ARGUMENTS = [  # (bench, arguments, what its one line says)
     ("throughput", ["--config", "no.toml"], "--config: no.toml: no such file"),
     ("trials_cost", ["--trials", "1"], "--trials: 1 is not in 2 .. 100"),
     ("trials_cost", ["--n", "-1"], "--n: -1 is not in 1 .. 1,000,000"),
+    ("experiments.arm_agreement", ["--labels", "no/such"], "--labels: no/such: no such folder"),
+    ("experiments.evaluate_replay", ["--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("experiments.gripper_coupling", ["--mass", "0"], "--mass: 0 is not in (0, 100]"),
+    ("experiments.light_objects", ["--grams", "4", "-1"], "--grams: -1 is not in (0, 100000]"),
+    ("experiments.light_threshold", ["--jobs", "0"], "--jobs: 0 is not in 1 .. 1,024"),
+    ("experiments.scene_substeps", ["--per-scene", "0"], "--per-scene: 0 is not in 1 .. 253"),
+    ("experiments.ur3_ik", ["--n", "0"], "--n: 0 is not in 1 .. 10,000,000"),
+    ("experiments.widths", ["--seed", "x"], "--seed: 'x' is not a whole number"),
 ]
 
 
@@ -256,6 +264,7 @@ def test_a_bad_bench_argument_is_one_line_and_exit_2(name, args, said, capsys, m
 
 
 def test_every_bench_with_arguments_has_a_bad_value_above():
+    assert "experiments.widths" in BENCHES and "learning" in BENCHES
     covered = {name for name, _, _ in BAD_ARGUMENTS}
     assert covered == set(BENCHES), sorted(set(BENCHES) ^ covered)
 
@@ -272,3 +281,17 @@ def test_a_bad_bench_argument_from_the_command_line_is_one_line(args, said):
     done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=REPO)
     assert done.returncode == 2 and done.stdout == "", done.stderr
     assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+@pytest.mark.parametrize("name", BENCHES)
+def test_every_bench_s_default_folders_exist(name):
+    """A default objects folder is the repository's (three experiments looked in bench/objects)."""
+    missing = [
+        f"{a.dest}={a.default}"
+        for a in _actions(_parser(name))
+        if a.type is not None
+        and getattr(a.type, "__name__", "") == "existing_folder"
+        and isinstance(a.default, Path)
+        and not a.default.is_dir()
+    ]
+    assert not missing
