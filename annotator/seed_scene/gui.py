@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -123,9 +124,8 @@ def run_gui(
             if capturer is not None and _capture_key_pressed(client):
                 _capture(scene, capturer)
             if screenshot_path is not None and t >= screenshot_at:
-                image = screenshot(scene)
                 assert outputs is not None
-                written = outputs.write("--screenshot", lambda tmp, image=image: write_png(image, tmp))
+                written = outputs.write("--screenshot", functools.partial(write_png, screenshot(scene)))
                 width, height = pb.getDebugVisualizerCamera(physicsClientId=client)[:2]
                 q = np.round(scene.arm_positions(), 4).tolist()
                 click.echo(f"screenshot {width}x{height} at t={t:.2f} s, arm q = {q} -> {written}")

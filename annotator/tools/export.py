@@ -141,7 +141,32 @@ def write_atomically(path: Path, fill: Callable[[Path], object]) -> None:
     atomic_write_path(path, fill, make_parents=True)
 
 
-_write_atomically = write_atomically  # the name the exporters imported
+def fill_text(text: str) -> Callable[[Path], object]:
+    """A fill (:data:`Writer`'s second argument) writing ``text``."""
+
+    def fill(tmp: Path) -> None:
+        tmp.write_text(text)
+
+    return fill
+
+
+def fill_bytes(data: bytes) -> Callable[[Path], object]:
+    """A fill (:data:`Writer`'s second argument) writing ``data``."""
+
+    def fill(tmp: Path) -> None:
+        tmp.write_bytes(data)
+
+    return fill
+
+
+def _fill_mesh(mesh: Any) -> Callable[[Path], object]:
+    """A fill writing ``mesh`` as OBJ (trimesh's export, as before)."""
+
+    def fill(tmp: Path) -> None:
+        mesh.export(tmp, file_type="obj")
+
+    return fill
+
 
 EXPORT_RECORD = "_export.json"  # what an export wrote into its folder: the only files --overwrite removes
 EXPORT_LOCK = ".export.rg2-annotator.lock"  # an export's lock of its whole folder (removed at the end)
@@ -453,7 +478,7 @@ def _export(
         rows = object_rows(labels, oid).sort_values("grasp_id", ignore_index=True)
         mesh = object_mesh(labels_dir, oid, objects_dir, rows)
         mesh_file = f"meshes/{_stem(oid)}.obj"
-        folder.write(mesh_file, lambda tmp, mesh=mesh: mesh.export(tmp, file_type="obj"))
+        folder.write(mesh_file, _fill_mesh(mesh))
         T_obj_base = base_poses(poses_as_matrices(rows), rows["width"].to_numpy(), depth)
         commanded = None
         if records_commands(rows):  # where the gripper was placed before closing, flange frame
@@ -487,7 +512,7 @@ def _export(
         for name, part in (("train", train), ("valid", val)):
             lines = [f"meshes/{_stem(o)}.obj" for o in sorted(part["object_id"].unique())]
             text = "".join(f"{x}\n" for x in lines)
-            folder.write(f"splits/{name}.txt", lambda tmp, text=text: tmp.write_text(text))
+            folder.write(f"splits/{name}.txt", fill_text(text))
     folder.close(fmt, Path(labels_dir))
     log.info("exported %d grasps of %d objects to %s (%s)", n, len(ids), out_dir, fmt)
     return ExportResult(out_dir, files, n)

@@ -56,7 +56,7 @@ import numpy as np
 import trimesh
 
 from annotator.scenes.records import SceneRecord
-from annotator.tools.export import Writer, write_atomically
+from annotator.tools.export import Writer, fill_bytes, fill_text, write_atomically
 from annotator.tools.export_vgn import SceneGrasps
 
 TABLE_TOP_Z = 0.3  # m: the top of Contact-GraspNet's table box (0.6 m tall, centred at the origin)
@@ -97,7 +97,7 @@ def write_meshes(
     for object_id, mesh in sorted(meshes.items()):
         path = root / mesh_file(object_id)
         text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False, digits=10)
-        write(path, lambda target, text=text: target.write_text(text))
+        write(path, fill_text(text))
         means[object_id] = np.mean(np.asarray(trimesh.load(path, force="mesh").vertices), axis=0)
     return means
 
@@ -268,12 +268,12 @@ def write_cgn(
         positives += len(arrays["grasp_ids"])
         no_contact += int(np.sum(grasps.success)) - len(arrays["grasp_ids"])
         data = _npz_bytes(arrays)
-        write(path, lambda target, data=data: target.write_bytes(data))
+        write(path, fill_bytes(data))
         paths.append(path)
         for view in views:
             vpath = root / "views" / f"{int(record.scene_id):06d}_{view.view_id:02d}.npz"
             vdata = _npz_bytes(view_arrays(record, view), compressed=True)
-            write(vpath, lambda target, vdata=vdata: target.write_bytes(vdata))
+            write(vpath, fill_bytes(vdata))
             paths.append(vpath)
     return CgnFiles(paths, positives, no_contact)
 

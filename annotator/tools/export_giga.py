@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.scenes.records import SceneRecord
-from annotator.tools.export import Writer, write_atomically
+from annotator.tools.export import Writer, fill_bytes, write_atomically
 
 MESH_POSE_LIST = "mesh_pose_list"  # GIGA's folder name
 
@@ -64,6 +64,6 @@ def write_mesh_pose_lists(
         np.savez_compressed(buffer, pc=mesh_pose_list(record, mesh_paths))
         data = buffer.getvalue()
         path = root / MESH_POSE_LIST / f"{scene_name(record.scene_id)}.npz"
-        write(path, lambda target, data=data: target.write_bytes(data))
+        write(path, fill_bytes(data))
         paths.append(path)
     return paths

@@ -65,7 +65,7 @@ from annotator.cell.kinect import Intrinsics
 from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
 from annotator.scenes.records import SceneRecord
 from annotator.scenes.tsdf import fuse
-from annotator.tools.export import Writer, write_atomically
+from annotator.tools.export import Writer, fill_bytes, write_atomically
 
 RAW_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "x", "y", "z", "width", "label")
 DATASET_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "i", "j", "k", "width", "label")
@@ -263,7 +263,7 @@ def _npz_bytes(**arrays: np.ndarray) -> bytes:
 
 def _bytes_writer(write: Writer) -> Callable[[Path, bytes], object]:
     """``write`` (a :data:`annotator.tools.export.Writer`) of bytes."""
-    return lambda path, data: write(path, lambda target: target.write_bytes(data))
+    return lambda path, data: write(path, fill_bytes(data))
 
 
 def write_vgn_raw(
