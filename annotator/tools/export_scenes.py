@@ -55,15 +55,15 @@ def export_scenes(
     if not partial:
         scenes.run.require_finished("export")
         _require_no_failed_scene(scenes)
-    folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
-    depth = TcpDepth(scenes.gripper)
-    ids = scenes.scene_ids()
-    items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
-    if fmt == "vgn":
-        files, left_out = _vgn(scenes, items, folder, depth, objects_dir, balance)
-    else:
-        files, left_out = _cgn(scenes, items, folder, depth, objects_dir)
-    folder.close(fmt, Path(labels_dir), left_out)
+    with ExportFolder.open(Path(out_dir), overwrite=overwrite) as folder:
+        depth = TcpDepth(scenes.gripper)
+        ids = scenes.scene_ids()
+        items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
+        if fmt == "vgn":
+            files, left_out = _vgn(scenes, items, folder, depth, objects_dir, balance)
+        else:
+            files, left_out = _cgn(scenes, items, folder, depth, objects_dir)
+        folder.close(fmt, Path(labels_dir), left_out)
     n = sum(len(g.width) for _, _, g in items) - sum(x.grasps for x in left_out)
     log.info("exported %d grasps of %d scenes to %s (%s)", n, len(ids), folder.path, fmt)
     return ExportResult(folder.path, files, n, left_out)
@@ -147,12 +147,13 @@ def _vgn(
         ]
     for name in names:  # refuses before anything is written if a file it did not write is there
         folder.target(name)
-    paths = write_vgn_raw(folder.path, setup, items)
-    paths += write_vgn_dataset(folder.path / "dataset", setup, items)
-    write_meshes(folder.path, meshes)  # GIGA's mesh_pose_list names them
+    write = folder.write_path
+    paths = write_vgn_raw(folder.path, setup, items, write)
+    paths += write_vgn_dataset(folder.path / "dataset", setup, items, write=write)
+    write_meshes(folder.path, meshes, write)  # GIGA's mesh_pose_list names them
     paths += [folder.path / mesh_file(oid) for oid in meshes]
     mesh_paths = {oid: str((folder.path / mesh_file(oid)).resolve()) for oid in meshes}
-    paths += write_mesh_pose_lists(folder.path, [record for record, _, _ in items], mesh_paths)
+    paths += write_mesh_pose_lists(folder.path, [record for record, _, _ in items], mesh_paths, write)
     reason = (
         f"outside the {size:g} m workspace cube (voxel index outside [0, {DATASET_RESOLUTION}), "
         "where VGN's training cannot read a label)"
@@ -180,7 +181,7 @@ def _cgn(
         names += [f"views/{int(record.scene_id):06d}_{v.view_id:02d}.npz" for v in views]
     for name in names:
         folder.target(name)
-    written = write_cgn(folder.path, items, meshes, depth.T_base_tcp)
+    written = write_cgn(folder.path, items, meshes, depth.T_base_tcp, folder.write_path)
     failures = sum(int(np.sum(~np.asarray(g.success, dtype=bool))) for _, _, g in items)
     return written.paths, [
         LeftOut(failures, "failures (Contact-GraspNet stores its positives only)"),
