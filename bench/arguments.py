@@ -3,19 +3,30 @@ stderr naming the option and the range, exit 2, before any work.
 
     from bench.arguments import Parser, count, existing_file, existing_folder
 
-    parser = Parser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rounds", type=count(0, 100_000), default=40)
-    parser.add_argument("--objects", type=existing_folder, required=True)
+    def parser() -> Parser:
+        parser = Parser(description=__doc__.splitlines()[0])
+        parser.add_argument("--rounds", type=count(0, 100_000), default=40)
+        parser.add_argument("--objects", type=existing_folder, required=True)
+        return parser
+
+Every benchmark builds its options in a function ``parser()`` of its module (its ``main`` parses
+with it), so that ``tests/test_bench.py`` checks each one's refusals without running it. Counts,
+sizes, fractions and paths take one of the types below; the bounds of counts are the commands'
+(``N_MAX``, ``WORKERS_MAX``).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
 SEED_MAX = 2**63 - 1  # seeds are stored as int64, as the commands' --seed
+N_MAX = 1_000_000  # candidates per object or scene, as annotate's --n
+WORKERS_MAX = 1024  # as the commands' --workers
+REPEAT_MAX = 1000  # repeats of a measurement
 
 
 class Parser(argparse.ArgumentParser):
@@ -41,6 +52,33 @@ def count(low: int, high: int | None = None) -> Callable[[str], int]:
 
     parse.__name__ = "count"
     return parse
+
+
+def number(
+    low: float, high: float, *, low_open: bool = False, high_open: bool = False
+) -> Callable[[str], float]:
+    """An argparse type: a finite number in ``low .. high`` (``low_open``/``high_open``: the bound
+    itself excluded)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        below = value <= low if low_open else value < low
+        above = value >= high if high_open else value > high
+        if not math.isfinite(value) or below or above:
+            span = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+            raise argparse.ArgumentTypeError(f"{text} is not in {span}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def fraction(text: str) -> float:
+    """An argparse type: a share, 0 .. 1."""
+    return number(0.0, 1.0)(text)
 
 
 def seed(text: str) -> int:
@@ -73,4 +111,14 @@ def writable_folder(text: str) -> Path:
         probe_writable(path)
     except OSError as exc:
         raise argparse.ArgumentTypeError(f"{text}: cannot be written ({exc.strerror or exc})") from None
+    return path
+
+
+def writable_file(text: str) -> Path:
+    """An argparse type: a file to write (or append to), whose folder exists or can be made and
+    takes a file; not a folder."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a folder; give a file name")
+    writable_folder(str(path.parent))
     return path

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import ObjectError, discover_objects, load_object
+from bench.arguments import REPEAT_MAX, Parser, count, existing_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,11 +44,15 @@ def timed_load(source, config: AnnotatorConfig, cache: Path) -> tuple[float, flo
     return time.perf_counter() - t0, cpu() - c0, len(model.parts)
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    ap.add_argument("--repeat", type=count(1, REPEAT_MAX), default=2)
+    return ap
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
-    ap.add_argument("--repeat", type=int, default=2)
-    args = ap.parse_args()
+    args = parser().parse_args()
     config = AnnotatorConfig()
     with Run("cold_start", config=vars(args), annotator=config) as run:
         measure(args, config, run)

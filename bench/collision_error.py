@@ -36,6 +36,7 @@ from annotator.config import ObjectConfig
 from annotator.objects import ObjectError, discover_objects, load_object
 from annotator.objects.collision_ladder import budget_factor
 from annotator.objects.fidelity import collision_error
+from bench.arguments import Parser, existing_folder, number, writable_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,16 +56,18 @@ def before(model) -> list[trimesh.Trimesh]:
     return [p for p in parts if p.volume > 0]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
     ap.add_argument("--only", nargs="*", default=[], help="object id globs")
-    ap.add_argument("--cache", type=Path, default=None, help="decomposition cache (default: a fresh one)")
+    ap.add_argument(
+        "--cache", type=writable_folder, default=None, help="decomposition cache (default: a fresh one)"
+    )
     ap.add_argument("--before", action=argparse.BooleanOptionalAction, default=None)
-    ap.add_argument("--scale", type=float, default=None)
+    ap.add_argument("--scale", type=number(0.0, 1000.0, low_open=True), default=None)
     ap.add_argument(
         "--first-cut-share",
-        type=float,
+        type=number(0.0, 1.0, low_open=True),
         default=None,
         help="coacd_first_cut_share of the budget for CoACD on the mesh as it is (default: the config's)",
     )
@@ -74,7 +77,11 @@ def main() -> None:
         default=None,
         help="budget_basis of the decomposition budget (default: the config's)",
     )
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     with_before = args.before if args.before is not None else args.objects.resolve() == ROOT / "objects"
     config = ObjectConfig()
     if args.first_cut_share is not None:

@@ -14,9 +14,9 @@ import math
 import re
 import sys
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 from typing import Any
 
+from bench.arguments import Parser, existing_folder, writable_file
 from bench.harness import RESULTS, ROOT, newest, read_records, record_key
 
 OUT = ROOT / "docs" / "performance.md"
@@ -222,12 +222,16 @@ def render(records: Mapping[str, Mapping[str, Any]]) -> str:
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--results", type=Path, default=RESULTS, help="the records' folder")
-    ap.add_argument("--out", type=Path, default=OUT)
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--results", type=existing_folder, default=RESULTS, help="the records' folder")
+    ap.add_argument("--out", type=writable_file, default=OUT)
     ap.add_argument("--check", action="store_true", help="compare with --out instead of writing it")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
     try:
         text = render(newest(read_records(args.results)))
     except ValueError as exc:

@@ -18,7 +18,6 @@ its stage and what was hit; asserts nothing.
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from annotator.dataset import load_labels
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, existing_folder, number
 from bench.harness import ROOT, Run
 
 STEP = 0.0005  # m, the shift's search step along the TCP's y
@@ -87,13 +87,21 @@ def off_centre(labels: pd.DataFrame, folder: Path, objects: Path, miss: float) -
     return pd.DataFrame(rows)
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    ap.add_argument(
+        "--n", type=count(1, N_MAX), default=40, help="candidates per object to find successes among"
+    )
+    ap.add_argument(
+        "--miss", type=number(0.0, 0.1), default=0.003, help="m the TCP's line misses the object by"
+    )
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=2)
+    return ap
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
-    ap.add_argument("--n", type=int, default=40, help="candidates per object to find successes among")
-    ap.add_argument("--miss", type=float, default=0.003, help="m the TCP's line misses the object by")
-    ap.add_argument("--workers", type=int, default=2)
-    args = ap.parse_args()
+    args = parser().parse_args()
     with Run("evaluate_pads", config={k: str(v) for k, v in vars(args).items()}) as record:
         with tempfile.TemporaryDirectory() as tmp:
             work = Path(tmp)

@@ -45,6 +45,7 @@ from annotator.pipeline.simulate import object_candidates
 from annotator.pipeline.tasks import GivenGrasps, Span, SpanTask
 from annotator.sim.hand import max_width
 from bench._variants import parse_variant
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, existing_folder, seed, writable_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -200,12 +201,14 @@ def width_outliers(a: pd.DataFrame, b: pd.DataFrame, a_name: str, b_name: str) -
     )
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
-    ap.add_argument("--per-object", type=int, default=110, help="candidates per object (10 objects)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    ap.add_argument(
+        "--per-object", type=count(1, N_MAX), default=110, help="candidates per object (10 objects)"
+    )
+    ap.add_argument("--seed", type=seed, default=0)
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=os.cpu_count() or 1)
     ap.add_argument("--variant", action="append", default=[], help="NAME:FIELD=VALUE[,FIELD=VALUE]")
     ap.add_argument(
         "--baseline",
@@ -213,7 +216,7 @@ def main() -> None:
         help="FIELD=VALUE[,...]: the model the variants are compared with, and whose thorough protocol is "
         "the reference, when it is not the current default (e.g. the previous default after a change)",
     )
-    ap.add_argument("--cache", type=Path, default=default_cache_dir() / "fidelity")
+    ap.add_argument("--cache", type=writable_folder, default=default_cache_dir() / "fidelity")
     ap.add_argument("--no-cache", action="store_true", help="neither read nor write cached labels")
     ap.add_argument(
         "--no-reference",
@@ -225,7 +228,11 @@ def main() -> None:
         action="store_true",
         help="recompute the default (and the reference if the default changed)",
     )
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} (1 min)")
     default = parse_variant(args.baseline)[1] if args.baseline else AnnotatorConfig()
     with Run("fidelity", config=vars(args), annotator=default) as run:

@@ -12,7 +12,6 @@ per CPU-second, and the ratio of candidates per second to the RG2's in that roun
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from annotator.grippers import load_gripper
 from annotator.objects import discover_objects
 from annotator.pipeline.tasks import Span, SpanTask
 from annotator.pipeline.worker import label_span
+from bench.arguments import N_MAX, REPEAT_MAX, Parser, count, existing_folder
 from bench.harness import Run
 
 GRIPPERS = ("rg2", "panda", "robotiq_2f85")
@@ -41,12 +41,18 @@ def label_all(sources, gripper, n: int, config: AnnotatorConfig) -> tuple[float,
     return time.process_time() - cpu0, rows, simulated
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=count(1, N_MAX), default=100, help="candidates per object")
+    ap.add_argument("--rounds", type=count(1, REPEAT_MAX), default=2)
+    ap.add_argument(
+        "--objects", type=existing_folder, default=Path(__file__).resolve().parents[1] / "objects"
+    )
+    return ap
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--n", type=int, default=100, help="candidates per object")
-    parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--objects", type=Path, default=Path(__file__).resolve().parents[1] / "objects")
-    args = parser.parse_args()
+    args = parser().parse_args()
     sources = discover_objects(args.objects)
     config = AnnotatorConfig()
     label_all(sources, "rg2", 2, config)  # objects decomposed (cached) before any timing

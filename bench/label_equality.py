@@ -39,6 +39,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, existing_folder, writable_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,22 +153,28 @@ def _install_commit(install: Path) -> str:
     return head.stdout.strip() or "unknown commit"
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
-        "--versus-install", type=Path, required=True, help="DIR: the other version, with DIR/.venv"
+        "--versus-install", type=existing_folder, required=True, help="DIR: the other version, with DIR/.venv"
     )
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
     ap.add_argument(
         "--runs", nargs="+", choices=sorted(RUNS), default=list(RUNS), help="which runs [default: all]"
     )
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--evaluate-n", type=int, default=8, help="grasps per object evaluated")
-    ap.add_argument("--cache", type=Path, help="RG2_CACHE_DIR of this version's runs")
-    ap.add_argument("--versus-cache", type=Path, help="RG2_CACHE_DIR of the other version's runs")
-    ap.add_argument("--keep", type=Path, help="keep (and resume) this version's outputs here")
-    ap.add_argument("--versus-keep", type=Path, help="keep (and resume) the other version's outputs here")
-    args = ap.parse_args()
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=2)
+    ap.add_argument("--evaluate-n", type=count(1, N_MAX), default=8, help="grasps per object evaluated")
+    ap.add_argument("--cache", type=writable_folder, help="RG2_CACHE_DIR of this version's runs")
+    ap.add_argument("--versus-cache", type=writable_folder, help="RG2_CACHE_DIR of the other version's runs")
+    ap.add_argument("--keep", type=writable_folder, help="keep (and resume) this version's outputs here")
+    ap.add_argument(
+        "--versus-keep", type=writable_folder, help="keep (and resume) the other version's outputs here"
+    )
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     versus_bin = _installed_bin(args.versus_install)
     commit = _install_commit(args.versus_install)
     tmp = Path(tempfile.mkdtemp(prefix="label_equality-"))

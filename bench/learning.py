@@ -223,7 +223,7 @@ def targets(rows: list[dict]) -> list[str]:
     return out
 
 
-def main() -> None:
+def parser() -> Parser:
     parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--train-objects",
@@ -279,14 +279,19 @@ def main() -> None:
         default=None,
         help="a model trained already (--keep of a --rounds 0 run): no training",
     )
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    ap = parser()
+    args = ap.parse_args()
     if args.model is not None:
         from annotator.learn.model import load_model
 
         try:
             load_model(str(args.model))
         except ValueError as exc:
-            parser.error(f"--model: {exc}")
+            ap.error(f"--model: {exc}")
     recorded = {k: str(v) for k, v in vars(args).items()}
     with Run("learning", config=recorded) as record, tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)

@@ -22,14 +22,21 @@ import statistics
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # as the decomposition children run
 
 from annotator.objects import machine_speed  # noqa: E402
+from bench.arguments import REPEAT_MAX, Parser, count
 from bench.harness import Run  # noqa: E402
 from bench.reference import free_step  # noqa: E402
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--cuts", type=count(1, REPEAT_MAX), default=5, help="reference cuts timed in this process"
+    )
+    return ap
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cuts", type=int, default=5, help="reference cuts timed in this process")
-    args = ap.parse_args()
+    args = parser().parse_args()
     with Run("machine_speed", config=vars(args)) as run:
         seconds = machine_speed.reference_cut_seconds(args.cuts)
         factor = machine_speed.speed_factor()

@@ -27,6 +27,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench.arguments import Parser, count
 from bench.harness import Run
 
 CHILD = r"""
@@ -77,11 +78,15 @@ def measure_one(path: Path, cache: Path) -> dict:
     return result
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--faces", type=int, nargs="+", default=[20_000, 200_000, 2_000_000])
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--faces", type=count(100, 50_000_000), nargs="+", default=[20_000, 200_000, 2_000_000])
     ap.add_argument("--format", choices=["stl", "obj"], default="stl")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     with Run("memory", config=vars(args)) as run:
         measure(args, run)
 

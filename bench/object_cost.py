@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 import trimesh
 
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, writable_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -118,14 +119,21 @@ def annotate(objects: Path, n: int, out: Path, cache: Path, workers: int, code: 
     return dataclasses.replace(got, steps=steps)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=int, default=2000)
-    ap.add_argument("--few", type=int, default=20, help="objects of the comparison run")
-    ap.add_argument("--n", type=int, default=5, help="candidates per object of the many-object runs")
-    ap.add_argument("--workers", type=int, default=2)
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=count(1, 1_000_000), default=2000)
+    ap.add_argument("--few", type=count(1, 1_000_000), default=20, help="objects of the comparison run")
+    ap.add_argument(
+        "--n", type=count(1, N_MAX), default=5, help="candidates per object of the many-object runs"
+    )
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=2)
     ap.add_argument("--before", default=None, help="a commit to measure the cold and warm runs on as well")
-    ap.add_argument("--tmp", type=Path, default=None, help="where the temporary folders go")
+    ap.add_argument("--tmp", type=writable_folder, default=None, help="where the temporary folders go")
+    return ap
+
+
+def main() -> None:
+    ap = parser()
     args = ap.parse_args()
     if (args.n * args.objects) % args.few:
         ap.error("--n x --objects must be a multiple of --few (the same candidates on fewer objects)")

@@ -69,6 +69,17 @@ from pathlib import Path
 from annotator.config import AnnotatorConfig, ObjectConfig
 from annotator.objects.collision_ladder import budget_factor
 from annotator.objects.machine_speed import FACTOR_ENV
+from bench.arguments import (
+    N_MAX,
+    REPEAT_MAX,
+    WORKERS_MAX,
+    Parser,
+    count,
+    existing_folder,
+    number,
+    writable_file,
+    writable_folder,
+)
 from bench.harness import Run
 from bench.reference import free_step
 
@@ -702,22 +713,38 @@ def stage(args, work: Path) -> dict[str, Path]:
     return sets
 
 
-def parse(argv: list[str] | None = None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--ycb", type=Path, help="folder of YCB meshes (*.stl, *.stl.gz)")
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--ycb", type=existing_folder, help="folder of YCB meshes (*.stl, *.stl.gz)")
     ap.add_argument("--pybullet-data", action="store_true", help="pybullet_data's object URDFs")
     ap.add_argument("--samples", action="store_true", help="the shipped sample objects")
     ap.add_argument("--only", nargs="*", default=[], help="globs of set/object_id to load (part 1)")
     ap.add_argument("--phases", nargs="*", default=["cold", "warm"], choices=["cold", "warm"])
-    ap.add_argument("--timeout", type=float, default=3600.0, help="wall seconds per load (the bench's own)")
-    ap.add_argument("--json", type=Path, help="append one JSON line per load here (for --compare)")
+    ap.add_argument(
+        "--timeout",
+        type=number(0.0, 86_400.0, low_open=True),
+        default=3600.0,
+        help="wall seconds per load (the bench's own)",
+    )
+    ap.add_argument("--json", type=writable_file, help="append one JSON line per load here (for --compare)")
     ap.add_argument("--cold-start", default=None, help="set of part 2 [default: ycb, else the first]; none")
-    ap.add_argument("--cold-n", type=int, default=10, help="candidates per object in the cold-start runs")
-    ap.add_argument("--n", type=int, default=50, help="candidates per object of the warm runs (0: skip)")
-    ap.add_argument("--workers", type=int, default=2, help="workers of the warm runs")
-    ap.add_argument("--repeat", type=int, default=2, help="warm runs of each code")
+    ap.add_argument(
+        "--cold-n", type=count(1, N_MAX), default=10, help="candidates per object in the cold-start runs"
+    )
+    ap.add_argument(
+        "--n", type=count(0, N_MAX), default=50, help="candidates per object of the warm runs (0: skip)"
+    )
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=2, help="workers of the warm runs")
+    ap.add_argument("--repeat", type=count(1, REPEAT_MAX), default=2, help="warm runs of each code")
     ap.add_argument("--baseline", help="a commit whose code the warm runs alternate with (e.g. main)")
-    ap.add_argument("--keep", type=Path, help="stage the sets and caches here instead of a temp folder")
+    ap.add_argument(
+        "--keep", type=writable_folder, help="stage the sets and caches here instead of a temp folder"
+    )
+    return ap
+
+
+def parse(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = parser()
     args = ap.parse_args(argv)
     if not (args.ycb or args.pybullet_data or args.samples):
         ap.error("give at least one set: --ycb DIR, --pybullet-data, --samples")

@@ -54,7 +54,6 @@ attempts each); both above vision-random by >= 10 points of percent cleared on p
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import math
@@ -74,6 +73,16 @@ import trimesh
 
 from annotator.config import AnnotatorConfig
 from bench import vgn_policy
+from bench.arguments import (
+    WORKERS_MAX,
+    Parser,
+    count,
+    existing_file,
+    existing_folder,
+    number,
+    seed,
+    writable_folder,
+)
 from bench.harness import Run
 from bench.vgn_policy import ROS_STAND_INS
 
@@ -847,41 +856,66 @@ def targets(rows: list[dict]) -> list[str]:
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> Parser:
+    parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--vgn", type=Path, required=True, help="a checkout of ethz-asl/vgn (branch corl2020)"
+        "--vgn", type=existing_folder, required=True, help="a checkout of ethz-asl/vgn (branch corl2020)"
     )
-    parser.add_argument("--vgn-python", type=Path, required=True, help="the Python that runs VGN")
+    parser.add_argument("--vgn-python", type=existing_file, required=True, help="the Python that runs VGN")
     parser.add_argument("--quick", action="store_true", help="every step, small (under 20 minutes)")
     parser.add_argument(
-        "--grasps", type=int, default=None, help="VGN's --num-grasps (default 3600; quick 240)"
+        "--grasps",
+        type=count(1, 10_000_000),
+        default=None,
+        help="VGN's --num-grasps (default 3600; quick 240)",
     )
     parser.add_argument(
-        "--per-family", type=int, default=None, help="training objects per family (4; quick 1)"
+        "--per-family", type=count(1, 10_000), default=None, help="training objects per family (4; quick 1)"
     )
-    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default 3; quick 1)")
-    parser.add_argument("--batch-size", type=int, default=None, help="default VGN's 32; quick 2")
     parser.add_argument(
-        "--val-split", type=float, default=None, help="train_vgn.py's validation share (VGN's 0.1; quick 0.5)"
+        "--epochs", type=count(1, 10_000), default=None, help="training epochs (default 3; quick 1)"
     )
-    parser.add_argument("--rounds", type=int, default=None, help="clutter rounds per network (40; quick 2)")
     parser.add_argument(
-        "--oracle-rounds", type=int, default=None, help="the labels oracle's rounds (20; quick 1)"
+        "--batch-size", type=count(1, 100_000), default=None, help="default VGN's 32; quick 2"
     )
-    parser.add_argument("--views", type=int, default=3, help="our scenes' depth views, labels and policies")
+    parser.add_argument(
+        "--val-split",
+        type=number(0.0, 1.0, low_open=True, high_open=True),
+        default=None,
+        help="train_vgn.py's validation share (VGN's 0.1; quick 0.5)",
+    )
+    parser.add_argument(
+        "--rounds", type=count(1, 100_000), default=None, help="clutter rounds per network (40; quick 2)"
+    )
+    parser.add_argument(
+        "--oracle-rounds",
+        type=count(1, 100_000),
+        default=None,
+        help="the labels oracle's rounds (20; quick 1)",
+    )
+    parser.add_argument(
+        "--views", type=count(1, 100), default=3, help="our scenes' depth views, labels and policies"
+    )
     parser.add_argument("--arrangements", nargs="+", default=["pile", "packed"], choices=["pile", "packed"])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=1, help="annotate's and our clutter loop's workers")
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument(
-        "--threads", type=int, default=1, help="torch threads in VGN's training and detection"
+        "--workers", type=count(1, WORKERS_MAX), default=1, help="annotate's and our clutter loop's workers"
     )
-    parser.add_argument("--nice", type=int, default=15, help="niceness of every subprocess")
+    parser.add_argument(
+        "--threads", type=count(1, 1024), default=1, help="torch threads in VGN's training and detection"
+    )
+    parser.add_argument("--nice", type=count(0, 19), default=15, help="niceness of every subprocess")
     parser.add_argument(
         "--serial", dest="parallel", action="store_false", help="train the two networks one after the other"
     )
-    parser.add_argument("--work", type=Path, default=None, help="working folder (default: a temporary one)")
-    args = parser.parse_args()
+    parser.add_argument(
+        "--work", type=writable_folder, default=None, help="working folder (default: a temporary one)"
+    )
+    return parser
+
+
+def main() -> None:
+    args = parser().parse_args()
     quick = {"grasps": 240, "per_family": 1, "epochs": 1, "batch_size": 2, "val_split": 0.5, "rounds": 2,
              "oracle_rounds": 1}  # fmt: skip
     full = {"grasps": 9600, "per_family": 4, "epochs": 3, "batch_size": 32, "val_split": 0.1, "rounds": 40,

@@ -96,6 +96,7 @@ from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial
 from bench._variants import parse_variant
+from bench.arguments import N_MAX, REPEAT_MAX, Parser, count, seed
 from bench.harness import Run
 from bench.reference import FreeStep, free_step
 
@@ -765,11 +766,15 @@ def take_turns(tools: list[Tool], work: Work) -> tuple[dict[str, Tally], dict[tu
     return tallies, by_object
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--per-object", type=int, default=100, help="candidates per object (3 objects)")
-    ap.add_argument("--rounds", type=int, default=2, help="repeat the whole set this many times")
-    ap.add_argument("--seed", type=int, default=0)
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--per-object", type=count(1, N_MAX), default=100, help="candidates per object (3 objects)"
+    )
+    ap.add_argument(
+        "--rounds", type=count(1, REPEAT_MAX), default=2, help="repeat the whole set this many times"
+    )
+    ap.add_argument("--seed", type=seed, default=0)
     ap.add_argument(
         "--variant",
         action="append",
@@ -777,7 +782,11 @@ def main() -> None:
         help="also run ours with FIELD=VALUE[,FIELD=VALUE] (repeatable)",
     )
     ap.add_argument("--no-peers", action="store_true", help="only ours and its variants")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     logging.basicConfig(level=logging.WARNING)
     config = AnnotatorConfig()
     with Run("peers", config=vars(args), annotator=config) as run, tempfile.TemporaryDirectory() as tmp:

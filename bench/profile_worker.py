@@ -34,6 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from annotator.sim.world import World
+from bench.arguments import N_MAX, REPEAT_MAX, WORKERS_MAX, Parser, count, existing_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -146,15 +147,19 @@ class Shares:
         return 1 - self.inside / max(1, self.in_span)
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    ap.add_argument("--n", type=count(1, N_MAX), default=100)
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=os.cpu_count() or 1)
+    ap.add_argument("--rate", type=count(1, 10_000), default=250, help="samples per second per process")
+    ap.add_argument("--repeat", type=count(1, REPEAT_MAX), default=2)
+    ap.add_argument("--top", type=count(0, 1000), default=12, help="functions outside stepSimulation to list")
+    return ap
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
-    ap.add_argument("--n", type=int, default=100)
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--rate", type=int, default=250, help="samples per second per process")
-    ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--top", type=int, default=12, help="functions outside stepSimulation to list")
-    args = ap.parse_args()
+    args = parser().parse_args()
     step_file, step_no = step_line()
 
     def in_step(stack: tuple[str, ...]) -> bool:

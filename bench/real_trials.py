@@ -68,6 +68,15 @@ import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.geometry import matrix_to_quat
+from bench.arguments import (
+    WORKERS_MAX,
+    Parser,
+    count,
+    existing_file,
+    existing_folder,
+    number,
+    writable_folder,
+)
 from bench.harness import ROOT, Run
 from bench.object_sets import YCB_MASSES  # kg, the YCB set's published masses
 
@@ -312,28 +321,41 @@ def data_digest(data: Path) -> str:
     return h.hexdigest()[:8]
 
 
-def main() -> None:  # noqa: C901 - a script: one pass from the data to the record
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=None, help="the trials' folder [default: see above]")
-    ap.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "rg2-real-trials")
+def trials_folder(text: str) -> Path:
+    """An argparse type: a folder holding the trials (its ``trials.csv``)."""
+    folder = existing_folder(text)
+    if not (folder / "trials.csv").is_file():
+        raise argparse.ArgumentTypeError(f"{text}: no trials.csv in it")
+    return folder
+
+
+def parser() -> Parser:
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--data", type=trials_folder, default=None, help="the trials' folder [default: see above]"
+    )
+    ap.add_argument("--work", type=writable_folder, default=Path(tempfile.gettempdir()) / "rg2-real-trials")
     ap.add_argument(
         "--cache",
-        type=Path,
+        type=writable_folder,
         default=None,
         help="the decomposition cache of the bench's runs [default: WORK/cache, never the user's]",
     )
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--bootstrap", type=int, default=2000)
-    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=2)
+    ap.add_argument("--bootstrap", type=count(1, 1_000_000), default=2000)
+    ap.add_argument("--folds", type=count(0, 1000), default=5)
     ap.add_argument(
         "--profile",
-        type=Path,
+        type=existing_file,
         default=None,
         help="apply this frozen profile (a calibrate --fit-ranges file) to the trials, without fitting "
         "anything: its ranges, gate, --trials and p_success mapping and threshold, as a user applies it",
     )
     ap.add_argument(
-        "--explore-trials", type=int, default=64, help="perturbed trials per grasp in the fit's exploration"
+        "--explore-trials",
+        type=count(1, 100_000),
+        default=64,
+        help="perturbed trials per grasp in the fit's exploration",
     )
     ap.add_argument("--no-fit", action="store_true", help="skip the fit of the execution (the longest part)")
     ap.add_argument(
@@ -348,7 +370,10 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
         "protocols (--set) quickly",
     )
     ap.add_argument(
-        "--trials", type=int, default=5, help="--trials of the default ranges' baseline (score, p_success)"
+        "--trials",
+        type=count(1, 100),
+        default=5,
+        help="--trials of the default ranges' baseline (score, p_success)",
     )
     ap.add_argument(
         "--set",
@@ -379,26 +404,26 @@ def main() -> None:  # noqa: C901 - a script: one pass from the data to the reco
     )
     ap.add_argument(
         "--pad-spinning-friction",
-        type=float,
+        type=number(0.0, 1.0),
         default=None,
         help="[gripper] pad_spinning_friction for every simulation, m [default: the description's]; "
         f"{FLAT_PAD_SPINNING:.4f}: the Panda's rubber pad pressed flat (FLAT_PAD_SPINNING)",
     )
     ap.add_argument(
         "--tcp-depth",
-        type=float,
+        type=number(0.0, 1.0),
         default=GRASPA_TCP_DEPTH,
         help="GRASPA's TCP along the Franka hand frame's z, m [default: the data's 0.105]",
     )
+    return ap
+
+
+def main() -> None:  # noqa: C901 - a script: one pass from the data to the record
+    ap = parser()
     args = ap.parse_args()
-    for name in ("workers", "bootstrap", "folds", "explore_trials", "trials"):
-        if getattr(args, name) < (0 if name == "folds" else 1):
-            sys.exit(f"bench.real_trials: --{name.replace('_', '-')} must be a positive number")
-    if args.profile is not None and not args.profile.is_file():
-        sys.exit(f"bench.real_trials: no profile at {args.profile}")
     data = args.data or default_data()
-    if data is None or not (data / "trials.csv").is_file():
-        sys.exit(f"bench.real_trials: no trials.csv in {data or 'the default places'}; pass --data FOLDER")
+    if data is None:
+        ap.error("no trials.csv in the default places; pass --data FOLDER")
     args.work.mkdir(parents=True, exist_ok=True)
     args.cache = (args.cache or args.work / "cache").resolve()
     os.environ["RG2_CACHE_DIR"] = str(args.cache)  # this process's workers and every command it runs

@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from bench.arguments import Parser, count, writable_file, writable_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -589,31 +590,55 @@ def store_bench(args) -> None:
                 run.figure("annotate_resume_main_cpu_s", again["cpu_s"], "s", note="main process, full run")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="what", required=True)
+def sizes(text: str) -> str:
+    """An argparse type: object counts, comma-separated, each 1 .. 10,000,000 (kept as the text)."""
+    for part in text.split(","):
+        count(1, 10_000_000)(part.strip())
+    return text
+
+
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="what", required=True, parser_class=Parser)
     f = sub.add_parser("folder")
-    f.add_argument("--objects", type=int, default=2000)
-    f.add_argument("--run", type=int, default=0, help="then annotate --n 1 on this many of them")
-    f.add_argument("--log", type=Path, default=None, help="write annotate's whole output here")
+    f.add_argument("--objects", type=count(1, 10_000_000), default=2000)
+    f.add_argument(
+        "--run", type=count(0, 10_000_000), default=0, help="then annotate --n 1 on this many of them"
+    )
+    f.add_argument("--log", type=writable_file, default=None, help="write annotate's whole output here")
     b = sub.add_parser("big-mesh")
     w = sub.add_parser("write-torus")
-    w.add_argument("path")
+    w.add_argument("path", type=writable_file)
     for p in (b, w):
-        p.add_argument("--major", type=int, default=2000)
-        p.add_argument("--minor", type=int, default=500)
+        p.add_argument("--major", type=count(3, 100_000), default=2000)
+        p.add_argument("--minor", type=count(3, 100_000), default=500)
     st = sub.add_parser("store")
     st.add_argument(
-        "--sizes", default="1000,10000", help="object counts, comma-separated (e.g. 1000,10000,100000)"
+        "--sizes",
+        type=sizes,
+        default="1000,10000",
+        help="object counts, comma-separated (e.g. 1000,10000,100000)",
     )
-    st.add_argument("--annotate", type=int, default=0, help="also run annotate --n 1 on this many objects")
     st.add_argument(
-        "--tmp", type=Path, default=None, help="where the temporary folders go (default: the system's)"
+        "--annotate",
+        type=count(0, 10_000_000),
+        default=0,
+        help="also run annotate --n 1 on this many objects",
+    )
+    st.add_argument(
+        "--tmp",
+        type=writable_folder,
+        default=None,
+        help="where the temporary folders go (default: the system's)",
     )
     one = sub.add_parser("store-one")
-    one.add_argument("--objects", type=int, required=True)
-    one.add_argument("--tmp", type=Path, default=None)
-    args = ap.parse_args()
+    one.add_argument("--objects", type=count(1, 10_000_000), required=True)
+    one.add_argument("--tmp", type=writable_folder, default=None)
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     modes = {"folder": folder, "big-mesh": big_mesh, "write-torus": write_torus, "store": store_bench}
     {**modes, "store-one": store_one}[args.what](args)
 

@@ -25,7 +25,6 @@ and clutter removal on the UR3 with the labels policy and the random baseline.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import subprocess
@@ -39,6 +38,7 @@ import pandas as pd
 
 from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, existing_folder, seed, writable_folder
 from bench.harness import Run
 from bench.reference import free_step, median_step
 
@@ -352,24 +352,33 @@ def clutter(args, record: Run) -> None:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> Parser:
+    parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--parts",
         nargs="+",
         default=["throughput", "collisions", "clutter"],
         choices=["throughput", "collisions", "clutter"],
     )
-    parser.add_argument("--objects", type=Path, default=ROOT / "objects")
-    parser.add_argument("--scenes", type=int, default=20, help="throughput: pile scenes of 5")
-    parser.add_argument("--n", type=int, default=120, help="throughput: grasps per scene")
-    parser.add_argument("--rounds", type=int, default=30, help="clutter: rounds per policy and object set")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=None)
-    parser.add_argument("--keep", type=Path, default=None, help="keep the throughput run's labels here")
-    args = parser.parse_args()
+    parser.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    parser.add_argument("--scenes", type=count(1, 1_000_000), default=20, help="throughput: pile scenes of 5")
+    parser.add_argument("--n", type=count(1, N_MAX), default=120, help="throughput: grasps per scene")
+    parser.add_argument(
+        "--rounds", type=count(1, 100_000), default=30, help="clutter: rounds per policy and object set"
+    )
+    parser.add_argument("--seed", type=seed, default=0)
+    parser.add_argument("--workers", type=count(1, WORKERS_MAX), default=None)
+    parser.add_argument(
+        "--keep", type=writable_folder, default=None, help="keep the throughput run's labels here"
+    )
+    return parser
+
+
+def main() -> None:
+    ap = parser()
+    args = ap.parse_args()
     if "collisions" in args.parts and "throughput" not in args.parts and args.keep is None:
-        parser.error("collisions checks the throughput run's labels: run both, or give --keep DIR of one")
+        ap.error("collisions checks the throughput run's labels: run both, or give --keep DIR of one")
     config = AnnotatorConfig()
     with (
         Run("scenes", config={k: str(v) for k, v in vars(args).items()}, annotator=config) as record,

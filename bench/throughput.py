@@ -50,6 +50,16 @@ import numpy as np
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
 from annotator.pipeline.run import ObjectOptions, RunOptions, run
+from bench.arguments import (
+    N_MAX,
+    REPEAT_MAX,
+    WORKERS_MAX,
+    Parser,
+    count,
+    existing_file,
+    existing_folder,
+    writable_folder,
+)
 from bench.harness import Run
 from bench.reference import FreeStep, free_step, median_step
 
@@ -195,26 +205,41 @@ def main_command(
         return MainCommand(first if first is not None else total, total, cpu, text.strip().splitlines()[-1])
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
-    ap.add_argument("--n", type=int, default=200, help="N of the in-process run (0: skip)")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--scaling-n", type=int, default=80, help="candidates per object for 1 vs 2 workers")
-    ap.add_argument("--main-n", type=int, default=500, help="N of the README main command (0: skip)")
-    ap.add_argument("--modes-n", type=int, default=100, help="candidates per object for the modes (0: skip)")
-    ap.add_argument("--repeat", type=int, default=3, help="runs of each mode and of the main command")
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    ap.add_argument("--n", type=count(0, N_MAX), default=200, help="N of the in-process run (0: skip)")
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=os.cpu_count() or 1)
+    ap.add_argument(
+        "--scaling-n", type=count(0, N_MAX), default=80, help="candidates per object for 1 vs 2 workers"
+    )
+    ap.add_argument(
+        "--main-n", type=count(0, N_MAX), default=500, help="N of the README main command (0: skip)"
+    )
+    ap.add_argument(
+        "--modes-n", type=count(0, N_MAX), default=100, help="candidates per object for the modes (0: skip)"
+    )
+    ap.add_argument(
+        "--repeat", type=count(1, REPEAT_MAX), default=3, help="runs of each mode and of the main command"
+    )
     ap.add_argument("--modes-only", action="store_true", help="only compare floating, --cell, --views 1")
-    ap.add_argument("--config", type=Path, help="a --config FILE.toml for every run (default: none)")
-    ap.add_argument("--versus", type=Path, help="FILE.toml: main command runs alternate with this config")
+    ap.add_argument("--config", type=existing_file, help="a --config FILE.toml for every run (default: none)")
+    ap.add_argument(
+        "--versus", type=existing_file, help="FILE.toml: main command runs alternate with this config"
+    )
     ap.add_argument(
         "--versus-install",
-        type=Path,
+        type=existing_folder,
         help="DIR: a checkout of another version, installed in DIR/.venv; the main command's runs "
         "alternate with its annotate",
     )
-    ap.add_argument("--cache", type=Path, help="RG2_CACHE_DIR of this version's main command runs")
-    ap.add_argument("--versus-cache", type=Path, help="RG2_CACHE_DIR of the --versus-install runs")
+    ap.add_argument("--cache", type=writable_folder, help="RG2_CACHE_DIR of this version's main command runs")
+    ap.add_argument("--versus-cache", type=writable_folder, help="RG2_CACHE_DIR of the --versus-install runs")
+    return ap
+
+
+def main() -> None:
+    ap = parser()
     args = ap.parse_args()
     if args.versus and args.versus_install:
         ap.error("--versus and --versus-install compare one thing each: give one")

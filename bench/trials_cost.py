@@ -26,7 +26,6 @@ asserts nothing.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 from pathlib import Path
@@ -38,6 +37,7 @@ from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
 from annotator.pipeline.tasks import Span, SpanTask
 from annotator.pipeline.worker import label_span
+from bench.arguments import N_MAX, REPEAT_MAX, Parser, count, existing_file, existing_folder
 from bench.harness import ROOT, Run
 
 TRIAL0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
@@ -60,33 +60,37 @@ def label(sources, n: int, trials: int, config: AnnotatorConfig) -> tuple[pd.Dat
     return pd.concat(parts, ignore_index=True), time.process_time() - t0
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
-    ap.add_argument("--n", type=int, default=30, help="candidates per object")
-    ap.add_argument("--trials", type=int, default=5, help="the K compared with --trials 1")
-    ap.add_argument("--repeat", type=int, default=2)
+def parser() -> Parser:
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
+    ap.add_argument("--n", type=count(1, N_MAX), default=30, help="candidates per object")
+    ap.add_argument("--trials", type=count(2, 100), default=5, help="the K compared with --trials 1")
+    ap.add_argument("--repeat", type=count(1, REPEAT_MAX), default=2)
     ap.add_argument(
         "--no-shaken", action="store_true", help="skip the K trials with the perturbed ones shaken too"
     )
-    ap.add_argument("--config", type=Path, default=None, help="a TOML of overrides (annotate --config)")
+    ap.add_argument(
+        "--config", type=existing_file, default=None, help="a TOML of overrides (annotate --config)"
+    )
     ap.add_argument(
         "--profile",
-        type=Path,
+        type=existing_file,
         default=None,
         help="also label at this profile's --trials with the profile (calibrate --fit-ranges), against the "
         "model before (--before) at the same K, in the same run: the price of a fitted execution",
     )
     ap.add_argument(
         "--before",
-        type=Path,
+        type=existing_file,
         default=ROOT / "bench" / "before_stages.toml",
         help="the model before, for --profile's comparison: its changes over --config "
         "[default: bench/before_stages.toml]",
     )
-    args = ap.parse_args()
-    if args.n < 1 or args.trials < 2 or args.repeat < 1:
-        raise SystemExit("bench.trials_cost: --n and --repeat must be at least 1, --trials at least 2")
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     sources = discover_objects(args.objects)
     label(sources, 1, 1, config)  # load (and decompose, cold) every object first

@@ -144,3 +144,154 @@ def test_bench_learning_checks_its_arguments_in_one_line(args, said):
     )
     assert done.returncode == 2 and done.stdout == ""
     assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+# --- every benchmark's arguments --------------------------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[1]
+BENCHES = sorted(
+    ".".join(path.relative_to(REPO / "bench").with_suffix("").parts)
+    for path in [*(REPO / "bench").glob("*.py"), *(REPO / "bench" / "experiments").glob("*.py")]
+    if "add_argument" in path.read_text() and path.stem != "arguments"
+)
+
+
+def _parser(name: str):
+    import importlib
+
+    return importlib.import_module(f"bench.{name}").parser()
+
+
+def _actions(parser):
+    """Every option of ``parser`` and of its subcommands."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _actions(sub)
+        else:
+            yield action
+
+
+@pytest.mark.parametrize("name", BENCHES)
+def test_every_bench_builds_its_options_with_checked_types(name):
+    """Each benchmark's options come from its ``parser()`` (a bench.arguments.Parser: errors are one
+    line): a count, size, fraction or path is one of bench.arguments' types, never a bare
+    ``int``/``float``/``Path`` that takes 0, -1, nan or a missing folder to a traceback later."""
+    from bench.arguments import Parser
+
+    parser = _parser(name)
+    assert isinstance(parser, Parser)
+    bare = [a.option_strings or [a.dest] for a in _actions(parser) if a.type in (int, float, Path)]
+    assert not bare, f"bench.{name}: unchecked {bare}"
+
+
+HERE = str(REPO)
+PY = sys.executable
+
+
+BAD_ARGUMENTS = [  # (bench, arguments, what its one line says)
+    ("cold_start", ["--repeat", "0"], "--repeat: 0 is not in 1 .. 1,000"),
+    ("cold_start", ["--objects", "no/such"], "--objects: no/such: no such folder"),
+    ("collision_error", ["--scale", "0"], "--scale: 0 is not in (0, 1000]"),
+    ("collision_error", ["--first-cut-share", "1.5"], "--first-cut-share: 1.5 is not in (0, 1]"),
+    ("docs", ["--results", "no/such"], "--results: no/such: no such folder"),
+    ("evaluate_pads", ["--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("evaluate_pads", ["--n", "-1"], "--n: -1 is not in 1 .. 1,000,000"),
+    ("evaluate_pads", ["--miss", "nan"], "--miss: nan is not in [0, 0.1]"),
+    ("fidelity", ["--per-object", "0"], "--per-object: 0 is not in 1 .. 1,000,000"),
+    ("fidelity", ["--seed", "-1"], "--seed: -1 is not in 0 .. 9,223,372,036,854,775,807"),
+    ("gripper_speed", ["--n", "-1"], "--n: -1 is not in 1 .. 1,000,000"),
+    ("label_equality", ["--versus-install", "no/such"], "--versus-install: no/such: no such folder"),
+    ("label_equality", ["--versus-install", HERE, "--evaluate-n", "0"], "--evaluate-n: 0 is not in"),
+    (
+        "learning",
+        ["--train-objects", "objects", "--test-objects", "objects", "--workers", "0"],
+        "--workers",
+    ),
+    ("machine_speed", ["--cuts", "0"], "--cuts: 0 is not in 1 .. 1,000"),
+    ("memory", ["--faces", "0"], "--faces: 0 is not in 100 .. 50,000,000"),
+    ("object_cost", ["--few", "0"], "--few: 0 is not in 1 .. 1,000,000"),  # was a ZeroDivisionError
+    ("object_sets", ["--samples", "--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("object_sets", ["--samples", "--timeout", "-1"], "--timeout: -1 is not in (0, 86400]"),
+    ("object_sets", ["--ycb", "no/such"], "--ycb: no/such: no such folder"),
+    ("object_sets", ["--samples", "--json", "objects"], "--json: objects: is a folder"),
+    ("peer_network", ["--vgn", "no/such", "--vgn-python", PY], "--vgn: no/such: no such folder"),
+    (
+        "peer_network",
+        ["--vgn", HERE, "--vgn-python", PY, "--val-split", "1"],
+        "--val-split: 1 is not in (0, 1)",
+    ),
+    ("peer_network", ["--vgn", HERE, "--vgn-python", HERE], f"--vgn-python: {HERE}: not a file"),
+    ("peers", ["--per-object", "0"], "--per-object: 0 is not in 1 .. 1,000,000"),
+    ("profile_worker", ["--rate", "0"], "--rate: 0 is not in 1 .. 10,000"),
+    ("real_trials", ["--data", "no/such"], "--data: no/such: no such folder"),
+    ("real_trials", ["--data", "objects"], "--data: objects: no trials.csv in it"),
+    ("real_trials", ["--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("real_trials", ["--folds", "-1"], "--folds: -1 is not in 0 .. 1,000"),
+    ("real_trials", ["--profile", "no.toml"], "--profile: no.toml: no such file"),
+    ("scale", ["folder", "--objects", "0"], "--objects: 0 is not in 1 .. 10,000,000"),
+    ("scale", ["store", "--sizes", "10,-1"], "--sizes: -1 is not in 1 .. 10,000,000"),
+    ("scenes", ["--scenes", "0"], "--scenes: 0 is not in 1 .. 1,000,000"),
+    ("scenes", ["--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("throughput", ["--repeat", "0"], "--repeat: 0 is not in 1 .. 1,000"),
+    ("throughput", ["--config", "no.toml"], "--config: no.toml: no such file"),
+    ("trials_cost", ["--trials", "1"], "--trials: 1 is not in 2 .. 100"),
+    ("trials_cost", ["--n", "-1"], "--n: -1 is not in 1 .. 1,000,000"),
+    ("experiments.arm_agreement", ["--labels", "no/such"], "--labels: no/such: no such folder"),
+    ("experiments.evaluate_replay", ["--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("experiments.gripper_coupling", ["--mass", "0"], "--mass: 0 is not in (0, 100]"),
+    ("experiments.light_objects", ["--grams", "4", "-1"], "--grams: -1 is not in (0, 100000]"),
+    ("experiments.light_threshold", ["--jobs", "0"], "--jobs: 0 is not in 1 .. 1,024"),
+    ("experiments.scene_substeps", ["--per-scene", "0"], "--per-scene: 0 is not in 1 .. 253"),
+    ("experiments.ur3_ik", ["--n", "0"], "--n: 0 is not in 1 .. 10,000,000"),
+    ("experiments.widths", ["--seed", "x"], "--seed: 'x' is not a whole number"),
+]
+
+
+@pytest.mark.parametrize("name, args, said", BAD_ARGUMENTS)
+def test_a_bad_bench_argument_is_one_line_and_exit_2(name, args, said, capsys, monkeypatch):
+    """Each benchmark's counts, sizes, fractions and paths are checked as argparse reads them:
+    --workers 0, --n -1, a missing --data folder end in one line, exit 2, before any work (they
+    were accepted, or a traceback later)."""
+    monkeypatch.chdir(REPO)
+    with pytest.raises(SystemExit) as exit_:
+        _parser(name).parse_args(args)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2
+    assert said in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_every_bench_with_arguments_has_a_bad_value_above():
+    assert "experiments.widths" in BENCHES and "learning" in BENCHES
+    covered = {name for name, _, _ in BAD_ARGUMENTS}
+    assert covered == set(BENCHES), sorted(set(BENCHES) ^ covered)
+
+
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["bench.real_trials", "--data", "no/such"], "real_trials.py: error: argument --data: no/such"),
+        (["bench.object_cost", "--few", "0"], "object_cost.py: error: argument --few: 0 is not in"),
+    ],
+)
+def test_a_bad_bench_argument_from_the_command_line_is_one_line(args, said):
+    """As run (``python -m bench.NAME``): one line on stderr, nothing on stdout, exit 2."""
+    done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=REPO)
+    assert done.returncode == 2 and done.stdout == "", done.stderr
+    assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+@pytest.mark.parametrize("name", BENCHES)
+def test_every_bench_s_default_folders_exist(name):
+    """A default objects folder is the repository's (three experiments looked in bench/objects)."""
+    missing = [
+        f"{a.dest}={a.default}"
+        for a in _actions(_parser(name))
+        if a.type is not None
+        and getattr(a.type, "__name__", "") == "existing_folder"
+        and isinstance(a.default, Path)
+        and not a.default.is_dir()
+    ]
+    assert not missing

@@ -17,7 +17,7 @@ from annotator.config import AnnotatorConfig
 from annotator.dataset import load_labels, mode_errors, poses_as_matrices
 from annotator.geometry import Transform
 from annotator.seed_scene import SeedSceneConfig, build_scene
-from annotator.seed_scene.capture import Capturer, capture_now, load_capture_object
+from annotator.seed_scene.capture import Candidate, Capturer, capture_now, load_capture_object
 from annotator.seed_scene.demo import CUBE_SIZE
 from annotator.sim.world import World
 
@@ -170,3 +170,66 @@ def test_enter_key_captures_in_the_gui(tmp_path):
     assert out.exists(), f"no capture after {time.monotonic() - t0:.0f} s: {log[-2000:]}"
     assert "capture cube_small #0" in log
     assert load_labels(out).shape[0] >= 1
+
+
+def _top_grasp(model) -> Candidate:
+    """A top-down grasp across the middle of ``model`` (the seed's cube), at its extent."""
+    width = float(np.ptp(np.asarray(model.mesh.vertices)[:, 0]))
+    return Candidate(Transform.from_rotation(np.diag([1.0, -1.0, -1.0]), np.zeros(3)), width, True)
+
+
+def test_a_capture_file_is_an_output_appended_only_when_this_tool_wrote_it(tmp_path):
+    """--capture-out goes through the one output writer: a file the tool did not write, or one edited
+    since, is refused before any capture unless overwrite, which starts it anew; one it wrote is
+    appended to; a second capture of one file at once is refused (it replaced the file and each
+    read the other's rows)."""
+    from annotator.store import LockedError
+    from annotator.store.outputs import OutputRefusedError, written_here
+
+    config = AnnotatorConfig()
+    model = load_capture_object(None, config)
+    out = tmp_path / "captures.parquet"
+    out.write_bytes(b"a user's file")
+    with pytest.raises(OutputRefusedError, match="was not written by this tool; pass --overwrite"):
+        Capturer(model, config, out)
+    assert out.read_bytes() == b"a user's file"
+    capturer = Capturer(model, config, out, overwrite=True)
+    try:
+        with pytest.raises(LockedError, match="is being written by another command"):
+            Capturer(model, config, out, overwrite=True)
+        capturer.capture(_top_grasp(model))  # the user's file replaced, not read
+    finally:
+        capturer.close()
+    assert written_here(out) and load_labels(out)["grasp_id"].tolist() == [0]
+    again = Capturer(model, config, out)  # its own, unchanged: appended to
+    try:
+        again.capture(_top_grasp(model))
+    finally:
+        again.close()
+    assert load_labels(out)["grasp_id"].tolist() == [0, 1]
+    pd.read_parquet(out).iloc[:1].to_parquet(out, index=False)  # edited since: one row removed
+    with pytest.raises(OutputRefusedError, match="has changed since; pass --overwrite"):
+        Capturer(model, config, out)
+    assert len(pd.read_parquet(out)) == 1
+
+
+@pytest.mark.parametrize("option", ["--capture-out", "--screenshot"])
+def test_the_gui_refuses_a_capture_file_or_screenshot_it_did_not_write_before_its_window_opens(
+    option, tmp_path, monkeypatch
+):
+    """Claimed before the window opens: one line, exit 2 (the GUI would need a display)."""
+    from click.testing import CliRunner
+
+    from annotator.cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    path = tmp_path / ("captures.parquet" if option == "--capture-out" else "window.png")
+    path.write_bytes(b"a user's file")
+    args = ["scene", option, str(path), "--seconds", "0.1"]
+    if option == "--screenshot":
+        args += ["--capture-out", str(tmp_path / "captures.parquet")]
+    result = CliRunner().invoke(main, args)
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 2 and len(errors) == 1, result.output
+    assert f"{option} {path} exists and was not written by this tool; pass --overwrite" in errors[0]
+    assert path.read_bytes() == b"a user's file" and "Traceback" not in result.output

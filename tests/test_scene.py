@@ -233,3 +233,30 @@ def test_build_scene_matches_seed_numbers():
         np.testing.assert_allclose(np.median(view.depth[table_px]), 1.562, atol=0.002)
         assert (view.segmentation == scene.cube.uid).any()
         assert len(np.unique(view.color.reshape(-1, 3), axis=0)) > 50
+
+
+@pytest.mark.slow
+@pytest.mark.gui
+def test_gui_replaces_a_users_screenshot_only_with_overwrite(tmp_path):
+    """--screenshot goes through the one output writer: a user's file is refused before the window
+    opens (tests/test_capture.py), and with --overwrite it is replaced by the window's picture,
+    marked as this tool's; the capture file is claimed and released (no lock left)."""
+    if shutil.which("xvfb-run") is None:
+        pytest.skip("xvfb-run is not on PATH (Debian: apt-get install xvfb xauth)")
+    from annotator.store.outputs import written_here
+
+    png = tmp_path / "window.png"
+    png.write_bytes(b"the user's picture")
+    command = [
+        "xvfb-run", "-a", "-s", "-screen 0 640x480x24",
+        sys.executable, "-m", "annotator.seed_scene", "--seconds", "0.5", "--screenshot-at", "0.2",
+        "--screenshot", str(png), "--capture-out", str(tmp_path / "captures.parquet"), "--overwrite",
+    ]  # fmt: skip
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=180)
+    if "Xvfb failed to start" in proc.stderr or "xauth command not found" in proc.stderr:
+        pytest.skip(f"Xvfb cannot start here: {proc.stderr.strip()[-300:]}")
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert f"-> {png}" in proc.stdout and written_here(png)
+    with Image.open(png) as im:
+        assert im.size[0] > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".window.png.rg2-annotator", "window.png"]

@@ -797,3 +797,75 @@ def test_a_resume_on_another_kind_of_machine_says_so_and_records_both(tmp_path):
     again = json.loads((out / "_manifest.json").read_text())
     assert again["versions"]["machine"] == f"{other} | {machine_kind()}"
     assert "another kind of machine" not in run_annotate(*args).output  # both kinds known now
+
+
+def test_a_dask_run_records_each_worker_s_kind_of_machine_and_says_when_they_differ(tmp_path):
+    """A Dask run's labels are made by its workers, not by the command's process: the folder
+    records the kinds of machine its workers report (none of the command's own), and a run whose
+    workers are of two kinds says so in its summary (the same seed can settle a pile differently on
+    each); the record survives a kill (written when a new kind appears, not only at the end)."""
+    from annotator.versions import machine_kind
+
+    here = machine_kind()
+    other = "x86_64, glibc 2.39, libm sse2, numpy AVX512_SKX"
+    store = Store(tmp_path, _spec(), labelled_here=False)
+    store.open()
+    assert "machine" not in store.manifest.versions  # the command's process labels nothing
+    store.note_machine(other, "node-1")
+    assert json.loads((tmp_path / MANIFEST_NAME).read_text())["versions"]["machine"] == other
+    assert store.notes == []  # one kind so far, and nothing labelled before
+    store.note_machine(other, "node-2")  # another worker of the same kind
+    store.note_machine(here, "node-3")
+    assert json.loads((tmp_path / MANIFEST_NAME).read_text())["versions"]["machine"] == f"{other} | {here}"
+    assert store.notes == [
+        f"this run's workers are of 2 kinds of machine ({other} (node-1); {here} (node-3)): the same seed "
+        "can settle a pile differently on them (docs/reliability.md), so scene labels may depend on which "
+        "worker ran them"
+    ]
+    store.close()
+    # a local run's process labels: its kind is recorded as the folder opens, and a worker of that
+    # kind (its own pool's) adds nothing
+    local = _open(tmp_path / "local")
+    assert local.manifest.versions["machine"] == here
+    local.note_machine(here, "this-host")
+    assert local.notes == []
+    local.close()
+
+
+@pytest.mark.slow
+@pytest.mark.cluster
+def test_a_dask_cluster_s_workers_kind_of_machine_is_recorded_not_the_command_s(tmp_path, monkeypatch):
+    """Workers of another kind than the command's machine (glibc's maths without FMA, as
+    GLIBC_TUNABLES selects it in their environment): the manifest records the workers' kind; a
+    resume on the command's machine, whose kind labelled nothing of the folder, says so."""
+    import shutil
+
+    from helpers import run_annotate
+
+    from annotator.versions import machine_kind
+
+    distributed = pytest.importorskip("dask.distributed")
+    here = machine_kind()
+    if ", libm fma," not in here:
+        pytest.skip(f"this machine's C library takes no FMA variant ({here})")
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    shutil.copy(Path(__file__).resolve().parents[1] / "objects" / "box.obj", objects)
+    out = tmp_path / "labels"
+    args = ["--objects", objects, "--n", 4, "--out", out]
+    monkeypatch.setenv("GLIBC_TUNABLES", "glibc.cpu.hwcaps=-AVX2,-FMA")  # the workers' environment
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        workers_kind = cluster.get_client().run(machine_kind).popitem()[1]
+        result = run_annotate(*args, "--scheduler", cluster.scheduler_address)
+    monkeypatch.delenv("GLIBC_TUNABLES")
+    assert workers_kind != here and ", libm fma," not in workers_kind
+    assert "kind of machine" not in result.output  # one kind labelled the folder
+    manifest = json.loads((out / "_manifest.json").read_text())
+    assert manifest["versions"]["machine"] == workers_kind
+    again = run_annotate(*args, "--workers", 1)
+    assert f"labelled so far on another kind of machine ({workers_kind}); this one is {here}" in again.output
+    assert (
+        json.loads((out / "_manifest.json").read_text())["versions"]["machine"] == f"{workers_kind} | {here}"
+    )

@@ -23,6 +23,7 @@ EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 # Seeds are stored as int64 in every label row: larger ones are refused at the command line.
 SEED = click.IntRange(0, 2**63 - 1)
+GRASP_ID = click.IntRange(0, 2**63 - 1)  # a label's grasp_id (int64, never negative)
 
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 # the outcomes, from annotator.outcome (no pandas: `annotator --help` stays fast)

@@ -10,6 +10,7 @@ import numpy as np
 from annotator.cli.common import (
     CACHE_OPTION,
     CONTEXT,
+    GRASP_ID,
     LABELS_GRIPPER_OPTION,
     config_option,
     count_option,
@@ -26,7 +27,7 @@ def _fmt_q(q: np.ndarray) -> str:
 @click.command("replay", context_settings=CONTEXT)
 @click.argument("labels", type=click.Path(path_type=Path, exists=True))
 @click.option("--object", "object_id", required=True, help="The label's object_id.")
-@click.option("--grasp", "grasp_id", required=True, type=int, help="The label's grasp_id.")
+@click.option("--grasp", "grasp_id", required=True, type=GRASP_ID, help="The label's grasp_id.")
 @objects_option(
     default=Path("objects"),
     show_default=True,

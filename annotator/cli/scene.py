@@ -82,10 +82,13 @@ from annotator.cli.common import (
     default=Path("captures.parquet"),
     show_default=True,
     help="GUI: Enter captures the current grasp on the object, runs the label protocol on it and "
-    "appends the row here.",
+    "appends the row here (a file this tool wrote; another is refused unless --overwrite).",
 )
 @GRIPPER_OPTION
-@overwrite_option("Headless: replace a --gif, --png, --kinect-png or --kinect-depth this tool did not write.")
+@overwrite_option(
+    "Replace a --gif, --png, --kinect-png, --kinect-depth or --screenshot this tool did not write (or "
+    "one edited since); a --capture-out it did not write is started anew (one it wrote is appended to)."
+)
 def scene_command(
     headless: bool,
     gif_path: Path | None,
@@ -156,19 +159,21 @@ def scene_command(
     except ObjectError as exc:
         raise click.UsageError(f"--object {object_path}: {exc}") from exc
     scene_obj = obj if object_path is not None else None  # the seed's own cube body otherwise
+    from annotator.tools.common import claim_outputs
+
     if not headless:
         if gif_path or png_path or kinect_path or kinect_depth_path:
             raise click.UsageError("--gif, --png, --kinect-png and --kinect-depth need --headless")
-        capturer = Capturer(obj, labels_config, capture_out, description)
+        gui_outputs = {"--capture-out": capture_out, "--screenshot": screenshot_path}
+        claimed_gui = claim_outputs("annotator scene", gui_outputs, overwrite)  # before the window opens
+        capturer = Capturer(obj, labels_config, capture_out, description, outputs=claimed_gui)
         try:
-            run_gui(config, seconds, screenshot_path, screenshot_at, demo, capturer, scene_obj)
+            run_gui(config, seconds, screenshot_path, screenshot_at, demo, capturer, scene_obj, claimed_gui)
         finally:
             capturer.close()
         return
     if screenshot_path:
         raise click.UsageError("--screenshot is for the GUI; use --png with --headless")
-    from annotator.tools.common import claim_outputs
-
     outputs = {
         "--gif": gif_path,
         "--png": png_path,

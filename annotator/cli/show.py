@@ -9,6 +9,7 @@ import click
 
 from annotator.cli.common import (
     CONTEXT,
+    GRASP_ID,
     LABELS,
     LABELS_GRIPPER_OPTION,
     MAX_PICTURES,
@@ -47,7 +48,7 @@ from annotator.cli.common import (
     help="Only grasps with this outcome (repeat for several).",
 )
 @click.option(
-    "--grasp", "grasp_ids", multiple=True, type=int, help="These grasp ids instead of a random choice."
+    "--grasp", "grasp_ids", multiple=True, type=GRASP_ID, help="These grasp ids instead of a random choice."
 )
 @count_option(
     "--n",

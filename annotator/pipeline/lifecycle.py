@@ -159,9 +159,10 @@ class Collector:
     seconds: dict[str, float] = field(default_factory=dict)
 
     def account(self, result: SpanResult) -> None:
-        """The worker's time and memory, whatever the result."""
+        """The worker's time, memory and kind of machine (recorded by the store), whatever the result."""
         self.summary.peak_rss_mb[result.stats.pid] = result.stats.peak_rss_mb
         self.summary.worker_seconds += result.stats.seconds
+        self.store.note_machine(result.stats.machine, result.stats.host)
 
     def fail(self, unit: str, error: str) -> None:
         """The unit failed: its reason in the summary and the manifest, one line logged."""
@@ -368,7 +369,7 @@ def open_store(options: RunOptions, spec: RunSpec, units: dict[str, str]) -> tup
     """The output folder opened for ``spec`` and reconciled with the run's units of work (object
     or scene id -> digest); returns ``(store, what to resume)``. A folder that cannot be opened or
     reconciled is a usage error."""
-    store = Store(options.out_dir, spec)
+    store = Store(options.out_dir, spec, labelled_here=not options.scheduler)
     try:
         store.open(overwrite=options.overwrite, repair=options.repair)
     except StoreError as exc:

@@ -14,6 +14,7 @@ from annotator.objects import ObjectError
 from annotator.pipeline import status
 from annotator.pipeline.tasks import WorkerStats
 from annotator.store.manifest import bound_versions
+from annotator.versions import machine_kind
 
 # How often (s) a local worker checks that the process that started it is still alive and has not
 # asked it to stop: a worker outlives a killed or interrupted main process by at most this long.
@@ -63,9 +64,10 @@ def check_versions(expected: dict[str, str] | None) -> None:
 
 def task_stats(t0: float, step_seconds: float) -> WorkerStats:
     """A task's worker time since ``t0`` (``time.perf_counter``), of which ``step_seconds`` in
-    stepSimulation, this process's peak memory, its pid and host."""
+    stepSimulation, this process's peak memory, its pid, host and kind of machine."""
     seconds = time.perf_counter() - t0
-    return WorkerStats(seconds, step_seconds, peak_rss_mb(), os.getpid(), socket.gethostname())
+    host = socket.gethostname()
+    return WorkerStats(seconds, step_seconds, peak_rss_mb(), os.getpid(), host, machine_kind())
 
 
 def cpu_seconds() -> float:

@@ -257,13 +257,15 @@ class SceneTask(WorkerTask):
 
 @dataclass(frozen=True)
 class WorkerStats:
-    """Worker time of one span (s), of which inside stepSimulation, peak memory (MB), the worker."""
+    """Worker time of one span (s), of which inside stepSimulation, peak memory (MB), the worker
+    and its kind of machine (:func:`annotator.versions.machine_kind`; "" where none ran)."""
 
     seconds: float
     step_seconds: float
     peak_rss_mb: float
     pid: int
     host: str
+    machine: str = ""
 
 
 @dataclass(frozen=True)

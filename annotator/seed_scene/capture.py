@@ -7,6 +7,11 @@ two of its faces. The candidate then runs through :class:`annotator.trial.GraspT
 in the batch job (its own DIRECT world with the floating gripper and the object at the origin, the
 object loaded and weighed by ``annotator.objects``), and the row, in the label schema, is appended
 to the capture file (``grasp_id`` counts the object's captures; ``seed`` is 0: nothing is drawn).
+
+The capture file is an output of the command (:class:`annotator.store.outputs.Outputs`): claimed
+before the first capture (a second scene writing it is refused), rewritten whole at each capture
+and marked. A capture file this tool wrote, unchanged since, is appended to; one it did not write
+(or one edited since) is refused unless ``overwrite``, which starts it anew.
 """
 
 from __future__ import annotations
@@ -22,7 +27,6 @@ import trimesh
 
 from annotator.config import AnnotatorConfig
 from annotator.dataset import validate_labels
-from annotator.files import atomic_write_path
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription, load_gripper
 from annotator.label_row import TrialsResult, label_row
@@ -30,6 +34,7 @@ from annotator.objects import ObjectModel, create_body, get_object_pose, load_ob
 from annotator.outcome import Outcome, Stage
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
+from annotator.store.outputs import Outputs, written_here
 from annotator.trial import GraspTrial, TrialResult
 
 log = logging.getLogger(__name__)
@@ -95,8 +100,14 @@ class Capturer:
     """Runs captured candidates through the batch protocol and appends their rows to ``out``.
 
     ``gripper``: the gripper's description (a name or folder is loaded; default the RG2), the one
-    on the scene's arm.
+    on the scene's arm. ``outputs``: the command's claimed outputs, ``out`` among them as
+    ``--capture-out``; without them ``out`` is claimed here (``overwrite``: a file this tool did
+    not write, or one edited since, is replaced) and released by :meth:`close`. Raises
+    :class:`annotator.store.outputs.OutputRefusedError`, :class:`annotator.store.LockedError` or
+    :class:`annotator.store.OutputError` when ``out`` cannot be claimed.
     """
+
+    OPTION = "--capture-out"
 
     def __init__(
         self,
@@ -104,6 +115,9 @@ class Capturer:
         config: AnnotatorConfig,
         out: Path,
         gripper: GripperDescription | str | None = None,
+        *,
+        outputs: Outputs | None = None,
+        overwrite: bool = False,
     ) -> None:
         self.model = model
         self.config = config
@@ -111,6 +125,14 @@ class Capturer:
         self.gripper = load_gripper(gripper)
         self._trial: GraspTrial | None = None
         self._world: World | None = None
+        self.written = self.out  # where the last capture went (beside it if it changed meanwhile)
+        self._own_outputs = outputs is None
+        self.outputs = outputs or Outputs.claim(
+            "annotator scene", {self.OPTION: self.out}, overwrite=overwrite
+        )
+        # the rows kept: those of a capture file this tool wrote (its mark's digest is its content);
+        # another file is refused by the claim, or replaced with overwrite
+        self._rows = read_captures(self.out) if written_here(self.out) else None
 
     def _ensure_trial(self) -> GraspTrial:
         """The floating gripper and the object in their own DIRECT world, set up as a batch worker does."""
@@ -158,12 +180,14 @@ class Capturer:
         return validate_labels(pd.DataFrame([data]))
 
     def capture(self, candidate: Candidate) -> pd.DataFrame:
-        """Run ``candidate`` and append its row to the capture file; returns the row."""
-        existing = read_captures(self.out)
+        """Run ``candidate`` and append its row to the capture file (written whole, through the
+        command's outputs); returns the row."""
+        existing = self._rows
         grasp_id = int((existing["object_id"] == self.model.object_id).sum()) if existing is not None else 0
         row = self.row(self.run(candidate), grasp_id, candidate)
         table = row if existing is None else validate_labels(pd.concat([existing, row], ignore_index=True))
-        _write_atomic(table, self.out)
+        self.written = self.outputs.write(self.OPTION, lambda tmp: table.to_parquet(tmp, index=False))
+        self._rows = table
         return row
 
     def close(self) -> None:
@@ -172,6 +196,8 @@ class Capturer:
         if self._world is not None:
             self._world.close()
         self._trial = self._world = None
+        if self._own_outputs:
+            self.outputs.release()
 
 
 def read_captures(path: Path) -> pd.DataFrame | None:
@@ -180,11 +206,6 @@ def read_captures(path: Path) -> pd.DataFrame | None:
     if not path.exists():
         return None
     return validate_labels(pd.read_parquet(path))
-
-
-def _write_atomic(df: pd.DataFrame, path: Path) -> None:
-    """Write the whole table to ``path`` at once (a temporary file beside it, then a rename)."""
-    atomic_write_path(path, lambda tmp: df.to_parquet(tmp, index=False), make_parents=True)
 
 
 def load_capture_object(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from annotator.seed_scene.model import Scene, SeedSceneConfig, build_scene, open
 from annotator.sim import gui
 from annotator.sim.camera import OPENGL_RENDERER
 from annotator.sim.ur3 import JOINT_NAMES
+from annotator.store.outputs import Outputs
 
 GRIPPER_SLIDER = "gripper_opening_angle"  # the seed's slider name
 # Enter captures the current grasp (PyBullet's window binds many letter keys to its own toggles).
@@ -55,7 +57,7 @@ def _capture(scene: Scene, capturer: Capturer) -> None:
     r = row.iloc[0]
     chord = "the object's chord" if candidate.chord_found else "the current opening"
     text = f"capture {r['object_id']} #{r['grasp_id']}: {r['outcome']}, width {r['width'] * 1000:.1f} mm"
-    click.echo(f"{text} (expected width {candidate.width * 1000:.1f} mm, {chord}) -> {capturer.out}")
+    click.echo(f"{text} (expected width {candidate.width * 1000:.1f} mm, {chord}) -> {capturer.written}")
     above = (scene.cube.base_pose().pos + [0.0, 0.0, 0.15]).tolist()
     gui.add_text(scene.client, text, above, [0.1, 0.1, 0.6], 1.2, seconds=4.0)
 
@@ -68,12 +70,18 @@ def run_gui(
     demo: bool,
     capturer: Capturer | None = None,
     obj: ObjectModel | None = None,
+    outputs: Outputs | None = None,
 ) -> None:
     """The seed's slider loop at real time until the window closes or ``seconds`` of sim time pass.
 
     With a ``capturer``, the capture key (Enter) runs the current grasp through the protocol and
     appends its label row (:func:`annotator.seed_scene.capture.capture_now`). ``obj`` replaces the cube.
+    The screenshot is written through ``outputs`` (the command's, ``screenshot_path`` claimed as
+    ``--screenshot``), or claimed here for the loop's life.
     """
+    if screenshot_path is not None and outputs is None:
+        with Outputs.claim("annotator scene", {"--screenshot": screenshot_path}) as claimed:
+            return run_gui(config, seconds, screenshot_path, screenshot_at, demo, capturer, obj, claimed)
     world = open_world(config, gui=True)
     client = world.client
     # Every PyBullet call in GUI mode waits for the window thread; loading and the gripper's FK table with
@@ -108,10 +116,11 @@ def run_gui(
             if capturer is not None and _capture_key_pressed(client):
                 _capture(scene, capturer)
             if screenshot_path is not None and t >= screenshot_at:
-                write_png(screenshot(scene), screenshot_path)
+                assert outputs is not None
+                written = outputs.write("--screenshot", functools.partial(write_png, screenshot(scene)))
                 width, height = gui.window_camera(client)[:2]
                 q = np.round(scene.arm_positions(), 4).tolist()
-                click.echo(f"screenshot {width}x{height} at t={t:.2f} s, arm q = {q} -> {screenshot_path}")
+                click.echo(f"screenshot {width}x{height} at t={t:.2f} s, arm q = {q} -> {written}")
                 screenshot_path = None
             lag = start + t - time.monotonic()
             if lag > 0:

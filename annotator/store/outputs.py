@@ -22,6 +22,10 @@ atomic_write_path`: a temporary file beside it, renamed over it): a full disk or
 folder leaves the previous file as it was and no part of the new one (:class:`OutputError` naming
 the file and the system's reason). A file changed by someone else while the command ran is not
 replaced: the output goes beside it (``<stem>.new<suffix>``) and the caller is told where.
+
+``mark=False``: the files are written without a mark beside them, for a folder that keeps its
+own record of what it wrote (an export's ``_export.json``, whose readers list the folder): the
+caller checks what lies there and records each file's digest (:meth:`Outputs.digest`).
 """
 
 from __future__ import annotations
@@ -123,6 +127,8 @@ class Outputs:
 
     command: str
     claimed: dict[str, _Claimed] = field(default_factory=dict)
+    mark: bool = True  # a mark beside each file written (module docstring)
+    digests: dict[Path, str] = field(default_factory=dict)  # what was written where
 
     @classmethod
     def claim(
@@ -132,11 +138,13 @@ class Outputs:
         *,
         overwrite: bool = False,
         overwrite_option: str = "--overwrite",
+        mark: bool = True,
     ) -> _Outputs:
         """Claim ``paths`` (option -> file; None: not asked for) for ``command``: refused with
         :class:`OutputRefusedError` or :class:`annotator.store.LockedError` (usage, one line) or
-        :class:`OutputError` (a folder that cannot take the file); nothing is written."""
-        outputs = cls(command)
+        :class:`OutputError` (a folder that cannot take the file); nothing is written.
+        ``mark``: mark each file written (module docstring)."""
+        outputs = cls(command, mark=mark)
         asked = {option: Path(p) for option, p in paths.items() if p is not None}
         seen: dict[Path, str] = {}
         for option, path in asked.items():
@@ -186,12 +194,18 @@ class Outputs:
 
         try:
             files.atomic_write_path(target, fill_and_hash)
-            _write_mark(target, digest[0], self.command)
+            if self.mark:
+                _write_mark(target, digest[0], self.command)
         except OSError as exc:
             raise output_error(target, exc) from exc
         if target == claimed.path:
             claimed.found = digest[0]
+        self.digests[target] = digest[0]
         return target
+
+    def digest(self, path: Path) -> str:
+        """The SHA-256 of what :meth:`write` wrote at ``path`` (where it returned)."""
+        return self.digests[Path(path)]
 
     def write_bytes(self, option: str, data: bytes) -> Path:
         """:meth:`write` of ``data``."""

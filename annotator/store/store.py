@@ -79,9 +79,19 @@ class Store:
     # chunks (unvouched chunk files are redone on resume).
     SAVE_SECONDS = 2.0
 
-    def __init__(self, out_dir: Path, spec: RunSpec) -> None:
+    def __init__(self, out_dir: Path, spec: RunSpec, *, labelled_here: bool = True) -> None:
+        """``labelled_here``: this process's machine labels (its kind is recorded when the folder
+        opens); False for a Dask run, whose workers' kinds are recorded as their results come
+        (:meth:`note_machine`)."""
         self.out_dir = Path(out_dir)
         self.spec = spec
+        self.labelled_here = labelled_here
+        # the kinds of machine that labelled the folder before this run, and those of this run
+        # (kind -> the host of the worker it was first seen on; None: this process's machine)
+        self._machines_before: list[str] = []
+        self._machines_now: dict[str, str | None] = {}
+        self._mixed_note: str | None = None
+        self._opened = False
         self.manifest = Manifest.fresh(spec)
         self.lock = RunLock(self.out_dir)
         self.read_only = False  # the folder cannot be written: only a finished run can be read
@@ -119,6 +129,7 @@ class Store:
             self._close_journal()
             self.lock.release()
             raise
+        self._opened = True
 
     def _load(self, *, overwrite: bool, repair: bool) -> None:
         out, spec = self.out_dir, self.spec
@@ -127,6 +138,7 @@ class Store:
             run_id, plan = reconcile.plan_overwrite(survey(out, Need.OVERWRITE))
             self.apply(plan)
             self.manifest = Manifest.fresh(spec, run_id)
+            self._open_machines()
             self.compact()
             return
         try:
@@ -168,7 +180,7 @@ class Store:
                     "choose another --out"
                 )
         self.manifest = manifest
-        self._note_machine()
+        self._open_machines()
         self._header = (self.manifest.objects_planned, self.manifest.gripper_folder)
         if not self.read_only and state.journal_current and state.pending == 0:
             self._journal = JournalWriter(journal_path(out))  # a closed run's: appended to
@@ -178,26 +190,61 @@ class Store:
         if not self.read_only:
             self.save(force=True)  # without a journal to append to: a compaction
 
-    def _note_machine(self) -> None:
-        """A folder labelled so far on another kind of machine (:func:`annotator.versions.
-        machine_kind`) resumed here: said in the summary, and this kind added to its record."""
+    def _open_machines(self) -> None:
+        """The kinds of machine (:func:`annotator.versions.machine_kind`) the folder records as
+        having labelled it; a folder with no labels yet records none (the manifest was made by the
+        command's process, which in a Dask run labels nothing). Then this process's kind when it
+        labels (``labelled_here``); a Dask run's workers report theirs with their results."""
         from annotator.store.manifest import MACHINES_SEPARATOR
         from annotator.versions import machine_kind
 
+        m = self.manifest
+        if not (m.objects_done or m.chunks_done or m.objects_failed):
+            m.versions.pop("machine", None)
+        recorded = m.versions.get("machine")
+        self._machines_before = recorded.split(MACHINES_SEPARATOR) if recorded else []
+        if self.labelled_here:
+            self.note_machine(machine_kind())
+
+    def note_machine(self, kind: str, host: str | None = None) -> None:
+        """A process of kind ``kind`` labels for this run (``host``: the worker's; None: this
+        process): added to the manifest's ``versions.machine`` (at once, for a worker's), and said
+        in the summary when the folder was labelled so far on another kind, or when this run's
+        processes are of more than one kind (a mixed Dask cluster): the same seed can settle a
+        pile differently on them."""
+        from annotator.store.manifest import MACHINES_SEPARATOR
+
+        if not kind or kind in self._machines_now:
+            return
+        self._machines_now[kind] = host
         versions = self.manifest.versions
-        recorded = versions.get("machine")
-        here = machine_kind()
-        kinds = recorded.split(MACHINES_SEPARATOR) if recorded else []
-        if recorded is None:  # a folder of a version that did not record it: from now on
-            versions["machine"] = here
-            return
-        if here in kinds:
-            return
-        self._note(
-            f"labelled so far on another kind of machine ({recorded}); this one is {here}: the same seed "
-            "can settle a pile differently on the two (docs/reliability.md), so scene labels may differ"
-        )
-        versions["machine"] = MACHINES_SEPARATOR.join([*kinds, here])
+        kinds = versions["machine"].split(MACHINES_SEPARATOR) if versions.get("machine") else []
+        if kind not in kinds:
+            versions["machine"] = MACHINES_SEPARATOR.join([*kinds, kind])
+            if self._opened and not self.read_only and self.lock.fd is not None:
+                self.compact()  # a run killed later still records who labelled its chunks
+        who = "this one" if host is None else f"the worker on {host}"
+        if len(self._machines_now) > 1:
+            seen = "; ".join(
+                f"{k} ({'this machine' if h is None else h})" for k, h in self._machines_now.items()
+            )
+            line = (
+                f"this run's workers are of {len(self._machines_now)} kinds of machine ({seen}): the same "
+                "seed can settle a pile differently on them (docs/reliability.md), so scene labels may "
+                "depend on which worker ran them"
+            )
+            if self._mixed_note in self.notes:
+                self.notes[self.notes.index(self._mixed_note)] = line
+            else:
+                self._note(line)
+            self._mixed_note = line
+        elif self._machines_before and kind not in self._machines_before:
+            before = MACHINES_SEPARATOR.join(self._machines_before)
+            self._note(
+                f"labelled so far on another kind of machine ({before}); "
+                f"{who} is {kind}: the same seed can settle a pile differently on the two "
+                "(docs/reliability.md), so scene labels may differ"
+            )
 
     def require_writable(self) -> None:
         if self.read_only:

@@ -80,17 +80,21 @@ def claim_outputs(
     paths: Mapping[str, Path | str | None],
     overwrite: bool = False,
     overwrite_option: str = "--overwrite",
+    mark: bool = True,
 ) -> ToolOutputs:
     """Before any work: claim every file a tool's ``command`` writes (``paths``: option -> file,
     None: not asked for); see :class:`ToolOutputs`. Refusals are one line: :class:`ToolError`
     (exit 2) for a file that must not be replaced (a user's, one changed since the tool wrote it,
     unless ``overwrite``), one given to two options, or one another command is writing;
     :class:`OutputToolError` (exit 3) for one whose folder cannot take it. Inside a click command
-    the claims end with the command; elsewhere use the result as a context manager."""
+    the claims end with the command; elsewhere use the result as a context manager. ``mark``:
+    :class:`annotator.store.outputs.Outputs`' (False: no mark beside each file)."""
     from annotator.store import OutputError, StoreError
 
     try:
-        claimed = ToolOutputs.claim(command, paths, overwrite=overwrite, overwrite_option=overwrite_option)
+        claimed = ToolOutputs.claim(
+            command, paths, overwrite=overwrite, overwrite_option=overwrite_option, mark=mark
+        )
     except StoreError as exc:
         raise ToolError(str(exc)) from None
     except OutputError as exc:

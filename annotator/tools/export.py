@@ -21,6 +21,12 @@ at ``cmd_width``), which is what a robot executes.
 
 Each object's mesh is written once, as the labels see it (metres, mesh frame, scale applied), to
 ``meshes/<object id>.obj`` in the output folder; ``object/file`` names it and ``object/scale`` is 1.
+
+Every file goes through the one output writer (:class:`ExportFolder`, on
+:class:`annotator.store.outputs.Outputs`): the folder is locked for the export (a second export
+into it is refused), each file is written to a temporary file and renamed, and recorded with its
+SHA-256 in the folder's ``_export.json`` (no mark beside each file: the learners' readers list
+the folders); a file the export did not write is never replaced.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ import contextlib
 import importlib
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -120,29 +126,92 @@ def base_poses(T_obj_tcp: np.ndarray, width: np.ndarray, depth: TcpDepth) -> np.
     return np.asarray(T_obj_tcp) @ np.linalg.inv(depth.T_base_tcp(width))
 
 
-def write_atomically(path: Path, write) -> None:
-    """``write(tmp_path)`` then rename over ``path``: a file appears whole or not at all."""
-    atomic_write_path(path, write, make_parents=True)
+# ``write(path, fill)``: ``fill(tmp)`` fills a temporary file that becomes ``path`` (the exporters'
+# writers take one: :meth:`ExportFolder.write_path` in an export, :func:`write_atomically` alone).
+Writer = Callable[[Path, Callable[[Path], object]], object]
+
+
+def write_atomically(path: Path, fill: Callable[[Path], object]) -> None:
+    """``fill(tmp_path)`` then rename over ``path``: a file appears whole or not at all."""
+    atomic_write_path(path, fill, make_parents=True)
+
+
+def fill_text(text: str) -> Callable[[Path], object]:
+    """A fill (:data:`Writer`'s second argument) writing ``text``."""
+
+    def fill(tmp: Path) -> None:
+        tmp.write_text(text)
+
+    return fill
+
+
+def fill_bytes(data: bytes) -> Callable[[Path], object]:
+    """A fill (:data:`Writer`'s second argument) writing ``data``."""
+
+    def fill(tmp: Path) -> None:
+        tmp.write_bytes(data)
+
+    return fill
+
+
+def _fill_mesh(mesh: Any) -> Callable[[Path], object]:
+    """A fill writing ``mesh`` as OBJ (trimesh's export, as before)."""
+
+    def fill(tmp: Path) -> None:
+        mesh.export(tmp, file_type="obj")
+
+    return fill
 
 
 EXPORT_RECORD = "_export.json"  # what an export wrote into its folder: the only files --overwrite removes
+EXPORT_LOCK = ".export.rg2-annotator.lock"  # an export's lock of its whole folder (removed at the end)
+EXPORT_COMMAND = "annotator export"
 
 
 @dataclass
 class ExportFolder:
     """An export's output folder: what earlier exports wrote there (its ``_export.json``) and what
-    this one writes. Files an export did not write are never replaced or removed."""
+    this one writes, every file through the one output writer (:class:`annotator.store.outputs.
+    Outputs`: a temporary file renamed; its SHA-256 recorded in ``_export.json`` rather than in a
+    mark beside it). The folder is locked for the export's life with the store's lock (a second
+    export into it is refused naming the first); release it with :meth:`close` or :meth:`release`
+    (or use the folder as a context manager). Files an export did not write are never replaced;
+    ``overwrite`` removes the files the earlier export recorded, nothing else."""
 
     path: Path
-    written: list[str]
+    written: dict[str, str]  # name -> SHA-256 of what this export wrote
+    lock: Any = None  # the folder's RunLock while held
 
     @classmethod
     def open(cls, out_dir: Path, *, overwrite: bool) -> ExportFolder:
-        """Check (and with ``overwrite`` clear) the folder before any work; ToolError if it holds
-        another export and ``overwrite`` is not given, OutputToolError if it cannot be written."""
-        from annotator.tools.common import ToolError, check_output_dir
+        """Check, lock (and with ``overwrite`` clear) the folder before any work; ToolError if it
+        holds another export and ``overwrite`` is not given, or another export is writing it;
+        OutputToolError if it cannot be written."""
+        from annotator.store import LockedError, OutputError
+        from annotator.store.lock import RunLock
+        from annotator.tools.common import OutputToolError, ToolError, check_output_dir
 
         out_dir = check_output_dir(out_dir, "--out")
+        lock = RunLock(out_dir, name=EXPORT_LOCK, whole_folder=False, subject=f"--out {out_dir}")
+        try:
+            lock.acquire()
+        except LockedError as exc:
+            raise ToolError(str(exc)) from None
+        except OutputError as exc:
+            raise OutputToolError(str(exc)) from None
+        folder = cls(out_dir, {}, lock)
+        try:
+            folder._clear(overwrite)
+        except BaseException:
+            folder.release()
+            raise
+        return folder
+
+    def _clear(self, overwrite: bool) -> None:
+        """An earlier export in the folder: refused, or with ``overwrite`` its files removed."""
+        from annotator.tools.common import ToolError
+
+        out_dir = self.path
         record = out_dir / EXPORT_RECORD
         if record.exists():
             if not overwrite:
@@ -150,17 +219,15 @@ class ExportFolder:
                     f"{out_dir} holds an earlier export; pass --overwrite to replace it (only the files an "
                     "export wrote are removed) or choose another --out"
                 )
-            for name in _earlier_files(record):
+            for name in [*_earlier_files(record), EXPORT_RECORD]:
                 path = out_dir / name
                 if path.is_file() and not path.is_symlink():
                     path.unlink()
-            record.unlink()
             from annotator.tools.formats import folders
 
             for sub in folders():  # the folders exports make, deepest first
                 with contextlib.suppress(OSError):
                     (out_dir / sub).rmdir()  # once empty
-        return cls(out_dir, [])
 
     def target(self, name: str) -> Path:
         """Where the export writes ``name`` (relative, ``/``-separated); ToolError if a file the
@@ -168,21 +235,59 @@ class ExportFolder:
         from annotator.tools.common import ToolError
 
         path = self.path / name
-        if path.exists() or path.is_symlink():
+        if name not in self.written and (path.exists() or path.is_symlink()):
             raise ToolError(
                 f"{path} exists and was not written by an export; move it away or choose another --out"
             )
-        self.written.append(name)
         return path
+
+    def write(self, name: str, fill: Callable[[Path], object]) -> Path:
+        """Write ``name`` (relative, ``/``-separated) through the one output writer: ``fill(tmp)``
+        fills a temporary file, renamed over it; its digest kept for the record. Refused
+        (ToolError) as :meth:`target` says. Returns where it went (beside it, ``NAME.new.EXT``,
+        if someone wrote there meanwhile)."""
+        from annotator.tools.common import claim_outputs
+
+        path = self.target(name)
+        with claim_outputs(
+            EXPORT_COMMAND, {name: path}, overwrite=name in self.written, mark=False
+        ) as claimed:
+            written = claimed.write(name, fill)
+        self.written[written.relative_to(self.path).as_posix()] = claimed.digest(written)
+        return written
+
+    def write_path(self, path: Path, fill: Callable[[Path], object]) -> Path:
+        """:meth:`write` of ``path``, a file inside the folder (the exporters' :data:`Writer`)."""
+        return self.write(Path(path).relative_to(self.path).as_posix(), fill)
 
     def close(self, fmt: str, labels: Path, left_out: Sequence[LeftOut] = ()) -> None:
         """Record what this export wrote (so a later --overwrite removes exactly that) and the
-        grasps it left out (``left_out``: one entry per reason)."""
-        record: dict[str, Any] = {"format": fmt, "labels": str(labels), "files": sorted(self.written)}
+        grasps it left out (``left_out``: one entry per reason); then release the folder."""
+        record: dict[str, Any] = {
+            "format": fmt,
+            "labels": str(labels),
+            "files": sorted(self.written),
+            "sha256": dict(sorted(self.written.items())),
+        }
         if left_out:
             record["left_out"] = [x.to_json() for x in left_out]
         text = json.dumps(record, indent=1)
-        write_atomically(self.path / EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
+        try:
+            self.write(EXPORT_RECORD, lambda tmp: tmp.write_text(text + "\n"))
+        finally:
+            self.release()
+
+    def release(self) -> None:
+        """Unlock the folder (its lock file goes)."""
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    def __enter__(self) -> ExportFolder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 def _earlier_files(record: Path) -> list[str]:
@@ -231,9 +336,8 @@ def export(
 
     A folder holding an earlier export is refused unless ``overwrite`` (which removes what that
     export wrote, nothing else); labels of an unfinished run are refused unless ``partial``."""
-    from annotator.tools.common import ToolError, labelling_config, object_mesh, object_rows, open_labels
+    from annotator.tools.common import ToolError, labelling_config, open_labels
     from annotator.tools.formats import of_unit
-    from annotator.tools.given import records_commands, replay_grasps
 
     formats = of_unit("object")
     if fmt not in formats:
@@ -254,7 +358,20 @@ def export(
         raise ToolError(f"{labels_dir} holds scenes: export them with --format {scene_formats}")
     ids = list(object_ids) or sorted(labels["object_id"].unique())
     config = labelling_config(labels_dir).config
-    folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
+    with ExportFolder.open(Path(out_dir), overwrite=overwrite) as folder:
+        return _export(folder, labels_dir, labels, manifest, ids, fmt, config, objects_dir, gripper)
+
+
+def _export(
+    folder: ExportFolder, labels_dir, labels, manifest, ids, fmt, config, objects_dir, gripper
+) -> ExportResult:
+    """:func:`export`'s writing, into the locked ``folder``."""
+    from annotator.tools.common import object_mesh, object_rows
+    from annotator.tools.formats import of_unit
+    from annotator.tools.given import records_commands, replay_grasps
+
+    exporter = of_unit("object")[fmt]
+
     out_dir = folder.path
     depth = TcpDepth(gripper, config.gripper)
     description = depth.description
@@ -266,9 +383,7 @@ def export(
         rows = object_rows(labels, oid).sort_values("grasp_id", ignore_index=True)
         mesh = object_mesh(labels_dir, oid, objects_dir, rows)
         mesh_file = f"meshes/{object_stem(oid)}.obj"
-        mesh_path = folder.target(mesh_file)
-        mesh_path.parent.mkdir(parents=True, exist_ok=True)
-        mesh.export(mesh_path)
+        folder.write(mesh_file, _fill_mesh(mesh))
         T_obj_base = base_poses(poses_as_matrices(rows), rows["width"].to_numpy(), depth)
         commanded = None
         if records_commands(rows):  # where the gripper was placed before closing, flange frame

@@ -56,7 +56,7 @@ import numpy as np
 import trimesh
 
 from annotator.scenes.records import SceneRecord
-from annotator.tools.export import write_atomically
+from annotator.tools.export import Writer, fill_bytes, fill_text, write_atomically
 from annotator.tools.export_vgn import SceneGrasps
 
 TABLE_TOP_Z = 0.3  # m: the top of Contact-GraspNet's table box (0.6 m tall, centred at the origin)
@@ -87,14 +87,17 @@ def mesh_file(object_id: str) -> str:
     return f"meshes/{object_stem(object_id)}.obj"
 
 
-def write_meshes(root: Path, meshes: Mapping[str, trimesh.Trimesh]) -> dict[str, np.ndarray]:
+def write_meshes(
+    root: Path, meshes: Mapping[str, trimesh.Trimesh], write: Writer = write_atomically
+) -> dict[str, np.ndarray]:
     """Write each mesh (object id -> mesh in metres, mesh frame) to :func:`mesh_file`; return each
-    file's vertex mean as Contact-GraspNet computes it (``trimesh.load`` of the written file)."""
+    file's vertex mean as Contact-GraspNet computes it (``trimesh.load`` of the written file).
+    ``write``: how a file is written (an export's folder's writer)."""
     means = {}
     for object_id, mesh in sorted(meshes.items()):
         path = root / mesh_file(object_id)
         text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False, digits=10)
-        write_atomically(path, lambda target, text=text: target.write_text(text))
+        write(path, fill_text(text))
         means[object_id] = np.mean(np.asarray(trimesh.load(path, force="mesh").vertices), axis=0)
     return means
 
@@ -244,15 +247,17 @@ def write_cgn(
     scenes: list[tuple[SceneRecord, list, SceneGrasps]],
     meshes: Mapping[str, trimesh.Trimesh],
     T_base_tcp: Callable[[np.ndarray], np.ndarray],
+    write: Writer = write_atomically,
 ) -> CgnFiles:
     """Write the meshes, one ``scene_contacts`` file per scene and (for scenes given with views)
-    ``views/NNNNNN_VV.npz``. ``scenes``: (record, its views or [], its grasps)."""
+    ``views/NNNNNN_VV.npz``. ``scenes``: (record, its views or [], its grasps); ``write``: how a
+    file is written (an export's folder's writer)."""
     root = Path(root)
     used = {inst.object_id for record, _, _ in scenes for inst in record.kept}
     missing = sorted(used - set(meshes))
     if missing:
         raise KeyError(f"no mesh given for {missing}")
-    means = write_meshes(root, {oid: meshes[oid] for oid in used})
+    means = write_meshes(root, {oid: meshes[oid] for oid in used}, write)
     paths = [root / mesh_file(oid) for oid in sorted(used)]
     positives = no_contact = 0
     for record, views, grasps in sorted(scenes, key=lambda s: s[0].scene_id):
@@ -263,12 +268,12 @@ def write_cgn(
         positives += len(arrays["grasp_ids"])
         no_contact += int(np.sum(grasps.success)) - len(arrays["grasp_ids"])
         data = _npz_bytes(arrays)
-        write_atomically(path, lambda target, data=data: target.write_bytes(data))
+        write(path, fill_bytes(data))
         paths.append(path)
         for view in views:
             vpath = root / "views" / f"{int(record.scene_id):06d}_{view.view_id:02d}.npz"
             vdata = _npz_bytes(view_arrays(record, view), compressed=True)
-            write_atomically(vpath, lambda target, vdata=vdata: target.write_bytes(vdata))
+            write(vpath, fill_bytes(vdata))
             paths.append(vpath)
     return CgnFiles(paths, positives, no_contact)
 

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from annotator.files import atomic_write_path
 from annotator.scenes.records import SceneRecord
+from annotator.tools.export import Writer, fill_bytes, write_atomically
 
 MESH_POSE_LIST = "mesh_pose_list"  # GIGA's folder name
 
@@ -48,9 +48,13 @@ def mesh_pose_list(record: SceneRecord, mesh_paths: Mapping[str, str]) -> np.nda
 
 
 def write_mesh_pose_lists(
-    root: Path | str, records: list[SceneRecord], mesh_paths: Mapping[str, str]
+    root: Path | str,
+    records: list[SceneRecord],
+    mesh_paths: Mapping[str, str],
+    write: Writer = write_atomically,
 ) -> list[Path]:
-    """``ROOT/mesh_pose_list/<scene name>.npz`` per record (key ``pc``, as GIGA writes it)."""
+    """``ROOT/mesh_pose_list/<scene name>.npz`` per record (key ``pc``, as GIGA writes it);
+    ``write``: how a file is written (an export's folder's writer)."""
     from annotator.tools.export_vgn import scene_name
 
     root = Path(root)
@@ -60,6 +64,6 @@ def write_mesh_pose_lists(
         np.savez_compressed(buffer, pc=mesh_pose_list(record, mesh_paths))
         data = buffer.getvalue()
         path = root / MESH_POSE_LIST / f"{scene_name(record.scene_id)}.npz"
-        atomic_write_path(path, lambda target, data=data: target.write_bytes(data), make_parents=True)
+        write(path, fill_bytes(data))
         paths.append(path)
     return paths

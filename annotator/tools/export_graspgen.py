@@ -40,7 +40,6 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from annotator.files import atomic_write_path
 from annotator.geometry import Transform
 from annotator.grippers import GripperDescription
 
@@ -137,10 +136,10 @@ def write_graspgen_gripper(folder, depth, config=None) -> list[Path]:
 
     gg = graspgen_gripper(depth)
     mesh = collision_mesh(depth.description, gg.width, config)
-    mesh_path = folder.target(f"gripper/{gg.collision_mesh_fname}")
-    yaml_path = folder.target(f"gripper/{gg.name}.yaml")
+    mesh_name, yaml_name = f"gripper/{gg.collision_mesh_fname}", f"gripper/{gg.name}.yaml"
+    folder.target(mesh_name), folder.target(yaml_name)  # both refused before either is written
     text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_texture=False, digits=10)
-    atomic_write_path(mesh_path, lambda target: target.write_text(text), make_parents=True)
+    mesh_path = folder.write(mesh_name, lambda target: target.write_text(text))
     yaml_text = gg.yaml_text(depth.description)
-    atomic_write_path(yaml_path, lambda target: target.write_text(yaml_text), make_parents=True)
+    yaml_path = folder.write(yaml_name, lambda target: target.write_text(yaml_text))
     return [yaml_path, mesh_path]

@@ -57,12 +57,12 @@ def export_scenes(
     if not partial:
         scenes.run.require_finished("export")
         _require_no_failed_scene(scenes)
-    folder = ExportFolder.open(Path(out_dir), overwrite=overwrite)
-    depth = TcpDepth(scenes.gripper)
-    ids = scenes.scene_ids()
-    items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
-    files, left_out = write_scenes(scenes, items, folder, depth, objects_dir, balance)
-    folder.close(fmt, Path(labels_dir), left_out)
+    with ExportFolder.open(Path(out_dir), overwrite=overwrite) as folder:
+        depth = TcpDepth(scenes.gripper)
+        ids = scenes.scene_ids()
+        items = [(scenes.records[s], scenes.views(s), scenes.grasps(s)) for s in ids]
+        files, left_out = write_scenes(scenes, items, folder, depth, objects_dir, balance)
+        folder.close(fmt, Path(labels_dir), left_out)
     n = sum(len(g.width) for _, _, g in items) - sum(x.grasps for x in left_out)
     log.info("exported %d grasps of %d scenes to %s (%s)", n, len(ids), folder.path, fmt)
     return ExportResult(folder.path, files, n, left_out)

@@ -65,7 +65,7 @@ from annotator.cell.kinect import Intrinsics
 from annotator.geometry import Transform, axis_angle_to_matrix, matrix_to_quat
 from annotator.scenes.records import SceneRecord
 from annotator.scenes.tsdf import fuse
-from annotator.tools.export import write_atomically
+from annotator.tools.export import Writer, fill_bytes, write_atomically
 
 RAW_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "x", "y", "z", "width", "label")
 DATASET_COLUMNS = ("scene_id", "qx", "qy", "qz", "qw", "i", "j", "k", "width", "label")
@@ -261,16 +261,22 @@ def _npz_bytes(**arrays: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
-def _write(path: Path, data: bytes) -> None:
-    write_atomically(path, lambda target: target.write_bytes(data))
+def _bytes_writer(write: Writer) -> Callable[[Path, bytes], object]:
+    """``write`` (a :data:`annotator.tools.export.Writer`) of bytes."""
+    return lambda path, data: write(path, fill_bytes(data))
 
 
 def write_vgn_raw(
-    root: Path | str, setup: VgnSetup, scenes: list[tuple[SceneRecord, list, SceneGrasps]]
+    root: Path | str,
+    setup: VgnSetup,
+    scenes: list[tuple[SceneRecord, list, SceneGrasps]],
+    write: Writer = write_atomically,
 ) -> list[Path]:
     """Write the raw layout: ``setup.json``, ``grasps.csv`` (every scene's grasps inside the
     workspace grid (:func:`inside_grid`), in scene order) and ``scenes/<id>.npz`` per scene.
-    ``scenes``: (record, its views, its grasps). Returns the paths."""
+    ``scenes``: (record, its views, its grasps); ``write``: how a file is written (an export's
+    folder's writer). Returns the paths."""
+    _write = _bytes_writer(write)
     root = Path(root)
     paths = [root / "setup.json", root / "grasps.csv"]
     _write(paths[0], (json.dumps(setup.to_json(), indent=4) + "\n").encode())
@@ -296,10 +302,12 @@ def write_vgn_dataset(
     setup: VgnSetup,
     scenes: list[tuple[SceneRecord, list, SceneGrasps]],
     resolution: int = DATASET_RESOLUTION,
+    write: Writer = write_atomically,
 ) -> list[Path]:
     """Write the dataset layout VGN trains on: ``grasps.csv`` in voxel units (the grasps inside
     the grid, :func:`inside_grid`) and each scene's TSDF grid (1, r, r, r) fused from its views
-    (:mod:`annotator.scenes.tsdf`, VGN's conventions)."""
+    (:mod:`annotator.scenes.tsdf`, VGN's conventions). ``write``: as :func:`write_vgn_raw`."""
+    _write = _bytes_writer(write)
     root = Path(root)
     voxel = setup.size / resolution
     paths = [root / "grasps.csv"]

@@ -27,20 +27,25 @@ from annotator.dataset import load_labels
 from annotator.objects import create_body, discover_objects, load_object
 from annotator.pipeline.run import RunOptions, run
 from annotator.tools.replay import plan_replay, replay_world
+from bench.arguments import N_MAX, Parser, count, existing_folder
 from bench.harness import Run
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
+
+
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--labels", type=existing_folder)
+    ap.add_argument("--objects", type=existing_folder, default=REPO / "objects")
+    ap.add_argument("--per-object", type=count(1, N_MAX), default=6)
+    ap.add_argument(
+        "--n", type=count(1, N_MAX), default=40, help="candidates per object when labelling first"
+    )
+    return ap
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--labels", type=Path)
-    parser.add_argument("--objects", type=Path, default=REPO / "objects")
-    parser.add_argument("--per-object", type=int, default=6)
-    parser.add_argument("--n", type=int, default=40, help="candidates per object when labelling first")
-    args = parser.parse_args()
+    args = parser().parse_args()
     config = AnnotatorConfig()
     with Run("arm_agreement", config=vars(args), annotator=config) as record:
         measure(args, config, record)

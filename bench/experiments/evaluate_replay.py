@@ -26,9 +26,10 @@ import pandas as pd
 
 from annotator.dataset import load_labels
 from annotator.tools.given import CMD_COLUMNS
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count
 from bench.harness import Run
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def run(*args: str) -> float:
@@ -46,13 +47,15 @@ def identical(a: pd.DataFrame, b: pd.DataFrame) -> np.ndarray:
     return same
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=count(1, N_MAX), default=60)
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=os.cpu_count() or 1)
+    return ap
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--n", type=int, default=60)
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    args = parser.parse_args()
+    args = parser().parse_args()
     with Run("evaluate_replay", config=vars(args)) as run_, tempfile.TemporaryDirectory() as tmp:
         measure(args, Path(tmp), run_)
 

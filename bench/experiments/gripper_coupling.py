@@ -15,7 +15,6 @@ change the annotation worlds' ``[physics]`` settings of the same names.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 
 import numpy as np
@@ -25,6 +24,7 @@ from annotator.config import AnnotatorConfig, GripperConfig, PhysicsConfig
 from annotator.geometry import Transform
 from annotator.sim.hand import FloatingGripper, ShakeMotion
 from annotator.sim.world import World
+from bench.arguments import Parser, count, number
 from bench.harness import Run
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # TCP +z pointing down: a top grasp
@@ -93,14 +93,20 @@ def run(
         }
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("grippers", nargs="*", default=["rg2", "panda", "robotiq_2f85"])
+    ap.add_argument(
+        "--force", type=number(0.0, 10_000.0, low_open=True), default=None, help="N (default: each gripper's)"
+    )
+    ap.add_argument("--mass", type=number(0.0, 100.0, low_open=True), default=0.2, help="kg, the box")
+    ap.add_argument("--non-contact-iterations", type=count(1, 100_000), default=None)
+    ap.add_argument("--solver-iterations", type=count(1, 100_000), default=None)
+    return ap
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("grippers", nargs="*", default=["rg2", "panda", "robotiq_2f85"])
-    parser.add_argument("--force", type=float, default=None, help="N (default: each gripper's)")
-    parser.add_argument("--mass", type=float, default=0.2, help="kg, the box")
-    parser.add_argument("--non-contact-iterations", type=int, default=None)
-    parser.add_argument("--solver-iterations", type=int, default=None)
-    args = parser.parse_args()
+    args = parser().parse_args()
     physics = PhysicsConfig()
     if args.non_contact_iterations is not None:
         physics = dataclasses.replace(physics, non_contact_iterations=args.non_contact_iterations)

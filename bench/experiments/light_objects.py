@@ -39,6 +39,7 @@ from annotator.sampler import object_rng, sample_candidates
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
+from bench.arguments import N_MAX, Parser, count, number
 from bench.harness import Run
 
 EXTENTS = (0.048, 0.024, 0.00635)
@@ -130,14 +131,22 @@ def measure(grams: float, hz: float, n: int, folder: Path) -> Held:
     )
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--grams", type=float, nargs="+", default=[4.0, 40.0])
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--grams", type=number(0.0, 100_000.0, low_open=True), nargs="+", default=[4.0, 40.0])
     ap.add_argument(
-        "--hz", type=float, nargs="+", default=None, help="steps per second (default 240 and as simulated)"
+        "--hz",
+        type=number(1.0, 1_000_000.0),
+        nargs="+",
+        default=None,
+        help="steps per second (default 240 and as simulated)",
     )
-    ap.add_argument("--candidates", type=int, default=90)
-    args = ap.parse_args()
+    ap.add_argument("--candidates", type=count(1, N_MAX), default=90)
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     physics = AnnotatorConfig().physics
     with Run("light_objects", config=vars(args)) as run, tempfile.TemporaryDirectory() as tmp:
         rows = []

@@ -55,6 +55,7 @@ import trimesh
 from annotator.config import AnnotatorConfig
 from annotator.outcome import Outcome
 from bench._variants import parse_variant
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, number, seed
 from bench.experiments.light_objects import simulated_trials
 from bench.harness import Run
 
@@ -124,18 +125,24 @@ def row(args: tuple) -> list[tuple[str, str, float, int, int, int, int, int, int
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shapes", nargs="+", default=list(DEFAULT_SHAPES), choices=[*SHAPES, "all"])
     ap.add_argument(
-        "--grams", type=float, nargs="+", default=[12.0, 16.0, 20.0, 24.0, 28.0, 32.0, 40.0, 80.0]
+        "--grams",
+        type=number(0.0, 100_000.0, low_open=True),
+        nargs="+",
+        default=[12.0, 16.0, 20.0, 24.0, 28.0, 32.0, 40.0, 80.0],
     )
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--seeds", type=seed, nargs="+", default=[0, 1])
     ap.add_argument(
-        "--candidates", type=int, default=60, help="sampled per (shape, seed); colliding ones skipped"
+        "--candidates",
+        type=count(1, N_MAX),
+        default=60,
+        help="sampled per (shape, seed); colliding ones skipped",
     )
-    ap.add_argument("--fine", type=int, default=4, help="substeps of the fine reference step")
-    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--fine", type=count(1, 1000), default=4, help="substeps of the fine reference step")
+    ap.add_argument("--jobs", type=count(1, WORKERS_MAX), default=2)
     ap.add_argument("--set", default="", help="FIELD=VALUE[,FIELD=VALUE] for both runs")
     ap.add_argument(
         "--own-step", action="store_true", help="label at the annotator's own steps, not 1/240 s throughout"
@@ -147,7 +154,11 @@ def main() -> None:
         help="NAME:FIELD=VALUE[,...]: also label with these changes on top of --set, against the same "
         "fine reference (repeatable)",
     )
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     config = parse_variant(args.set)[1]  # an unknown field exits here, not in a worker
     labelled = [("default", "")] + [(parse_variant(v, base=config)[0], v) for v in args.variant]
     if "all" in args.shapes:

@@ -16,7 +16,6 @@ simulated steps per row for each rule.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects, load_object
 from annotator.scenes import SceneBuilder, SceneSpec
 from annotator.scenes.labels import SceneTrials, label_scene
+from bench.arguments import N_MAX, Parser, count, existing_folder
 from bench.harness import Run
 
 WIDTH_TOLERANCE = 0.0002  # m, as bench/experiments/light_threshold.py compares widths
@@ -61,13 +61,19 @@ def agreement(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
     }
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=count(1, 1_000_000), default=16)
+    ap.add_argument("--n", type=count(1, N_MAX), default=60, help="grasps per scene")
+    ap.add_argument("--per-scene", type=count(1, 253), default=5)
+    ap.add_argument(
+        "--objects", type=existing_folder, default=Path(__file__).resolve().parents[2] / "objects"
+    )
+    return ap
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", type=int, default=16)
-    parser.add_argument("--n", type=int, default=60, help="grasps per scene")
-    parser.add_argument("--per-scene", type=int, default=5)
-    parser.add_argument("--objects", type=Path, default=Path(__file__).resolve().parents[1] / "objects")
-    args = parser.parse_args()
+    args = parser().parse_args()
     config = AnnotatorConfig()
     light = config.physics.light_object_mass
     models = {s.object_id: load_object(s, config.objects) for s in discover_objects(args.objects)}

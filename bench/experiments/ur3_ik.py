@@ -15,15 +15,24 @@ import time
 import numpy as np
 
 from annotator.sim import ur3
+from bench.arguments import Parser, count, seed
 from bench.harness import Run
 
 
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--n", type=count(1, 10_000_000), default=20000, help="random configurations solved in one batch"
+    )
+    ap.add_argument(
+        "--single", type=count(0, 10_000_000), default=1000, help="of them solved one pose at a time"
+    )
+    ap.add_argument("--seed", type=seed, default=0)
+    return ap
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--n", type=int, default=20000, help="random configurations solved in one batch")
-    ap.add_argument("--single", type=int, default=1000, help="of them solved one pose at a time")
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args()
+    args = parser().parse_args()
     with Run("ur3_ik", config=vars(args)) as run:
         rng = np.random.default_rng(args.seed)
         n, m = args.n, min(args.single, args.n)

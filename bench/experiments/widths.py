@@ -38,9 +38,10 @@ from annotator.pipeline.tasks import Span, SpanTask
 from annotator.sampler import _first_hits, pad_opening
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, existing_folder, seed
 from bench.harness import Run
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def chord(triangles: np.ndarray, T: np.ndarray, reach: float) -> float:
@@ -50,15 +51,19 @@ def chord(triangles: np.ndarray, T: np.ndarray, reach: float) -> float:
     return float(2 * reach - t.sum())
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=Path, default=ROOT / "objects")
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=existing_folder, default=ROOT / "objects")
     ap.add_argument("--only", nargs="*", default=["bowl", "mug", "banana"], help="object ids (none: all)")
-    ap.add_argument("--n", type=int, default=200, help="candidates per object")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--n", type=count(1, N_MAX), default=200, help="candidates per object")
+    ap.add_argument("--seed", type=seed, default=0)
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=os.cpu_count() or 1)
     ap.add_argument("--coarse", action="store_true", help="CoACD once at threshold 0.05")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     config = AnnotatorConfig()
     if args.coarse:
         objects = dataclasses.replace(config.objects, decomposition_min_threshold=0.05)

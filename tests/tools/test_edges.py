@@ -269,3 +269,38 @@ def test_the_tools_use_the_configuration_the_labels_were_made_with_and_say_so(
     )
     assert output.splitlines()[0] == f"configuration: the labels' own ({folder / MANIFEST_NAME})"
     assert np.isfinite(chosen.config.physics.time_step)
+
+
+@pytest.mark.parametrize("command", ["replay", "show"])
+@pytest.mark.parametrize("grasp", ["-1", str(2**63)])
+def test_a_grasp_id_no_label_can_have_is_one_line_before_the_labels_are_read(command, grasp, tmp_path):
+    """``--grasp`` takes a label's grasp_id (int64, never negative): -1 or 2^63 is refused naming the
+    option, before any reading (2^63 overflowed the comparison with the labels' int64 column)."""
+    extra = ["--object", "box"] if command == "replay" else []
+    error = _one_line_error(_run(command, tmp_path, *extra, "--grasp", grasp, code=2))
+    assert "'--grasp'" in error and f"{grasp} is not in the range" in error
+
+
+def test_every_number_a_command_takes_has_a_range():
+    """Every integer or real option and argument of every command is a click.IntRange or
+    FloatRange, or is checked by its callback (``--scale``: positive and finite)."""
+    import click
+
+    from annotator.cli.annotate import annotate_command
+
+    def params(command, path):
+        if isinstance(command, click.Group):
+            for name, sub in command.commands.items():
+                yield from params(sub, [*path, name])
+        else:
+            for param in command.params:
+                yield " ".join(path), param
+
+    unbounded = [
+        f"{path} {param.name}"
+        for path, param in [*params(main, ["annotator"]), *params(annotate_command, ["annotate"])]
+        if isinstance(param.type, (click.types.IntParamType, click.types.FloatParamType))
+        and not isinstance(param.type, (click.IntRange, click.FloatRange))
+        and param.callback is None
+    ]
+    assert not unbounded

@@ -48,10 +48,8 @@ TOY = textwrap.dedent(
 
 
     def write_csv(folder, stem, rows, T_obj_base, mesh_file, extra):
-        path = folder.target(f"toy/{stem}.csv")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.savetxt(path, T_obj_base.reshape(len(rows), 16), delimiter=",")
-        return path
+        table = T_obj_base.reshape(len(rows), 16)
+        return folder.write(f"toy/{stem}.csv", lambda tmp: np.savetxt(tmp, table, delimiter=","))
 
 
     EXPORTER = Exporter(name="toy", unit="object", help="a CSV per object", order=9, folders=("toy",),
@@ -72,5 +70,7 @@ def test_a_format_is_one_module(labelled, tmp_path: Path, monkeypatch, fresh_reg
     written = json.loads((out / "_export.json").read_text())
     assert written["format"] == "toy" and len(result.files) == 2 and result.n_grasps == len(labelled.df)
     assert sorted(p.parent.name for p in result.files) == ["toy", "toy"]
+    # each file through the folder's one writer, its digest recorded
+    assert {f"toy/{p.name}" for p in result.files} <= set(written["sha256"])
     again = export(labelled.labels_dir, "toy", out, labelled.objects_dir, overwrite=True)
     assert [p.name for p in again.files] == [p.name for p in result.files]

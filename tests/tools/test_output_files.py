@@ -178,3 +178,61 @@ def test_a_second_clutter_removal_on_one_out_is_refused_naming_the_first(convex_
     finally:
         first.release()
     assert not (out / "rounds.csv").exists()
+
+
+def test_an_export_goes_through_the_one_writer_locked_whole_and_recorded(labelled, tmp_path):
+    """export wrote its meshes and splits in place (trimesh's own write, ``write_text``) and took no
+    lock: a second export into one --out interleaved with the first. Now the folder is locked for
+    the export (a second is refused naming the first), every file is a temporary file renamed,
+    and _export.json records each file's SHA-256; no mark, lock or temporary file is left among
+    the files the learners' readers list. --overwrite replaces an earlier export."""
+    import json
+
+    from annotator.store.outputs import file_sha256
+    from annotator.tools.export import ExportFolder
+
+    out = tmp_path / "export"
+    export = [
+        "export",
+        labelled.labels_dir,
+        "--format",
+        "graspgen",
+        "--out",
+        out,
+        "--objects",
+        labelled.objects_dir,
+    ]
+    with ExportFolder.open(out, overwrite=False):  # another export writing there now
+        line = _run(*export, code=2)
+        assert f"--out {out} is being written by another command (pid" in line
+        assert [p.name for p in out.iterdir()] == [".export.rg2-annotator.lock"]
+    _run(*export, code=0)
+    record = json.loads((out / "_export.json").read_text())
+    files = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert record["files"] == [f for f in files if f != "_export.json"] and record["files"]
+    assert record["sha256"] == {name: file_sha256(out / name) for name in record["files"]}
+    assert any(f.startswith("meshes/") for f in files) and "splits/train.txt" in files
+    line = _run(*export, code=2)
+    assert "holds an earlier export; pass --overwrite" in line
+    (out / "splits" / "train.txt").write_text("edited")
+    _run(*export, "--overwrite", code=0)  # the earlier export's files replaced
+    assert json.loads((out / "_export.json").read_text())["sha256"] == record["sha256"]
+
+
+def test_a_file_of_an_export_is_whole_or_absent(tmp_path):
+    """A write that fails (a full disk) leaves no part of the file and no temporary file, and the
+    folder is free again when the export ends."""
+    from annotator.tools.common import OutputToolError
+    from annotator.tools.export import ExportFolder
+
+    def half_then_fail(tmp: Path) -> None:
+        tmp.write_text("half a mesh")
+        raise OSError(28, "No space left on device")
+
+    out = tmp_path / "export"
+    with ExportFolder.open(out, overwrite=False) as folder:
+        folder.write("meshes/a.obj", lambda tmp: tmp.write_text("v 0 0 0\n"))
+        with pytest.raises(OutputToolError, match="No space left on device"):
+            folder.write("meshes/b.obj", half_then_fail)
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == ["meshes", "meshes/a.obj"]
+    ExportFolder.open(out, overwrite=False).release()  # unlocked

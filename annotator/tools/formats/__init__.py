@@ -5,9 +5,11 @@ it makes, what it needs and its writer), so a new format is one module here and 
 Object formats (``unit = "object"``) get one call of ``write_object`` per object (its rows, their
 base poses and what the file says of the object) and, once, ``finish``; scene formats (``unit =
 "scene"``) get every scene of the run at once (``write_scenes``). The export's driver is
-:mod:`annotator.tools.export` (objects) or :mod:`annotator.tools.export_scenes` (scenes). A format
-module imports what its writer needs inside the writer: the command line lists the formats
-without loading them.
+:mod:`annotator.tools.export` (objects) or :mod:`annotator.tools.export_scenes` (scenes). Every
+file goes through the export folder's one output writer (``folder.write(name, fill)``, or
+``folder.write_path`` where a writer takes paths): written whole, recorded with its SHA-256 in
+``_export.json``, a file the export did not write never replaced. A format module imports what its
+writer needs inside the writer: the command line lists the formats without loading them.
 """
 
 from __future__ import annotations

@@ -16,11 +16,11 @@ from annotator.tools.formats import Exporter
 def write_acronym(
     folder, stem: str, rows: pd.DataFrame, T_obj_base: np.ndarray, mesh_file: str, extra: dict
 ) -> Path:
-    """``<stem>.h5`` in the export ``folder`` (an :class:`annotator.tools.export.ExportFolder`)."""
-    from annotator.tools.export import write_atomically
-
-    path = folder.target(f"{stem}.h5")
-    write_atomically(path, lambda target: _write_h5(target, rows, T_obj_base, mesh_file, extra))
+    """``<stem>.h5`` in the export ``folder`` (an :class:`annotator.tools.export.ExportFolder`,
+    through its one output writer)."""
+    path: Path = folder.write(
+        f"{stem}.h5", lambda target: _write_h5(target, rows, T_obj_base, mesh_file, extra)
+    )
     return path
 
 

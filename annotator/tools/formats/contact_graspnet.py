@@ -31,7 +31,7 @@ def write_contact_graspnet(
         names += [f"views/{int(record.scene_id):06d}_{v.view_id:02d}.npz" for v in views]
     for name in names:
         folder.target(name)
-    written = write_cgn(folder.path, items, meshes, depth.T_base_tcp)
+    written = write_cgn(folder.path, items, meshes, depth.T_base_tcp, folder.write_path)
     failures = sum(int(np.sum(~np.asarray(g.success, dtype=bool))) for _, _, g in items)
     return written.paths, [
         LeftOut(failures, "failures (Contact-GraspNet stores its positives only)"),

@@ -18,10 +18,10 @@ from annotator.tools.formats import Exporter
 def write_graspgen(
     folder, stem: str, rows: pd.DataFrame, T_obj_base: np.ndarray, mesh_file: str, extra: dict
 ) -> Path:
-    """``grasps/<stem>.json`` in the export ``folder`` (an :class:`annotator.tools.export.ExportFolder`)."""
-    from annotator.tools.export import write_atomically
+    """``grasps/<stem>.json`` in the export ``folder`` (an :class:`annotator.tools.export.ExportFolder`,
+    through its one output writer)."""
+    from annotator.tools.export import fill_text
 
-    path = folder.target(f"grasps/{stem}.json")
     data = {
         "object": {
             "file": mesh_file,
@@ -54,8 +54,7 @@ def write_graspgen(
             "frame": extra["frame_note"],
         },
     }
-    text = json.dumps(data, allow_nan=True)
-    write_atomically(path, lambda target: target.write_text(text, encoding="utf-8"))
+    path: Path = folder.write(f"grasps/{stem}.json", fill_text(json.dumps(data, allow_nan=True)))
     return path
 
 
@@ -63,16 +62,14 @@ def finish_graspgen(folder, depth, config, labels: pd.DataFrame, ids: list[str])
     """The gripper's description for GraspGen and the objects' training split (80/20 by object,
     :func:`annotator.dataset.split_by_object`, seed 0)."""
     from annotator.dataset import split_by_object
-    from annotator.tools.export import object_stem
+    from annotator.tools.export import fill_text, object_stem
     from annotator.tools.export_graspgen import write_graspgen_gripper
 
     write_graspgen_gripper(folder, depth, config.gripper)
     train, val = split_by_object(labels[labels["object_id"].isin(ids)], val_fraction=0.2, seed=0)
     for name, part in (("train", train), ("valid", val)):
         lines = [f"meshes/{object_stem(o)}.obj" for o in sorted(part["object_id"].unique())]
-        split = folder.target(f"splits/{name}.txt")
-        split.parent.mkdir(parents=True, exist_ok=True)
-        split.write_text("".join(f"{x}\n" for x in lines))
+        folder.write(f"splits/{name}.txt", fill_text("".join(f"{x}\n" for x in lines)))
 
 
 HELP = "one JSON per object and the gripper's description for GraspGen (gripper/)"

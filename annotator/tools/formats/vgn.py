@@ -73,12 +73,13 @@ def write_vgn(
         ]
     for name in names:  # refuses before anything is written if a file it did not write is there
         folder.target(name)
-    paths = write_vgn_raw(folder.path, setup, items)
-    paths += write_vgn_dataset(folder.path / "dataset", setup, items)
-    write_meshes(folder.path, meshes)  # GIGA's mesh_pose_list names them
+    write = folder.write_path
+    paths = write_vgn_raw(folder.path, setup, items, write)
+    paths += write_vgn_dataset(folder.path / "dataset", setup, items, write=write)
+    write_meshes(folder.path, meshes, write)  # GIGA's mesh_pose_list names them
     paths += [folder.path / mesh_file(oid) for oid in meshes]
     mesh_paths = {oid: str((folder.path / mesh_file(oid)).resolve()) for oid in meshes}
-    paths += write_mesh_pose_lists(folder.path, [record for record, _, _ in items], mesh_paths)
+    paths += write_mesh_pose_lists(folder.path, [record for record, _, _ in items], mesh_paths, write)
     reason = (
         f"outside the {size:g} m workspace cube (voxel index outside [0, {DATASET_RESOLUTION}), "
         "where VGN's training cannot read a label)"
