@@ -36,6 +36,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench.arguments import Parser, existing_folder
 from bench.harness import Run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -234,12 +235,18 @@ def duplicate_pairs(repo: Path) -> int:
     return int(count.group(1))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repo", type=Path, default=ROOT, help="the checkout measured [default: this one]")
+def parser() -> Parser:
+    ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--repo", type=existing_folder, default=ROOT, help="the checkout measured [default: this one]"
+    )
     ap.add_argument("--no-mypy", action="store_true", help="leave out mypy (a minute or two)")
     ap.add_argument("--no-duplicates", action="store_true", help="leave out duplicates")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = parser().parse_args()
     repo = args.repo.resolve()
     package = repo / "annotator"
     graph = import_graph(package)

@@ -235,6 +235,7 @@ BAD_ARGUMENTS = [  # (bench, arguments, what its one line says)
     ("scale", ["store", "--sizes", "10,-1"], "--sizes: -1 is not in 1 .. 10,000,000"),
     ("scenes", ["--scenes", "0"], "--scenes: 0 is not in 1 .. 1,000,000"),
     ("scenes", ["--workers", "0"], "--workers: 0 is not in 1 .. 1,024"),
+    ("structure", ["--repo", "no/such"], "--repo: no/such: no such folder"),
     ("throughput", ["--repeat", "0"], "--repeat: 0 is not in 1 .. 1,000"),
     ("throughput", ["--config", "no.toml"], "--config: no.toml: no such file"),
     ("trials_cost", ["--trials", "1"], "--trials: 1 is not in 2 .. 100"),
