@@ -248,6 +248,7 @@ def parser() -> Parser:
 def main() -> None:
     args = parser().parse_args()
     repo = args.repo.resolve()
+    where = "this tree" if repo == ROOT else f"the checkout {repo.name}"  # no local folder's name
     package = repo / "annotator"
     graph = import_graph(package)
     runtime, typed = cycles(graph.runtime), cycles(graph.all())
@@ -280,7 +281,7 @@ def main() -> None:
             print(f"{what:45s} {value}")
             for item in detail or []:
                 print(f"    {item}")
-            record.figure(key, value, "", note=f"{what}, {repo.name}")
+            record.figure(key, value, "", note=f"{what}, {where}")
 
 
 if __name__ == "__main__":
