@@ -255,7 +255,7 @@ def main() -> None:
     pipeline = floors(graph, "annotator.pipeline")
     pb_uses, pb_calls, pb_importers = raw_pybullet(package)
     radon = radon_blocks(package)
-    with Run("structure", config={k: str(v) for k, v in vars(args).items()}) as record:
+    with Run("structure", config={**{k: str(v) for k, v in vars(args).items()}, "repo": where}) as record:
         figures = [
             ("cycles_runtime", len(runtime), "import cycles at runtime", runtime),
             ("cycles_type_only", len(typed), "import cycles counting type-only imports", typed),
