@@ -190,9 +190,12 @@ def raw_pybullet(package: Path) -> tuple[int, int, list[str]]:
 def radon_blocks(package: Path) -> dict[str, list[str]]:
     """Blocks of rank C and worse, and D and worse, as ``radon cc -n C`` lists them: ``file:line
     name (rank complexity)``."""
-    proc = subprocess.run(
-        ["radon", "cc", "-j", "-n", "C", str(package)], capture_output=True, text=True, check=True
-    )
+    try:
+        proc = subprocess.run(
+            ["radon", "cc", "-j", "-n", "C", str(package)], capture_output=True, text=True, check=True
+        )
+    except FileNotFoundError:
+        raise SystemExit("bench.structure: radon is not installed: pip install -e '.[bench]'") from None
     out: dict[str, list[str]] = {"C": [], "D": []}
     for path, blocks in sorted(json.loads(proc.stdout).items()):
         for block in blocks:
