@@ -45,18 +45,12 @@ def claim_out(out_dir: Path, overwrite: bool):
     refused naming the first) and its rounds.csv and grasps.csv claimed (:func:`annotator.tools.
     common.claim_outputs`: a file this tool did not write, or one changed since, only with
     ``overwrite``); the claims end with the command. Returns the claimed outputs."""
-    from annotator.store import LockedError, OutputError
     from annotator.store.lock import RunLock
-    from annotator.tools.common import OutputToolError, ToolError, check_output_dir, claim_outputs
+    from annotator.tools.common import acquire_output_lock, check_output_dir, claim_outputs
 
     out_dir = check_output_dir(out_dir, "--out")
     lock = RunLock(out_dir)
-    try:
-        lock.acquire()
-    except LockedError as exc:
-        raise ToolError(str(exc)) from None
-    except OutputError as exc:
-        raise OutputToolError(str(exc)) from None
+    acquire_output_lock(lock)
     click.get_current_context().call_on_close(lock.release)
     return claim_outputs("annotator clutter-removal", {name: out_dir / name for name in OUTPUTS}, overwrite)
 

@@ -44,6 +44,20 @@ class OutputToolError(ToolError):
 # --- outputs -------------------------------------------------------------------------------------
 
 
+def acquire_output_lock(lock: Any) -> None:
+    """Take ``lock`` (an :class:`annotator.store.lock.RunLock` on an output folder): held by
+    another command, :class:`ToolError` naming it (exit 2); the folder not writable,
+    :class:`OutputToolError` (exit 3)."""
+    from annotator.store import LockedError, OutputError
+
+    try:
+        lock.acquire()
+    except LockedError as exc:
+        raise ToolError(str(exc)) from None
+    except OutputError as exc:
+        raise OutputToolError(str(exc)) from None
+
+
 def check_output_dir(path: str | Path, what: str) -> Path:
     """Before any work: the folder ``path`` exists or can be made, and a file can be written in it."""
     from annotator.files import probe_writable

@@ -187,18 +187,12 @@ class ExportFolder:
         """Check, lock (and with ``overwrite`` clear) the folder before any work; ToolError if it
         holds another export and ``overwrite`` is not given, or another export is writing it;
         OutputToolError if it cannot be written."""
-        from annotator.store import LockedError, OutputError
         from annotator.store.lock import RunLock
-        from annotator.tools.common import OutputToolError, ToolError, check_output_dir
+        from annotator.tools.common import acquire_output_lock, check_output_dir
 
         out_dir = check_output_dir(out_dir, "--out")
         lock = RunLock(out_dir, name=EXPORT_LOCK, whole_folder=False, subject=f"--out {out_dir}")
-        try:
-            lock.acquire()
-        except LockedError as exc:
-            raise ToolError(str(exc)) from None
-        except OutputError as exc:
-            raise OutputToolError(str(exc)) from None
+        acquire_output_lock(lock)
         folder = cls(out_dir, {}, lock)
         try:
             folder._clear(overwrite)
