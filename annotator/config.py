@@ -34,11 +34,23 @@ def _field(
     le: float | None = None,
     choices: tuple[str, ...] | None = None,
     implicit: bool = False,
+    bound: str | None = None,
 ) -> Any:
     """A configuration field with its allowed range (checked when a section is built). ``implicit``:
     a number every run had before it became a field: a run binds it only where it differs from
-    that default (:meth:`AnnotatorConfig.to_dict`), so folders made before still resume."""
-    metadata = {"gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices, "implicit": implicit}
+    that default (:meth:`AnnotatorConfig.to_dict`), so folders made before still resume.
+    ``bound``: the name a run binds the field under, where that is not its own (the ladder's fields
+    keep the names they had in ``[objects]``)."""
+    metadata: dict[str, Any] = {
+        "gt": gt,
+        "ge": ge,
+        "lt": lt,
+        "le": le,
+        "choices": choices,
+        "implicit": implicit,
+    }
+    if bound is not None:
+        metadata["bound"] = bound
     return field(default=default, metadata=metadata)
 
 
@@ -99,6 +111,8 @@ class _Section:
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             kind = f.type if isinstance(f.type, str) else f.type.__name__
             value = getattr(self, f.name)
+            if isinstance(value, _Section):  # a section within (checked when it was built)
+                continue
             if kind.endswith(" | None"):  # optional: None leaves the value to the gripper description
                 if value is None:
                     continue
@@ -204,6 +218,70 @@ class GripperConfig(_Section):
 
 
 @dataclass(frozen=True)
+class DecompositionConfig(_Section):
+    """The collision ladder (annotator/objects/collision_ladder.py, docs/objects.md "Collision
+    shapes"): whether a mesh is its own hull, and how a concave one is cut into convex parts by
+    CoACD, then V-HACD, then its hull, within a CPU budget and collision error limits. In a config
+    file, ``[objects.decomposition]``. A run binds these fields under ``[objects]`` with the names
+    they had before they were a section (each field's ``bound`` name: ``budget`` as
+    ``decomposition_budget``), so every folder and cache entry made before keeps its key; a config
+    file may use either. Reasons and measurements: docs/decisions/0101-collision-ladder.md.
+    """
+
+    # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
+    convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
+    # CoACD concavity thresholds, the first down to the last, x 0.6 each to one significant digit
+    # (0.05, 0.03, 0.02, 0.01), until the collision error is within its limits or the budget is
+    # spent (0101-collision-ladder).
+    threshold: float = _field(0.05, gt=0.0, le=1.0, bound="decomposition_threshold")
+    min_threshold: float = _field(0.01, gt=0.0, le=1.0, bound="decomposition_min_threshold")
+    # CoACD's tree-search iterations per cut (its own default 150): the search bounded so a scan's
+    # refinement fits the budget (0101-collision-ladder).
+    coacd_search_iterations: int = _field(60, ge=1, le=10_000)
+    # A threshold whose bounded search misses the error limits by at most this share of them is cut
+    # again with CoACD's own search before a finer one (0101-collision-ladder).
+    coacd_retry_margin: float = _field(0.05, ge=0.0, le=1.0)
+    # CoACD cuts the mesh as it is; one that has finished no threshold after this share of the
+    # budget (CPU-s of its own) is stopped, and CoACD cuts it again after remeshing it with its own
+    # manifold preprocessing at coacd_remesh_resolution, searching coacd_remesh_search_iterations
+    # per cut: pybullet_data's hollow lego brick, which CoACD did not cut as it is in 300 CPU-s,
+    # remeshed in 24 CPU-s to 1.81 mm; the YCB meshes' first cuts took at most 15 (0101-collision-ladder).
+    coacd_first_cut_share: float = _field(0.3, gt=0.0, le=1.0)
+    coacd_remesh_resolution: int = _field(20, ge=10, le=200)
+    coacd_remesh_search_iterations: int = _field(20, ge=1, le=10_000)
+    # The search a near miss of the bounded one is cut again with: CoACD 1.0's own tree-search
+    # iterations per cut (coacd.run_coacd's mcts_iterations default); 0101-collision-ladder.
+    coacd_refine_iterations: int = _field(150, ge=1, le=10_000, implicit=True)
+    # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
+    # the full mesh. A mesh with more faces is cut as the smallest copy of max_faces, doubled up to
+    # copy_max_faces, that strays at most copy_tolerance from it (0101-collision-ladder).
+    max_faces: int = _field(5_000, ge=4, bound="decomposition_max_faces")
+    copy_max_faces: int = _field(20_000, ge=4, bound="decomposition_copy_max_faces")
+    copy_tolerance: float = _field(0.001, gt=0.0, bound="decomposition_copy_tolerance")  # m
+    # Surface points per side (seeded) measuring how far a simplified copy strays from the mesh: the
+    # copy chosen, and so the collision shape, follows from this measure (0101-collision-ladder).
+    copy_samples: int = _field(4_000, ge=100, le=1_000_000, implicit=True, bound="decomposition_copy_samples")
+    # CPU seconds (see budget_basis) per object for its whole load: reading, repair and the ladder
+    # (CoACD, V-HACD, hull), 1-3600; CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
+    # see docs/decisions/0101-collision-ladder.md
+    # CPU-s (reference, by default)
+    budget: float = _field(60.0, ge=1.0, le=3600.0, bound="decomposition_budget")
+    vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s (reference, by default)
+    # "reference": budget and reserve in CPU-s of the machine they were set on, scaled by a reference
+    # cut timed here, so a slower day keeps the shapes; "cpu": this machine's (0101-collision-ladder).
+    budget_basis: str = _field("reference", choices=("reference", "cpu"))
+    vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)
+    # Seconds a decomposition process may use no CPU at all (a hang, not work) before it is stopped
+    # like one over budget; a loaded machine slows a decomposition down, it does not stop it.
+    timeout: float = _field(120.0, gt=0.0, bound="decomposition_timeout")  # s
+    # Collision error targets: distance between collision shape and mesh surface (mean, max); an
+    # object beyond them is reported approximate with its figures.
+    collision_mean_limit: float = _field(0.0005, gt=0.0)  # m
+    collision_max_limit: float = _field(0.002, gt=0.0)  # m
+    collision_error_samples: int = _field(10_000, ge=100)  # surface points per direction, seeded
+
+
+@dataclass(frozen=True)
 class ObjectConfig(_Section):
     """How object meshes are loaded, weighed and given collision shapes (annotator/objects/,
     docs/objects.md). A sidecar ``objects.toml`` overrides mass, density, friction, scale and the
@@ -243,61 +321,25 @@ class ObjectConfig(_Section):
     # Convex shapes with their polyhedral features (bullet3's SAT clipping): a whole contact patch per
     # step, not a point; with [gripper] sat_features. docs/decisions/0029-contact-and-objects-measured.md
     sat_features: bool = False
-    # Convex: volume within this share of the hull's (2 % leaves out a real box's chamfers, not a mug).
-    convex_volume_tolerance: float = _field(0.02, ge=0.0, lt=1.0)
-    # CoACD concavity thresholds, the first down to the last, x 0.6 each to one significant digit
-    # (0.05, 0.03, 0.02, 0.01), until the collision error is within its limits or the budget is
-    # spent (0101-collision-ladder).
-    decomposition_threshold: float = _field(0.05, gt=0.0, le=1.0)
-    decomposition_min_threshold: float = _field(0.01, gt=0.0, le=1.0)
-    # CoACD's tree-search iterations per cut (its own default 150): the search bounded so a scan's
-    # refinement fits the budget (0101-collision-ladder).
-    coacd_search_iterations: int = _field(60, ge=1, le=10_000)
-    # A threshold whose bounded search misses the error limits by at most this share of them is cut
-    # again with CoACD's own search before a finer one (0101-collision-ladder).
-    coacd_retry_margin: float = _field(0.05, ge=0.0, le=1.0)
-    # CoACD cuts the mesh as it is; one that has finished no threshold after this share of the
-    # budget (CPU-s of its own) is stopped, and CoACD cuts it again after remeshing it with its own
-    # manifold preprocessing at coacd_remesh_resolution, searching coacd_remesh_search_iterations
-    # per cut: pybullet_data's hollow lego brick, which CoACD did not cut as it is in 300 CPU-s,
-    # remeshed in 24 CPU-s to 1.81 mm; the YCB meshes' first cuts took at most 15 (0101-collision-ladder).
-    coacd_first_cut_share: float = _field(0.3, gt=0.0, le=1.0)
-    coacd_remesh_resolution: int = _field(20, ge=10, le=200)
-    coacd_remesh_search_iterations: int = _field(20, ge=1, le=10_000)
-    # The search a near miss of the bounded one is cut again with: CoACD 1.0's own tree-search
-    # iterations per cut (coacd.run_coacd's mcts_iterations default); 0101-collision-ladder.
-    coacd_refine_iterations: int = _field(150, ge=1, le=10_000, implicit=True)
-    # Faces of the copy a decomposition cuts (quadric decimation); the error is measured against
-    # the full mesh. A mesh with more faces is cut as the smallest copy of max_faces, doubled up to
-    # copy_max_faces, that strays at most copy_tolerance from it (0101-collision-ladder).
-    decomposition_max_faces: int = _field(5_000, ge=4)
-    decomposition_copy_max_faces: int = _field(20_000, ge=4)
-    decomposition_copy_tolerance: float = _field(0.001, gt=0.0)  # m
-    # Surface points per side (seeded) measuring how far a simplified copy strays from the mesh: the
-    # copy chosen, and so the collision shape, follows from this measure (0101-collision-ladder).
-    decomposition_copy_samples: int = _field(4_000, ge=100, le=1_000_000, implicit=True)
-    # CPU seconds (see budget_basis) per object for its whole load: reading, repair and the ladder
-    # (CoACD, V-HACD, hull), 1-3600; CoACD leaves vhacd_reserve of it for V-HACD until it has parts.
-    # see docs/decisions/0101-collision-ladder.md
-    decomposition_budget: float = _field(60.0, ge=1.0, le=3600.0)  # CPU-s (reference, by default)
-    vhacd_reserve: float = _field(8.0, ge=0.0)  # CPU-s (reference, by default)
-    # "reference": budget and reserve in CPU-s of the machine they were set on, scaled by a reference
-    # cut timed here, so a slower day keeps the shapes; "cpu": this machine's (0101-collision-ladder).
-    budget_basis: str = _field("reference", choices=("reference", "cpu"))
-    vhacd_resolution: int = _field(400_000, ge=10_000, le=64_000_000)  # voxels (pybullet.vhacd's range)
-    # Seconds a decomposition process may use no CPU at all (a hang, not work) before it is stopped
-    # like one over budget; a loaded machine slows a decomposition down, it does not stop it.
-    decomposition_timeout: float = _field(120.0, gt=0.0)  # s
-    # Collision error targets: distance between collision shape and mesh surface (mean, max); an
-    # object beyond them is reported approximate with its figures.
-    collision_mean_limit: float = _field(0.0005, gt=0.0)  # m
-    collision_max_limit: float = _field(0.002, gt=0.0)  # m
-    collision_error_samples: int = _field(10_000, ge=100)  # surface points per direction, seeded
+    # The collision ladder: how a concave mesh is cut into convex parts (its own section, TOML
+    # [objects.decomposition]).
+    decomposition: DecompositionConfig = field(default_factory=DecompositionConfig)
     # Memory one worker may spend loading an object (MB), checked from its face count before it is
     # read; an object above it fails with its estimate (0102-memory).
     memory_budget: float = _field(4096.0, gt=0.0)  # MB
     # Keep a multi-node .glb or multi-object .obj as one object (default: one object per body).
     merge_parts: bool = False
+
+    def with_decomposition(self, **changes: Any) -> ObjectConfig:
+        """This section with ``changes`` to its ladder (``budget=30.0``): :class:`DecompositionConfig`'s
+        fields, checked as any. ConfigError for a field it does not have."""
+        known = {f.name for f in dataclasses.fields(DecompositionConfig)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise ConfigError(
+                f"unknown field(s) {unknown} in [objects.decomposition]; known: {sorted(known)}"
+            )
+        return dataclasses.replace(self, decomposition=dataclasses.replace(self.decomposition, **changes))
 
 
 @dataclass(frozen=True)
@@ -790,10 +832,15 @@ class AnnotatorConfig:
         shaken perturbed trials.
         """
         data = dataclasses.asdict(self)
+        data["objects"] |= _bound_fields(data["objects"].pop("decomposition"))
         for section in dataclasses.fields(self):  # implicit fields at the value every run had
-            for f in dataclasses.fields(getattr(self, section.name)):
-                if f.metadata.get("implicit") and data[section.name][f.name] == f.default:
-                    data[section.name].pop(f.name)
+            values = getattr(self, section.name)
+            fields = [(f, _bound_name(f)) for f in dataclasses.fields(values)]
+            if section.name == "objects":
+                fields += [(f, _bound_name(f)) for f in dataclasses.fields(DecompositionConfig)]
+            for f, name in fields:
+                if f.metadata.get("implicit") and data[section.name].get(name, f.default) == f.default:
+                    data[section.name].pop(name, None)
         if not scenes:
             data.pop("scenes")
         if self.confidence.method == "none":
@@ -849,6 +896,8 @@ class AnnotatorConfig:
             if not isinstance(values, dict):
                 raise ConfigError(f"[{name}] must be a section of settings, got {values!r}")
             current = getattr(defaults, name)
+            if name == "objects":
+                values = _objects_values(values)
             known = {f.name for f in dataclasses.fields(current)}
             unknown = set(values) - known
             if unknown:
@@ -867,6 +916,47 @@ class AnnotatorConfig:
             except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
                 raise ConfigError(f"not a TOML file ({exc})") from exc
         return cls.from_dict(data)
+
+
+def _bound_name(f: dataclasses.Field) -> str:
+    """The name a run binds field ``f`` under (its ``bound`` metadata, else its own)."""
+    return f.metadata.get("bound") or f.name
+
+
+def _bound_fields(decomposition: dict[str, Any]) -> dict[str, Any]:
+    """``[objects.decomposition]``'s values by the names a run binds them under in ``[objects]``."""
+    names = {f.name: _bound_name(f) for f in dataclasses.fields(DecompositionConfig)}
+    return {names[k]: v for k, v in decomposition.items()}
+
+
+def _objects_values(values: dict[str, Any]) -> dict[str, Any]:
+    """``[objects]``'s values with its ladder gathered into one :class:`DecompositionConfig`: from
+    an ``[objects.decomposition]`` table (``decomposition = {...}``) or from the bound names a run's
+    manifest (and a config file written before the section) gives them in ``[objects]`` itself.
+    ConfigError for a setting given both ways, an unknown field of the table, a wrong type or a
+    value out of range."""
+    by_bound = {_bound_name(f): f.name for f in dataclasses.fields(DecompositionConfig)}
+    flat = {by_bound[k]: v for k, v in values.items() if k in by_bound}
+    table = values.get("decomposition", {})
+    if not flat and "decomposition" not in values:
+        return values
+    if not isinstance(table, dict):
+        raise ConfigError(f"[objects.decomposition] must be a section of settings, got {table!r}")
+    known = set(by_bound.values())
+    unknown = set(table) - known
+    if unknown:
+        raise ConfigError(
+            f"unknown field(s) {sorted(unknown)} in [objects.decomposition]; known: {sorted(known)}"
+        )
+    both = sorted(set(flat) & set(table))
+    if both:
+        bound = {name: by for by, name in by_bound.items()}
+        raise ConfigError(
+            f"[objects.decomposition] {both[0]} is given twice: as [objects] {bound[both[0]]} and in the "
+            "[objects.decomposition] table"
+        )
+    rest = {k: v for k, v in values.items() if k not in by_bound and k != "decomposition"}
+    return rest | {"decomposition": DecompositionConfig(**(flat | table))}
 
 
 # What a folder made before the stages existed simulated, for each field it lacks: no benchmark
@@ -893,6 +983,7 @@ _SECTION_NAMES = {
     "PhysicsConfig": "physics",
     "GripperConfig": "gripper",
     "ObjectConfig": "objects",
+    "DecompositionConfig": "objects.decomposition",
     "SamplerConfig": "sampler",
     "ProtocolConfig": "protocol",
     "RobustConfig": "robust",

@@ -85,13 +85,15 @@ def main() -> None:
     with_before = args.before if args.before is not None else args.objects.resolve() == ROOT / "objects"
     config = ObjectConfig()
     if args.first_cut_share is not None:
-        config = dataclasses.replace(config, coacd_first_cut_share=args.first_cut_share)
+        ladder = dataclasses.replace(config.decomposition, coacd_first_cut_share=args.first_cut_share)
+        config = dataclasses.replace(config, decomposition=ladder)
     if args.budget_basis is not None:
-        config = dataclasses.replace(config, budget_basis=args.budget_basis)
+        ladder = dataclasses.replace(config.decomposition, budget_basis=args.budget_basis)
+        config = dataclasses.replace(config, decomposition=ladder)
     cache = args.cache or Path(tempfile.mkdtemp(prefix="rg2-bench-cache-"))
     print(
-        f"limits: mean <= {config.collision_mean_limit * 1e3:g} mm, "
-        f"max <= {config.collision_max_limit * 1e3:g} mm; cache {cache}"
+        f"limits: mean <= {config.decomposition.collision_mean_limit * 1e3:g} mm, "
+        f"max <= {config.decomposition.collision_max_limit * 1e3:g} mm; cache {cache}"
     )
     head = (
         f"{'object':<34} {'faces':>7} {'mass model':>10} {'g':>7} {'method':>14} {'parts':>5} {'thr':>5}"
@@ -105,7 +107,10 @@ def main() -> None:
         run.figure(
             "budget_factor",
             factor,
-            note=f"CPU-s per budget second (budget_basis {config.budget_basis!r}, objects.machine_speed)",
+            note=(
+                f"CPU-s per budget second (budget_basis {config.decomposition.budget_basis!r}, "
+                "objects.machine_speed)"
+            ),
         )
         run.figure(
             "within_limits",
@@ -162,7 +167,7 @@ def measure(
         }
         if with_before:
             old_parts = before(model)
-            old = collision_error(model.mesh, old_parts, config.collision_error_samples)
+            old = collision_error(model.mesh, old_parts, config.decomposition.collision_error_samples)
             line += f"  {len(old_parts):>5} {old.mean * 1e3:6.2f} {old.max * 1e3:6.2f}"
             row |= {
                 "before_parts": len(old_parts),

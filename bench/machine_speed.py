@@ -5,7 +5,7 @@
 
 ``annotator.objects.machine_speed`` times a fixed CoACD cut (a generated 16-sided ring) in a child
 process with one OpenMP thread and divides by ``REFERENCE_CUT_SECONDS``, the cut's CPU time on the
-machine the ladder's limits were measured on: with ``[objects] budget_basis = "reference"`` the
+machine the ladder's limits were measured on: with ``[objects.decomposition] budget_basis = "reference"`` the
 ladder's budget and V-HACD's reserve are multiplied by that factor. This bench times the cut
 ``--cuts`` times in this process (one OpenMP thread), reports the fastest, the median and the
 spread, the factor the product measures in its own child, and the free step of the annotation

@@ -347,7 +347,7 @@ def why_beyond(r: Load, config: ObjectConfig) -> str:
         return "convex within convex_volume_tolerance: its hull bridges the mesh's grooves and recesses"
     if "over budget" in r.ladder and r.method == "coacd":
         return "the CPU budget stopped CoACD's refinement: its best finished threshold"
-    if r.method == "coacd" and r.threshold <= config.decomposition_min_threshold:
+    if r.method == "coacd" and r.threshold <= config.decomposition.min_threshold:
         return "CoACD at its finest threshold: the decomposition, not the mesh, is the limit"
     if r.method == "coacd":
         return "CoACD kept a coarser threshold: the finer ones did not measure better"

@@ -13,7 +13,7 @@ discovering the objects and hashing every source (the manifest's digests), with 
 
 ``big-mesh`` writes a torus of 2000 x 500 x 2 = 2,000,000 faces (a concave ring, 90 mm across),
 reads and simplifies it to the face budget (ObjectConfig.max_faces), decomposes it (CoACD on a
-copy of at most ObjectConfig.decomposition_max_faces) and runs ``annotate --n 20`` on it in a fresh
+copy of at most DecompositionConfig.max_faces) and runs ``annotate --n 20`` on it in a fresh
 process with that decomposition cached, printing each step's time and peak memory.
 
 ``store`` measures the output folder's bookkeeping as the number of objects grows, at ``--n 1``
@@ -239,7 +239,7 @@ def big_mesh(args) -> None:
         print(
             f"load_object (read again, weigh, decompose): {seconds:.1f} s, of which "
             f"decomposition {model.decomposition_seconds:.1f} s (CoACD on at most "
-            f"{config.decomposition_max_faces:,} faces, in a child process): {model.collision_method} "
+            f"{config.decomposition.max_faces:,} faces, in a child process): {model.collision_method} "
             f"{len(model.parts)} parts, threshold "
             f"{model.collision_threshold:g}, error {err.mean * 1e3:.2f} / {err.max * 1e3:.2f} mm "
             f"({'approximate' if model.approximate else 'within the limits'}); peak RSS {_rss_mb():.0f} MB"

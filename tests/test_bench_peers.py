@@ -4,7 +4,6 @@ in turns, and a trial's step count is the steps it really took."""
 from __future__ import annotations
 
 import collections
-import dataclasses
 import math
 
 import numpy as np
@@ -28,7 +27,7 @@ def turns(tmp_path_factory):
     config = AnnotatorConfig()
     tools = [peers.Ours(config), peers.VGN(folder), peers.AdaGrasp(folder)]
     # the collision shapes' error check on fewer samples: it only reports, the bodies are the same
-    objects = dataclasses.replace(config.objects, collision_error_samples=500)
+    objects = config.objects.with_decomposition(collision_error_samples=500)
     work = []
     for source in peers.bench_objects(folder, ("cube40", "cylinder66x120")):
         model = load_object(source, objects, cache_dir=folder / "cache")

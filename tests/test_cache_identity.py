@@ -59,7 +59,7 @@ def test_a_foreign_entry_is_a_miss_said_once_and_replaced(tmp_path, caplog):
     hull, never cached)."""
     box = dimpled(trimesh.creation.box((0.05, 0.04, 0.10)))
     cylinder = dimpled(trimesh.creation.cylinder(radius=0.03, height=0.09, sections=24))
-    config = ObjectConfig()
+    config = ObjectConfig().decomposition
     own = decomposition.collision_geometry(box, "hull", config, tmp_path / "box")
     fresh = decomposition.collision_geometry(cylinder, "hull", config, tmp_path / "clean")
     target = tmp_path / "poisoned" / fresh.file.name

@@ -18,7 +18,7 @@ import trimesh
 from helpers import write_l
 
 from annotator import versions as label_versions
-from annotator.config import AnnotatorConfig, ObjectConfig
+from annotator.config import AnnotatorConfig, DecompositionConfig, ObjectConfig
 from annotator.objects import (
     cache,
     collision_entry,
@@ -34,7 +34,8 @@ from annotator.objects.fidelity import collision_error
 
 # Plain CPU seconds: these tests give the rungs budgets of a few CPU-s and check the children kept
 # to them (the reference basis, which scales the budget by the machine's speed, is tested below).
-CONFIG = ObjectConfig(budget_basis="cpu")
+CONFIG = ObjectConfig().with_decomposition(budget_basis="cpu")
+LADDER = CONFIG.decomposition
 SPIN = [sys.executable, "-c", "while True: pass"]  # a decomposition that never ends, using CPU
 SLEEP = [sys.executable, "-c", "import time; time.sleep(60)"]  # one that hangs without using CPU
 ABORT = [sys.executable, "-c", "import os; os.abort()"]
@@ -102,9 +103,11 @@ def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_a
 
     calls: list[str] = []
     seam(monkeypatch, {"coacd": SPIN}, calls)
-    config = dataclasses.replace(CONFIG, decomposition_budget=7.0, vhacd_reserve=6.0)
+    config = CONFIG.with_decomposition(budget=7.0, vhacd_reserve=6.0)
     model = load_object(write_l(tmp_path / "objects" / "corner.obj"), config, cache_dir=tmp_path / "c")
-    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")  # its entry
+    geometry = decomposition.collision_geometry(
+        model.mesh, "coacd", config.decomposition, tmp_path / "c"
+    )  # its entry
     coacd, remeshed, vhacd = geometry.ladder
     assert coacd.method == "coacd" and coacd.outcome == "over budget" and coacd.error is None
     assert 0.9 <= coacd.cpu_seconds <= 2.5  # its share: the budget less the V-HACD reserve, 1 CPU-s
@@ -112,11 +115,13 @@ def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_a
     assert (remeshed.method, remeshed.outcome, remeshed.cpu_seconds) == ("coacd-remeshed", "over budget", 0.0)
     assert "V-HACD's reserve 6" in remeshed.detail
     assert vhacd.method == "vhacd" and vhacd.outcome == "kept" and vhacd.error is not None
-    assert coacd.cpu_seconds + vhacd.cpu_seconds <= config.decomposition_budget + 1.0
+    assert coacd.cpu_seconds + vhacd.cpu_seconds <= config.decomposition.budget + 1.0
     assert model.collision_method == "vhacd" and len(model.parts) >= 1
     assert model.collision_ladder.startswith("coacd over budget (stopped at 1 CPU-s)")
     assert any(w.startswith("collision shape by vhacd: coacd over budget") for w in model.warnings)
-    assert model.collision_error == collision_error(model.mesh, model.parts, config.collision_error_samples)
+    assert model.collision_error == collision_error(
+        model.mesh, model.parts, config.decomposition.collision_error_samples
+    )
     assert calls == ["coacd", "vhacd"]
     # the outcome is a result like any other: spans of the object on this worker and on a fresh one
     # label it from the cache, nothing is decomposed again
@@ -143,9 +148,9 @@ def test_a_coacd_that_never_ends_gets_vhacd_within_the_budget_and_is_never_run_a
 @pytest.mark.slow
 def test_when_every_decomposition_hangs_the_hull_is_the_shape_within_the_budget(tmp_path, monkeypatch):
     seam(monkeypatch, {"coacd": SPIN, "vhacd": SPIN})
-    config = dataclasses.replace(CONFIG, decomposition_budget=3.0, vhacd_reserve=1.0)
+    config = CONFIG.with_decomposition(budget=3.0, vhacd_reserve=1.0)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
-    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config.decomposition, tmp_path / "c")
     assert [(r.method, r.outcome) for r in geometry.ladder] == [
         ("coacd", "over budget"),
         ("coacd-remeshed", "over budget"),
@@ -153,13 +158,13 @@ def test_when_every_decomposition_hangs_the_hull_is_the_shape_within_the_budget(
         ("hull", "kept"),
     ]
     children = sum(r.cpu_seconds for r in geometry.ladder[:3])
-    assert children <= config.decomposition_budget + 1.0  # each stopped within a second of its limit
+    assert children <= config.decomposition.budget + 1.0  # each stopped within a second of its limit
     assert model.collision_method == "hull" and len(model.parts) == 1 and model.approximate
 
 
 def test_a_decomposition_that_hangs_without_using_cpu_is_stopped(tmp_path, monkeypatch):
     seam(monkeypatch, {"coacd": SLEEP, "coacd-remeshed": SLEEP, "vhacd": ABORT})
-    config = dataclasses.replace(CONFIG, decomposition_timeout=1.0)
+    config = CONFIG.with_decomposition(timeout=1.0)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
     assert model.collision_ladder.startswith("coacd over budget (stopped after 1 s without using CPU)")
     assert "coacd-remeshed over budget (stopped after 1 s without using CPU)" in model.collision_ladder
@@ -193,25 +198,25 @@ def test_a_can_coacd_cannot_finish_within_its_budget_gets_vhacd(tmp_path):
     """Real CoACD on a rimmed can (3-4 CPU-s at 0.05 here) given 1 CPU-s: stopped, V-HACD's parts."""
     path = tmp_path / "can.stl"
     rimmed_can().export(path)
-    config = dataclasses.replace(CONFIG, decomposition_budget=9.0, vhacd_reserve=8.0)
+    config = CONFIG.with_decomposition(budget=9.0, vhacd_reserve=8.0)
     model = load_object(path, config, cache_dir=tmp_path / "c")
     assert model.watertight and not model.convex
     assert model.collision_ladder.startswith("coacd over budget (stopped at 1 CPU-s")
     assert model.collision_method == "vhacd" and np.isfinite(model.collision_error.max)
-    assert model.decomposition_seconds <= config.decomposition_budget + 1.0
+    assert model.decomposition_seconds <= config.decomposition.budget + 1.0
 
 
 def test_each_coacd_rung_must_have_parts_by_its_point_of_the_budget():
     """CoACD as the mesh is: 0.3 of the 60 CPU-s budget (at the latest V-HACD's reserve before its
     limit); CoACD remeshed: V-HACD's reserve before its limit; V-HACD: its whole limit."""
-    assert collision_ladder.first_parts_by("coacd", 59, CONFIG, 1.0) == pytest.approx(18.0)
-    assert collision_ladder.first_parts_by("coacd-remeshed", 39, CONFIG, 1.0) == 31
-    assert collision_ladder.first_parts_by("vhacd", 39, CONFIG, 1.0) is None
-    whole = dataclasses.replace(CONFIG, coacd_first_cut_share=1.0)
+    assert collision_ladder.first_parts_by("coacd", 59, LADDER, 1.0) == pytest.approx(18.0)
+    assert collision_ladder.first_parts_by("coacd-remeshed", 39, LADDER, 1.0) == 31
+    assert collision_ladder.first_parts_by("vhacd", 39, LADDER, 1.0) is None
+    whole = dataclasses.replace(LADDER, coacd_first_cut_share=1.0)
     assert collision_ladder.first_parts_by("coacd", 59, whole, 1.0) == 51
     # started with less: stopped at 1 CPU-s
-    assert collision_ladder.first_parts_by("coacd", 5, CONFIG, 1.0) == -3
-    no_reserve = dataclasses.replace(CONFIG, vhacd_reserve=0.0, coacd_first_cut_share=1.0)
+    assert collision_ladder.first_parts_by("coacd", 5, LADDER, 1.0) == -3
+    no_reserve = dataclasses.replace(LADDER, vhacd_reserve=0.0, coacd_first_cut_share=1.0)
     assert collision_ladder.first_parts_by("coacd-remeshed", 39, no_reserve, 1.0) is None
 
 
@@ -223,19 +228,19 @@ def test_a_coacd_finishing_no_threshold_by_its_share_gets_coacd_on_the_remeshed_
     the budget stops it, keeping the best it finished.)"""
     calls: list[str] = []
     seam(monkeypatch, {"coacd": SPIN}, calls)
-    config = dataclasses.replace(
-        CONFIG, decomposition_budget=12.0, vhacd_reserve=4.0, coacd_first_cut_share=0.25
-    )
+    config = CONFIG.with_decomposition(budget=12.0, vhacd_reserve=4.0, coacd_first_cut_share=0.25)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
-    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config.decomposition, tmp_path / "c")
     coacd, remeshed = geometry.ladder
     assert (coacd.method, coacd.outcome) == ("coacd", "over budget") and 2.5 <= coacd.cpu_seconds <= 4.5
     assert (remeshed.method, remeshed.outcome) == ("coacd-remeshed", "kept")
-    assert remeshed.threshold in decomposers.thresholds(config)
+    assert remeshed.threshold in decomposers.thresholds(config.decomposition)
     assert calls == ["coacd", "coacd-remeshed"]
     assert model.collision_method == "coacd-remeshed" and len(model.parts) >= 2  # the L's two arms
     # the error is measured against the mesh itself, not against the remeshed copy CoACD cut
-    assert model.collision_error == collision_error(model.mesh, model.parts, config.collision_error_samples)
+    assert model.collision_error == collision_error(
+        model.mesh, model.parts, config.decomposition.collision_error_samples
+    )
     assert model.collision_error.max < 0.004  # the 60 x 50 mm L within a few millimetres
     assert any(w.startswith("collision shape by coacd-remeshed: coacd over budget") for w in model.warnings)
 
@@ -246,11 +251,9 @@ def test_a_remeshed_coacd_that_never_ends_leaves_vhacd_its_reserve(tmp_path, mon
     V-HACD's reserve, and V-HACD's parts are the shape, the whole ladder within the budget."""
     calls: list[str] = []
     seam(monkeypatch, {"coacd": SPIN, "coacd-remeshed": SPIN}, calls)
-    config = dataclasses.replace(
-        CONFIG, decomposition_budget=12.0, vhacd_reserve=4.0, coacd_first_cut_share=0.25
-    )
+    config = CONFIG.with_decomposition(budget=12.0, vhacd_reserve=4.0, coacd_first_cut_share=0.25)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
-    geometry = decomposition.collision_geometry(model.mesh, "coacd", config, tmp_path / "c")
+    geometry = decomposition.collision_geometry(model.mesh, "coacd", config.decomposition, tmp_path / "c")
     assert [(r.method, r.outcome) for r in geometry.ladder] == [
         ("coacd", "over budget"),
         ("coacd-remeshed", "over budget"),
@@ -258,7 +261,7 @@ def test_a_remeshed_coacd_that_never_ends_leaves_vhacd_its_reserve(tmp_path, mon
     ]
     coacd, remeshed, vhacd = (r.cpu_seconds for r in geometry.ladder)
     assert 2.5 <= coacd <= 4.5 and 3.0 <= remeshed <= 5.5  # 3 CPU-s; then 8 left less the reserve 4
-    assert coacd + remeshed + vhacd <= config.decomposition_budget + 1.0
+    assert coacd + remeshed + vhacd <= config.decomposition.budget + 1.0
     assert calls == ["coacd", "coacd-remeshed", "vhacd"] and model.collision_method == "vhacd"
 
 
@@ -294,9 +297,7 @@ def test_a_refinement_stopped_by_the_budget_keeps_the_best_threshold_it_finished
     )
     # the fake child imports annotator before it writes its threshold: a first cut of 0.6 x 6 CPU-s
     # leaves a loaded machine room for that (0.3, the default share, did not always)
-    config = dataclasses.replace(
-        CONFIG, decomposition_budget=6.0, vhacd_reserve=2.0, coacd_first_cut_share=0.6
-    )
+    config = CONFIG.with_decomposition(budget=6.0, vhacd_reserve=2.0, coacd_first_cut_share=0.6)
     model = load_object(write_l(tmp_path / "corner.obj"), config, cache_dir=tmp_path / "c")
     assert model.collision_method == "coacd" and model.collision_threshold == 0.05
     assert model.collision_ladder.startswith("coacd kept (threshold 0.05, error ")
@@ -304,8 +305,8 @@ def test_a_refinement_stopped_by_the_budget_keeps_the_best_threshold_it_finished
     # V-HACD its reserve, 2 CPU-s before the end), and V-HACD never ran
     stopped = re.search(r"over budget: stopped at (\d+) CPU-s", model.collision_ladder)
     assert stopped is not None, model.collision_ladder
-    limit = config.decomposition_budget - collision_ladder.AFTER_LADDER_SECONDS
-    assert limit - config.vhacd_reserve < int(stopped.group(1)) <= limit
+    limit = config.decomposition.budget - collision_ladder.AFTER_LADDER_SECONDS
+    assert limit - config.decomposition.vhacd_reserve < int(stopped.group(1)) <= limit
     assert ";" not in model.collision_ladder
 
 
@@ -315,8 +316,8 @@ def test_the_budget_counts_the_whole_load_and_a_spent_one_starts_no_decompositio
     calls: list[str] = []
     seam(monkeypatch, {}, calls)
     mesh = trimesh.load(write_l(tmp_path / "corner.obj"), force="mesh")
-    spent_all = time.process_time() - CONFIG.decomposition_budget
-    geometry = decomposition.collision_geometry(mesh, "coacd", CONFIG, tmp_path / "c", load_started=spent_all)
+    spent_all = time.process_time() - CONFIG.decomposition.budget
+    geometry = decomposition.collision_geometry(mesh, "coacd", LADDER, tmp_path / "c", load_started=spent_all)
     assert [(r.method, r.outcome, r.cpu_seconds) for r in geometry.ladder] == [
         ("coacd", "over budget", 0.0),
         ("coacd-remeshed", "over budget", 0.0),
@@ -329,17 +330,17 @@ def test_the_budget_counts_the_whole_load_and_a_spent_one_starts_no_decompositio
 
 def test_a_scan_is_cut_as_the_smallest_copy_that_stays_within_the_tolerance():
     """Parts cannot follow the mesh more closely than the copy they are cut from: above
-    ``decomposition_max_faces`` the copy doubles (up to ``decomposition_copy_max_faces``) until it
-    strays no more than ``decomposition_copy_tolerance`` from the mesh."""
+    ``max_faces`` the copy doubles (up to ``copy_max_faces``) until it
+    strays no more than ``copy_tolerance`` from the mesh."""
     from annotator.objects.fidelity import surface_deviation
 
     dense = trimesh.creation.torus(0.036, 0.009, major_sections=128, minor_sections=64)  # 16,384 faces
-    config = dataclasses.replace(CONFIG, decomposition_max_faces=500, decomposition_copy_max_faces=2000)
+    config = dataclasses.replace(LADDER, max_faces=500, copy_max_faces=2000)
     assert decomposers.copy_sizes(config) == (500, 1000, 2000)
 
     def copy(tolerance: float) -> decomposers.Copy:
         return decomposers.decomposition_copy(
-            dense.vertices, dense.faces, dataclasses.replace(config, decomposition_copy_tolerance=tolerance)
+            dense.vertices, dense.faces, dataclasses.replace(config, copy_tolerance=tolerance)
         )
 
     coarse, finest = copy(1.0), copy(1e-9)
@@ -482,20 +483,20 @@ def test_the_parts_obj_is_named_by_its_text_and_a_damaged_one_is_written_again(t
 def test_the_key_holds_the_mesh_every_setting_that_shapes_it_and_the_library_versions(monkeypatch):
     l_mesh = trimesh.load(write_l(Path(os.environ.get("TMPDIR", "/tmp")) / "rg2-key-l.obj"), force="mesh")
     key = decomposition.geometry_key
-    base = key(l_mesh, "coacd", CONFIG)
-    assert key(l_mesh, "coacd", CONFIG) == base
-    assert key(l_mesh, "hull", CONFIG) != base
-    assert key(l_mesh, "coacd", dataclasses.replace(CONFIG, decomposition_budget=30.0)) != base
-    assert key(l_mesh, "coacd", dataclasses.replace(CONFIG, budget_basis="reference")) != base
-    assert key(l_mesh, "hull", dataclasses.replace(CONFIG, decomposition_budget=30.0)) == key(
-        l_mesh, "hull", CONFIG
+    base = key(l_mesh, "coacd", LADDER)
+    assert key(l_mesh, "coacd", LADDER) == base
+    assert key(l_mesh, "hull", LADDER) != base
+    assert key(l_mesh, "coacd", dataclasses.replace(LADDER, budget=30.0)) != base
+    assert key(l_mesh, "coacd", dataclasses.replace(LADDER, budget_basis="reference")) != base
+    assert key(l_mesh, "hull", dataclasses.replace(LADDER, budget=30.0)) == key(
+        l_mesh, "hull", LADDER
     )  # a hull does not depend on the ladder's settings
     moved = trimesh.Trimesh(l_mesh.vertices + 1e-12, l_mesh.faces, process=False)
-    assert key(moved, "coacd", CONFIG) != base
+    assert key(moved, "coacd", LADDER) != base
     versions = label_versions.library_versions()
     for library in label_versions.LABEL_LIBRARIES:
         monkeypatch.setattr(label_versions, "library_versions", lambda lib=library: {**versions, lib: "99.0"})
-        assert key(l_mesh, "coacd", CONFIG) != base, library
+        assert key(l_mesh, "coacd", LADDER) != base, library
 
 
 def test_no_lock_on_the_filesystem_is_not_an_error(tmp_path, monkeypatch):
@@ -519,7 +520,7 @@ def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sam
     def after_005(mean_mm: float, max_mm: float) -> float:
         todo = (0.03, 0.02)
         error = CollisionError(mean_mm / 1e3, max_mm / 1e3, 0.0, 0.0, 0.0, 0.0)
-        return todo[decomposers.next_threshold(todo, 0.05, error, CONFIG)]
+        return todo[decomposers.next_threshold(todo, 0.05, error, LADDER)]
 
     assert after_005(0.345, 3.116) == after_005(0.52, 3.154) == after_005(0.343, 2.691) == 0.03
     assert after_005(0.477, 4.649) == 0.02
@@ -530,9 +531,9 @@ def test_a_threshold_the_error_says_is_too_coarse_is_skipped_but_not_for_the_sam
     # (0.0198 would be enough) goes to 0.02, not to 0.01
     finer = (0.03, 0.02, 0.01)
     cracker = CollisionError(0.32e-3, 5.06e-3, 0.0, 0.0, 0.0, 0.0)
-    assert finer[decomposers.next_threshold(finer, 0.05, cracker, CONFIG)] == 0.02
+    assert finer[decomposers.next_threshold(finer, 0.05, cracker, LADDER)] == 0.02
     hammer = CollisionError(0.25e-3, 2.78e-3, 0.0, 0.0, 0.0, 0.0)
-    assert decomposers.next_threshold((0.01,), 0.02, hammer, CONFIG) == 0
+    assert decomposers.next_threshold((0.01,), 0.02, hammer, LADDER) == 0
 
 
 def test_a_near_miss_is_one_within_the_retry_margin_of_the_limits():
@@ -545,13 +546,13 @@ def test_a_near_miss_is_one_within_the_retry_margin_of_the_limits():
     def error(mean_mm: float, max_mm: float) -> CollisionError:
         return CollisionError(mean_mm / 1e3, max_mm / 1e3, 0.0, 0.0, 0.0, 0.0)
 
-    assert decomposers.near_miss(error(0.10, 2.03), CONFIG)
-    assert decomposers.near_miss(error(0.23, 2.06), CONFIG)
-    assert not decomposers.near_miss(error(0.29, 2.84), CONFIG)
-    assert not decomposers.near_miss(error(0.19, 2.13), CONFIG)
-    assert not decomposers.near_miss(error(0.10, 1.97), CONFIG)
-    assert decomposers.near_miss(error(0.52, 1.0), CONFIG)  # the mean can be the near miss
-    assert not decomposers.near_miss(error(0.10, 2.03), dataclasses.replace(CONFIG, coacd_retry_margin=0.0))
+    assert decomposers.near_miss(error(0.10, 2.03), LADDER)
+    assert decomposers.near_miss(error(0.23, 2.06), LADDER)
+    assert not decomposers.near_miss(error(0.29, 2.84), LADDER)
+    assert not decomposers.near_miss(error(0.19, 2.13), LADDER)
+    assert not decomposers.near_miss(error(0.10, 1.97), LADDER)
+    assert decomposers.near_miss(error(0.52, 1.0), LADDER)  # the mean can be the near miss
+    assert not decomposers.near_miss(error(0.10, 2.03), dataclasses.replace(LADDER, coacd_retry_margin=0.0))
 
 
 @pytest.mark.slow  # two CoACD searches of a real mesh: 18 s in CI
@@ -562,7 +563,7 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
     import coacd
 
     torus = trimesh.creation.torus(0.04, 0.012, major_sections=16, minor_sections=8)
-    only = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, coacd_retry_margin=0.0)
+    only = dataclasses.replace(LADDER, min_threshold=0.05, coacd_retry_margin=0.0)
     _, bounded, _ = decomposers.refine_coacd(torus.vertices, torus.faces, only)
     own_config = dataclasses.replace(only, coacd_search_iterations=only.coacd_refine_iterations)
     _, own, _ = decomposers.refine_coacd(torus.vertices, torus.faces, own_config)
@@ -576,14 +577,14 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
         return run(*args, **kwargs)
 
     monkeypatch.setattr(coacd, "run_coacd", recording)
-    retry = dataclasses.replace(CONFIG, decomposition_min_threshold=0.05, collision_mean_limit=1.0)
+    retry = dataclasses.replace(LADDER, min_threshold=0.05, collision_mean_limit=1.0)
     near = dataclasses.replace(retry, collision_max_limit=bounded.max / 1.03)
     kept = []
     _, error, threshold = decomposers.refine_coacd(
         torus.vertices, torus.faces, near, lambda parts, e, t: kept.append(e.max)
     )
     assert calls == [
-        (0.05, CONFIG.coacd_search_iterations),
+        (0.05, LADDER.coacd_search_iterations),
         (0.05, only.coacd_refine_iterations),
     ]
     assert threshold == 0.05 and error.max == min(bounded.max, own.max)
@@ -592,7 +593,7 @@ def test_a_threshold_the_bounded_search_nearly_meets_is_cut_again_with_coacds_ow
     calls.clear()
     far = dataclasses.replace(retry, collision_max_limit=bounded.max / 1.2)
     _, error, _ = decomposers.refine_coacd(torus.vertices, torus.faces, far)
-    assert calls == [(0.05, CONFIG.coacd_search_iterations)] and error.max == bounded.max
+    assert calls == [(0.05, LADDER.coacd_search_iterations)] and error.max == bounded.max
 
 
 def test_vhacd_gives_the_same_parts_every_time(tmp_path):
@@ -606,13 +607,13 @@ def test_vhacd_gives_the_same_parts_every_time(tmp_path):
         job = tmp_path / f"job{i}"
         job.mkdir()
         with quiet_c_output("vhacd"):  # V-HACD prints its progress from C
-            parts = decomposers.run_vhacd(mesh.vertices, mesh.faces, CONFIG, job)
+            parts = decomposers.run_vhacd(mesh.vertices, mesh.faces, LADDER, job)
         runs.append([(p.vertices.tobytes(), p.faces.tobytes()) for p in parts])
     assert len(runs[0]) >= 2 and runs[0] == runs[1]
 
 
 def _ladder_limits(
-    monkeypatch, tmp_path, config: ObjectConfig, factor: float, spent: float = 0.0
+    monkeypatch, tmp_path, config: DecompositionConfig, factor: float, spent: float = 0.0
 ) -> list[tuple[str, float, float | None]]:
     """(rung, CPU limit, first-parts point) of each child the ladder starts for an L when this machine
     runs at ``factor`` CPU-s per reference CPU-second and the load spent ``spent`` CPU-s before the
@@ -638,11 +639,11 @@ def test_a_budget_in_reference_seconds_is_scaled_by_the_machine_s_speed(monkeypa
     """budget_basis "reference": on a machine 2.5 x slower than the budget's, every rung's CPU limit,
     CoACD's share and V-HACD's reserve are 2.5 x those of plain CPU seconds; what the load spent
     before the ladder (CPU-s here) comes off unscaled; "cpu" ignores the speed."""
-    reference = dataclasses.replace(CONFIG, budget_basis="reference")
-    budget, share, reserve = CONFIG.decomposition_budget, CONFIG.coacd_first_cut_share, CONFIG.vhacd_reserve
+    reference = dataclasses.replace(LADDER, budget_basis="reference")
+    budget, share, reserve = LADDER.budget, LADDER.coacd_first_cut_share, LADDER.vhacd_reserve
     after = collision_ladder.AFTER_LADDER_SECONDS
     for spent in (0.0, 10.0):
-        plain = _ladder_limits(monkeypatch, tmp_path, CONFIG, 2.5, spent)
+        plain = _ladder_limits(monkeypatch, tmp_path, LADDER, 2.5, spent)
         scaled = _ladder_limits(monkeypatch, tmp_path, reference, 2.5, spent)
         assert [m for m, _, _ in plain] == [m for m, _, _ in scaled] == ["coacd", "coacd-remeshed", "vhacd"]
         # each rung's limit is what is left of the budget (whole seconds; these children use none)
@@ -655,10 +656,10 @@ def test_a_budget_in_reference_seconds_is_scaled_by_the_machine_s_speed(monkeypa
         assert plain[1][1] - plain[1][2] == pytest.approx(reserve)
         assert scaled[1][1] - scaled[1][2] == pytest.approx(2.5 * reserve)
         assert plain[2][2] is None and scaled[2][2] is None
-        assert _ladder_limits(monkeypatch, tmp_path, CONFIG, 0.5, spent) == plain
+        assert _ladder_limits(monkeypatch, tmp_path, LADDER, 0.5, spent) == plain
     # 12 budget CPU-s: CoACD remeshed (more than a CPU-s beyond the reserve needed) runs at 2.5 x
     # the speed, where plain CPU seconds have spent too much of them on the first rung to start it
-    small = dataclasses.replace(CONFIG, decomposition_budget=12.0, vhacd_reserve=4.0)
+    small = dataclasses.replace(LADDER, budget=12.0, vhacd_reserve=4.0)
     plain = _ladder_limits(monkeypatch, tmp_path, small, 2.5, spent=7.0)
     small_reference = dataclasses.replace(small, budget_basis="reference")
     scaled = _ladder_limits(monkeypatch, tmp_path, small_reference, 2.5, 7.0)
@@ -729,7 +730,7 @@ def test_this_machine_s_speed_is_measured_by_the_real_reference_cut(monkeypatch,
 def test_a_convex_object_and_a_warm_cache_never_measure_the_machine(monkeypatch, tmp_path):
     """Only a decomposition about to run measures: a convex object (its hull) and a concave one whose
     shape the cache holds load without it."""
-    reference = dataclasses.replace(CONFIG, budget_basis="reference")
+    reference = CONFIG.with_decomposition(budget_basis="reference")
     monkeypatch.setattr(collision_ladder, "speed_factor", lambda: 1.0)
     l_path = write_l(tmp_path / "l.obj")
     load_object(l_path, reference, cache_dir=tmp_path / "c")  # cold: measures (here: 1.0)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
 
 from annotator.cli import annotate_command
-from annotator.config import AnnotatorConfig, ConfigError
+from annotator.config import AnnotatorConfig, ConfigError, ObjectConfig
 
 
 @pytest.mark.parametrize(
@@ -41,14 +42,16 @@ def test_bad_values_name_the_field(data, message):
 
 
 def test_every_field_has_a_type_the_checks_know():
-    """A field typed otherwise would escape the checks (and the manifest would not bind it)."""
-    config = AnnotatorConfig()
-    for section in dataclasses.fields(config):
-        for f in dataclasses.fields(getattr(config, section.name)):
+    """A field typed otherwise would escape the checks (and the manifest would not bind it); the one
+    section within a section is the ladder's, ``[objects.decomposition]``."""
+    for name, section in _sections(AnnotatorConfig()).items():
+        for f in dataclasses.fields(section):
+            if (name, f.name) == ("objects", "decomposition"):
+                continue
             # "float | None": the gripper's own numbers, None leaving them to its description;
             # "tuple[float, ...]": a list of numbers ([confidence]'s knots)
             known = ("float", "int", "bool", "str", "float | None", "str | None", "tuple[float, ...]")
-            assert f.type in known, (section.name, f.name, f.type)
+            assert f.type in known, (name, f.name, f.type)
 
 
 def test_a_list_of_numbers_is_checked_like_a_number():
@@ -123,51 +126,132 @@ def test_a_run_binds_robust_shake_where_folders_made_before_it_did_not_describe_
     assert AnnotatorConfig.from_run(old, 5) == shaken
 
 
-IMPLICIT = (
-    ("objects", "mend_area_tolerance", 0.2),
-    ("objects", "coacd_refine_iterations", 300),
-    ("objects", "decomposition_copy_samples", 8_000),
-    ("protocol", "approach_hold", 0.2),
-    ("robust", "approach_lead", 0.02),
-    ("robust", "rest_speed", 2e-3),
-    ("robust", "rest_spin", 2e-2),
-    ("cell", "touch_search", 0.1),
+IMPLICIT = (  # (section, field, the name a run binds it under, another value)
+    ("objects", "mend_area_tolerance", "mend_area_tolerance", 0.2),
+    ("objects.decomposition", "coacd_refine_iterations", "coacd_refine_iterations", 300),
+    ("objects.decomposition", "copy_samples", "decomposition_copy_samples", 8_000),
+    ("protocol", "approach_hold", "approach_hold", 0.2),
+    ("robust", "approach_lead", "approach_lead", 0.02),
+    ("robust", "rest_speed", "rest_speed", 2e-3),
+    ("robust", "rest_spin", "rest_spin", 2e-2),
+    ("cell", "touch_search", "touch_search", 0.1),
 )
+
+
+def _sections(config: AnnotatorConfig) -> dict[str, Any]:
+    """Every section of ``config`` by its name in a config file (``objects.decomposition`` too)."""
+    out = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
+    return out | {"objects.decomposition": config.objects.decomposition}
+
+
+def _changed(config: AnnotatorConfig, section: str, name: str, value: Any) -> AnnotatorConfig:
+    """``config`` with one field of one section (by its config-file name) set to ``value``."""
+    if section == "objects.decomposition":
+        return dataclasses.replace(config, objects=config.objects.with_decomposition(**{name: value}))
+    return dataclasses.replace(
+        config, **{section: dataclasses.replace(getattr(config, section), **{name: value})}
+    )
 
 
 def test_the_implicit_fields_are_the_ones_named_here():
     """Every field declared implicit (a number every run had before it became a field) is listed
     above, so the tests below cover each."""
-    config = AnnotatorConfig()
     declared = {
-        (section.name, f.name)
-        for section in dataclasses.fields(config)
-        for f in dataclasses.fields(getattr(config, section.name))
+        (section, f.name)
+        for section, values in _sections(AnnotatorConfig()).items()
+        for f in dataclasses.fields(values)
         if f.metadata.get("implicit")
     }
-    assert declared == {(section, name) for section, name, _ in IMPLICIT}
+    assert declared == {(section, name) for section, name, _, _ in IMPLICIT}
 
 
-@pytest.mark.parametrize(("section", "name", "other"), IMPLICIT)
-def test_an_implicit_field_is_bound_only_where_it_differs_from_the_value_every_run_had(section, name, other):
+@pytest.mark.parametrize(("section", "name", "bound_as", "other"), IMPLICIT)
+def test_an_implicit_field_is_bound_only_where_it_differs_from_the_value_every_run_had(
+    section, name, bound_as, other
+):
     """At its default an implicit field is not in a run's manifest, so a folder made before it was a
     field resumes (no difference) and reads back as the default; set to another value it is bound,
     the older folder refuses the run naming the field, and it reads back as set."""
     from annotator.store.manifest import RunSpec
 
     default = AnnotatorConfig()
-    changed = dataclasses.replace(
-        default, **{section: dataclasses.replace(getattr(default, section), **{name: other})}
-    )
+    changed = _changed(default, section, name, other)
+    bound_section = section.split(".")[0]  # the ladder is bound in [objects]
     for trials in (1, 5):
         bound = default.to_dict(trials=trials)
-        assert name not in bound[section]
+        assert bound_as not in bound[bound_section]
         before = RunSpec(0, 5, trials, None, 5, bound).to_json()  # a folder of an earlier version
         assert _spec(default, trials).differences(before) == []
         assert AnnotatorConfig.from_run(bound, trials) == default
-        assert changed.to_dict(trials=trials)[section][name] == other
-        assert any(f"[{section}] {name}" in d for d in _spec(changed, trials).differences(before))
+        assert changed.to_dict(trials=trials)[bound_section][bound_as] == other
+        assert any(f"[{bound_section}] {bound_as}" in d for d in _spec(changed, trials).differences(before))
         assert AnnotatorConfig.from_run(changed.to_dict(trials=trials), trials) == changed
+
+
+# [objects] as a run bound it before the ladder was its own section: every folder made since binds
+# the same names, so its run keeps its key and resumes.
+OBJECTS_BOUND_BEFORE_THE_SECTION = {
+    "budget_basis", "coacd_first_cut_share", "coacd_remesh_resolution", "coacd_remesh_search_iterations",
+    "coacd_retry_margin", "coacd_search_iterations", "collision_error_samples", "collision_margin",
+    "collision_max_limit", "collision_mean_limit", "convex_volume_tolerance", "decomposition_budget",
+    "decomposition_copy_max_faces", "decomposition_copy_tolerance", "decomposition_max_faces",
+    "decomposition_min_threshold", "decomposition_threshold", "decomposition_timeout", "density",
+    "fragment_max_share", "lateral_friction", "max_extent", "max_faces", "memory_budget", "merge_parts",
+    "min_extent", "min_faces", "min_volume", "rolling_friction", "sat_features", "shell_density",
+    "shell_max_fill", "shell_max_wall", "shell_thickness", "spinning_friction", "vhacd_reserve",
+    "vhacd_resolution",
+}  # fmt: skip
+
+
+def test_the_ladder_is_its_own_section_and_a_run_binds_it_as_before():
+    """``[objects.decomposition]`` in a config file sets the ladder; a run binds it under
+    ``[objects]`` with the names it had before (so the run's key, and a folder's resume, are
+    unchanged), and a manifest's bound names read back as the section. A file may still give the
+    older names in ``[objects]``; the same setting both ways, an unknown field and a value out of
+    range are each a one-line ConfigError naming the table."""
+    default = AnnotatorConfig()
+    assert set(default.to_dict(trials=5)["objects"]) == OBJECTS_BOUND_BEFORE_THE_SECTION
+    assert {f.name for f in dataclasses.fields(ObjectConfig)} & OBJECTS_BOUND_BEFORE_THE_SECTION == {
+        "collision_margin", "density", "fragment_max_share", "lateral_friction", "max_extent", "max_faces",
+        "memory_budget", "merge_parts", "min_extent", "min_faces", "min_volume", "rolling_friction",
+        "sat_features", "shell_density", "shell_max_fill", "shell_max_wall", "shell_thickness",
+        "spinning_friction",
+    }  # fmt: skip
+    table = AnnotatorConfig.from_dict(
+        {"objects": {"density": 600, "decomposition": {"budget": 30, "threshold": 0.03}}}
+    )
+    assert table.objects.density == 600.0
+    assert table.objects.decomposition.budget == 30.0
+    assert table.objects.decomposition.threshold == 0.03
+    bound = table.to_dict(trials=5)["objects"]
+    assert (bound["decomposition_budget"], bound["decomposition_threshold"]) == (30.0, 0.03)
+    assert "decomposition" not in bound and "budget" not in bound
+    assert AnnotatorConfig.from_run(table.to_dict(trials=5), 5) == table
+    assert AnnotatorConfig.from_dict(
+        {"objects": {"decomposition_budget": 30, "decomposition_threshold": 0.03}}
+    ) == (dataclasses.replace(table, objects=dataclasses.replace(table.objects, density=500.0)))
+    with pytest.raises(
+        ConfigError,
+        match=r"\[objects.decomposition\] budget is given twice: as \[objects\] decomposition_budget",
+    ):
+        AnnotatorConfig.from_dict({"objects": {"decomposition_budget": 30, "decomposition": {"budget": 20}}})
+    with pytest.raises(ConfigError, match=r"unknown field\(s\) \['bugdet'\] in \[objects.decomposition\]"):
+        AnnotatorConfig.from_dict({"objects": {"decomposition": {"bugdet": 30}}})
+    with pytest.raises(ConfigError, match=r"\[objects.decomposition\] budget: must be >= 1"):
+        AnnotatorConfig.from_dict({"objects": {"decomposition": {"budget": 0}}})
+    with pytest.raises(ConfigError, match=r"unknown field"):
+        AnnotatorConfig().objects.with_decomposition(bugdet=30)
+
+
+def test_a_config_file_sets_the_ladder_in_its_own_table(tmp_path):
+    """A TOML file's ``[objects.decomposition]`` table is the ladder's section."""
+    path = tmp_path / "ladder.toml"
+    path.write_text(
+        '[objects]\ndensity = 700\n\n[objects.decomposition]\nbudget = 45\nbudget_basis = "cpu"\n'
+    )
+    config = AnnotatorConfig.from_toml(path)
+    assert config.objects.density == 700.0
+    assert (config.objects.decomposition.budget, config.objects.decomposition.budget_basis) == (45.0, "cpu")
 
 
 def test_the_collision_shape_key_is_the_one_the_constants_made():
@@ -179,31 +263,31 @@ def test_the_collision_shape_key_is_the_one_the_constants_made():
     from annotator.objects.decomposers import METHOD, copy_sizes, thresholds
     from annotator.objects.decomposition import settings
 
-    objects = AnnotatorConfig().objects
-    dense = trimesh.creation.icosphere(subdivisions=5)  # 20,480 faces: above decomposition_max_faces
-    assert len(dense.faces) > objects.decomposition_max_faces
+    ladder = AnnotatorConfig().objects.decomposition
+    dense = trimesh.creation.icosphere(subdivisions=5)  # 20,480 faces: above the ladder's max_faces
+    assert len(dense.faces) > ladder.max_faces
     made_before = (
-        objects.collision_error_samples,
-        thresholds(objects),
-        objects.coacd_search_iterations,
-        objects.coacd_retry_margin,
-        objects.coacd_first_cut_share,
-        objects.coacd_remesh_resolution,
-        objects.coacd_remesh_search_iterations,
-        objects.collision_mean_limit,
-        objects.collision_max_limit,
-        objects.decomposition_budget,
-        objects.budget_basis,
-        objects.vhacd_reserve,
-        objects.vhacd_resolution,
-        copy_sizes(objects),
-        objects.decomposition_copy_tolerance,
+        ladder.collision_error_samples,
+        thresholds(ladder),
+        ladder.coacd_search_iterations,
+        ladder.coacd_retry_margin,
+        ladder.coacd_first_cut_share,
+        ladder.coacd_remesh_resolution,
+        ladder.coacd_remesh_search_iterations,
+        ladder.collision_mean_limit,
+        ladder.collision_max_limit,
+        ladder.budget,
+        ladder.budget_basis,
+        ladder.vhacd_reserve,
+        ladder.vhacd_resolution,
+        copy_sizes(ladder),
+        ladder.copy_tolerance,
         4_000,  # COPY_SAMPLES; CoACD's own 150 iterations were not part of the key
     )
-    assert settings(METHOD, dense, objects) == made_before
-    more_samples = dataclasses.replace(objects, decomposition_copy_samples=8_000)
+    assert settings(METHOD, dense, ladder) == made_before
+    more_samples = dataclasses.replace(ladder, copy_samples=8_000)
     assert settings(METHOD, dense, more_samples)[-1] == 8_000
-    own = dataclasses.replace(objects, coacd_refine_iterations=300)
+    own = dataclasses.replace(ladder, coacd_refine_iterations=300)
     assert settings(METHOD, dense, own) == (*made_before, ("coacd_refine_iterations", 300))
 
 

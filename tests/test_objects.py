@@ -63,7 +63,7 @@ def cache_dir(tmp_path_factory) -> Path:
 # The mug starts at the CoACD threshold its refinement ends on (0.03; from 0.05 it costs twice the
 # time): the refinement itself is checked on the banana (0.05 misses the limits, 0.03 meets them).
 # The bowl (another ~25 s of CoACD) is left to bench/collision_error.py.
-MUG_CONFIG = dataclasses.replace(CONFIG, decomposition_threshold=0.03)
+MUG_CONFIG = CONFIG.with_decomposition(threshold=0.03)
 SHIPPED_IN_TEST = (
     "banana",
     "big_ball",
@@ -564,19 +564,21 @@ def test_closed_parts_that_share_an_edge_are_separated_not_collided_as_their_hul
 
 def test_coacd_decomposes_a_copy_within_its_face_budget_and_only_that_changes_the_cache_key():
     """CoACD's time grows with the faces (a 200,000-face ring did not finish one threshold in 4 min,
-    bench/scale.py big-mesh): it gets a copy simplified to decomposition_max_faces."""
+    bench/scale.py big-mesh): it gets a copy simplified to the ladder's max_faces."""
     dense = trimesh.creation.torus(0.036, 0.009, major_sections=128, minor_sections=64)  # 16,384
-    budget = dataclasses.replace(CONFIG, decomposition_max_faces=2000)
-    v, f = decomposers.decomposition_input(dense.vertices, dense.faces, budget.decomposition_max_faces)
+    budget = dataclasses.replace(CONFIG.decomposition, max_faces=2000)
+    v, f = decomposers.decomposition_input(dense.vertices, dense.faces, budget.max_faces)
     assert 1000 < len(f) <= 2000 and f.dtype == np.int32
     copy = trimesh.Trimesh(v, f)
     assert copy.is_watertight and copy.volume == pytest.approx(dense.volume, rel=0.02)
     v, f = decomposers.decomposition_input(dense.vertices, dense.faces, len(dense.faces))
     np.testing.assert_array_equal(f, dense.faces)  # within the budget: the mesh itself
     key = decomposition.geometry_key
-    assert key(dense, "coacd", budget) != key(dense, "coacd", CONFIG)  # the budget shapes this one
+    assert key(dense, "coacd", budget) != key(
+        dense, "coacd", CONFIG.decomposition
+    )  # the budget shapes this one
     small = trimesh.creation.torus(0.036, 0.009, major_sections=32, minor_sections=16)
-    assert key(small, "coacd", budget) == key(small, "coacd", CONFIG)  # ... not this one
+    assert key(small, "coacd", budget) == key(small, "coacd", CONFIG.decomposition)  # ... not this one
 
 
 def test_meshes_above_the_face_budget_are_simplified_and_reported(tmp_path):
@@ -784,12 +786,15 @@ def test_two_workers_decompose_a_new_object_once_and_agree_bit_for_bit(tmp_path)
 @pytest.mark.slow
 def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_models):
     # refined: at 0.05 the banana misses the limits
-    assert shipped_models["banana"].collision_threshold < CONFIG.decomposition_threshold
+    assert shipped_models["banana"].collision_threshold < CONFIG.decomposition.threshold
     for oid, model in shipped_models.items():
         record = model.geometry_record()
         mean, worst = record["collision_error_mean"], record["collision_error_max"]
         assert np.isfinite(mean) and np.isfinite(worst), oid
-        within = mean <= CONFIG.collision_mean_limit and worst <= CONFIG.collision_max_limit
+        within = (
+            mean <= CONFIG.decomposition.collision_mean_limit
+            and worst <= CONFIG.decomposition.collision_max_limit
+        )
         assert record["collision_approximate"] == (not within), oid
         assert within, f"{oid}: collision error mean {mean * 1e3:.2f} mm, max {worst * 1e3:.2f} mm"
 
@@ -797,7 +802,7 @@ def test_shipped_objects_collision_error_within_tolerance_or_reported(shipped_mo
 @pytest.mark.slow
 def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cache_dir, shape_cache, hand):
     """On the mug's 4 mm wall and the banana's inner curve, a success's width is the opening the
-    mesh gives the RG2's flat pads within ObjectConfig.collision_max_limit (2 mm).
+    mesh gives the RG2's flat pads within DecompositionConfig.collision_max_limit (2 mm).
 
     On a concave surface a flat pad rests on its edges, so the chord through the TCP is no yardstick
     there (up to 4 mm below the width on the mug's wall, 12 mm on the banana:
@@ -836,7 +841,10 @@ def test_widths_of_successes_on_concave_walls_match_the_mesh(shipped_models, cac
         checked[oid] = np.round(np.asarray(gap) * 1e3, 2)
     assert len(checked["mug"]) >= 8 and len(checked["banana"]) >= 15, {k: len(v) for k, v in checked.items()}
     for oid, gap_mm in checked.items():
-        assert np.abs(gap_mm).max() <= CONFIG.collision_max_limit * 1e3, (oid, sorted(gap_mm.tolist()))
+        assert np.abs(gap_mm).max() <= CONFIG.decomposition.collision_max_limit * 1e3, (
+            oid,
+            sorted(gap_mm.tolist()),
+        )
 
 
 # ---------------------------------------------------------------------------------------------- record
@@ -872,7 +880,7 @@ def test_geometry_record_ties_each_object_to_the_mesh_its_poses_refer_to(tmp_pat
         assert record.loc[oid, "digest"] == source_digest(
             next(s for s in discover_objects(objects) if s.object_id == oid)
         )
-        assert record.loc[oid, "collision_error_max"] <= CONFIG.collision_max_limit
+        assert record.loc[oid, "collision_error_max"] <= CONFIG.decomposition.collision_max_limit
 
     labels = load_labels(out)
     assert (labels["collision_error"] >= 0).all() and (labels["collision_error"] <= 0.002).all()

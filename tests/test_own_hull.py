@@ -34,7 +34,7 @@ def test_a_closed_convex_primitive_is_its_own_hull_and_its_geometry_is_the_measu
         fast = own_hull_geometry(mesh)
         assert fast is not None and fast.method == "hull" and fast.error == NO_ERROR and fast.file is None
         hull = mesh.convex_hull
-        measured = collision_error(mesh, [hull], CONFIG.collision_error_samples)
+        measured = collision_error(mesh, [hull], CONFIG.decomposition.collision_error_samples)
         assert measured.max < 1e-12  # the sampled figure of an exact hull: rounding only
         entry = entry_geometry(entry_arrays([hull], measured, "hull", 0.0, 0.0), Path("."))
         assert len(fast.parts) == len(entry.parts) == 1

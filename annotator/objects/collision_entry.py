@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from annotator.config import ObjectConfig
+from annotator.config import DecompositionConfig
 from annotator.objects import cache
 from annotator.objects.fidelity import CollisionError
 
@@ -94,7 +94,7 @@ class CollisionGeometry:
     ladder: tuple[Rung, ...] = ()
     obj_file: Path | None = None
 
-    def within(self, config: ObjectConfig) -> bool:
+    def within(self, config: DecompositionConfig) -> bool:
         return self.error.within(config.collision_mean_limit, config.collision_max_limit)
 
     def ladder_summary(self, seconds: bool = True) -> str:

@@ -1,11 +1,11 @@
 """The collision ladder of a concave object: which decomposer gives its convex parts, inside
-``ObjectConfig.decomposition_budget`` CPU seconds for the object's whole load (what its reading
+``DecompositionConfig.budget`` CPU seconds for the object's whole load (what its reading
 and repair used comes off the ladder's share):
 
 1. CoACD at each of :func:`~annotator.objects.decomposers.thresholds` (coarse to fine) until the
    collision error is within ``collision_mean_limit`` / ``collision_max_limit``, the best so far
    kept (CoACD 1.0's tree search bounded to ``coacd_search_iterations``, seed 0, on the mesh or the
-   smallest simplified copy that follows it within ``decomposition_copy_tolerance``, in a child
+   smallest simplified copy that follows it within ``copy_tolerance``, in a child
    process limited to the budget; a threshold that misses the limits by at most
    ``coacd_retry_margin`` is cut again with CoACD's own search before a finer one; stopped at
    ``coacd_first_cut_share`` of the budget if it has finished no threshold by then); a refinement
@@ -42,7 +42,7 @@ from collections.abc import Callable
 
 import trimesh
 
-from annotator.config import ObjectConfig
+from annotator.config import DecompositionConfig
 from annotator.objects.collision_entry import Rung
 from annotator.objects.decomposers import METHOD, REMESHED, VHACD
 from annotator.objects.decomposition_child import RungParts, child_rung
@@ -59,13 +59,13 @@ Progress = Callable[[str, str], None]
 AFTER_LADDER_SECONDS = 0.5
 
 
-def budget_factor(config: ObjectConfig) -> float:
+def budget_factor(config: DecompositionConfig) -> float:
     """This machine's CPU seconds per budget second: :func:`~annotator.objects.machine_speed.speed_factor`
     with ``budget_basis = "reference"``, 1 with ``"cpu"``."""
     return speed_factor() if config.budget_basis == "reference" else 1.0
 
 
-def first_parts_by(method: str, limit: float, config: ObjectConfig, factor: float) -> float | None:
+def first_parts_by(method: str, limit: float, config: DecompositionConfig, factor: float) -> float | None:
     """CPU-s of its own by which a rung given ``limit`` CPU-s must have parts or be stopped (None:
     no such point). CoACD as the mesh is: ``coacd_first_cut_share`` of the budget, and at the
     latest ``vhacd_reserve`` before its limit; CoACD remeshed: ``vhacd_reserve`` before its limit.
@@ -74,12 +74,16 @@ def first_parts_by(method: str, limit: float, config: ObjectConfig, factor: floa
         return None
     stop = limit - config.vhacd_reserve * factor
     if method == METHOD:
-        stop = min(stop, config.coacd_first_cut_share * config.decomposition_budget * factor)
+        stop = min(stop, config.coacd_first_cut_share * config.budget * factor)
     return stop if stop < limit else None
 
 
 def run_ladder(
-    mesh: trimesh.Trimesh, config: ObjectConfig, label: str, progress: Progress | None, spent: float = 0.0
+    mesh: trimesh.Trimesh,
+    config: DecompositionConfig,
+    label: str,
+    progress: Progress | None,
+    spent: float = 0.0,
 ) -> tuple[RungParts, tuple[Rung, ...]]:
     """The ladder within what is left of the budget (``spent``: CPU seconds the load used before
     it; the ladder's own work in this process counts too): CoACD, CoACD remeshed, V-HACD, the hull;
@@ -88,7 +92,7 @@ def run_ladder(
     measured only here, when a decomposition is about to run)."""
     factor = budget_factor(config)
     reserve = config.vhacd_reserve * factor
-    budget = (config.decomposition_budget - AFTER_LADDER_SECONDS) * factor - spent
+    budget = (config.budget - AFTER_LADDER_SECONDS) * factor - spent
     start = time.process_time()
     rungs: list[Rung] = []
     children = 0.0

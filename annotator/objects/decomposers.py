@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from annotator.config import ObjectConfig
+from annotator.config import DecompositionConfig
 from annotator.objects.fidelity import CollisionError, collision_error, surface_deviation
 
 METHOD = "coacd"  # what load_object asks for a concave object: the ladder, CoACD first
@@ -23,12 +23,12 @@ REMESHED = "coacd-remeshed"  # the second rung: CoACD on the mesh remeshed by it
 VHACD = "vhacd"  # the third rung: V-HACD
 
 
-def thresholds(config: ObjectConfig) -> tuple[float, ...]:
+def thresholds(config: DecompositionConfig) -> tuple[float, ...]:
     """CoACD thresholds to try, coarse to fine: the first, x 0.6 each to one significant digit,
     then the last (a step to it shorter than 1.2 x is not taken: 0.05, 0.03, 0.02, 0.01 down to
     0.01; 0.05, 0.03, 0.02 down to 0.02)."""
-    last = config.decomposition_min_threshold
-    out, t = [], config.decomposition_threshold
+    last = config.min_threshold
+    out, t = [], config.threshold
     while t > last * (1 + 1e-9):
         out.append(round(t, 6))
         t = float(f"{t * 0.6:.1g}")
@@ -65,18 +65,18 @@ class Copy:
     deviation: float
 
 
-def copy_sizes(config: ObjectConfig) -> tuple[int, ...]:
-    """Face counts of the copies to consider, smallest first: ``decomposition_max_faces``, doubled
-    up to ``decomposition_copy_max_faces`` (5,000, 10,000, 20,000)."""
-    sizes = [config.decomposition_max_faces]
-    while sizes[-1] * 2 <= config.decomposition_copy_max_faces:
+def copy_sizes(config: DecompositionConfig) -> tuple[int, ...]:
+    """Face counts of the copies to consider, smallest first: ``max_faces``, doubled
+    up to ``copy_max_faces`` (5,000, 10,000, 20,000)."""
+    sizes = [config.max_faces]
+    while sizes[-1] * 2 <= config.copy_max_faces:
         sizes.append(sizes[-1] * 2)
     return tuple(sizes)
 
 
-def decomposition_copy(vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig) -> Copy:
-    """The copy CoACD cuts: the mesh itself when it has at most ``decomposition_max_faces`` faces,
-    else the smallest copy of :func:`copy_sizes` within ``decomposition_copy_tolerance`` of the
+def decomposition_copy(vertices: np.ndarray, faces: np.ndarray, config: DecompositionConfig) -> Copy:
+    """The copy CoACD cuts: the mesh itself when it has at most ``max_faces`` faces,
+    else the smallest copy of :func:`copy_sizes` within ``copy_tolerance`` of the
     mesh (:func:`~annotator.objects.fidelity.surface_deviation`), else the largest.
 
     Parts cut from a copy cannot follow the mesh more closely than the copy does: quadric
@@ -84,16 +84,14 @@ def decomposition_copy(vertices: np.ndarray, faces: np.ndarray, config: ObjectCo
     drill 1.2 mm, most of the 2 mm the collision error may have (0101-collision-ladder).
     """
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    copy = Copy(*decomposition_input(vertices, faces, config.decomposition_max_faces), 0.0)
-    if len(faces) <= config.decomposition_max_faces:
+    copy = Copy(*decomposition_input(vertices, faces, config.max_faces), 0.0)
+    if len(faces) <= config.max_faces:
         return copy
     for size in copy_sizes(config):
         v, f = decomposition_input(vertices, faces, size)
-        deviation = surface_deviation(
-            mesh, trimesh.Trimesh(v, f, process=False), config.decomposition_copy_samples
-        )
+        deviation = surface_deviation(mesh, trimesh.Trimesh(v, f, process=False), config.copy_samples)
         copy = Copy(v, f, deviation)
-        if deviation <= config.decomposition_copy_tolerance:
+        if deviation <= config.copy_tolerance:
             break
     return copy
 
@@ -102,7 +100,7 @@ Found = Callable[[list[trimesh.Trimesh], CollisionError, float], None]
 
 
 def next_threshold(
-    todo: tuple[float, ...], threshold: float, error: CollisionError, config: ObjectConfig
+    todo: tuple[float, ...], threshold: float, error: CollisionError, config: DecompositionConfig
 ) -> int:
     """Index in ``todo`` (the finer thresholds left, coarse to fine) of the one to try after
     ``threshold`` gave ``error``: the coarsest at or below ``threshold`` x (limit / error) for the
@@ -125,7 +123,7 @@ def next_threshold(
     return min(coarsest_enough, 1)
 
 
-def near_miss(error: CollisionError, config: ObjectConfig) -> bool:
+def near_miss(error: CollisionError, config: DecompositionConfig) -> bool:
     """Beyond the error limits, but by at most ``coacd_retry_margin`` (a share of each limit)."""
     grown = 1.0 + config.coacd_retry_margin
     limits = (config.collision_mean_limit, config.collision_max_limit)
@@ -138,7 +136,7 @@ def _cut_coacd(
     copy: Copy,
     threshold: float,
     iterations: int,
-    config: ObjectConfig,
+    config: DecompositionConfig,
     remesh: bool = False,
 ) -> tuple[list[trimesh.Trimesh], CollisionError] | None:
     """CoACD's parts of ``copy`` at ``threshold`` with ``iterations`` of tree search per cut (seed 0),
@@ -167,7 +165,7 @@ def _cut_coacd(
 def refine_coacd(
     vertices: np.ndarray,
     faces: np.ndarray,
-    config: ObjectConfig,
+    config: DecompositionConfig,
     found: Found | None = None,
     remesh: bool = False,
 ) -> tuple[list[trimesh.Trimesh], CollisionError, float]:
@@ -250,13 +248,13 @@ def read_vhacd_parts(path: Path) -> list[trimesh.Trimesh]:
 
 
 def run_vhacd(
-    vertices: np.ndarray, faces: np.ndarray, config: ObjectConfig, job: Path
+    vertices: np.ndarray, faces: np.ndarray, config: DecompositionConfig, job: Path
 ) -> list[trimesh.Trimesh]:
     """V-HACD's convex parts (pybullet.vhacd, voxel mode, ``vhacd_resolution`` voxels, its other
-    settings PyBullet's defaults) of the mesh, simplified to ``decomposition_max_faces`` first."""
+    settings PyBullet's defaults) of the mesh, simplified to ``max_faces`` first."""
     from annotator.sim.decompose import vhacd
 
-    v, f = decomposition_input(vertices, faces, config.decomposition_max_faces)
+    v, f = decomposition_input(vertices, faces, config.max_faces)
     src, out = job / "vhacd_in.obj", job / "vhacd_out.obj"
     lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f.tolist()]

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from annotator.config import ObjectConfig
+from annotator.config import DecompositionConfig
 from annotator.objects import cache
 from annotator.objects.cache import default_cache_dir
 from annotator.objects.collision_entry import CollisionGeometry, Rung, entry_arrays, read_entry
@@ -28,7 +28,7 @@ from annotator.objects.own_hull import own_hull_geometry
 __all__ = ["CollisionGeometry", "Progress", "Rung", "collision_geometry", "default_cache_dir", "thresholds"]
 
 
-def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple[Any, ...]:
+def settings(method: str, mesh: trimesh.Trimesh, config: DecompositionConfig) -> tuple[Any, ...]:
     """Every setting that shapes the geometry ``method`` gives ``mesh`` (part of the cache key)."""
     error = (config.collision_error_samples,)
     if method != METHOD:
@@ -42,23 +42,23 @@ def settings(method: str, mesh: trimesh.Trimesh, config: ObjectConfig) -> tuple[
         config.coacd_remesh_search_iterations,
         config.collision_mean_limit,
         config.collision_max_limit,
-        config.decomposition_budget,
+        config.budget,
         config.budget_basis,
         config.vhacd_reserve,
         config.vhacd_resolution,
     )
-    if len(mesh.faces) > config.decomposition_max_faces:
+    if len(mesh.faces) > config.max_faces:
         # shape only what is simplified (the samples in the place their constant had: the same key)
-        ladder += (copy_sizes(config), config.decomposition_copy_tolerance, config.decomposition_copy_samples)
+        ladder += (copy_sizes(config), config.copy_tolerance, config.copy_samples)
     # an implicit setting (every decomposition had its default before it was one) keys a shape only
     # where it differs from that, so the shapes cached before keep their keys
-    if config.coacd_refine_iterations != ObjectConfig.coacd_refine_iterations:
+    if config.coacd_refine_iterations != DecompositionConfig.coacd_refine_iterations:
         ladder += (("coacd_refine_iterations", config.coacd_refine_iterations),)
     return error + ladder
 
 
 def geometry_inputs(
-    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: Sequence[trimesh.Trimesh] = ()
+    mesh: trimesh.Trimesh, method: str, config: DecompositionConfig, shells: Sequence[trimesh.Trimesh] = ()
 ) -> cache.EntryInputs:
     """What the cache entry is made from: the exact vertices and faces (of the mesh and of the
     ``shells`` that give the parts), every setting that shapes the result and the library versions."""
@@ -69,7 +69,7 @@ def geometry_inputs(
 
 
 def geometry_key(
-    mesh: trimesh.Trimesh, method: str, config: ObjectConfig, shells: Sequence[trimesh.Trimesh] = ()
+    mesh: trimesh.Trimesh, method: str, config: DecompositionConfig, shells: Sequence[trimesh.Trimesh] = ()
 ) -> str:
     """The cache key: the hash of :func:`geometry_inputs`."""
     return geometry_inputs(mesh, method, config, shells).key
@@ -78,7 +78,7 @@ def geometry_key(
 def _compute(
     mesh: trimesh.Trimesh,
     method: str,
-    config: ObjectConfig,
+    config: DecompositionConfig,
     shells: list[trimesh.Trimesh],
     label: str,
     progress: Progress | None,
@@ -104,7 +104,7 @@ def _compute(
 def collision_geometry(
     mesh: trimesh.Trimesh,
     method: str,
-    config: ObjectConfig,
+    config: DecompositionConfig,
     cache_dir: Path | None,
     object_id: str = "",
     shells: Sequence[trimesh.Trimesh] = (),
@@ -115,7 +115,7 @@ def collision_geometry(
     """The object's collision geometry by ``method``, cached: ``hull`` (the convex hull),
     ``shells`` (the hulls of the mesh's own convex ``shells``: a file written as convex parts,
     e.g. a V-HACD collision mesh, collides as those parts, as PyBullet itself would) or ``coacd``
-    (the ladder: CoACD, V-HACD, hull, within ``config.decomposition_budget``). A closed mesh
+    (the ladder: CoACD, V-HACD, hull, within ``config.budget``). A closed mesh
     that is its own convex hull (:mod:`annotator.objects.own_hull`) is its hull with no error, made
     here and never cached: no error sampling, no cache entry to write or read.
 
@@ -126,7 +126,7 @@ def collision_geometry(
     not hold its result (a hull or shells are still made here: they take a fraction of a second).
     ``load_started``: ``time.process_time()`` when the load began; the CPU this process used since
     then (reading, cleaning, repairing the mesh) is taken from the ladder's budget, so the whole
-    load stays within ``decomposition_budget``.
+    load stays within ``budget``.
     """
     if method not in ("hull", "shells", METHOD):
         raise ValueError(f"unknown collision method {method!r}")

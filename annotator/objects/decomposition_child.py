@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from annotator.config import ObjectConfig
+from annotator.config import DecompositionConfig
 from annotator.objects import cache
 from annotator.objects.collision_entry import Rung, entry_arrays, entry_geometry
 from annotator.objects.decomposers import METHOD, REMESHED, refine_coacd, run_vhacd
@@ -45,7 +45,7 @@ def child_main(job: str) -> None:
         rung = str(z["rung"])
         cpu_limit = float(z["cpu_limit"])
     limit_own_cpu(cpu_limit)
-    config = dataclasses.replace(ObjectConfig(), **fields)
+    config = dataclasses.replace(DecompositionConfig(), **fields)
     if rung in (METHOD, REMESHED):
         parts, error, threshold = refine_coacd(
             vertices, faces, config, lambda p, e, t: save_result(src, p, e, t, done=False), rung == REMESHED
@@ -76,7 +76,7 @@ class RungParts:
 
 def child_rung(
     mesh: trimesh.Trimesh,
-    config: ObjectConfig,
+    config: DecompositionConfig,
     method: str,
     cpu_limit: float,
     first_parts: float | None = None,
@@ -97,7 +97,7 @@ def child_rung(
         checkpoint = None
         if first_parts is not None and first_parts < cpu_limit:
             checkpoint = Checkpoint(max(1.0, first_parts), (job / "out.npz").is_file)
-        run = run_limited(child_command(job), cpu_limit, config.decomposition_timeout, job, checkpoint)
+        run = run_limited(child_command(job), cpu_limit, config.timeout, job, checkpoint)
         try:
             out = cache.load_arrays(job / "out.npz")
             geometry = entry_geometry(out, job)
@@ -107,7 +107,7 @@ def child_rung(
     if run.over_cpu:
         outcome, detail = "over budget", f"stopped at {run.cpu_seconds:.0f} CPU-s"
     elif run.stalled:
-        outcome, detail = "over budget", f"stopped after {config.decomposition_timeout:g} s without using CPU"
+        outcome, detail = "over budget", f"stopped after {config.timeout:g} s without using CPU"
     elif run.returncode != 0:
         outcome = "crashed"
         detail = describe_exit(run.returncode) + (f": {run.stderr}" if run.stderr else "")

@@ -4,7 +4,7 @@ A CPU-second is not a fixed amount of work. On one 2-core virtual machine the sa
 about 2.3 times the CPU time on one day as on another, so a budget in plain CPU seconds gave the
 same mesh another collision shape on the slower day: pybullet_data's lego brick fell from CoACD on
 the remeshed mesh (1.81 mm) to its convex hull (11.5 mm), the sample bowl from CoACD at 0.03
-(1.90 mm) to the remeshed rung (4.97 mm). With ``[objects] budget_basis = "reference"`` (the
+(1.90 mm) to the remeshed rung (4.97 mm). With ``[objects.decomposition] budget_basis = "reference"`` (the
 default) the ladder's budget and V-HACD's reserve are reference CPU-seconds: the CPU-seconds of the
 machine the ladder's limits were measured on. The ladder multiplies them by :func:`speed_factor`,
 the CPU time of a fixed reference cut (:func:`reference_mesh`, CoACD at :data:`REFERENCE_THRESHOLD`)

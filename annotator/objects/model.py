@@ -266,7 +266,7 @@ def _urdf_mass(
 
 def _convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, config: ObjectConfig) -> bool:
     """A closed mesh whose volume is within ``convex_volume_tolerance`` of its hull's."""
-    return float(mesh.volume) >= (1.0 - config.convex_volume_tolerance) * float(hull.volume)
+    return float(mesh.volume) >= (1.0 - config.decomposition.convex_volume_tolerance) * float(hull.volume)
 
 
 def _check_size(mesh: trimesh.Trimesh, name: str, config: ObjectConfig) -> trimesh.Trimesh:
@@ -461,13 +461,14 @@ def _collision_method(read: _Read, config: ObjectConfig) -> tuple[str, bool]:
 
 def _geometry_warnings(geometry: CollisionGeometry, config: ObjectConfig) -> list[str]:
     out = []
+    ladder = config.decomposition
     if len(geometry.ladder) > 1 or any(r.detail for r in geometry.ladder):
         out.append(f"collision shape by {geometry.method}: {geometry.ladder_summary()}")
-    if not geometry.within(config):
+    if not geometry.within(ladder):
         out.append(
             f"approximate collision shape: error mean {geometry.error.mean * 1e3:.2f} mm, max "
-            f"{geometry.error.max * 1e3:.2f} mm (limits {config.collision_mean_limit * 1e3:.2f} / "
-            f"{config.collision_max_limit * 1e3:.2f} mm)"
+            f"{geometry.error.max * 1e3:.2f} mm (limits {ladder.collision_mean_limit * 1e3:.2f} / "
+            f"{ladder.collision_max_limit * 1e3:.2f} mm)"
         )
     return out
 
@@ -504,8 +505,9 @@ def load_object(
     read = _read(source, config, scale)
     weighed = _weigh(read, props, config)
     method, convex = _collision_method(read, config)
+    ladder = config.decomposition
     geometry = collision_geometry(
-        read.mesh, method, config, cache_dir, name, read.shells, progress, decompose, load_started
+        read.mesh, method, ladder, cache_dir, name, read.shells, progress, decompose, load_started
     )
     warnings = read.warnings + _geometry_warnings(geometry, config)
     for warning in warnings:
@@ -534,7 +536,7 @@ def load_object(
         collision_method=geometry.method,
         collision_threshold=geometry.threshold,
         collision_ladder=geometry.ladder_summary(seconds=False),
-        approximate=not geometry.within(config),
+        approximate=not geometry.within(ladder),
         cleaning=read.cleaning,
         source_files=tuple(files),
         digest=source_digest(source),

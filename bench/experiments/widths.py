@@ -9,7 +9,7 @@ Three columns per object, in mm, over its successes (mean and max of |difference
 
 - ``width - pads on mesh``: width against :func:`annotator.sampler.pad_opening` on the mesh (two
   29.8 x 20.2 mm pads closing along the TCP's x axis): the error the label carries (target
-  <= 2 mm, ObjectConfig.collision_max_limit);
+  <= 2 mm, DecompositionConfig.collision_max_limit);
 - ``width - pads on parts``: the same against the collision parts PyBullet simulates: the pads'
   depth in the simulated shape under the 40 N squeeze;
 - ``width - chord``: against the chord of the mesh along the closing axis through the TCP (as
@@ -66,7 +66,8 @@ def main() -> None:
     args = parser().parse_args()
     config = AnnotatorConfig()
     if args.coarse:
-        objects = dataclasses.replace(config.objects, decomposition_min_threshold=0.05)
+        ladder = dataclasses.replace(config.objects.decomposition, min_threshold=0.05)
+        objects = dataclasses.replace(config.objects, decomposition=ladder)
         config = dataclasses.replace(config, objects=objects)
     with World(config.physics) as world:
         pad_face = FloatingGripper(world, config.gripper).gripper.pad_face
