@@ -10,7 +10,7 @@ import dataclasses
 import math
 import operator
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +25,28 @@ class ConfigError(ValueError):
     """A configuration value of the wrong type or outside its range (a usage error: exit 2)."""
 
 
+@dataclass(frozen=True)
+class BoundWhen:
+    """A field that a run binds in its manifest only where it changes what the run simulates:
+    ``rule(config, trials)`` says where (a run of ``--trials trials``). ``before``: what a folder
+    made before the field existed simulated, read for it where the rule holds but the folder's
+    manifest lacks it (:meth:`AnnotatorConfig.from_run`). Where the rule does not hold, the field is
+    left out, so such a folder resumes."""
+
+    rule: Callable[[AnnotatorConfig, int], bool]
+    before: Any
+
+
+def _perturbed_trials_end_at_lift(config: AnnotatorConfig, trials: int) -> bool:
+    """The run has perturbed trials and they end after the lift (``[robust] shake`` false)."""
+    return trials != 1 and not config.robust.shake
+
+
+def _perturbed_approach_simulated(config: AnnotatorConfig, trials: int) -> bool:
+    """Perturbed trials that end after the lift, with a simulated approach."""
+    return _perturbed_trials_end_at_lift(config, trials) and config.protocol.approach == "simulated"
+
+
 def _field(
     default: Any,
     *,
@@ -35,12 +57,14 @@ def _field(
     choices: tuple[str, ...] | None = None,
     implicit: bool = False,
     bound: str | None = None,
+    bound_when: BoundWhen | None = None,
 ) -> Any:
     """A configuration field with its allowed range (checked when a section is built). ``implicit``:
     a number every run had before it became a field: a run binds it only where it differs from
     that default (:meth:`AnnotatorConfig.to_dict`), so folders made before still resume.
     ``bound``: the name a run binds the field under, where that is not its own (the ladder's fields
-    keep the names they had in ``[objects]``)."""
+    keep the names they had in ``[objects]``). ``bound_when``: a run binds the field only where its
+    rule holds (:class:`BoundWhen`)."""
     metadata: dict[str, Any] = {
         "gt": gt,
         "ge": ge,
@@ -51,6 +75,8 @@ def _field(
     }
     if bound is not None:
         metadata["bound"] = bound
+    if bound_when is not None:
+        metadata["bound_when"] = bound_when
     return field(default=default, metadata=metadata)
 
 
@@ -459,8 +485,9 @@ class RobustConfig(_Section):
     # frame); 0: no public measurement found (set it for a drill's battery, a half-full bottle).
     com_offset_sigma: float = _field(0.0, ge=0.0, le=0.1)
     # false: a perturbed trial ends after the lift, judged there as after a shake; true: shaken as trial 0
-    # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md
-    shake: bool = False
+    # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md. Bound where it is false (a folder
+    # made before the field: its perturbed trials shook)
+    shake: bool = _field(False, bound_when=BoundWhen(_perturbed_trials_end_at_lift, before=True))
     # true: a perturbed trial also runs the benchmark motion and is judged after it (shake implies it)
     # see docs/decisions/0026-stages.md
     motion: bool = False
@@ -472,16 +499,20 @@ class RobustConfig(_Section):
     scale_levels: tuple[float, ...] = ()
     # true: a lift-only perturbed trial's simulated approach starts 1 cm before the sweep's first contact
     # see docs/decisions/0022-perturbed-approach-from-contact.md
-    approach_from_contact: bool = True
+    approach_from_contact: bool = _field(
+        True, bound_when=BoundWhen(_perturbed_approach_simulated, before=False)
+    )
     # m of that approach kept before the first contact: a sweep increment at least, the carrier at its
     # speed within 1 mm (docs/decisions/0022-perturbed-approach-from-contact.md)
     approach_lead: float = _field(0.01, ge=0.0, implicit=True)
     # true: a lift-only perturbed trial's close ends once the drive moved <= the stall speed's travel
     # over stall_steps steps (docs/decisions/0023-perturbed-close-stalls-by-travel.md)
-    stall_by_travel: bool = True
+    stall_by_travel: bool = _field(True, bound_when=BoundWhen(_perturbed_trials_end_at_lift, before=False))
     # true: after that approach from the contact, the fingers start near what they touch if the object
     # is at rest (docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md)
-    fingers_from_contact: bool = True
+    fingers_from_contact: bool = _field(
+        True, bound_when=BoundWhen(_perturbed_approach_simulated, before=False)
+    )
     # m/s and rad/s under which the object counts as at rest after that approach (the fingers start
     # near it): docs/decisions/0024-perturbed-fingers-start-near-a-resting-object.md
     rest_speed: float = _field(1e-3, gt=0.0, implicit=True)
@@ -822,14 +853,10 @@ class AnnotatorConfig:
         """Every section as ``{section: {field: value}}``; ``[scenes]`` only with ``scenes`` (a
         scene run binds it, an object run does not: its labels do not depend on it).
 
-        ``trials``: the dict a run of ``--trials trials`` binds in its manifest. ``[robust] shake``
-        is left out where folders made before it existed still describe the run: at ``--trials
-        1`` (no perturbed trial) and when true (their perturbed trials shook), so such a folder
-        resumes, and one whose perturbed trials shook never resumes as one whose end at the lift.
-        ``[robust] approach_from_contact`` likewise, wherever it changes nothing: at ``--trials 1``,
-        with shaken perturbed trials, or without a simulated approach, and ``[robust]
-        fingers_from_contact`` with it; ``[robust] stall_by_travel`` at ``--trials 1`` and with
-        shaken perturbed trials.
+        ``trials``: the dict a run of ``--trials trials`` binds in its manifest: a field with a
+        :class:`BoundWhen` is left out where its rule does not hold (``[robust] shake`` at
+        ``--trials 1`` or when true: folders made before it existed describe such a run, and
+        resume; one whose perturbed trials shook never resumes as one whose end at the lift).
         """
         data = dataclasses.asdict(self)
         data["objects"] |= _bound_fields(data["objects"].pop("decomposition"))
@@ -846,39 +873,33 @@ class AnnotatorConfig:
         if self.confidence.method == "none":
             data.pop("confidence")
         if trials is not None:
-            lift_only = trials != 1 and not self.robust.shake  # perturbed trials that end at the lift
-            if not lift_only:
-                data["robust"].pop("shake")
-                data["robust"].pop("stall_by_travel")
-            if not (lift_only and self.protocol.approach == "simulated"):
-                data["robust"].pop("approach_from_contact")
-                data["robust"].pop("fingers_from_contact")
+            for name, f in _conditional_fields():
+                if not f.metadata["bound_when"].rule(self, trials):
+                    data[name].pop(f.name)
         return data
 
     @classmethod
     def from_run(cls, data: Any, trials: int) -> AnnotatorConfig:
-        """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``):
-        past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials shook; one
-        without ``approach_from_contact``, one whose simulated approaches ran in full; without
-        ``stall_by_travel``, one whose closes stalled by the drive's speed alone; and without
-        ``fingers_from_contact``, one whose fingers closed from where the approach left them. A
-        ``[physics]`` without ``light_hold_mass`` is one whose light objects were simulated at their
-        finer step throughout (``light_hold_mass = light_object_mass``)."""
+        """The configuration a run of ``--trials trials`` bound (:meth:`to_dict` with ``trials``): a
+        field with a :class:`BoundWhen` that the manifest lacks where its rule holds reads as its
+        ``before`` (past one trial, a ``[robust]`` without ``shake`` is one whose perturbed trials
+        shook; then one without ``approach_from_contact``, one whose simulated approaches ran in
+        full; without ``stall_by_travel``, one whose closes stalled by the drive's speed alone;
+        without ``fingers_from_contact``, one whose fingers closed from where the approach left
+        them). A ``[physics]`` without ``light_hold_mass`` is one whose light objects were simulated
+        at their finer step throughout (``light_hold_mass = light_object_mass``)."""
         data = _before_stages(data)
         physics = data.get("physics") if isinstance(data, dict) else None
         if isinstance(physics, dict) and "light_hold_mass" not in physics:
             before = physics.get("light_object_mass", PhysicsConfig.light_object_mass)
             data = {**data, "physics": {**physics, "light_hold_mass": before}}
-        if isinstance(data, dict) and trials != 1 and isinstance(data.get("robust"), dict):
-            robust = {"shake": True, **data["robust"]}
-            protocol = data.get("protocol")
-            simulated = isinstance(protocol, dict) and protocol.get("approach") == "simulated"
-            if robust["shake"] is False:
-                robust.setdefault("stall_by_travel", False)
-                if simulated:
-                    robust.setdefault("approach_from_contact", False)
-                    robust.setdefault("fingers_from_contact", False)
-            data = {**data, "robust": robust}
+        if isinstance(data, dict):
+            for section, f in _conditional_fields():  # in order: a rule may read a field before it
+                values = data.get(section)
+                if isinstance(values, dict) and f.name not in values:
+                    rule = f.metadata["bound_when"]
+                    if rule.rule(cls.from_dict(data), trials):
+                        data = {**data, section: {**values, f.name: rule.before}}
         return cls.from_dict(data)
 
     @classmethod
@@ -916,6 +937,16 @@ class AnnotatorConfig:
             except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
                 raise ConfigError(f"not a TOML file ({exc})") from exc
         return cls.from_dict(data)
+
+
+def _conditional_fields() -> list[tuple[str, dataclasses.Field]]:
+    """(section, field) of every field with a :class:`BoundWhen`, in the order they are declared."""
+    return [
+        (section.name, f)
+        for section in dataclasses.fields(AnnotatorConfig)
+        for f in dataclasses.fields(section.default_factory)  # type: ignore[arg-type]
+        if "bound_when" in f.metadata
+    ]
 
 
 def _bound_name(f: dataclasses.Field) -> str:
