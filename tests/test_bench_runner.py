@@ -5,6 +5,7 @@ worker's own."""
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -16,6 +17,7 @@ from annotator.pipeline.in_memory import ExecutionOptions
 from annotator.pipeline.tasks import Span, SpanTask
 from annotator.pipeline.worker import label_span
 from bench import gripper_speed, trials_cost
+from bench.experiments import light_objects
 
 SAMPLES = Path(__file__).resolve().parent.parent / "objects"
 
@@ -46,3 +48,19 @@ def test_gripper_speed_counts_what_the_worker_labelled():
     sources = sample("box")
     done = gripper_speed.label_all(sources, "panda", 5, AnnotatorConfig(), ExecutionOptions(workers=1))
     assert done.candidates == 5 and 0 <= done.simulated <= 5 and done.cpu_s > 0
+
+
+@pytest.mark.slow
+def test_a_plates_measurement_through_the_runner_is_the_one_made_in_process():
+    plate = light_objects.Plate(4.0, 240.0, 30)
+    (got,) = light_objects.measure_all([plate], workers=1)
+    with tempfile.TemporaryDirectory() as tmp:
+        here = light_objects.measure(4.0, 240.0, 30, Path(tmp))
+    assert got == here and got.simulated > 0
+    assert [(p.grams, p.hz) for p in light_objects.plates([4.0], [240.0, 480.0], 30)] == [
+        (4.0, 240.0),
+        (4.0, 480.0),
+    ]
+    physics = AnnotatorConfig().physics
+    heavy = light_objects.plates([1000.0], None, 30)
+    assert [p.hz for p in heavy] == [1.0 / physics.time_step]  # simulated at time_step: one rate
