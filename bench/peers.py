@@ -5,18 +5,24 @@ candidate, per trial and per step, steps per trial and agreement on success.
     python -m bench.peers --per-object 40 --rounds 1
     python -m bench.peers --variant solver_iterations=100   # also time a changed configuration of ours
 
-Every tool runs in its own PyBullet DIRECT client in this one process, on the product's own object
-bodies (``annotator.objects.load_object`` + ``create_body``: same mass, inertia, friction, convex
-parts) and on our sampler's candidates; for each candidate the tools take turns (the order rotates
-per candidate), so machine load hits all of them alike. Printed per tool: ms per candidate
-(collision rejection included), ms per simulated trial, steps per trial, ms per step (time inside
-``stepSimulation`` only), and the agreement of ``success`` with ours; per object, and over the
-objects at or above ``physics.light_object_mass`` apart from the light ones ours substeps.
-``os.getloadavg()`` is printed with every timing; ``--rounds R`` repeats the whole set and prints
-the spread. After each round the free step of our gripper (bench/reference.py) is timed: a
-candidate's cost in free steps is the figure a slower machine does not move. The record
-(bench/harness.py) holds the ratios (median and range over rounds), each tool's figures, and the
-rounds' tables.
+Every object of a round is a task of the runner's execution
+(:func:`annotator.pipeline.in_memory.run_in_memory`): :func:`object_turns` run by a
+:class:`~annotator.pipeline.tasks.Call` in a worker process (``--workers`` of them, default 1, or a
+Dask cluster's) after the checks every task gets, a worker that dies costing its object one retry.
+In the task every tool runs in its own PyBullet DIRECT client, all in that one worker process, on
+the product's own object bodies (``annotator.objects.load_object`` + ``create_body``: same mass,
+inertia, friction, convex parts) and on our sampler's candidates; for each candidate the tools take
+turns (the order rotates per candidate), so machine load hits all of them alike; the CPU and wall
+times are the worker process's, taken in it around each tool's run and carried back in the tallies
+(this process only waits). With more than one worker, objects run side by side, each with all its
+tools. Printed per tool: ms per candidate (collision rejection included), ms per simulated trial,
+steps per trial, ms per step (time inside ``stepSimulation`` only), and the agreement of ``success``
+with ours; per object, and over the objects at or above ``physics.light_object_mass`` apart from the
+light ones ours substeps. ``os.getloadavg()`` is printed with every timing; ``--rounds R`` repeats
+the whole set and prints the spread. After each round the free step of our gripper
+(bench/reference.py) is timed, a task of its own, in a worker: a candidate's cost in free steps is
+the figure a slower machine does not move. The record (bench/harness.py) holds the ratios (median
+and range over rounds), each tool's figures, and the rounds' tables.
 
 Objects: a 40 mm cube, a 66 x 120 mm cylinder and a generated duck (a star-shaped union of
 ellipsoids: body, head, beak, tail; concave at the neck and under the tail; several convex parts).
@@ -63,8 +69,8 @@ written here from the numbers in their sources, as primitives):
   width (from the model's own FK) is placed on our TCP (BURG's 163 mm grasp centre is the closed
   fingertips' end).
 * **ours** -- ``annotator.trial.GraspTrial`` as the annotator's worker runs it (collision check,
-  close, lift, shake), the world built once and restored by snapshot, a light object's time step
-  divided as the worker divides it (``annotator.objects.physics_for``) and, from
+  close, lift, shake), the world built once per object's task and restored by snapshot, a light
+  object's time step divided as the worker divides it (``annotator.objects.physics_for``) and, from
   ``light_hold_mass`` up, lifted and shaken at the run's own (``PhysicsConfig.held``).
 """
 
@@ -81,6 +87,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -89,14 +96,16 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
 from annotator.outcome import Outcome
+from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
 from annotator.pipeline.simulate import object_candidates
+from annotator.pipeline.tasks import Call
 from annotator.sampler import Candidates
 from annotator.sim import pb
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial
 from bench._variants import parse_variant
-from bench.arguments import N_MAX, REPEAT_MAX, Parser, count, seed
+from bench.arguments import N_MAX, REPEAT_MAX, WORKERS_MAX, Parser, count, seed
 from bench.harness import Run
 from bench.reference import FreeStep, free_step
 
@@ -766,6 +775,104 @@ def take_turns(tools: list[Tool], work: Work) -> tuple[dict[str, Tally], dict[tu
     return tallies, by_object
 
 
+@dataclass(frozen=True)
+class ObjectTurns:
+    """One object's part of a round, what a worker is asked (:func:`object_turns`): the bench
+    object ``object_id`` (a key of :data:`BENCH_OBJECTS`), its first ``candidates`` sampled
+    candidates (``seed``), ours at ``config`` and at each of the ``variants`` (tool name,
+    configuration), the peers unless ``peers`` is False; ``cache_dir``: the decomposition cache
+    (None: the default)."""
+
+    object_id: str
+    candidates: int
+    seed: int
+    config: AnnotatorConfig
+    variants: tuple[tuple[str, AnnotatorConfig], ...] = ()
+    peers: bool = True
+    cache_dir: Path | None = None
+
+
+@dataclass(frozen=True)
+class ObjectTallies:
+    """What a worker reports of one object's turns: the object (``parts`` convex parts, ``mass``
+    in kg, ``substepped``: ours divides its time step, a light object) and each tool's tally, in
+    the tools' order (ours first)."""
+
+    object_id: str
+    parts: int
+    mass: float
+    substepped: bool
+    tallies: dict[str, Tally]
+
+    @property
+    def candidates(self) -> int:
+        """The object's candidates (each tool ran every one)."""
+        return len(next(iter(self.tallies.values())).results)
+
+
+def make_tools(turns: ObjectTurns, folder: Path) -> list[Tool]:
+    """Ours, its variants and (unless ``turns.peers`` is False) the peers, their models in ``folder``."""
+    tools: list[Tool] = [Ours(turns.config)]
+    tools += [Ours(variant, name=name) for name, variant in turns.variants]
+    if turns.peers:
+        tools += [VGN(folder), AdaGrasp(folder)]
+    return tools
+
+
+def object_turns(turns: ObjectTurns) -> ObjectTallies:
+    """In a worker (a :class:`Call`'s function): the tools of ``turns`` built in this process,
+    the object written and loaded (its collision shape from the cache), its candidates sampled for
+    our gripper, every tool running every candidate in turns (:func:`take_turns`)."""
+    with tempfile.TemporaryDirectory(prefix="rg2-peers-") as tmp:
+        folder = Path(tmp)
+        (source,) = bench_objects(folder, (turns.object_id,))
+        model = load_object(source, turns.config.objects, cache_dir=turns.cache_dir)
+        tools = make_tools(turns, folder)
+        try:
+            ours = tools[0]
+            assert isinstance(ours, Ours)  # make_tools puts ours first
+            max_width = ours.hand.gripper.max_width
+            cands = object_candidates(model, turns.candidates, turns.seed, turns.config, max_width)
+            tallies, _ = take_turns(tools, [(model, cands)])
+        finally:
+            for tool in tools:
+                tool.close()
+    substepped = model.substeps(turns.config.physics) > 1
+    return ObjectTallies(model.object_id, len(model.parts), float(model.mass), substepped, tallies)
+
+
+def run_round(units: list[ObjectTurns], execution: ExecutionOptions) -> list[ObjectTallies]:
+    """Every object's turns through the runner's execution, in the order of ``units``; what a task
+    raised is raised here, a task whose worker died twice is a RuntimeError naming its object."""
+    tasks = [Call(fn=object_turns, args=(unit,), config=unit.config) for unit in units]
+    results = run_in_memory(tasks, execution, names=[u.object_id for u in units])
+    return [_taken(unit.object_id, result) for unit, result in zip(units, results, strict=True)]
+
+
+def measured_free_step(config: AnnotatorConfig, execution: ExecutionOptions) -> FreeStep:
+    """The free step of our gripper (bench/reference.py), timed in a worker as a task of its own."""
+    (result,) = run_in_memory([Call(fn=free_step, args=(config,), config=config)], execution, ["free step"])
+    return _taken("free step", result)
+
+
+def _taken(name: str, result: Any) -> Any:
+    """A task's result; what it raised raised again, a task whose worker died twice a RuntimeError."""
+    if isinstance(result, Failed):
+        if result.exception is not None:
+            raise result.exception
+        raise RuntimeError(f"{name}: {result.error}")
+    return result
+
+
+def round_of(objects: list[ObjectTallies], step: FreeStep) -> Round:
+    """A round from its objects' tallies (in the objects' order): per tool, its tallies merged over
+    the objects in that order; per (object id, tool), as the worker counted them."""
+    names = list(objects[0].tallies)
+    by_object = {(o.object_id, name): tally for o in objects for name, tally in o.tallies.items()}
+    tallies = {name: merged([o.tallies[name] for o in objects]) for name in names}
+    return Round(tallies, by_object, step)
+
+
 def parser() -> Parser:
     ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
@@ -782,6 +889,12 @@ def parser() -> Parser:
         help="also run ours with FIELD=VALUE[,FIELD=VALUE] (repeatable)",
     )
     ap.add_argument("--no-peers", action="store_true", help="only ours and its variants")
+    ap.add_argument(
+        "--workers",
+        type=count(1, WORKERS_MAX),
+        default=1,
+        help="worker processes; each runs an object's turns with every tool (default 1)",
+    )
     return ap
 
 
@@ -789,40 +902,42 @@ def main() -> None:
     args = parser().parse_args()
     logging.basicConfig(level=logging.WARNING)
     config = AnnotatorConfig()
-    with Run("peers", config=vars(args), annotator=config) as run, tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp)
-        tools: list[Tool] = [Ours(config)]
-        for spec in args.variant:
-            label, variant = parse_variant(spec, config)
-            tools.append(Ours(variant, name=f"ours[{label}]"))
-        if not args.no_peers:
-            tools += [VGN(folder), AdaGrasp(folder)]
-        max_width = tools[0].hand.gripper.max_width
-        work: Work = []
-        for source in bench_objects(folder):
-            model = load_object(source, config.objects)
-            cands = object_candidates(model, args.per_object, args.seed, config, max_width)
-            work.append((model, cands))
-            print(f"{source.object_id}: {len(model.parts)} convex part(s), {model.mass * 1000:.0f} g")
-        print(f"{sum(len(c) for _, c in work)} candidates; tools take turns per candidate")
-
-        light = {m.object_id for m, _ in work if m.substeps(config.physics) > 1}
-        boundary = config.physics.light_object_mass
+    variants = []
+    for spec in args.variant:
+        label, variant = parse_variant(spec, config)
+        variants.append((f"ours[{label}]", variant))
+    units = [
+        ObjectTurns(name, args.per_object, args.seed, config, tuple(variants), not args.no_peers)
+        for name in BENCH_OBJECTS
+    ]
+    execution = ExecutionOptions(workers=args.workers)
+    reference = "ours"
+    boundary = config.physics.light_object_mass
+    with Run("peers", config=vars(args), annotator=config) as run:
         rounds: list[Round] = []
+        light: set[str] = set()
         for r in range(args.rounds):
             print(load(f"\nround {r + 1}: start,"))
-            tallies, by_object = take_turns(tools, work)
-            rounds.append(Round(tallies, by_object, free_step(config)))
+            objects = run_round(units, execution)
+            rounds.append(round_of(objects, measured_free_step(config, execution)))
+            if r == 0:
+                light = describe(objects)
             print(load(f"round {r + 1}: end,"))
-            report(tallies, tools[0].name, rounds[-1].free_step)
-            per_object(by_object, tools[0].name)
-            for label, group in light_groups(by_object, light, boundary):
-                by_light_boundary(by_object, tools[0].name, label, group)
+            report(rounds[-1].tallies, reference, rounds[-1].free_step)
+            per_object(rounds[-1].by_object, reference)
+            for label, group in light_groups(rounds[-1].by_object, light, boundary):
+                by_light_boundary(rounds[-1].by_object, reference, label, group)
         if args.rounds > 1:
             spread([r.tallies for r in rounds])
-        record(run, rounds, tools[0].name, light, boundary)
-        for t in tools:
-            t.close()
+        record(run, rounds, reference, light, boundary)
+
+
+def describe(objects: list[ObjectTallies]) -> set[str]:
+    """Print each object (convex parts, grams) and the candidates; the objects ours substeps."""
+    for o in objects:
+        print(f"{o.object_id}: {o.parts} convex part(s), {o.mass * 1000:.0f} g")
+    print(f"{sum(o.candidates for o in objects)} candidates; tools take turns per candidate")
+    return {o.object_id for o in objects if o.substepped}
 
 
 def slug(name: str) -> str:
@@ -1048,4 +1163,7 @@ def spread(rounds: list[dict[str, Tally]]) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    # main of the module imported by name: the functions its tasks name are pickled by reference
+    from bench.peers import main as importable_main
+
+    importable_main()

@@ -5,59 +5,106 @@
     python -m bench.trials_cost --config execution.toml   # e.g. a simulated approach
     python -m bench.trials_cost --config execution.toml --profile profile.toml  # a fitted execution's price
 
-In one process (one worker's world, as a worker labels spans), every sample object's first N
-candidates are labelled with ``--trials 1`` and with ``--trials K``, alternately, ``--repeat``
-times; the CPU time of each (this process's, objects loaded and decomposed beforehand: a warm
-worker) gives candidates per CPU-second, and their ratio is the cost of the extra trials in the
-same run. The rows of trial 0 are checked equal between the two (trial 0 is the ``--trials 1``
-label). Where the extra time goes: the physics steps of all K trials (``sim_steps``) against trial
-0's, overall and by trial 0's outcome (a ``collision`` runs no perturbed trial; a candidate that
-holds runs every perturbed trial through close and lift, and through the shake with ``[robust]
-shake = true``). The same K is also run with the perturbed trials shaken (``--no-shaken`` skips
-it): its cost, and how its scores differ from the default's on the same candidates; and with the
-perturbed closes stalled by the drive's speed alone (``[robust] stall_by_travel = false``). With a
-simulated approach (``--config`` setting ``[protocol] approach = "simulated"``), the same K is also
-run with the perturbed trials' approaches in full as well (``[robust] approach_from_contact =
-false``; its cost, and the scores against it). With ``--profile``, the profile's K with the profile
-against the same K with the model before (``--before``), in the same run: what labels made with a
-fitted execution cost per candidate. Prints figures and writes a record (bench/harness.py);
-asserts nothing.
+Every sample object's first N candidates are labelled with ``--trials 1`` and with ``--trials K``,
+alternately, ``--repeat`` times, through the runner's execution
+(:func:`annotator.pipeline.in_memory.run_in_memory`: one task per object and variant, the worker's
+own ``label_span`` run by a :class:`~annotator.pipeline.tasks.Call` after the checks every task
+gets). The CPU time of each span is measured in the worker, around its ``label_span``
+(``time.process_time`` of the worker process, carried back in :class:`TimedSpan`), not in this
+process, which only waits; summed over the objects it gives candidates per CPU-second, and the
+ratio is the cost of the extra trials in the same run. With ``--workers 1`` (the default) every
+span runs in the one worker process, which loaded (and decomposed, cold) every object beforehand:
+a warm worker, as the figures have always been measured. With more workers a span may meet an
+object its worker has not loaded yet, and its CPU then includes the load: keep 1 for the figures.
+
+The rows of trial 0 are checked equal between the two (trial 0 is the ``--trials 1`` label). Where
+the extra time goes: the physics steps of all K trials (``sim_steps``) against trial 0's, overall
+and by trial 0's outcome (a ``collision`` runs no perturbed trial; a candidate that holds runs every
+perturbed trial through close and lift, and through the shake with ``[robust] shake = true``). The
+same K is also run with the perturbed trials shaken (``--no-shaken`` skips it): its cost, and how
+its scores differ from the default's on the same candidates; and with the perturbed closes stalled
+by the drive's speed alone (``[robust] stall_by_travel = false``). With a simulated approach
+(``--config`` setting ``[protocol] approach = "simulated"``), the same K is also run with the
+perturbed trials' approaches in full as well (``[robust] approach_from_contact = false``; its cost,
+and the scores against it). With ``--profile``, the profile's K with the profile against the same K
+with the model before (``--before``), in the same run: what labels made with a fitted execution cost
+per candidate. Prints figures and writes a record (bench/harness.py); asserts nothing.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from annotator.config import AnnotatorConfig
-from annotator.objects import discover_objects
-from annotator.pipeline.tasks import Span, SpanTask
+from annotator.objects import ObjectSource, discover_objects
+from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.tasks import Call, Span, SpanResult, SpanTask
 from annotator.pipeline.worker import label_span
-from bench.arguments import N_MAX, REPEAT_MAX, Parser, count, existing_file, existing_folder
+from bench.arguments import (
+    N_MAX,
+    REPEAT_MAX,
+    WORKERS_MAX,
+    Parser,
+    count,
+    existing_file,
+    existing_folder,
+)
 from bench.harness import ROOT, Run
 
 TRIAL0 = ["outcome", "width", "x", "y", "z", "qx", "qy", "qz", "qw"]
 
 
-def label(sources, n: int, trials: int, config: AnnotatorConfig) -> tuple[pd.DataFrame, float]:
-    """Every object's first ``n`` candidates with ``--trials trials``; (rows, CPU seconds)."""
+@dataclass(frozen=True)
+class TimedSpan:
+    """A span's labels as the worker returned them (``result``) and the CPU seconds the worker
+    process spent labelling it (``cpu_s``, its ``time.process_time``)."""
+
+    result: SpanResult
+    cpu_s: float
+
+
+def timed_span(task: SpanTask) -> TimedSpan:
+    """In a worker (a :class:`Call`'s function): label ``task``'s span as a worker does, timed in
+    CPU seconds of this process."""
     t0 = time.process_time()
-    parts = []
-    for source in sources:
-        result = label_span(
-            SpanTask(
-                span=Span(source.object_id, source, None, 0, n), config=config, seed=0, n=n, trials=trials
-            )
+    result = label_span(task)
+    return TimedSpan(result, time.process_time() - t0)
+
+
+def label(
+    sources: list[ObjectSource], n: int, trials: int, config: AnnotatorConfig, execution: ExecutionOptions
+) -> tuple[pd.DataFrame, float]:
+    """Every object's first ``n`` candidates with ``--trials trials``, one task per object in the
+    workers of ``execution``; (rows in the objects' order, the workers' CPU seconds over the spans)."""
+    tasks = [
+        Call(
+            fn=timed_span,
+            args=(
+                SpanTask(span=Span(s.object_id, s, None, 0, n), config=config, seed=0, n=n, trials=trials),
+            ),
+            config=config,
         )
-        if result.error is None:
-            parts.append(result.rows)
+        for s in sources
+    ]
+    parts, cpu = [], 0.0
+    for source, timed in zip(
+        sources, run_in_memory(tasks, execution, [s.object_id for s in sources]), strict=True
+    ):
+        if isinstance(timed, Failed):
+            print(f"{source.object_id}: {timed.error}")
+            continue
+        cpu += timed.cpu_s
+        if timed.result.error is None:
+            parts.append(timed.result.rows)
         else:
-            print(f"{source.object_id}: {result.error}")
-    return pd.concat(parts, ignore_index=True), time.process_time() - t0
+            print(f"{source.object_id}: {timed.result.error}")
+    return pd.concat(parts, ignore_index=True), cpu
 
 
 def parser() -> Parser:
@@ -66,6 +113,12 @@ def parser() -> Parser:
     ap.add_argument("--n", type=count(1, N_MAX), default=30, help="candidates per object")
     ap.add_argument("--trials", type=count(2, 100), default=5, help="the K compared with --trials 1")
     ap.add_argument("--repeat", type=count(1, REPEAT_MAX), default=2)
+    ap.add_argument(
+        "--workers",
+        type=count(1, WORKERS_MAX),
+        default=1,
+        help="worker processes (1: one warm worker, as the figures are measured)",
+    )
     ap.add_argument(
         "--no-shaken", action="store_true", help="skip the K trials with the perturbed ones shaken too"
     )
@@ -93,7 +146,8 @@ def main() -> None:
     args = parser().parse_args()
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     sources = discover_objects(args.objects)
-    label(sources, 1, 1, config)  # load (and decompose, cold) every object first
+    execution = ExecutionOptions(workers=args.workers)
+    label(sources, 1, 1, config, execution)  # load (and decompose, cold) every object first
     k = args.trials
     # (trials, configuration, name, what the name says in the output)
     variants = [(1, config, "1", ""), (k, config, str(k), "")]
@@ -120,7 +174,7 @@ def main() -> None:
     with Run("trials_cost", config=settings) as run:
         for r in range(args.repeat):
             for trials, cfg, name, what in variants:
-                table, cpu = label(sources, args.n, trials, cfg)
+                table, cpu = label(sources, args.n, trials, cfg, execution)
                 rates[name].append(len(table) / cpu)
                 rows[name] = table
                 print(
@@ -234,4 +288,7 @@ def steps_by_outcome(one: pd.DataFrame, many: pd.DataFrame, k: int) -> list[dict
 
 
 if __name__ == "__main__":
-    main()
+    # main of the module imported by name: the functions its tasks name are pickled by reference
+    from bench.trials_cost import main as importable_main
+
+    importable_main()

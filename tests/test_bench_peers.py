@@ -11,6 +11,7 @@ import pytest
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import load_object
+from annotator.pipeline.in_memory import ExecutionOptions
 from annotator.pipeline.simulate import object_candidates
 from annotator.sim import pb
 from bench import peers
@@ -103,3 +104,26 @@ def test_figures_and_ratios_of_a_round(turns):
 def test_the_reference_free_step_is_a_step_in_contact():
     step = free_step(steps=24, blocks=2)
     assert 0 < step.cpu < 0.05 and 0 < step.wall < 0.05 and step.steps == 24
+
+
+@pytest.mark.slow
+def test_an_objects_turns_through_the_runner_are_the_turns_taken_in_process(turns, tmp_path):
+    """bench.peers runs each object's turns in a worker (``object_turns``, a Call through the
+    runner), its tools built there: on the same candidates every tool's outcomes, steps and widths
+    are those of the tools taking turns in this process, and the object is described as loaded."""
+    tools, _, _, by_object, _ = turns
+    config = AnnotatorConfig()
+    config = dataclasses.replace(
+        config, objects=dataclasses.replace(config.objects, collision_error_samples=500)
+    )
+    unit = peers.ObjectTurns("cube40", CANDIDATES, 0, config, cache_dir=tmp_path / "cache")
+    (got,) = peers.run_round([unit], ExecutionOptions(workers=1))
+    assert (got.object_id, got.parts, got.substepped, got.candidates) == ("cube40", 1, True, CANDIDATES)
+    assert list(got.tallies) == [tool.name for tool in tools]
+    for tool in tools:
+        mine, theirs = by_object[("cube40", tool.name)].results, got.tallies[tool.name].results
+        assert [(r.simulated, r.success, r.steps) for r in theirs] == [
+            (r.simulated, r.success, r.steps) for r in mine
+        ]
+        np.testing.assert_array_equal([r.width for r in theirs], [r.width for r in mine])
+        assert all(seconds > 0 for seconds in got.tallies[tool.name].seconds)  # the worker's CPU

@@ -10,6 +10,13 @@ simulated" is the step the annotator uses for that mass (time_step / contact_sub
 line per mass and step and writes a record (bench/harness.py). Every step of a trial is at the
 given rate, the lift and shake included (the annotator lifts and shakes an object of
 ``light_hold_mass`` or more at ``time_step``: ``bench.experiments.light_threshold --own-step``).
+
+Each mass and step is a task of the runner's execution
+(:func:`annotator.pipeline.in_memory.run_in_memory`): :func:`held_on_plate` run by a
+:class:`~annotator.pipeline.tasks.Call` in a worker process (``--workers`` of them, or a Dask
+cluster's), after the checks every task gets, in a temporary folder of its own (the plate's mesh
+and its collision shape); a worker that dies costs its task one retry. A task depends on its mass,
+step and candidates only, so the lines do not depend on the workers.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ import argparse
 import dataclasses
 import tempfile
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,12 +42,14 @@ from annotator.objects import (
     physics_for,
 )
 from annotator.outcome import Outcome
+from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
 from annotator.pipeline.object_modes import PARKED
+from annotator.pipeline.tasks import Call
 from annotator.sampler import object_rng, sample_candidates
 from annotator.sim.hand import FloatingGripper
 from annotator.sim.world import World
 from annotator.trial import GraspTrial, TrialResult
-from bench.arguments import N_MAX, Parser, count, number
+from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, number
 from bench.harness import Run
 
 EXTENTS = (0.048, 0.024, 0.00635)
@@ -131,6 +141,55 @@ def measure(grams: float, hz: float, n: int, folder: Path) -> Held:
     )
 
 
+@dataclass(frozen=True)
+class Plate:
+    """One measurement: the plate at ``grams``, simulated at ``hz`` steps per second, its first
+    ``candidates`` sampled candidates (seed 0)."""
+
+    grams: float
+    hz: float
+    candidates: int
+
+    def name(self) -> str:
+        """What the measurement is called in an error: ``4 g at 1/240 s``."""
+        return f"{self.grams:g} g at 1/{self.hz:.0f} s"
+
+
+def held_on_plate(plate: Plate) -> Held:
+    """In a worker (a :class:`Call`'s function): :func:`measure` of ``plate`` in a temporary
+    folder of this process (the plate's mesh and collision shape)."""
+    with tempfile.TemporaryDirectory(prefix="rg2-plate-") as tmp:
+        return measure(plate.grams, plate.hz, plate.candidates, Path(tmp))
+
+
+def measure_all(plates: list[Plate], workers: int) -> list[Held]:
+    """Every plate's measurement, through the runner's execution on ``workers`` processes, in the
+    order of ``plates``; what a task raised is raised here, a task whose worker died twice is a
+    RuntimeError naming it."""
+    config = AnnotatorConfig()  # what every task carries; each plate makes its own from it
+    tasks = [Call(fn=held_on_plate, args=(plate,), config=config) for plate in plates]
+    results = run_in_memory(tasks, ExecutionOptions(workers=workers), names=[p.name() for p in plates])
+    for plate, result in zip(plates, results, strict=True):
+        if isinstance(result, Failed):
+            if result.exception is not None:
+                raise result.exception
+            raise RuntimeError(f"{plate.name()}: {result.error}")
+    return results
+
+
+def plates(grams: list[float], hz: list[float] | None, candidates: int) -> list[Plate]:
+    """The measurements asked for: each mass at each rate of ``hz`` (None: at 1/time_step and at
+    the step the annotator simulates that mass at, once if they are the same)."""
+    physics = AnnotatorConfig().physics
+    out: list[Plate] = []
+    for g in grams:
+        rates = hz or sorted(
+            {1.0 / physics.time_step, contact_substeps(g / 1000.0, physics) / physics.time_step}
+        )
+        out.extend(Plate(g, rate, candidates) for rate in rates)
+    return out
+
+
 def parser() -> Parser:
     ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--grams", type=number(0.0, 100_000.0, low_open=True), nargs="+", default=[4.0, 40.0])
@@ -142,24 +201,22 @@ def parser() -> Parser:
         help="steps per second (default 240 and as simulated)",
     )
     ap.add_argument("--candidates", type=count(1, N_MAX), default=90)
+    ap.add_argument("--workers", type=count(1, WORKERS_MAX), default=1, help="worker processes")
     return ap
 
 
 def main() -> None:
     args = parser().parse_args()
-    physics = AnnotatorConfig().physics
-    with Run("light_objects", config=vars(args)) as run, tempfile.TemporaryDirectory() as tmp:
+    with Run("light_objects", config=vars(args)) as run:
         rows = []
-        for grams in args.grams:
-            rates = args.hz or sorted(
-                {1.0 / physics.time_step, contact_substeps(grams / 1000.0, physics) / physics.time_step}
-            )
-            for hz in rates:
-                held = measure(grams, hz, args.candidates, Path(tmp))
-                print(held.line(), flush=True)
-                rows.append(dataclasses.asdict(held))
+        for held in measure_all(plates(args.grams, args.hz, args.candidates), args.workers):
+            print(held.line(), flush=True)
+            rows.append(dataclasses.asdict(held))
         run.table("held", rows, note="face-to-face grasps of a 48 x 24 x 6.35 mm plate, seed 0")
 
 
 if __name__ == "__main__":
-    main()
+    # main of the module imported by name: the functions its tasks name are pickled by reference
+    from bench.experiments.light_objects import main as importable_main
+
+    importable_main()
