@@ -17,7 +17,7 @@ from annotator.pipeline.in_memory import ExecutionOptions
 from annotator.pipeline.tasks import Span, SpanTask
 from annotator.pipeline.worker import label_span
 from bench import gripper_speed, trials_cost
-from bench.experiments import light_objects
+from bench.experiments import light_objects, light_threshold
 
 SAMPLES = Path(__file__).resolve().parent.parent / "objects"
 
@@ -64,3 +64,15 @@ def test_a_plates_measurement_through_the_runner_is_the_one_made_in_process():
     physics = AnnotatorConfig().physics
     heavy = light_objects.plates([1000.0], None, 30)
     assert [p.hz for p in heavy] == [1.0 / physics.time_step]  # simulated at time_step: one rate
+
+
+@pytest.mark.slow
+def test_a_light_threshold_cell_through_the_runner_is_the_one_made_in_process():
+    """One (shape, mass, seed) of light_threshold's grid: the fine reference and 1/240 s, from a
+    worker and in this process, agree row for row (successes, agreement, widths)."""
+    cell = ("cube40", 40.0, 0, 6, 4, "", False, [("default", "")])
+    (got,) = light_threshold.measure_grid([cell], AnnotatorConfig(), workers=1)
+    here = light_threshold.row(cell)
+    assert got == here
+    (name, shape, grams, seed, simulated, *_), *_ = got
+    assert (name, shape, grams, seed) == ("default", "cube40", 40.0, 0) and simulated > 0

@@ -46,7 +46,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +53,8 @@ import trimesh
 
 from annotator.config import AnnotatorConfig
 from annotator.outcome import Outcome
+from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.tasks import Call
 from bench._variants import parse_variant
 from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, number, seed
 from bench.experiments.light_objects import simulated_trials
@@ -125,6 +126,21 @@ def row(args: tuple) -> list[tuple[str, str, float, int, int, int, int, int, int
     return out
 
 
+def measure_grid(grid: list[tuple], config: AnnotatorConfig, workers: int) -> list[list[tuple]]:
+    """:func:`row` of every (shape, mass, seed) of ``grid``, in its order, through the runner's
+    execution on ``workers`` processes (:func:`annotator.pipeline.in_memory.run_in_memory`: a dead
+    worker's task retried alone, the version check); what a task raised is raised here."""
+    tasks = [Call(fn=row, args=(cell,), config=config) for cell in grid]
+    names = [f"{shape} {grams:g} g seed {seed}" for shape, grams, seed, *_ in grid]
+    results = run_in_memory(tasks, ExecutionOptions(workers=workers), names=names)
+    for name, result in zip(names, results, strict=True):
+        if isinstance(result, Failed):
+            if result.exception is not None:
+                raise result.exception
+            raise RuntimeError(f"{name}: {result.error}")
+    return results
+
+
 def parser() -> Parser:
     ap = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shapes", nargs="+", default=list(DEFAULT_SHAPES), choices=[*SHAPES, "all"])
@@ -181,29 +197,28 @@ def main() -> None:
     )
     with Run("light_threshold", config=vars(args), annotator=config) as run:
         rows = []
-        with ProcessPoolExecutor(args.jobs) as pool:
-            for results in pool.map(row, grid):
-                for name, shape, grams, seed, sim, ok1, okf, agree, wide in results:
-                    print(
-                        f"{name:8s} {shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} "
-                        f"{wide:7d}",
-                        flush=True,
-                    )
-                    totals.setdefault((name, grams), np.zeros(5, int))
-                    totals[name, grams] += (sim, ok1, okf, agree, wide)
-                    rows.append(
-                        {
-                            "variant": name,
-                            "shape": shape,
-                            "grams": grams,
-                            "seed": seed,
-                            "simulated": sim,
-                            "success_240": ok1,
-                            "success_fine": okf,
-                            "agree": agree,
-                            "widths_over_0p2mm": wide,
-                        }
-                    )
+        for results in measure_grid(grid, config, args.jobs):
+            for name, shape, grams, seed, sim, ok1, okf, agree, wide in results:
+                print(
+                    f"{name:8s} {shape:8s} {grams:5.1f} {seed:4d} {sim:4d} {ok1:6d} {okf:7d} {agree:6d} "
+                    f"{wide:7d}",
+                    flush=True,
+                )
+                totals.setdefault((name, grams), np.zeros(5, int))
+                totals[name, grams] += (sim, ok1, okf, agree, wide)
+                rows.append(
+                    {
+                        "variant": name,
+                        "shape": shape,
+                        "grams": grams,
+                        "seed": seed,
+                        "simulated": sim,
+                        "success_240": ok1,
+                        "success_fine": okf,
+                        "agree": agree,
+                        "widths_over_0p2mm": wide,
+                    }
+                )
         print("\nper mass, all shapes and seeds:")
         per_mass = []
         for name, _ in labelled:
@@ -234,4 +249,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    # main of the module imported by name: the function its tasks name is pickled by reference
+    from bench.experiments.light_threshold import main as importable_main
+
+    importable_main()
