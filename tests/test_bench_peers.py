@@ -4,6 +4,7 @@ in turns, and a trial's step count is the steps it really took."""
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 
 import numpy as np
@@ -114,7 +115,7 @@ def test_an_objects_turns_through_the_runner_are_the_turns_taken_in_process(turn
     tools, _, _, by_object, _ = turns
     config = AnnotatorConfig()
     config = dataclasses.replace(
-        config, objects=dataclasses.replace(config.objects, collision_error_samples=500)
+        config, objects=config.objects.with_decomposition(collision_error_samples=500)
     )
     unit = peers.ObjectTurns("cube40", CANDIDATES, 0, config, cache_dir=tmp_path / "cache")
     (got,) = peers.run_round([unit], ExecutionOptions(workers=1))

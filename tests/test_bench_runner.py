@@ -14,8 +14,9 @@ import pytest
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
 from annotator.pipeline.in_memory import ExecutionOptions
-from annotator.pipeline.tasks import Span, SpanTask
-from annotator.pipeline.worker import label_span
+from annotator.pipeline.process import current_watch
+from annotator.pipeline.tasks import Call, Span, SpanTask
+from annotator.pipeline.worker import label_span, label_span_within, perform
 from bench import gripper_speed, trials_cost
 from bench.experiments import light_objects, light_threshold
 
@@ -76,3 +77,24 @@ def test_a_light_threshold_cell_through_the_runner_is_the_one_made_in_process():
     assert got == here
     (name, shape, grams, seed, simulated, *_), *_ = got
     assert (name, shape, grams, seed) == ("default", "cube40", 40.0, 0) and simulated > 0
+
+
+def _watch_after(label, task):
+    """Label ``task``'s span with ``label``, then what this process watches (a Call's function)."""
+    label(task)
+    return current_watch()
+
+
+@pytest.mark.slow
+def test_a_span_labelled_within_a_call_keeps_the_calls_stop_folder(tmp_path):
+    """A bench's Call that labels a span inside it (trials_cost's timed span) keeps the call's stop
+    folder while the span runs, so a Ctrl-C's stop request reaches it; the span as the bench built it
+    (no folder of its own) would have cleared it."""
+    source = sample("box")[0]
+    config = AnnotatorConfig()
+    task = SpanTask(span=Span("box", source, None, 0, 2), config=config, seed=0, n=2)
+    folder = str(tmp_path / "status")
+    within = perform(Call(fn=_watch_after, args=(label_span_within, task), config=config, status_dir=folder))
+    plain = perform(Call(fn=_watch_after, args=(label_span, task), config=config, status_dir=folder))
+    assert within.error is None and within.value == (None, folder)
+    assert plain.error is None and plain.value == (None, None)

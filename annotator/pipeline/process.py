@@ -50,6 +50,13 @@ def watch_parent(parent_pid: int | None, status_dir: str | None) -> None:
     threading.Thread(target=watch, name="rg2-parent-watch", daemon=True).start()
 
 
+def current_watch() -> tuple[int | None, str | None]:
+    """(the main process this worker watches, its current run's stop folder), as the last task set
+    them (:func:`watch_parent`): what work started within a task gives its own tasks, so that a
+    stop request reaches them as it reaches the task."""
+    return _PROCESS.watched_parent, _PROCESS.stop_folder
+
+
 def check_versions(expected: dict[str, str] | None) -> None:
     """ObjectError when this process's label-shaping versions differ from the run's ``expected``
     (a cluster worker with others fails the unit instead of mixing)."""

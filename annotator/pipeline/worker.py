@@ -39,7 +39,7 @@ from annotator.grippers import GripperDescription, GripperFiles, resolve_gripper
 from annotator.objects import ObjectError, default_cache_dir
 from annotator.pipeline import status
 from annotator.pipeline.object_cache import ObjectCache
-from annotator.pipeline.process import check_versions, cpu_seconds, task_stats, watch_parent
+from annotator.pipeline.process import check_versions, cpu_seconds, current_watch, task_stats, watch_parent
 from annotator.pipeline.strategies import Strategy, build_strategy
 from annotator.pipeline.tasks import (
     UNUSABLE_OBJECT,
@@ -179,6 +179,15 @@ def label_span(task: Task) -> SpanResult:
     """Entry point of a worker process (loky or Dask): label one span (of an object or a scene), or
     run an object's decomposition task, with this process's state."""
     return worker_state().label(task)
+
+
+def label_span_within(task: SpanTask) -> SpanResult:
+    """:func:`label_span` of a span that a :class:`Call`'s function labels within its task (a bench
+    timing the span in the worker): the span keeps the call's watch on the main process and its stop
+    folder (:func:`~annotator.pipeline.process.current_watch`), which a task built before the run
+    does not carry, so a stop request reaches it as it reaches the call."""
+    parent_pid, stop_folder = current_watch()
+    return label_span(dataclasses.replace(task, parent_pid=parent_pid, status_dir=stop_folder))
 
 
 def perform(call: Call) -> Performed:
