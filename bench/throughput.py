@@ -251,12 +251,14 @@ def main() -> None:
     config = AnnotatorConfig.from_toml(args.config) if args.config else AnnotatorConfig()
     if args.modes_only:
         args.n = args.scaling_n = args.main_n = 0
-    # a run with a configuration of its own keeps its record beside the default's
-    tag = (
-        None
-        if args.config is None
-        else "config-" + re.sub(r"[^a-z0-9]+", "-", args.config.stem.lower()).strip("-")
-    )
+    # a run with a configuration of its own, or against another version, keeps its record beside the
+    # default's (the newest plain record stays the figures of this code alone)
+    tag = None
+    if args.config is not None:
+        tag = "config-" + re.sub(r"[^a-z0-9]+", "-", args.config.stem.lower()).strip("-")
+    if args.versus_install is not None:
+        versus = re.sub(r"[^a-z0-9]+", "-", _install_commit(args.versus_install).lower()).strip("-")
+        tag = "-".join(t for t in (tag, f"versus-{versus}") if t)
     with Run("throughput", config=vars(args), annotator=config, tag=tag) as record:
         references = [free_step(config)]
         if args.n:
