@@ -31,7 +31,9 @@ import ast
 import json
 import os
 import re
+import shutil
 import subprocess
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,12 +192,13 @@ def raw_pybullet(package: Path) -> tuple[int, int, list[str]]:
 def radon_blocks(package: Path) -> dict[str, list[str]]:
     """Blocks of rank C and worse, and D and worse, as ``radon cc -n C`` lists them: ``file:line
     name (rank complexity)``."""
-    try:
-        proc = subprocess.run(
-            ["radon", "cc", "-j", "-n", "C", str(package)], capture_output=True, text=True, check=True
-        )
-    except FileNotFoundError:
-        raise SystemExit("bench.structure: radon is not installed: pip install -e '.[bench]'") from None
+    # the radon installed beside this Python (a virtual environment not activated), else on PATH
+    radon = shutil.which("radon", path=str(Path(sys.executable).parent)) or shutil.which("radon")
+    if radon is None:
+        raise SystemExit("bench.structure: radon is not installed: pip install -e '.[bench]'")
+    proc = subprocess.run(
+        [radon, "cc", "-j", "-n", "C", str(package)], capture_output=True, text=True, check=True
+    )
     out: dict[str, list[str]] = {"C": [], "D": []}
     for path, blocks in sorted(json.loads(proc.stdout).items()):
         for block in blocks:
