@@ -860,14 +860,10 @@ class AnnotatorConfig:
         """
         data = dataclasses.asdict(self)
         data["objects"] |= _bound_fields(data["objects"].pop("decomposition"))
-        for section in dataclasses.fields(self):  # implicit fields at the value every run had
-            values = getattr(self, section.name)
-            fields = [(f, _bound_name(f)) for f in dataclasses.fields(values)]
-            if section.name == "objects":
-                fields += [(f, _bound_name(f)) for f in dataclasses.fields(DecompositionConfig)]
-            for f, name in fields:
-                if f.metadata.get("implicit") and data[section.name].get(name, f.default) == f.default:
-                    data[section.name].pop(name, None)
+        for section, f in _implicit_fields():  # at the value every run had: not bound
+            name = _bound_name(f)
+            if data[section].get(name, f.default) == f.default:
+                data[section].pop(name, None)
         if not scenes:
             data.pop("scenes")
         if self.confidence.method == "none":
@@ -954,6 +950,19 @@ def _bound_name(f: dataclasses.Field) -> str:
     return f.metadata.get("bound") or f.name
 
 
+def _implicit_fields() -> list[tuple[str, dataclasses.Field]]:
+    """(the section a run binds it in, field) of every implicit field (:func:`_field`), the
+    ladder's in ``objects``."""
+    sections = [(f.name, f.default_factory) for f in dataclasses.fields(AnnotatorConfig)]
+    sections.append(("objects", DecompositionConfig))
+    return [
+        (name, f)
+        for name, section in sections
+        for f in dataclasses.fields(section)  # type: ignore[arg-type]
+        if f.metadata.get("implicit")
+    ]
+
+
 def _bound_fields(decomposition: dict[str, Any]) -> dict[str, Any]:
     """``[objects.decomposition]``'s values by the names a run binds them under in ``[objects]``."""
     names = {f.name: _bound_name(f) for f in dataclasses.fields(DecompositionConfig)}
@@ -968,26 +977,38 @@ def _objects_values(values: dict[str, Any]) -> dict[str, Any]:
     value out of range."""
     by_bound = {_bound_name(f): f.name for f in dataclasses.fields(DecompositionConfig)}
     flat = {by_bound[k]: v for k, v in values.items() if k in by_bound}
-    table = values.get("decomposition", {})
     if not flat and "decomposition" not in values:
         return values
+    table = _ladder_table(values.get("decomposition", {}))
+    _given_once(flat, table)
+    rest = {k: v for k, v in values.items() if k not in by_bound and k != "decomposition"}
+    return rest | {"decomposition": DecompositionConfig(**(flat | table))}
+
+
+def _given_once(flat: dict[str, Any], table: dict[str, Any]) -> None:
+    """ConfigError naming a ladder setting given both by its bound name in ``[objects]`` (``flat``,
+    by field name) and in the ``[objects.decomposition]`` table."""
+    both = sorted(set(flat) & set(table))
+    if both:
+        bound = {f.name: _bound_name(f) for f in dataclasses.fields(DecompositionConfig)}
+        raise ConfigError(
+            f"[objects.decomposition] {both[0]} is given twice: as [objects] {bound[both[0]]} and in the "
+            "[objects.decomposition] table"
+        )
+
+
+def _ladder_table(table: Any) -> dict[str, Any]:
+    """An ``[objects.decomposition]`` table as given, or ConfigError for one that is not a table
+    of settings or names a field the section does not have."""
     if not isinstance(table, dict):
         raise ConfigError(f"[objects.decomposition] must be a section of settings, got {table!r}")
-    known = set(by_bound.values())
+    known = {f.name for f in dataclasses.fields(DecompositionConfig)}
     unknown = set(table) - known
     if unknown:
         raise ConfigError(
             f"unknown field(s) {sorted(unknown)} in [objects.decomposition]; known: {sorted(known)}"
         )
-    both = sorted(set(flat) & set(table))
-    if both:
-        bound = {name: by for by, name in by_bound.items()}
-        raise ConfigError(
-            f"[objects.decomposition] {both[0]} is given twice: as [objects] {bound[both[0]]} and in the "
-            "[objects.decomposition] table"
-        )
-    rest = {k: v for k, v in values.items() if k not in by_bound and k != "decomposition"}
-    return rest | {"decomposition": DecompositionConfig(**(flat | table))}
+    return table
 
 
 # What a folder made before the stages existed simulated, for each field it lacks: no benchmark
