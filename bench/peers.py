@@ -87,7 +87,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import trimesh
@@ -96,7 +95,7 @@ from annotator.config import AnnotatorConfig
 from annotator.geometry import Transform
 from annotator.objects import ObjectModel, ObjectSource, create_body, load_object, physics_for
 from annotator.outcome import Outcome
-from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.in_memory import ExecutionOptions, call_values
 from annotator.pipeline.simulate import object_candidates
 from annotator.pipeline.tasks import Call
 from annotator.sampler import Candidates
@@ -845,22 +844,12 @@ def run_round(units: list[ObjectTurns], execution: ExecutionOptions) -> list[Obj
     """Every object's turns through the runner's execution, in the order of ``units``; what a task
     raised is raised here, a task whose worker died twice is a RuntimeError naming its object."""
     tasks = [Call(fn=object_turns, args=(unit,), config=unit.config) for unit in units]
-    results = run_in_memory(tasks, execution, names=[u.object_id for u in units])
-    return [_taken(unit.object_id, result) for unit, result in zip(units, results, strict=True)]
+    return call_values(tasks, execution, names=[u.object_id for u in units])
 
 
 def measured_free_step(config: AnnotatorConfig, execution: ExecutionOptions) -> FreeStep:
     """The free step of our gripper (bench/reference.py), timed in a worker as a task of its own."""
-    (result,) = run_in_memory([Call(fn=free_step, args=(config,), config=config)], execution, ["free step"])
-    return _taken("free step", result)
-
-
-def _taken(name: str, result: Any) -> Any:
-    """A task's result; what it raised raised again, a task whose worker died twice a RuntimeError."""
-    if isinstance(result, Failed):
-        if result.exception is not None:
-            raise result.exception
-        raise RuntimeError(f"{name}: {result.error}")
+    (result,) = call_values([Call(fn=free_step, args=(config,), config=config)], execution, ["free step"])
     return result
 
 

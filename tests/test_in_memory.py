@@ -13,7 +13,7 @@ import pytest
 
 from annotator.config import AnnotatorConfig
 from annotator.objects import discover_objects
-from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.in_memory import ExecutionOptions, Failed, call_values, run_in_memory
 from annotator.pipeline.tasks import Call, Span, SpanResult, SpanTask
 from annotator.pipeline.worker import label_span
 
@@ -70,3 +70,14 @@ def test_a_call_that_kills_its_worker_twice_is_reported_and_the_others_come_back
     kept, dead = run_in_memory(tasks, ExecutionOptions(workers=2), names=["kept", "round 1"])
     assert kept["what"] == "a"
     assert isinstance(dead, Failed) and "a worker process died twice while running round 1" in dead.error
+
+
+def test_call_values_are_the_functions_values_and_raise_what_a_call_raised():
+    """call_values: the values in the order of the calls; what a function raised is raised again in
+    this process, a call whose worker died twice a RuntimeError naming it."""
+    calls = [Call(fn=context_of, args=(w,), config=CONFIG) for w in ("a", "b")]
+    assert [v["what"] for v in call_values(calls)] == ["a", "b"]
+    with pytest.raises(ValueError, match="no second"):
+        call_values([calls[0], Call(fn=raise_value_error, args=("second",), config=CONFIG)])
+    with pytest.raises(RuntimeError, match="a worker process died twice while running round 7"):
+        call_values([Call(fn=die, args=(11,), config=CONFIG)], names=["round 7"])

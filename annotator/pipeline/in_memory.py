@@ -117,6 +117,21 @@ def run_in_memory(
     return results
 
 
+def call_values(
+    calls: Sequence[Call], execution: ExecutionOptions | None = None, names: Sequence[str] | None = None
+) -> list[Any]:
+    """:func:`run_in_memory` of ``calls``: each function's value, in their order. What a function
+    raised is raised here again; a call whose worker died twice is a RuntimeError naming it
+    (``names``, else its position)."""
+    results = run_in_memory(calls, execution, names)
+    for i, result in enumerate(results):
+        if isinstance(result, Failed):
+            if result.exception is not None:
+                raise result.exception
+            raise RuntimeError(f"{names[i] if names else f'task {i}'}: {result.error}")
+    return results
+
+
 def _line(exc: Exception) -> str:
     return f"{type(exc).__name__}: {exc}"
 

@@ -7,7 +7,7 @@ round, policy) only, so the figures do not depend on the workers.
 
 from __future__ import annotations
 
-from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.in_memory import ExecutionOptions, call_values
 from annotator.pipeline.tasks import Call
 from annotator.policies.clutter import ClutterSetup, ClutterSummary, run_round
 
@@ -19,10 +19,5 @@ def run_clutter_removal(
     process). What a round raises (an object that cannot be loaded, a policy's error) is raised
     here; a round whose worker died twice is a RuntimeError naming it."""
     tasks = [Call(fn=run_round, args=(job, r), config=job.config) for r in range(rounds)]
-    results = run_in_memory(tasks, execution, names=[f"round {r}" for r in range(rounds)])
-    for r, result in enumerate(results):
-        if isinstance(result, Failed):
-            if result.exception is not None:
-                raise result.exception
-            raise RuntimeError(f"round {r}: {result.error}")
+    results = call_values(tasks, execution, names=[f"round {r}" for r in range(rounds)])
     return ClutterSummary(sorted(results, key=lambda x: x.round_id))

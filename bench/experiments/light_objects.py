@@ -42,7 +42,7 @@ from annotator.objects import (
     physics_for,
 )
 from annotator.outcome import Outcome
-from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.in_memory import ExecutionOptions, call_values
 from annotator.pipeline.object_modes import PARKED
 from annotator.pipeline.tasks import Call
 from annotator.sampler import object_rng, sample_candidates
@@ -168,13 +168,7 @@ def measure_all(plates: list[Plate], workers: int) -> list[Held]:
     RuntimeError naming it."""
     config = AnnotatorConfig()  # what every task carries; each plate makes its own from it
     tasks = [Call(fn=held_on_plate, args=(plate,), config=config) for plate in plates]
-    results = run_in_memory(tasks, ExecutionOptions(workers=workers), names=[p.name() for p in plates])
-    for plate, result in zip(plates, results, strict=True):
-        if isinstance(result, Failed):
-            if result.exception is not None:
-                raise result.exception
-            raise RuntimeError(f"{plate.name()}: {result.error}")
-    return results
+    return call_values(tasks, ExecutionOptions(workers=workers), names=[p.name() for p in plates])
 
 
 def plates(grams: list[float], hz: list[float] | None, candidates: int) -> list[Plate]:

@@ -53,7 +53,7 @@ import trimesh
 
 from annotator.config import AnnotatorConfig
 from annotator.outcome import Outcome
-from annotator.pipeline.in_memory import ExecutionOptions, Failed, run_in_memory
+from annotator.pipeline.in_memory import ExecutionOptions, call_values
 from annotator.pipeline.tasks import Call
 from bench._variants import parse_variant
 from bench.arguments import N_MAX, WORKERS_MAX, Parser, count, number, seed
@@ -132,13 +132,7 @@ def measure_grid(grid: list[tuple], config: AnnotatorConfig, workers: int) -> li
     worker's task retried alone, the version check); what a task raised is raised here."""
     tasks = [Call(fn=row, args=(cell,), config=config) for cell in grid]
     names = [f"{shape} {grams:g} g seed {seed}" for shape, grams, seed, *_ in grid]
-    results = run_in_memory(tasks, ExecutionOptions(workers=workers), names=names)
-    for name, result in zip(names, results, strict=True):
-        if isinstance(result, Failed):
-            if result.exception is not None:
-                raise result.exception
-            raise RuntimeError(f"{name}: {result.error}")
-    return results
+    return call_values(tasks, ExecutionOptions(workers=workers), names=names)
 
 
 def parser() -> Parser:
