@@ -720,19 +720,23 @@ def _row(
 
 
 def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[dict]:
-    """VGN's sim_grasp.py with each network, piles and packed, the same seed (the same piles)."""
+    """VGN's sim_grasp.py with each network, piles and packed, the same seed (the same piles); an
+    arrangement's networks judged side by side (one process each)."""
     rows = []
     for arrangement in args.arrangements:
+        jobs, logdirs = [], {}
         for name, model in models.items():
-            logdir = work / "sim_vgn" / f"{arrangement}_{name}"
-            if logdir.exists() and steps.saved(f"sim_vgn_{arrangement}_{name}") is None:
+            step = f"sim_vgn_{arrangement}_{name}"
+            logdir = logdirs[name] = work / "sim_vgn" / f"{arrangement}_{name}"
+            if logdir.exists() and steps.saved(step) is None:
                 shutil.rmtree(logdir)
             argv = [
                 "--model", str(model), "--logdir", str(logdir), "--description", name, "--scene", arrangement,
                 "--object-set", "test", "--num-objects", "5", "--num-rounds", str(args.rounds),
                 "--seed", str(args.seed + 1),
             ]  # fmt: skip
-            cpu = steps.vgn(f"sim_vgn_{arrangement}_{name}", "sim_grasp.py", argv, args.seed, args.threads)
+            jobs.append(steps.vgn_job(step, "sim_grasp.py", argv, args.seed, args.threads))
+        for (name, logdir), cpu in zip(logdirs.items(), steps.run_many(jobs), strict=True):
             run_dir = next(p for p in logdir.iterdir() if p.is_dir())
             rounds = pd.read_csv(run_dir / "rounds.csv")
             grasps = pd.read_csv(run_dir / "grasps.csv")
