@@ -485,8 +485,7 @@ class RobustConfig(_Section):
     # frame); 0: no public measurement found (set it for a drill's battery, a half-full bottle).
     com_offset_sigma: float = _field(0.0, ge=0.0, le=0.1)
     # false: a perturbed trial ends after the lift, judged there as after a shake; true: shaken as trial 0
-    # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md. Bound where it is false (a folder
-    # made before the field: its perturbed trials shook)
+    # see docs/decisions/0021-perturbed-trials-end-at-the-lift.md
     shake: bool = _field(False, bound_when=BoundWhen(_perturbed_trials_end_at_lift, before=True))
     # true: a perturbed trial also runs the benchmark motion and is judged after it (shake implies it)
     # see docs/decisions/0026-stages.md
