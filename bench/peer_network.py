@@ -58,6 +58,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import resource
 import shlex
 import shutil
@@ -575,6 +576,9 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
         seed,
     )
     cpu_vgn, cpu = steps.run_many([vgn_job, ("labels_ours", cmd, None, None, None)])
+    # the grasps the timed run of VGN's generator was asked for (a resumed labelling times its last
+    # part only): from the command its step kept
+    timed_vgn = int(re.search(r"--num-grasps (\d+)", steps.saved("labels_vgn")["command"]).group(1))
     counts_file = work / "labels_vgn_cleanup.json"
     if counts_file.exists():
         scenes_vgn, counts = json.loads(counts_file.read_text())
@@ -582,7 +586,15 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
         scenes_vgn = int(pd.read_csv(vgn_raw / "grasps.csv")["scene_id"].nunique())
         counts = clean_vgn_raw(vgn_raw, 0.3)
         counts_file.write_text(json.dumps([scenes_vgn, counts]))
-    rows.append({"labels": "vgn", "scenes": scenes_vgn, "cpu_s": round(cpu_vgn, 1), **counts})
+    rows.append(
+        {
+            "labels": "vgn",
+            "scenes": scenes_vgn,
+            "cpu_s": round(cpu_vgn, 1),
+            "timed_grasps": timed_vgn,
+            **counts,
+        }
+    )
     labels = pd.read_parquet(ours_labels)
     cmd = [
         _exe("annotator"),
@@ -603,6 +615,7 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
             "labels": "ours",
             "scenes": scenes,
             "cpu_s": round(cpu, 1),
+            "timed_grasps": len(labels),
             "grasps": len(labels),
             "positives": int(labels["success"].sum()),
             "outside_grid": next((v for k, v in left.items() if k.startswith("outside")), 0),
@@ -625,7 +638,18 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
         record.figure(
             f"labels_{row['labels']}_train_grasps", row["kept"], note="after VGN's cleanup (balanced)"
         )
-        record.figure(f"labels_{row['labels']}_cpu_s", row["cpu_s"], "CPU-s")
+        record.figure(
+            f"labels_{row['labels']}_cpu_s",
+            row["cpu_s"],
+            "CPU-s",
+            note=f"the last run of the step, which labelled {row['timed_grasps']} grasps",
+        )
+        record.figure(
+            f"labels_{row['labels']}_cpu_s_per_grasp",
+            row["cpu_s"] / max(row["timed_grasps"], 1),
+            "CPU-s",
+            note="CPU-seconds per labelled grasp, over the step's last run",
+        )
     record.table("labels", rows, note="before and after VGN's data notebook's cleanup")
     datasets = {}
     for name, raw in (("vgn", vgn_raw), ("ours", ours_raw)):
