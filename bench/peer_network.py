@@ -45,7 +45,10 @@ through a launcher that seeds ``random``, NumPy and torch and sets torch's threa
 
 ``--work OUT`` keeps every file; the same command with the same ``--work`` resumes a run that
 stopped: steps that finished are not run again (their rows are kept), VGN's labelling is asked
-for the grasps it still owes (it appends), ``annotate`` resumes its own folder.
+for the grasps it still owes (it appends), ``annotate`` resumes its own folder. VGN's training
+cannot resume: a training cut short starts again. ``--until labels`` (or ``training``) stops after
+that stage and writes its record (tagged ``until-labels``), so a run measured in parts has a record
+of each part.
 
 Printed against the targets: the network trained on our labels at least as good as the one
 trained on VGN's (success and percent cleared, both simulations, piles and packed, >= 100
@@ -420,6 +423,10 @@ def prepare_objects(args, work: Path, record: Run) -> tuple[Path, Path, list]:
     )
     test_sources = tuple(discover_objects(urdfs / "test", config))
     return urdfs / "train", urdfs / "test", test_sources
+
+
+# The bench's stages, in order (--until).
+STAGES = ("labels", "training", "judging")
 
 
 # --- running VGN's scripts ---------------------------------------------------------------------------
@@ -939,6 +946,13 @@ def parser() -> Parser:
     parser.add_argument(
         "--work", type=writable_folder, default=None, help="working folder (default: a temporary one)"
     )
+    parser.add_argument(
+        "--until",
+        choices=STAGES,
+        default=STAGES[-1],
+        help="stop after this stage and write the record of what was run (its own, tagged until-STAGE): "
+        "a long run measured in parts, each finished step of a --work resumed, not run again",
+    )
     return parser
 
 
@@ -958,13 +972,20 @@ def main() -> None:
     print(
         f"VGN: {args.vgn} at {provenance['commit']} ({provenance['branch']}), licence: {provenance['licence']}"  # noqa: E501
     )
-    with Run("peer_network", config=recorded) as record, tempfile.TemporaryDirectory() as tmp:
+    tag = None if args.until == STAGES[-1] else f"until-{args.until}"
+    with Run("peer_network", config=recorded, tag=tag) as record, tempfile.TemporaryDirectory() as tmp:
         work = (args.work or Path(tmp)).resolve()
         work.mkdir(parents=True, exist_ok=True)
         steps = Steps(args, work)
         train_set, _, _ = prepare_objects(args, work, record)
         datasets = make_labels(args, steps, work, train_set, record)
+        if args.until == "labels":
+            record.table("commands", steps.rows, note="every subprocess, its CPU (itself and its children)")
+            return
         models = train(args, steps, work, datasets, record)
+        if args.until == "training":
+            record.table("commands", steps.rows, note="every subprocess, its CPU (itself and its children)")
+            return
         rows = judge_vgn(args, steps, work, models)
         rows += judge_ours(args, work, models)
         for row in rows:

@@ -224,6 +224,11 @@ BAD_ARGUMENTS = [  # (bench, arguments, what its one line says)
         "--val-split: 1 is not in (0, 1)",
     ),
     ("peer_network", ["--vgn", HERE, "--vgn-python", HERE], f"--vgn-python: {HERE}: not a file"),
+    (
+        "peer_network",
+        ["--vgn", HERE, "--vgn-python", PY, "--until", "judge"],
+        "--until: invalid choice: 'judge'",
+    ),
     ("peers", ["--per-object", "0"], "--per-object: 0 is not in 1 .. 1,000,000"),
     ("profile_worker", ["--rate", "0"], "--rate: 0 is not in 1 .. 10,000"),
     ("real_trials", ["--data", "no/such"], "--data: no/such: no such folder"),
