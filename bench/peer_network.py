@@ -854,6 +854,36 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
     return rows
 
 
+def ours_by_object(work: Path, arrangements: list[str]) -> list[dict]:
+    """Our clutter removal's attempts per policy, arrangement and the object each went for (its
+    ``target_object``): attempts, successes and the failures by cause, read from the kept
+    ``sim_ours/<arrangement>_<policy>/grasps.csv`` (where a network trained on our labels loses
+    to the one trained on VGN's, object by object)."""
+    rows = []
+    for arrangement in arrangements:
+        for folder in sorted((work / "sim_ours").glob(f"{arrangement}_*")):
+            if not (folder / "row.json").exists():  # not finished
+                continue
+            try:
+                grasps = pd.read_csv(folder / "grasps.csv")
+            except pd.errors.EmptyDataError:  # no attempt at all (a network that proposed nothing)
+                continue
+            policy = folder.name.removeprefix(f"{arrangement}_")
+            for target, attempts in grasps.groupby("target_object"):
+                causes = attempts["failure"].dropna().value_counts()
+                rows.append(
+                    {
+                        "arrangement": arrangement,
+                        "policy": policy,
+                        "object": target,
+                        "attempts": len(attempts),
+                        "successes": int(attempts["label"].sum()),
+                        "failures": "; ".join(f"{cause}: {n}" for cause, n in causes.items()),
+                    }
+                )
+    return rows
+
+
 def _print(row: dict) -> None:
     print(
         f"{row['sim']:>4} {row['arrangement']:<6} {row['policy']:<16} success {row['success']:.1f} % "
@@ -1005,6 +1035,11 @@ def main() -> None:
                 note=f"95 % Wilson, {row['successes']} of {row['objects']} objects",
             )
         record.table("clutter_removal", rows, note="grasp success and percent cleared, 95 % Wilson intervals")
+        record.table(
+            "ours_by_object",
+            ours_by_object(work, args.arrangements),
+            note="our clutter removal's attempts by the object each went for: successes, failures by cause",
+        )
         record.table("commands", steps.rows, note="every subprocess, its CPU (itself and its children)")
         for line in targets(rows):
             print(line)

@@ -161,3 +161,30 @@ def test_steps_keep_each_commands_cpu_and_are_not_run_again(tmp_path):
     assert not marker.exists() and again.rows[0]["resumed"]
     with pytest.raises(SystemExit, match="exit 3"):
         again.run("fails", [sys.executable, "-c", "import sys; print('why'); sys.exit(3)"])
+
+
+def test_our_judging_is_tabled_by_the_object_each_attempt_went_for(tmp_path):
+    """ours_by_object: a finished policy's attempts per target object, its successes and failures by
+    cause; a policy that made no attempt (an empty grasps.csv) and one not finished are left out."""
+    sim = tmp_path / "sim_ours"
+    columns = "round_id,attempt,target_object,label,failure\n"
+    done = sim / "pile_vgn_net_ours"
+    done.mkdir(parents=True)
+    (done / "grasps.csv").write_text(
+        columns + "0,0,mug,0,slipped\n0,1,mug,1,\n1,0,can,0,collision\n1,1,mug,0,slipped\n"
+    )
+    (done / "row.json").write_text("{}")
+    empty = sim / "pile_vgn_net_vgn"
+    empty.mkdir()
+    (empty / "grasps.csv").write_text("")
+    (empty / "row.json").write_text("{}")
+    unfinished = sim / "pile_vision_random"
+    unfinished.mkdir()
+    (unfinished / "grasps.csv").write_text(columns + "0,0,can,1,\n")
+    rows = peer_network.ours_by_object(tmp_path, ["pile", "packed"])
+    assert rows == [
+        {"arrangement": "pile", "policy": "vgn_net_ours", "object": "can", "attempts": 1, "successes": 0,
+         "failures": "collision: 1"},
+        {"arrangement": "pile", "policy": "vgn_net_ours", "object": "mug", "attempts": 3, "successes": 1,
+         "failures": "slipped: 2"},
+    ]  # fmt: skip
