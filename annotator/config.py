@@ -859,7 +859,7 @@ class AnnotatorConfig:
         """
         data = dataclasses.asdict(self)
         data["objects"] |= _bound_fields(data["objects"].pop("decomposition"))
-        for section, f in _implicit_fields():  # at the value every run had: not bound
+        for section, f in _fields_with("implicit"):  # at the value every run had: not bound
             name = _bound_name(f)
             if data[section].get(name, f.default) == f.default:
                 data[section].pop(name, None)
@@ -868,9 +868,9 @@ class AnnotatorConfig:
         if self.confidence.method == "none":
             data.pop("confidence")
         if trials is not None:
-            for name, f in _conditional_fields():
+            for name, f in _fields_with("bound_when"):
                 if not f.metadata["bound_when"].rule(self, trials):
-                    data[name].pop(f.name)
+                    data[name].pop(_bound_name(f))
         return data
 
     @classmethod
@@ -889,12 +889,12 @@ class AnnotatorConfig:
             before = physics.get("light_object_mass", PhysicsConfig.light_object_mass)
             data = {**data, "physics": {**physics, "light_hold_mass": before}}
         if isinstance(data, dict):
-            for section, f in _conditional_fields():  # in order: a rule may read a field before it
-                values = data.get(section)
-                if isinstance(values, dict) and f.name not in values:
+            for section, f in _fields_with("bound_when"):  # in order: a rule may read a field before it
+                values, name = data.get(section), _bound_name(f)
+                if isinstance(values, dict) and name not in values:
                     rule = f.metadata["bound_when"]
                     if rule.rule(cls.from_dict(data), trials):
-                        data = {**data, section: {**values, f.name: rule.before}}
+                        data = {**data, section: {**values, name: rule.before}}
         return cls.from_dict(data)
 
     @classmethod
@@ -934,31 +934,22 @@ class AnnotatorConfig:
         return cls.from_dict(data)
 
 
-def _conditional_fields() -> list[tuple[str, dataclasses.Field]]:
-    """(section, field) of every field with a :class:`BoundWhen`, in the order they are declared."""
-    return [
-        (section.name, f)
-        for section in dataclasses.fields(AnnotatorConfig)
-        for f in dataclasses.fields(section.default_factory)  # type: ignore[arg-type]
-        if "bound_when" in f.metadata
-    ]
-
-
 def _bound_name(f: dataclasses.Field) -> str:
     """The name a run binds field ``f`` under (its ``bound`` metadata, else its own)."""
     return f.metadata.get("bound") or f.name
 
 
-def _implicit_fields() -> list[tuple[str, dataclasses.Field]]:
-    """(the section a run binds it in, field) of every implicit field (:func:`_field`), the
-    ladder's in ``objects``."""
+def _fields_with(key: str) -> list[tuple[str, dataclasses.Field]]:
+    """(the section a run binds it in, field) of every field whose metadata has a true ``key``
+    (``implicit``, ``bound_when``: :func:`_field`), in the order they are declared; the ladder's
+    (``[objects.decomposition]``) in ``objects``."""
     sections = [(f.name, f.default_factory) for f in dataclasses.fields(AnnotatorConfig)]
     sections.append(("objects", DecompositionConfig))
     return [
         (name, f)
         for name, section in sections
         for f in dataclasses.fields(section)  # type: ignore[arg-type]
-        if f.metadata.get("implicit")
+        if f.metadata.get(key)
     ]
 
 
