@@ -188,3 +188,17 @@ def test_our_judging_is_tabled_by_the_object_each_attempt_went_for(tmp_path):
         {"arrangement": "pile", "policy": "vgn_net_ours", "object": "mug", "attempts": 3, "successes": 1,
          "failures": "slipped: 2"},
     ]  # fmt: skip
+
+
+def test_the_whole_bench_sums_every_step_and_our_judging_across_runs():
+    """whole_bench: resumed steps count as they were measured; a judging row without a wall (none
+    kept) adds nothing."""
+    commands = [
+        {"step": "labels_vgn", "cpu_s": 100.0, "seconds": 60.0, "resumed": True},
+        {"step": "train_ours", "cpu_s": 50.5, "seconds": 30.0},
+    ]
+    judged = [
+        {"policy": "vgn_net_ours", "cpu_s": 10.0, "seconds": 12.5},
+        {"policy": "vgn_net_vgn", "cpu_s": 4.0},
+    ]
+    assert peer_network.whole_bench(commands, judged) == {"cpu_s": 160.5, "seconds": 102.5, "steps": 3}
