@@ -41,7 +41,13 @@ through a launcher that seeds ``random``, NumPy and torch and sets torch's threa
    ``scripts/sim_grasp.py`` (its simulation and hand, 5 objects, 6 views, pile and packed, one
    seed) and our ``clutter-removal`` on the UR3 with the shipped Panda, each network wrapped as a
    vision policy (:mod:`bench.vgn_policy`), beside ``vision-random`` and the ``labels`` oracle on
-   the same rounds; grasp success and percent cleared with 95 % Wilson intervals.
+   the same rounds; grasp success and percent cleared with 95 % Wilson intervals. Each network
+   is judged twice (``--detections``): with VGN's detection (a random one of the local maxima of
+   its smoothed quality rated above 0.9) and best-first (its best-rated local maximum whatever
+   the rating: in VGN's simulation the launcher orders VGN's own select at threshold 0, in ours
+   the policy's ``threshold=0`` and the loop's best-scored reachable grasp). A network trained on
+   a few thousand grasps may rate nothing above 0.9 and so never be judged by VGN's detection;
+   best-first judges what its ratings chose. Its rows are named ``vgn_net_<labels>_best``.
 
 ``--work OUT`` keeps every file; the same command with the same ``--work`` resumes a run that
 stopped: steps that finished are not run again (their rows are kept), VGN's labelling is asked
@@ -58,6 +64,7 @@ attempts each); both above vision-random by >= 10 points of percent cleared on p
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -112,13 +119,16 @@ GRASPS_PER_SCENE = 120  # VGN's generate_data.py GRASPS_PER_SCENE and annotate -
 # set, and closing TensorBoard's writers at exit (train_vgn.py never closes them). Without ROS,
 # the ROS modules that VGN's rviz module (vgn.vis, imported by its clutter-removal experiment)
 # imports are stand-ins that accept any call: sim_grasp.py runs without --rviz, so nothing of them
-# is ever used.
+# is ever used. Its third argument is the detection VGN's clutter removal runs: ``vgn`` leaves
+# VGN's own (a random one of the local maxima rated above 0.9), ``best`` replaces VGN.__call__
+# with the same predict, process and select at threshold 0, best-rated first (clutter_removal
+# executes the first), so a network whose ratings stay under 0.9 is still judged on its choice.
 LAUNCHER = (
     ROS_STAND_INS
     + r"""
 import atexit, random, runpy, sys
 import numpy as np
-seed, threads = int(sys.argv[1]), int(sys.argv[2])
+seed, threads, detect = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 random.seed(seed)
 np.random.seed(seed)
 try:
@@ -135,7 +145,20 @@ try:
     atexit.register(lambda: [w.close() for w in writers])
 except ImportError:
     pass
-sys.argv = sys.argv[3:]
+if detect == "best":
+    import time
+    from vgn import detection
+    def best_first(self, state):
+        grid, voxel_size = state.tsdf.get_grid(), state.tsdf.voxel_size
+        tic = time.time()
+        qual, rot, width = detection.predict(grid, self.net, self.device)
+        qual, rot, width = detection.process(grid, qual, rot, width)
+        grasps, scores = detection.select(qual.copy(), rot, width, threshold=0.0)
+        order = np.argsort(-np.asarray(scores), kind="stable")
+        grasps = [detection.from_voxel_coordinates(grasps[i], voxel_size) for i in order]
+        return grasps, np.asarray(scores)[order], time.time() - tic
+    detection.VGN.__call__ = best_first
+sys.argv = sys.argv[4:]
 runpy.run_path(sys.argv[0], run_name="__main__")
 """
 )
@@ -508,13 +531,17 @@ class Steps:
         path = self.logs / f"{step}.done.json"
         return json.loads(path.read_text()) if path.exists() else None
 
-    def vgn_job(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> tuple:
-        """The job running VGN's ``scripts/SCRIPT`` with ``argv`` through LAUNCHER in WORK/vgn."""
+    def vgn_job(
+        self, step: str, script: str, argv: list[str], seed: int, threads: int = 1, detect: str = "vgn"
+    ) -> tuple:
+        """The job running VGN's ``scripts/SCRIPT`` with ``argv`` through LAUNCHER in WORK/vgn;
+        ``detect``: VGN's detection or ``best`` (LAUNCHER)."""
         env = dict(os.environ, PYTHONPATH=str(self.args.vgn / "src"), OMP_NUM_THREADS=str(threads))
-        cmd = [str(self.args.vgn_python), "-W", "ignore", "-c", LAUNCHER, str(seed), str(threads)]
+        cmd = [str(self.args.vgn_python), "-W", "ignore", "-c", LAUNCHER, str(seed), str(threads), detect]
         cmd += [str(self.args.vgn / "scripts" / script), *argv]
         shown = shlex.join([str(self.args.vgn_python), f"scripts/{script}", *argv])
-        shown += f"  (seeded {seed}, {threads} torch thread(s), cwd WORK/vgn, PYTHONPATH=VGN/src)"
+        shown += f"  (seeded {seed}, {threads} torch thread(s), cwd WORK/vgn, PYTHONPATH=VGN/src"
+        shown += ", best-first detection)" if detect == "best" else ")"
         return (step, cmd, self.work / "vgn", env, shown)
 
     def vgn(self, step: str, script: str, argv: list[str], seed: int, threads: int = 1) -> float:
@@ -754,9 +781,10 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
     """VGN's sim_grasp.py with each network, piles and packed, the same seed (the same piles); an
     arrangement's networks judged side by side (one process each)."""
     rows = []
-    for arrangement in args.arrangements:
+    for arrangement, detect in itertools.product(args.arrangements, args.detections):
         jobs, logdirs = [], {}
         for name, model in models.items():
+            name = _judged(name, detect)
             step = f"sim_vgn_{arrangement}_{name}"
             logdir = logdirs[name] = work / "sim_vgn" / f"{arrangement}_{name}"
             if logdir.exists() and steps.saved(step) is None:
@@ -766,7 +794,7 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
                 "--object-set", "test", "--num-objects", "5", "--num-rounds", str(args.rounds),
                 "--seed", str(args.seed + 1),
             ]  # fmt: skip
-            jobs.append(steps.vgn_job(step, "sim_grasp.py", argv, args.seed, args.threads))
+            jobs.append(steps.vgn_job(step, "sim_grasp.py", argv, args.seed, args.threads, detect))
         for (name, logdir), cpu in zip(logdirs.items(), steps.run_many(jobs), strict=True):
             run_dir = next(p for p in logdir.iterdir() if p.is_dir())
             rounds = pd.read_csv(run_dir / "rounds.csv")
@@ -798,11 +826,15 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
     config = AnnotatorConfig()
     sources = tuple(discover_objects(work / "vgn" / "data" / "urdfs" / "test", config.objects))
     panda = load_gripper("panda")
-    policies = [(f"vgn_net_{name}", "bench.vgn_policy:vgn", model) for name, model in models.items()]
-    policies += [("vision_random", "vision-random", None), ("labels_oracle", "labels", None)]
+    policies = [
+        (f"vgn_net_{_judged(name, detect)}", "bench.vgn_policy:vgn", model, detect)
+        for detect in args.detections
+        for name, model in models.items()
+    ]
+    policies += [("vision_random", "vision-random", None, None), ("labels_oracle", "labels", None, None)]
     rows = []
     for arrangement in args.arrangements:
-        for label, policy, model in policies:
+        for label, policy, model, detect in policies:
             extra = ()
             if model is not None:
                 extra = (
@@ -810,6 +842,7 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                     ("vgn", str(args.vgn)),
                     ("python", str(args.vgn_python)),
                     ("threads", str(args.threads)),
+                    *((("threshold", "0"),) if detect == "best" else ()),
                 )
             rounds = args.oracle_rounds if policy == "labels" else args.rounds
             keep = work / "sim_ours" / f"{arrangement}_{label}"
@@ -854,6 +887,12 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
     return rows
 
 
+def _judged(name: str, detect: str) -> str:
+    """The name a network trained on ``name``'s labels is judged under: ``name`` with VGN's
+    detection, ``name_best`` with the best-first one."""
+    return name if detect == "vgn" else f"{name}_{detect}"
+
+
 def ours_by_object(work: Path, arrangements: list[str]) -> list[dict]:
     """Our clutter removal's attempts per policy, arrangement and the object each went for (its
     ``target_object``): attempts, successes and the failures by cause, read from the kept
@@ -895,30 +934,37 @@ def _print(row: dict) -> None:
 
 
 def targets(rows: list[dict]) -> list[str]:
-    """The targets (module docstring), one line each."""
+    """The targets (module docstring), one line each: with VGN's detection, and with the
+    best-first one (``_best``) where it was judged."""
     out = []
     by = {(r["sim"], r["arrangement"], r["policy"]): r for r in rows}
-    for sim, arrangement in sorted({(r["sim"], r["arrangement"]) for r in rows}):
-        ours, theirs = by.get((sim, arrangement, "vgn_net_ours")), by.get((sim, arrangement, "vgn_net_vgn"))
-        if ours and theirs:
-            enough = min(ours["attempts"], theirs["attempts"]) >= 100
-            met = ours["success"] >= theirs["success"] and ours["cleared"] >= theirs["cleared"] and enough
-            out.append(
-                f"{sim} {arrangement}: trained on ours {ours['success']:.1f} % success, {ours['cleared']:.1f} % "  # noqa: E501
-                f"cleared; on VGN's {theirs['success']:.1f} %, {theirs['cleared']:.1f} %; "
-                f"{min(ours['attempts'], theirs['attempts'])} attempts (>= 100): target {'met' if met else 'NOT met'}"  # noqa: E501
-            )
-    for arrangement in ("pile",):
-        rand = by.get(("ours", arrangement, "vision_random"))
+    for detect, suffix in (("VGN's detection", ""), ("best-first", "_best")):
+        for sim, arrangement in sorted({(r["sim"], r["arrangement"]) for r in rows}):
+            ours = by.get((sim, arrangement, f"vgn_net_ours{suffix}"))
+            theirs = by.get((sim, arrangement, f"vgn_net_vgn{suffix}"))
+            if ours and theirs:
+                enough = min(ours["attempts"], theirs["attempts"]) >= 100
+                met = _at_least(ours, theirs, "success") and _at_least(ours, theirs, "cleared") and enough
+                out.append(
+                    f"{sim} {arrangement} ({detect}): trained on ours {ours['success']:.1f} % success, "
+                    f"{ours['cleared']:.1f} % cleared; on VGN's {theirs['success']:.1f} %, {theirs['cleared']:.1f} %; "  # noqa: E501
+                    f"{min(ours['attempts'], theirs['attempts'])} attempts (>= 100): target {'met' if met else 'NOT met'}"  # noqa: E501
+                )
+        rand = by.get(("ours", "pile", "vision_random"))
         for name in ("ours", "vgn"):
-            net = by.get(("ours", arrangement, f"vgn_net_{name}"))
+            net = by.get(("ours", "pile", f"vgn_net_{name}{suffix}"))
             if net and rand:
                 gain = net["cleared"] - rand["cleared"]
                 out.append(
-                    f"ours {arrangement}: network trained on {name} clears {gain:+.1f} points vs vision-random "  # noqa: E501
-                    f"(>= 10): {'met' if gain >= 10 else 'NOT met'}"
+                    f"ours pile ({detect}): network trained on {name} clears {gain:+.1f} points vs "
+                    f"vision-random (>= 10): {'met' if gain >= 10 else 'NOT met'}"
                 )
     return out
+
+
+def _at_least(ours: dict, theirs: dict, key: str) -> bool:
+    """``ours[key] >= theirs[key]``, a figure of no attempt (NaN) never at least another."""
+    return not math.isnan(ours[key]) and (math.isnan(theirs[key]) or ours[key] >= theirs[key])
 
 
 def whole_bench(commands: list[dict], judged: list[dict]) -> dict:
@@ -975,6 +1021,14 @@ def parser() -> Parser:
         "--views", type=count(1, 100), default=3, help="our scenes' depth views, labels and policies"
     )
     parser.add_argument("--arrangements", nargs="+", default=["pile", "packed"], choices=["pile", "packed"])
+    parser.add_argument(
+        "--detections",
+        nargs="+",
+        default=["vgn", "best"],
+        choices=["vgn", "best"],
+        help="how each network is judged: vgn = VGN's detection (a random one of its local maxima "
+        "rated above 0.9), best = its best-rated local maximum whatever the rating (both by default)",
+    )
     parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument(
         "--workers", type=count(1, WORKERS_MAX), default=1, help="annotate's and our clutter loop's workers"

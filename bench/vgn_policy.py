@@ -7,11 +7,12 @@ grasps come back in our TCP frame.
 
 At every attempt the observation's TSDF grid (40^3 over the workspace, VGN's task frame: its
 lower corner, :attr:`~annotator.policies.Observation.T_table_volume`) is sent to a child process
-started once per (python, checkout, model) in the worker. The child imports the checkout's
+started once per (python, checkout, model, threshold) in the worker. The child imports the checkout's
 ``vgn.networks.load_network`` and ``vgn.detection.predict``, ``process`` and ``select`` (what
 VGN's ``VGN.__call__`` runs: quality above 0.9 after its smoothing, masking and non-maximum
-suppression) and answers each grasp as position and width in voxels, its quaternion (xyzw) in
-the task frame and its quality. Nothing of VGN is copied here: the child runs the checkout given.
+suppression; the ``threshold`` policy argument sets another) and answers each grasp as position
+and width in voxels, its quaternion (xyzw) in the task frame and its quality. Nothing of VGN is
+copied here: the child runs the checkout given.
 
 Frames: VGN's grasp frame closes along y and has its origin at the palm, its fingertips
 ``finger_depth`` (0.05 m) ahead (:mod:`annotator.tools.export_vgn`); our TCP is between the pads.
@@ -40,6 +41,7 @@ log = logging.getLogger(__name__)
 
 GRID = 40  # VGN's grid: 40 voxels a side
 FINGER_DEPTH = 0.05  # m: VGN's finger depth (its Gripper.finger_depth; workspace size / 6)
+THRESHOLD = 0.9  # the quality VGN's detection.select keeps by default
 
 # VGN's rviz module (vgn.vis, imported by its detection and clutter-removal modules) imports ROS.
 # Without ROS, those modules are stand-ins that accept any call; nothing of them is used (no rviz).
@@ -67,7 +69,8 @@ except ImportError:
         sys.modules[name] = _Stand_in(name)
 """
 
-# Run by VGN's Python with the checkout's src/ on the path: read grids (8-byte length + float32
+# Run by VGN's Python with the checkout's src/ on the path (argv: model, torch threads, VGN's
+# select threshold): read grids (8-byte length + float32
 # bytes), answer rows (8-byte length + float64 (n, 9): i, j, k, qx, qy, qz, qw, width (voxels),
 # quality) until stdin closes.
 SERVER = (
@@ -90,7 +93,7 @@ while True:
     grid = np.frombuffer(inp.read(int.from_bytes(head, "little")), np.float32).reshape(1, 40, 40, 40).copy()
     qual, rot, width = predict(grid, net, device)
     qual, rot, width = process(grid, qual, rot, width)
-    grasps, scores = select(qual.copy(), rot, width)
+    grasps, scores = select(qual.copy(), rot, width, threshold=float(sys.argv[3]))
     rows = [[*g.pose.translation, *g.pose.rotation.as_quat(), g.width, s] for g, s in zip(grasps, scores)]
     data = np.asarray(rows, dtype=np.float64).reshape(-1, 9).tobytes()
     out.write(len(data).to_bytes(8, "little"))
@@ -103,12 +106,14 @@ while True:
 class VgnServer:
     """A child process of VGN's Python answering grids with VGN's detections (module docstring)."""
 
-    def __init__(self, python: str, checkout: str, model: str, threads: int = 1) -> None:
+    def __init__(
+        self, python: str, checkout: str, model: str, threads: int = 1, threshold: float = THRESHOLD
+    ) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = str(Path(checkout) / "src")
         self.errors = tempfile.TemporaryFile()
         self.process = subprocess.Popen(
-            [python, "-W", "ignore", "-c", SERVER, str(model), str(int(threads))],
+            [python, "-W", "ignore", "-c", SERVER, str(model), str(int(threads)), repr(float(threshold))],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=self.errors,
@@ -148,11 +153,13 @@ class VgnServer:
 _SERVERS: dict[tuple, VgnServer] = {}
 
 
-def server(python: str, checkout: str, model: str, threads: int = 1) -> VgnServer:
+def server(
+    python: str, checkout: str, model: str, threads: int = 1, threshold: float = THRESHOLD
+) -> VgnServer:
     """This process's :class:`VgnServer` for the arguments (started once)."""
-    key = (python, checkout, model, threads)
+    key = (python, checkout, model, threads, threshold)
     if key not in _SERVERS:
-        _SERVERS[key] = VgnServer(python, checkout, model, threads)
+        _SERVERS[key] = VgnServer(python, checkout, model, threads, threshold)
     return _SERVERS[key]
 
 
@@ -187,10 +194,14 @@ def to_tcp(rows: np.ndarray, observation: Observation) -> Grasps:
     return Grasps(T_table_tcp, np.clip(width, 0.0, observation.max_width), rows[:, 8].copy())
 
 
-def vgn(observation: Observation, model: str, vgn: str, python: str, threads: str = "1") -> Grasps:
+def vgn(
+    observation: Observation, model: str, vgn: str, python: str, threads: str = "1", threshold: str = "0.9"
+) -> Grasps:
     """The vision policy: VGN's detections on the observation's grid (module docstring).
     ``model``: a state dict saved by VGN's ``train_vgn.py``; ``vgn``: the checkout; ``python``:
-    the interpreter that runs it (with torch, scipy, Open3D)."""
-    rows = server(python, vgn, model, int(threads)).detect(observation.tsdf)
+    the interpreter that runs it (with torch, scipy, Open3D); ``threshold``: the quality a
+    detection needs (VGN's 0.9; 0 keeps every local maximum, so the loop executes the
+    best-rated grasp the arm reaches whatever its quality)."""
+    rows = server(python, vgn, model, int(threads), float(threshold)).detect(observation.tsdf)
     log.info("VGN proposed %d grasps", len(rows))
     return to_tcp(rows, observation)

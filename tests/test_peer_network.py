@@ -5,6 +5,7 @@ from a checkout given on its command line; these tests do not."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -202,3 +203,78 @@ def test_the_whole_bench_sums_every_step_and_our_judging_across_runs():
         {"policy": "vgn_net_vgn", "cpu_s": 4.0},
     ]
     assert peer_network.whole_bench(commands, judged) == {"cpu_s": 160.5, "seconds": 102.5, "steps": 3}
+
+
+def test_best_first_detection_hands_clutter_removal_the_best_rated_grasp_at_any_rating(tmp_path):
+    """The launcher's ``best`` detection: VGN.__call__ becomes predict, process and select at
+    threshold 0, best-rated first (VGN's clutter removal executes the first); ``vgn`` leaves VGN's
+    own. A stand-in ``vgn.detection`` module, written here, records what select was asked."""
+    import subprocess
+    import sys
+
+    package = tmp_path / "src" / "vgn"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "detection.py").write_text(
+        "asked = []\n"
+        "def predict(grid, net, device): return 'q', 'r', 'w'\n"
+        "def process(grid, q, r, w): return [0.5, 0.8, 0.7], r, w\n"
+        "def select(qual, rot, width, threshold=0.9):\n"
+        "    asked.append(threshold)\n"
+        "    kept = [i for i, q in enumerate(qual) if q >= threshold]\n"
+        "    return [f'g{i}' for i in kept], [qual[i] for i in kept]\n"
+        "def from_voxel_coordinates(g, voxel_size): return g + '@' + str(voxel_size)\n"
+        "class VGN:\n"
+        "    net, device = None, 'cpu'\n"
+        "    def __call__(self, state): return 'vgn own', [], 0.0\n"
+    )
+    script = tmp_path / "judge.py"
+    script.write_text(
+        "import types\n"
+        "from vgn import detection\n"
+        "tsdf = types.SimpleNamespace(get_grid=lambda: 'grid', voxel_size=0.0075)\n"
+        "grasps, scores, _ = detection.VGN()(types.SimpleNamespace(tsdf=tsdf))\n"
+        "print(grasps, list(map(float, scores)) if len(scores) else scores, detection.asked)\n"
+    )
+    env = {"PYTHONPATH": str(tmp_path / "src"), "PATH": "/usr/bin:/bin"}
+
+    def judged(detect: str) -> str:
+        cmd = [sys.executable, "-c", peer_network.LAUNCHER, "0", "1", detect, str(script)]
+        return subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout.strip()
+
+    assert judged("best") == "['g1@0.0075', 'g2@0.0075', 'g0@0.0075'] [0.8, 0.7, 0.5] [0.0]"
+    assert judged("vgn") == "vgn own [] []"
+
+
+def test_targets_compare_each_detection_and_count_no_attempt_as_losing():
+    """targets: one line per simulation and arrangement for each detection judged; a network that
+    made no attempt (success NaN) is beaten by one that held anything, and fewer than 100
+    attempts never meet the target."""
+
+    def row(sim, policy, attempts, successes, objects=200, arrangement="pile"):
+        return peer_network._row(sim, arrangement, policy, 40, objects, attempts, successes)
+
+    rows = [
+        row("vgn", "vgn_net_vgn", 0, 0),
+        row("vgn", "vgn_net_ours", 15, 4),
+        row("vgn", "vgn_net_vgn_best", 150, 60),
+        row("vgn", "vgn_net_ours_best", 140, 70),
+        row("ours", "vgn_net_vgn_best", 120, 30),
+        row("ours", "vgn_net_ours_best", 130, 80),
+        row("ours", "vision_random", 150, 60),
+    ]
+    assert math.isnan(rows[0]["success"])
+    lines = peer_network.targets(rows)
+    assert lines[0].startswith("vgn pile (VGN's detection)") and lines[0].endswith("target NOT met")
+    assert "on VGN's nan %, 0.0 %; 0 attempts (>= 100)" in lines[0]
+    best = [line for line in lines if "(best-first)" in line]
+    assert best[0].startswith("ours pile") and best[0].endswith("target met")  # 80/130 vs 30/120
+    assert best[1].startswith("vgn pile") and best[1].endswith("target met")  # 50 % vs 40 %, 140 attempts
+    assert (
+        best[2]
+        == "ours pile (best-first): network trained on ours clears +10.0 points vs vision-random (>= 10): met"
+    )  # noqa: E501
+    assert best[3].endswith("-15.0 points vs vision-random (>= 10): NOT met")
+    assert not peer_network._at_least(rows[0], rows[1], "success") and peer_network._at_least(
+        rows[1], rows[0], "success"
+    )
