@@ -808,6 +808,7 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
                 len(grasps),
                 int(grasps["label"].sum()),
                 cpu_s=round(cpu, 1),
+                **ratings(grasps),
             )
             rows.append(row)
             _print(row)
@@ -847,7 +848,8 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
             rounds = args.oracle_rounds if policy == "labels" else args.rounds
             keep = work / "sim_ours" / f"{arrangement}_{label}"
             if (keep / "row.json").exists():  # finished by an earlier run of this --work
-                rows.append(json.loads((keep / "row.json").read_text()) | {"resumed": True})
+                row = json.loads((keep / "row.json").read_text()) | {"resumed": True}
+                rows.append(row | (_kept_ratings(keep / "grasps.csv") if model is not None else {}))
                 _print(rows[-1])
                 continue
             job = ClutterSetup(
@@ -880,11 +882,33 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                 summary.successes,
                 cpu_s=round(cpu, 1),
                 seconds=round(time.perf_counter() - t0, 1),
+                **(ratings(grasps) if model is not None else {}),
             )
             (keep / "row.json").write_text(json.dumps(row))
             rows.append(row)
             _print(row)
     return rows
+
+
+def ratings(grasps: pd.DataFrame) -> dict:
+    """The network's ratings of the grasps it executed (a clutter removal's ``grasps.csv``, its
+    ``score`` column: VGN's quality of each): their median and the share rated at least 0.9 (what
+    VGN's detection keeps), NaN with no attempt."""
+    if len(grasps) == 0 or "score" not in grasps:
+        return {"rating_median": float("nan"), "rated_0_9": float("nan")}
+    scores = grasps["score"].to_numpy(dtype=float)
+    return {
+        "rating_median": round(float(np.median(scores)), 3),
+        "rated_0_9": round(100 * float(np.mean(scores >= 0.9)), 1),
+    }
+
+
+def _kept_ratings(path: Path) -> dict:
+    """:func:`ratings` of a kept ``grasps.csv`` (an empty file: no attempt)."""
+    try:
+        return ratings(pd.read_csv(path))
+    except (pd.errors.EmptyDataError, FileNotFoundError):
+        return ratings(pd.DataFrame())
 
 
 def _judged(name: str, detect: str) -> str:
@@ -928,7 +952,12 @@ def _print(row: dict) -> None:
         f"{row['sim']:>4} {row['arrangement']:<6} {row['policy']:<16} success {row['success']:.1f} % "
         f"({row['success_lo']:.1f}-{row['success_hi']:.1f}), {row['successes']} of {row['attempts']}; cleared "  # noqa: E501
         f"{row['cleared']:.1f} % ({row['cleared_lo']:.1f}-{row['cleared_hi']:.1f}) of {row['objects']}, "
-        f"{row['rounds']} rounds",
+        f"{row['rounds']} rounds"
+        + (
+            f"; rated: median {row['rating_median']:.3f}, {row['rated_0_9']:.1f} % at least 0.9"
+            if "rating_median" in row
+            else ""
+        ),
         flush=True,
     )
 

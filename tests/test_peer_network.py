@@ -278,3 +278,13 @@ def test_targets_compare_each_detection_and_count_no_attempt_as_losing():
     assert not peer_network._at_least(rows[0], rows[1], "success") and peer_network._at_least(
         rows[1], rows[0], "success"
     )
+
+
+def test_ratings_of_the_executed_grasps(tmp_path):
+    """ratings: the median of the executed grasps' qualities and the share VGN's 0.9 keeps; a
+    kept grasps.csv with no attempt (empty) gives NaN."""
+    grasps = pd.DataFrame({"score": [0.95, 0.85, 0.9, 0.5], "label": [1, 0, 1, 0]})
+    assert peer_network.ratings(grasps) == {"rating_median": 0.875, "rated_0_9": 50.0}
+    (tmp_path / "grasps.csv").write_text("")
+    empty = peer_network._kept_ratings(tmp_path / "grasps.csv")
+    assert math.isnan(empty["rating_median"]) and math.isnan(empty["rated_0_9"])
