@@ -48,6 +48,9 @@ through a launcher that seeds ``random``, NumPy and torch and sets torch's threa
    the policy's ``threshold=0`` and the loop's best-scored reachable grasp). A network trained on
    a few thousand grasps may rate nothing above 0.9 and so never be judged by VGN's detection;
    best-first judges what its ratings chose. Its rows are named ``vgn_net_<labels>_best``.
+   Beside them, best-first piles of the training objects in VGN's simulation (``--seen-rounds``,
+   sim ``vgn-seen``): what a network learned of the objects it saw, apart from what it carries
+   to objects it did not (no target reads them).
 
 ``--work OUT`` keeps every file; the same command with the same ``--work`` resumes a run that
 stopped: steps that finished are not run again (their rows are kept), VGN's labelling is asked
@@ -779,19 +782,27 @@ def _row(
 
 def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[dict]:
     """VGN's sim_grasp.py with each network, piles and packed, the same seed (the same piles); an
-    arrangement's networks judged side by side (one process each)."""
+    arrangement's networks judged side by side (one process each). Then, with ``--seen-rounds``,
+    best-first piles of the training objects (rows of sim ``vgn-seen``): what each network learned
+    of the objects it saw, apart from what it carries to others."""
     rows = []
-    for arrangement, detect in itertools.product(args.arrangements, args.detections):
+    passes = [
+        ("test", a, d, args.rounds, "vgn", "")
+        for a, d in itertools.product(args.arrangements, args.detections)
+    ]
+    if args.seen_rounds:
+        passes.append(("train", "pile", "best", args.seen_rounds, "vgn-seen", "seen_"))
+    for object_set, arrangement, detect, rounds_asked, sim, prefix in passes:
         jobs, logdirs = [], {}
         for name, model in models.items():
             name = _judged(name, detect)
-            step = f"sim_vgn_{arrangement}_{name}"
-            logdir = logdirs[name] = work / "sim_vgn" / f"{arrangement}_{name}"
+            step = f"sim_vgn_{prefix}{arrangement}_{name}"
+            logdir = logdirs[name] = work / "sim_vgn" / f"{prefix}{arrangement}_{name}"
             if logdir.exists() and steps.saved(step) is None:
                 shutil.rmtree(logdir)
             argv = [
                 "--model", str(model), "--logdir", str(logdir), "--description", name, "--scene", arrangement,
-                "--object-set", "test", "--num-objects", "5", "--num-rounds", str(args.rounds),
+                "--object-set", object_set, "--num-objects", "5", "--num-rounds", str(rounds_asked),
                 "--seed", str(args.seed + 1),
             ]  # fmt: skip
             jobs.append(steps.vgn_job(step, "sim_grasp.py", argv, args.seed, args.threads, detect))
@@ -800,7 +811,7 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
             rounds = pd.read_csv(run_dir / "rounds.csv")
             grasps = pd.read_csv(run_dir / "grasps.csv")
             row = _row(
-                "vgn",
+                sim,
                 arrangement,
                 f"vgn_net_{name}",
                 len(rounds),
@@ -968,7 +979,9 @@ def targets(rows: list[dict]) -> list[str]:
     out = []
     by = {(r["sim"], r["arrangement"], r["policy"]): r for r in rows}
     for detect, suffix in (("VGN's detection", ""), ("best-first", "_best")):
-        for sim, arrangement in sorted({(r["sim"], r["arrangement"]) for r in rows}):
+        for sim, arrangement in sorted(
+            {(r["sim"], r["arrangement"]) for r in rows if r["sim"] != "vgn-seen"}
+        ):
             ours = by.get((sim, arrangement, f"vgn_net_ours{suffix}"))
             theirs = by.get((sim, arrangement, f"vgn_net_vgn{suffix}"))
             if ours and theirs:
@@ -1047,6 +1060,12 @@ def parser() -> Parser:
         help="the labels oracle's rounds (20; quick 1)",
     )
     parser.add_argument(
+        "--seen-rounds",
+        type=count(0, 100_000),
+        default=None,
+        help="best-first piles of the training objects in VGN's simulation per network (20; quick 1; 0 none)",
+    )
+    parser.add_argument(
         "--views", type=count(1, 100), default=3, help="our scenes' depth views, labels and policies"
     )
     parser.add_argument("--arrangements", nargs="+", default=["pile", "packed"], choices=["pile", "packed"])
@@ -1085,9 +1104,9 @@ def parser() -> Parser:
 def main() -> None:
     args = parser().parse_args()
     quick = {"grasps": 240, "per_family": 1, "epochs": 1, "batch_size": 2, "val_split": 0.5, "rounds": 2,
-             "oracle_rounds": 1}  # fmt: skip
+             "oracle_rounds": 1, "seen_rounds": 1}  # fmt: skip
     full = {"grasps": 9600, "per_family": 4, "epochs": 3, "batch_size": 32, "val_split": 0.1, "rounds": 40,
-            "oracle_rounds": 20}  # fmt: skip
+            "oracle_rounds": 20, "seen_rounds": 20}  # fmt: skip
     for key, value in (quick if args.quick else full).items():
         if getattr(args, key) is None:
             setattr(args, key, value)

@@ -262,9 +262,12 @@ def test_targets_compare_each_detection_and_count_no_attempt_as_losing():
         row("ours", "vgn_net_vgn_best", 120, 30),
         row("ours", "vgn_net_ours_best", 130, 80),
         row("ours", "vision_random", 150, 60),
+        row("vgn-seen", "vgn_net_vgn_best", 150, 140),
+        row("vgn-seen", "vgn_net_ours_best", 150, 10),
     ]
     assert math.isnan(rows[0]["success"])
     lines = peer_network.targets(rows)
+    assert not any("vgn-seen" in line for line in lines)  # the training objects judge no target
     assert lines[0].startswith("vgn pile (VGN's detection)") and lines[0].endswith("target NOT met")
     assert "on VGN's nan %, 0.0 %; 0 attempts (>= 100)" in lines[0]
     best = [line for line in lines if "(best-first)" in line]
