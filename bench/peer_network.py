@@ -49,7 +49,7 @@ through a launcher that seeds ``random``, NumPy and torch and sets torch's threa
    a few thousand grasps may rate nothing above 0.9 and so never be judged by VGN's detection;
    best-first judges what its ratings chose. Its rows are named ``vgn_net_<labels>_best``.
    Beside them, best-first piles of the training objects in VGN's simulation (``--seen-rounds``,
-   sim ``vgn-seen``): what a network learned of the objects it saw, apart from what it carries
+   sim ``vgn_seen``): what a network learned of the objects it saw, apart from what it carries
    to objects it did not (no target reads them).
 
 ``--work OUT`` keeps every file; the same command with the same ``--work`` resumes a run that
@@ -783,7 +783,7 @@ def _row(
 def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[dict]:
     """VGN's sim_grasp.py with each network, piles and packed, the same seed (the same piles); an
     arrangement's networks judged side by side (one process each). Then, with ``--seen-rounds``,
-    best-first piles of the training objects (rows of sim ``vgn-seen``): what each network learned
+    best-first piles of the training objects (rows of sim ``vgn_seen``): what each network learned
     of the objects it saw, apart from what it carries to others."""
     rows = []
     passes = [
@@ -791,7 +791,7 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
         for a, d in itertools.product(args.arrangements, args.detections)
     ]
     if args.seen_rounds:
-        passes.append(("train", "pile", "best", args.seen_rounds, "vgn-seen", "seen_"))
+        passes.append(("train", "pile", "best", args.seen_rounds, "vgn_seen", "seen_"))
     for object_set, arrangement, detect, rounds_asked, sim, prefix in passes:
         jobs, logdirs = [], {}
         for name, model in models.items():
@@ -980,7 +980,7 @@ def targets(rows: list[dict]) -> list[str]:
     by = {(r["sim"], r["arrangement"], r["policy"]): r for r in rows}
     for detect, suffix in (("VGN's detection", ""), ("best-first", "_best")):
         for sim, arrangement in sorted(
-            {(r["sim"], r["arrangement"]) for r in rows if r["sim"] != "vgn-seen"}
+            {(r["sim"], r["arrangement"]) for r in rows if r["sim"] != "vgn_seen"}
         ):
             ours = by.get((sim, arrangement, f"vgn_net_ours{suffix}"))
             theirs = by.get((sim, arrangement, f"vgn_net_vgn{suffix}"))
@@ -1007,6 +1007,27 @@ def targets(rows: list[dict]) -> list[str]:
 def _at_least(ours: dict, theirs: dict, key: str) -> bool:
     """``ours[key] >= theirs[key]``, a figure of no attempt (NaN) never at least another."""
     return not math.isnan(ours[key]) and (math.isnan(theirs[key]) or ours[key] >= theirs[key])
+
+
+def record_judged(record: Run, rows: list[dict]) -> None:
+    """Each judged row's success and percent cleared as figures of ``record``, named
+    ``<sim>_<arrangement>_<policy>_success`` and ``_cleared``, with their 95 % Wilson intervals."""
+    for row in rows:
+        key = f"{row['sim']}_{row['arrangement']}_{row['policy']}"
+        record.figure(
+            f"{key}_success",
+            row["success"],
+            "%",
+            spread=(row["success_lo"], row["success_hi"]),
+            note=f"95 % Wilson, {row['successes']} of {row['attempts']} attempts",
+        )
+        record.figure(
+            f"{key}_cleared",
+            row["cleared"],
+            "%",
+            spread=(row["cleared_lo"], row["cleared_hi"]),
+            note=f"95 % Wilson, {row['successes']} of {row['objects']} objects",
+        )
 
 
 def whole_bench(commands: list[dict], judged: list[dict]) -> dict:
@@ -1133,22 +1154,7 @@ def main() -> None:
             return
         rows = judge_vgn(args, steps, work, models)
         rows += judge_ours(args, work, models)
-        for row in rows:
-            key = f"{row['sim']}_{row['arrangement']}_{row['policy']}"
-            record.figure(
-                f"{key}_success",
-                row["success"],
-                "%",
-                spread=(row["success_lo"], row["success_hi"]),
-                note=f"95 % Wilson, {row['successes']} of {row['attempts']} attempts",
-            )
-            record.figure(
-                f"{key}_cleared",
-                row["cleared"],
-                "%",
-                spread=(row["cleared_lo"], row["cleared_hi"]),
-                note=f"95 % Wilson, {row['successes']} of {row['objects']} objects",
-            )
+        record_judged(record, rows)
         record.table("clutter_removal", rows, note="grasp success and percent cleared, 95 % Wilson intervals")
         record.table(
             "ours_by_object",

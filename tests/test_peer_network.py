@@ -262,12 +262,12 @@ def test_targets_compare_each_detection_and_count_no_attempt_as_losing():
         row("ours", "vgn_net_vgn_best", 120, 30),
         row("ours", "vgn_net_ours_best", 130, 80),
         row("ours", "vision_random", 150, 60),
-        row("vgn-seen", "vgn_net_vgn_best", 150, 140),
-        row("vgn-seen", "vgn_net_ours_best", 150, 10),
+        row("vgn_seen", "vgn_net_vgn_best", 150, 140),
+        row("vgn_seen", "vgn_net_ours_best", 150, 10),
     ]
     assert math.isnan(rows[0]["success"])
     lines = peer_network.targets(rows)
-    assert not any("vgn-seen" in line for line in lines)  # the training objects judge no target
+    assert not any("vgn_seen" in line for line in lines)  # the training objects judge no target
     assert lines[0].startswith("vgn pile (VGN's detection)") and lines[0].endswith("target NOT met")
     assert "on VGN's nan %, 0.0 %; 0 attempts (>= 100)" in lines[0]
     best = [line for line in lines if "(best-first)" in line]
@@ -291,3 +291,35 @@ def test_ratings_of_the_executed_grasps(tmp_path):
     (tmp_path / "grasps.csv").write_text("")
     empty = peer_network._kept_ratings(tmp_path / "grasps.csv")
     assert math.isnan(empty["rating_median"]) and math.isnan(empty["rated_0_9"])
+
+
+def test_every_judged_row_is_a_figure_the_record_takes(tmp_path):
+    """record_judged: the rows of every simulation the bench judges in (VGN's, ours, VGN's on the
+    training objects) become figures of a real record, named by simulation, arrangement and
+    policy; a row of no attempt is kept with no value."""
+    import json
+
+    from bench.harness import Run
+
+    rows = [
+        peer_network._row(sim, arrangement, policy, 40, 150, attempts, successes)
+        for sim, arrangement, policy, attempts, successes in (
+            ("vgn", "pile", "vgn_net_vgn", 0, 0),
+            ("vgn_seen", "pile", "vgn_net_ours_best", 50, 10),
+            ("ours", "packed", "vision_random", 117, 90),
+        )
+    ]
+    with Run("demo", results=tmp_path, command="demo") as run:
+        peer_network.record_judged(run, rows)
+    figures = {f["name"]: f for f in json.loads(run.path.read_text())["figures"]}
+    assert list(figures) == [
+        "vgn_pile_vgn_net_vgn_success",
+        "vgn_pile_vgn_net_vgn_cleared",
+        "vgn_seen_pile_vgn_net_ours_best_success",
+        "vgn_seen_pile_vgn_net_ours_best_cleared",
+        "ours_packed_vision_random_success",
+        "ours_packed_vision_random_cleared",
+    ]
+    assert figures["vgn_pile_vgn_net_vgn_success"]["value"] is None
+    assert figures["vgn_seen_pile_vgn_net_ours_best_success"]["value"] == 20.0
+    assert figures["ours_packed_vision_random_cleared"]["note"] == "95 % Wilson, 90 of 150 objects"
