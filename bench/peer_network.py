@@ -585,6 +585,21 @@ def clean_vgn_raw(raw: Path, size: float) -> dict:
     }
 
 
+def positive_widths(grasps_csv: Path) -> dict:
+    """The widths (mm) of the positives a network trains its width on (VGN's loss weighs width
+    on positives only): 5th percentile, median and 95th percentile of a raw ``grasps.csv``."""
+    widths = 1000 * pd.read_csv(grasps_csv).query("label == 1")["width"].to_numpy(dtype=float)
+    if len(widths) == 0:
+        return {"positive_width_p05_mm": float("nan"), "positive_width_median_mm": float("nan"),
+                "positive_width_p95_mm": float("nan")}  # fmt: skip
+    p05, median, p95 = np.percentile(widths, [5, 50, 95])
+    return {
+        "positive_width_p05_mm": round(float(p05), 1),
+        "positive_width_median_mm": round(float(median), 1),
+        "positive_width_p95_mm": round(float(p95), 1),
+    }
+
+
 def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dict[str, Path]:
     """Step 2: VGN's labels and ours on the training objects, cleaned; VGN's datasets of both."""
     vgn_raw, ours_labels, ours_raw = work / "raw_vgn", work / "labels_ours", work / "raw_ours"
@@ -630,6 +645,7 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
             "cpu_s": round(cpu_vgn, 1),
             "timed_grasps": timed_vgn,
             **counts,
+            **positive_widths(vgn_raw / "grasps.csv"),
         }
     )
     labels = pd.read_parquet(ours_labels)
@@ -660,6 +676,7 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
             "dropped": next((v for k, v in left.items() if k.startswith("negatives")), 0),
             "kept": len(kept),
             "kept_positives": int(kept["label"].sum()),
+            **positive_widths(ours_raw / "grasps.csv"),
         }
     )
     for row in rows:
@@ -686,6 +703,14 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
             row["cpu_s"] / max(row["timed_grasps"], 1),
             "CPU-s",
             note="CPU-seconds per labelled grasp, over the step's last run",
+        )
+    for row in rows:
+        record.figure(
+            f"labels_{row['labels']}_positive_width_median",
+            row["positive_width_median_mm"],
+            "mm",
+            spread=(row["positive_width_p05_mm"], row["positive_width_p95_mm"]),
+            note="the widths of the positives left to train on: median, 5th to 95th percentile",
         )
     record.table("labels", rows, note="before and after VGN's data notebook's cleanup")
     datasets = {}

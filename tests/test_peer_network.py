@@ -323,3 +323,19 @@ def test_every_judged_row_is_a_figure_the_record_takes(tmp_path):
     assert figures["vgn_pile_vgn_net_vgn_success"]["value"] is None
     assert figures["vgn_seen_pile_vgn_net_ours_best_success"]["value"] == 20.0
     assert figures["ours_packed_vision_random_cleared"]["note"] == "95 % Wilson, 90 of 150 objects"
+
+
+def test_the_widths_a_network_learns_are_those_of_the_positives(tmp_path):
+    """positive_widths: percentiles (mm) of the positives' widths only (VGN's width loss weighs
+    positives only; its negatives carry the open width); no positive gives NaN."""
+    csv = tmp_path / "grasps.csv"
+    widths = [0.01 * k for k in range(1, 8)]  # 10 to 70 mm
+    pd.DataFrame({"width": [*widths, 0.08, 0.08], "label": [1] * 7 + [0, 0]}).to_csv(csv, index=False)
+    got = peer_network.positive_widths(csv)
+    assert got == {
+        "positive_width_p05_mm": 13.0,
+        "positive_width_median_mm": 40.0,
+        "positive_width_p95_mm": 67.0,
+    }
+    pd.DataFrame({"width": [0.08], "label": [0]}).to_csv(csv, index=False)
+    assert all(math.isnan(v) for v in peer_network.positive_widths(csv).values())
