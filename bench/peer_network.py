@@ -600,6 +600,28 @@ def positive_widths(grasps_csv: Path) -> dict:
     }
 
 
+def widths_by_family(labels: pd.DataFrame) -> list[dict]:
+    """Our labels' positives (``success``) per training-object family (the ``object_id``'s letters
+    before its number, as :func:`training_meshes` names them): count, share of all positives,
+    and the 25th, 50th and 75th percentile of their widths (mm)."""
+    held = labels[labels["success"].astype(bool)]
+    family = held["object_id"].str.extract(r"^([a-z]+)", expand=False)
+    rows = []
+    for name, widths in held["width"].groupby(family):
+        q1, median, q3 = 1000 * np.percentile(widths.to_numpy(dtype=float), [25, 50, 75])
+        rows.append(
+            {
+                "family": name,
+                "positives": len(widths),
+                "share": round(100 * len(widths) / len(held), 1),
+                "width_q1_mm": round(float(q1), 1),
+                "width_median_mm": round(float(median), 1),
+                "width_q3_mm": round(float(q3), 1),
+            }
+        )
+    return rows
+
+
 def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dict[str, Path]:
     """Step 2: VGN's labels and ours on the training objects, cleaned; VGN's datasets of both."""
     vgn_raw, ours_labels, ours_raw = work / "raw_vgn", work / "labels_ours", work / "raw_ours"
@@ -713,6 +735,12 @@ def make_labels(args, steps: Steps, work: Path, train: Path, record: Run) -> dic
             note="the widths of the positives left to train on: median, 5th to 95th percentile",
         )
     record.table("labels", rows, note="before and after VGN's data notebook's cleanup")
+    record.table(
+        "ours_positive_widths",
+        widths_by_family(labels),
+        note="our labels' positives by training-object family: how many and their widths (mm); "
+        "VGN's generator does not record which object a grasp is on",
+    )
     datasets = {}
     for name, raw in (("vgn", vgn_raw), ("ours", ours_raw)):
         datasets[name] = work / f"dataset_{name}"

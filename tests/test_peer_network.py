@@ -339,3 +339,20 @@ def test_the_widths_a_network_learns_are_those_of_the_positives(tmp_path):
     }
     pd.DataFrame({"width": [0.08], "label": [0]}).to_csv(csv, index=False)
     assert all(math.isnan(v) for v in peer_network.positive_widths(csv).values())
+
+
+def test_our_positives_widths_by_training_object_family():
+    """widths_by_family: positives only, grouped by the family of the training object's name."""
+    labels = pd.DataFrame(
+        {
+            "object_id": ["bowl_0", "bowl_3", "box_1", "box_1", "box_2", "mug_0"],
+            "success": [True, True, True, True, False, False],
+            "width": [0.006, 0.008, 0.040, 0.044, 0.010, 0.030],
+        }
+    )
+    assert peer_network.widths_by_family(labels) == [
+        {"family": "bowl", "positives": 2, "share": 50.0, "width_q1_mm": 6.5, "width_median_mm": 7.0,
+         "width_q3_mm": 7.5},
+        {"family": "box", "positives": 2, "share": 50.0, "width_q1_mm": 41.0, "width_median_mm": 42.0,
+         "width_q3_mm": 43.0},
+    ]  # fmt: skip
