@@ -957,13 +957,15 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
 def ratings(grasps: pd.DataFrame) -> dict:
     """The network's ratings of the grasps it executed (a clutter removal's ``grasps.csv``, its
     ``score`` column: VGN's quality of each): their median and the share rated at least 0.9 (what
-    VGN's detection keeps), NaN with no attempt."""
+    VGN's detection keeps), and the executed widths' median (mm, its ``width``); NaN with no
+    attempt."""
     if len(grasps) == 0 or "score" not in grasps:
-        return {"rating_median": float("nan"), "rated_0_9": float("nan")}
+        return {"rating_median": float("nan"), "rated_0_9": float("nan"), "width_median_mm": float("nan")}
     scores = grasps["score"].to_numpy(dtype=float)
     return {
         "rating_median": round(float(np.median(scores)), 3),
         "rated_0_9": round(100 * float(np.mean(scores >= 0.9)), 1),
+        "width_median_mm": round(1000 * float(np.median(grasps["width"].to_numpy(dtype=float))), 1),
     }
 
 

@@ -286,11 +286,17 @@ def test_targets_compare_each_detection_and_count_no_attempt_as_losing():
 def test_ratings_of_the_executed_grasps(tmp_path):
     """ratings: the median of the executed grasps' qualities and the share VGN's 0.9 keeps; a
     kept grasps.csv with no attempt (empty) gives NaN."""
-    grasps = pd.DataFrame({"score": [0.95, 0.85, 0.9, 0.5], "label": [1, 0, 1, 0]})
-    assert peer_network.ratings(grasps) == {"rating_median": 0.875, "rated_0_9": 50.0}
+    grasps = pd.DataFrame(
+        {"score": [0.95, 0.85, 0.9, 0.5], "label": [1, 0, 1, 0], "width": [0.03, 0.05, 0.04, 0.02]}
+    )
+    assert peer_network.ratings(grasps) == {
+        "rating_median": 0.875,
+        "rated_0_9": 50.0,
+        "width_median_mm": 35.0,
+    }
     (tmp_path / "grasps.csv").write_text("")
     empty = peer_network._kept_ratings(tmp_path / "grasps.csv")
-    assert math.isnan(empty["rating_median"]) and math.isnan(empty["rated_0_9"])
+    assert all(math.isnan(v) for v in empty.values()) and len(empty) == 3
 
 
 def test_every_judged_row_is_a_figure_the_record_takes(tmp_path):
