@@ -1069,20 +1069,14 @@ def record_judged(record: Run, rows: list[dict]) -> None:
     ``<sim>_<arrangement>_<policy>_success`` and ``_cleared``, with their 95 % Wilson intervals."""
     for row in rows:
         key = f"{row['sim']}_{row['arrangement']}_{row['policy']}"
-        record.figure(
-            f"{key}_success",
-            row["success"],
-            "%",
-            spread=(row["success_lo"], row["success_hi"]),
-            note=f"95 % Wilson, {row['successes']} of {row['attempts']} attempts",
-        )
-        record.figure(
-            f"{key}_cleared",
-            row["cleared"],
-            "%",
-            spread=(row["cleared_lo"], row["cleared_hi"]),
-            note=f"95 % Wilson, {row['successes']} of {row['objects']} objects",
-        )
+        for figure, out_of in (("success", "attempts"), ("cleared", "objects")):
+            record.figure(
+                f"{key}_{figure}",
+                row[figure],
+                "%",
+                spread=(row[f"{figure}_lo"], row[f"{figure}_hi"]),
+                note=f"95 % Wilson, {row['successes']} of {row[out_of]} {out_of}",
+            )
 
 
 def whole_bench(commands: list[dict], judged: list[dict]) -> dict:
