@@ -529,6 +529,10 @@ class Steps:
         cpu = {running[pid][0]: done[pid][0] for pid in order}
         return [cpu[step] if row is None else row["cpu_s"] for step, row in saved.items()]
 
+    def forget(self, step: str) -> None:
+        """Make ``step`` run again: its row from an earlier run of this --work is dropped."""
+        (self.logs / f"{step}.done.json").unlink(missing_ok=True)
+
     def saved(self, step: str) -> dict | None:
         """The row of ``step`` if an earlier run of this --work finished it, else None."""
         path = self.logs / f"{step}.done.json"
@@ -851,6 +855,11 @@ def judge_vgn(args, steps: Steps, work: Path, models: dict[str, Path]) -> list[d
             name = _judged(name, detect)
             step = f"sim_vgn_{prefix}{arrangement}_{name}"
             logdir = logdirs[name] = work / "sim_vgn" / f"{prefix}{arrangement}_{name}"
+            saved = steps.saved(step)
+            if saved is not None and rounds_of(saved["command"]) != rounds_asked:
+                before = rounds_of(saved["command"])
+                print(f"[{step}] judged over {before} rounds before, {rounds_asked} asked: again")
+                steps.forget(step)
             if logdir.exists() and steps.saved(step) is None:
                 shutil.rmtree(logdir)
             argv = [
@@ -911,6 +920,10 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
                 )
             rounds = args.oracle_rounds if policy == "labels" else args.rounds
             keep = work / "sim_ours" / f"{arrangement}_{label}"
+            kept = json.loads((keep / "row.json").read_text()) if (keep / "row.json").exists() else None
+            if kept is not None and kept["rounds"] != rounds:
+                print(f"[{keep.name}] judged over {kept['rounds']} rounds before, {rounds} asked: again")
+                shutil.rmtree(keep)
             if (keep / "row.json").exists():  # finished by an earlier run of this --work
                 row = json.loads((keep / "row.json").read_text()) | {"resumed": True}
                 rows.append(row | (_kept_ratings(keep / "grasps.csv") if model is not None else {}))
@@ -975,6 +988,12 @@ def _kept_ratings(path: Path) -> dict:
         return ratings(pd.read_csv(path))
     except (pd.errors.EmptyDataError, FileNotFoundError):
         return ratings(pd.DataFrame())
+
+
+def rounds_of(command: str) -> int | None:
+    """The rounds a kept sim_grasp.py command asked for (its ``--num-rounds``); None if none."""
+    found = re.search(r"--num-rounds (\d+)", command)
+    return int(found.group(1)) if found else None
 
 
 def _judged(name: str, detect: str) -> str:

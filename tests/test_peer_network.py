@@ -362,3 +362,18 @@ def test_our_positives_widths_by_training_object_family():
         {"family": "box", "positives": 2, "share": 50.0, "width_q1_mm": 41.0, "width_median_mm": 42.0,
          "width_q3_mm": 43.0},
     ]  # fmt: skip
+
+
+def test_a_judging_kept_for_other_rounds_runs_again(tmp_path):
+    """rounds_of reads a kept sim_grasp.py command's rounds; Steps.forget drops a kept step so that
+    the next run runs it (judging asked for other --rounds on the same --work)."""
+    import sys
+    from types import SimpleNamespace as NS
+
+    shown = "python scripts/sim_grasp.py --model m.pt --num-rounds 40 --seed 1  (seeded 0)"
+    assert peer_network.rounds_of(shown) == 40 and peer_network.rounds_of("python x.py") is None
+    steps = peer_network.Steps(NS(nice=0), tmp_path)
+    steps.run("judge", [sys.executable, "-c", "0"])
+    assert peer_network.Steps(NS(nice=0), tmp_path).saved("judge") is not None
+    steps.forget("judge")
+    assert peer_network.Steps(NS(nice=0), tmp_path).saved("judge") is None
