@@ -57,7 +57,7 @@ stopped: steps that finished are not run again (their rows are kept), VGN's labe
 for the grasps it still owes (it appends), ``annotate`` resumes its own folder. VGN's training
 cannot resume: a training cut short starts again. ``--until labels`` (or ``training``) stops after
 that stage and writes its record (tagged ``until-labels``), so a run measured in parts has a record
-of each part.
+of each part; a ``--quick`` run's record is tagged ``quick``.
 
 Printed against the targets: the network trained on our labels at least as good as the one
 trained on VGN's (success and percent cleared, both simulations, piles and packed, >= 100
@@ -1111,6 +1111,15 @@ def whole_bench(commands: list[dict], judged: list[dict]) -> dict:
     }
 
 
+def run_tag(quick: bool, until: str) -> str | None:
+    """The record's tag: ``quick`` for a --quick run and ``until-STAGE`` for a run stopped after a
+    stage (so that neither stands for the full run on the performance page); None for a full run."""
+    parts = ["quick"] if quick else []
+    if until != STAGES[-1]:
+        parts.append(f"until-{until}")
+    return "-".join(parts) or None
+
+
 def parser() -> Parser:
     parser = Parser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -1206,7 +1215,7 @@ def main() -> None:
     print(
         f"VGN: {args.vgn} at {provenance['commit']} ({provenance['branch']}), licence: {provenance['licence']}"  # noqa: E501
     )
-    tag = None if args.until == STAGES[-1] else f"until-{args.until}"
+    tag = run_tag(args.quick, args.until)
     with Run("peer_network", config=recorded, tag=tag) as record, tempfile.TemporaryDirectory() as tmp:
         work = (args.work or Path(tmp)).resolve()
         work.mkdir(parents=True, exist_ok=True)

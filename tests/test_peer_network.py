@@ -377,3 +377,12 @@ def test_a_judging_kept_for_other_rounds_runs_again(tmp_path):
     assert peer_network.Steps(NS(nice=0), tmp_path).saved("judge") is not None
     steps.forget("judge")
     assert peer_network.Steps(NS(nice=0), tmp_path).saved("judge") is None
+
+
+def test_quick_and_partial_runs_are_tagged_apart_from_the_full_run():
+    """run_tag: a full run has no tag; --quick, --until and both are told apart."""
+    last = peer_network.STAGES[-1]
+    assert peer_network.run_tag(False, last) is None
+    assert peer_network.run_tag(True, last) == "quick"
+    assert peer_network.run_tag(False, "labels") == "until-labels"
+    assert peer_network.run_tag(True, "training") == "quick-until-training"
