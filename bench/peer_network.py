@@ -592,16 +592,16 @@ def clean_vgn_raw(raw: Path, size: float) -> dict:
 def positive_widths(grasps_csv: Path) -> dict:
     """The widths (mm) of the positives a network trains its width on (VGN's loss weighs width
     on positives only): 5th percentile, median and 95th percentile of a raw ``grasps.csv``."""
-    widths = 1000 * pd.read_csv(grasps_csv).query("label == 1")["width"].to_numpy(dtype=float)
+    widths = pd.read_csv(grasps_csv).query("label == 1")["width"]
+    p05, median, p95 = _mm_percentiles(widths, (5, 50, 95))
+    return {"positive_width_p05_mm": p05, "positive_width_median_mm": median, "positive_width_p95_mm": p95}
+
+
+def _mm_percentiles(widths: pd.Series, qs: tuple[float, ...]) -> list[float]:
+    """Percentiles ``qs`` of ``widths`` (m) in mm, to 0.1 mm; NaN each for no width."""
     if len(widths) == 0:
-        return {"positive_width_p05_mm": float("nan"), "positive_width_median_mm": float("nan"),
-                "positive_width_p95_mm": float("nan")}  # fmt: skip
-    p05, median, p95 = np.percentile(widths, [5, 50, 95])
-    return {
-        "positive_width_p05_mm": round(float(p05), 1),
-        "positive_width_median_mm": round(float(median), 1),
-        "positive_width_p95_mm": round(float(p95), 1),
-    }
+        return [float("nan")] * len(qs)
+    return [round(float(v), 1) for v in 1000 * np.percentile(widths.to_numpy(dtype=float), qs)]
 
 
 def widths_by_family(labels: pd.DataFrame) -> list[dict]:
@@ -612,15 +612,15 @@ def widths_by_family(labels: pd.DataFrame) -> list[dict]:
     family = held["object_id"].str.extract(r"^([a-z]+)", expand=False)
     rows = []
     for name, widths in held["width"].groupby(family):
-        q1, median, q3 = 1000 * np.percentile(widths.to_numpy(dtype=float), [25, 50, 75])
+        q1, median, q3 = _mm_percentiles(widths, (25, 50, 75))
         rows.append(
             {
                 "family": name,
                 "positives": len(widths),
                 "share": round(100 * len(widths) / len(held), 1),
-                "width_q1_mm": round(float(q1), 1),
-                "width_median_mm": round(float(median), 1),
-                "width_q3_mm": round(float(q3), 1),
+                "width_q1_mm": q1,
+                "width_median_mm": median,
+                "width_q3_mm": q3,
             }
         )
     return rows
@@ -924,8 +924,8 @@ def judge_ours(args, work: Path, models: dict[str, Path]) -> list[dict]:
             if kept is not None and kept["rounds"] != rounds:
                 print(f"[{keep.name}] judged over {kept['rounds']} rounds before, {rounds} asked: again")
                 shutil.rmtree(keep)
-            if (keep / "row.json").exists():  # finished by an earlier run of this --work
-                row = json.loads((keep / "row.json").read_text()) | {"resumed": True}
+            elif kept is not None:  # finished by an earlier run of this --work
+                row = kept | {"resumed": True}
                 rows.append(row | (_kept_ratings(keep / "grasps.csv") if model is not None else {}))
                 _print(rows[-1])
                 continue

@@ -195,7 +195,12 @@ def to_tcp(rows: np.ndarray, observation: Observation) -> Grasps:
 
 
 def vgn(
-    observation: Observation, model: str, vgn: str, python: str, threads: str = "1", threshold: str = "0.9"
+    observation: Observation,
+    model: str,
+    vgn: str,
+    python: str,
+    threads: str = "1",
+    threshold: str = str(THRESHOLD),
 ) -> Grasps:
     """The vision policy: VGN's detections on the observation's grid (module docstring).
     ``model``: a state dict saved by VGN's ``train_vgn.py``; ``vgn``: the checkout; ``python``:
